@@ -1,0 +1,8 @@
+"""qcontrol: adaptive backstepping control of uncertain nonlinear systems with quantized states.
+
+Implements Sun et al., "Global Adaptive Control for Uncertain Nonlinear Systems under
+Non-Lipschitz Condition with Quantized States", Electronics 2022, 11, 3160. The data flow is
+quantizer -> controller -> plant (ODE or MuJoCo) -> closed-loop engine -> recording/plots/metrics.
+"""
+
+__version__ = "0.1.0"

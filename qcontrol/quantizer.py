@@ -1,0 +1,66 @@
+"""State quantizers, SPEC section 2, the paper's eqs. (3)-(4).
+
+The controller only ever sees ``q(x)``; the engine applies a :class:`Quantizer` to every sensor
+reading before the controller is called.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from .errors import QcontrolInputError
+
+
+@runtime_checkable
+class Quantizer(Protocol):
+    """Anything that maps readings to quantized readings, elementwise, with a known bound.
+
+    ``max_error`` is the bound of property (4): ``|q(x) - x| <= max_error`` for every real x.
+    Lemma 2's bounds are computed from it, so a plugged-in quantizer must state it honestly.
+    """
+
+    max_error: float
+
+    def __call__(self, x: np.ndarray) -> np.ndarray: ...
+
+
+class UniformQuantizer:
+    """Uniform mid-tread quantizer with step ``delta`` and infinitely many levels, eq. (3).
+
+    ``q(x) = l * delta`` for ``(2l-1) delta/2 <= x < (2l+1) delta/2``, i.e.
+    ``q(x) = delta * floor(x / delta + 1/2)``. Property (4): ``|q(x) - x| <= delta / 2``.
+    """
+
+    def __init__(self, delta: float) -> None:
+        if not (np.isfinite(delta) and delta > 0):
+            raise QcontrolInputError(f"quantizer step delta must be a finite number > 0, got {delta!r}")
+        self.delta = float(delta)
+        self.max_error = self.delta / 2.0
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        return self.delta * np.floor(np.asarray(x, dtype=float) / self.delta + 0.5)
+
+    def __repr__(self) -> str:
+        return f"UniformQuantizer(delta={self.delta!r})"
+
+
+class QuantizedReading:
+    """Sensor readings after quantization: the only state a controller accepts (Assumption 2).
+
+    Controllers refuse plain arrays, so the true state cannot be handed to them by accident.
+    ``max_error`` carries the quantizer's bound so the controller can check that its Lemma 2
+    bounds were computed for this quantizer.
+    """
+
+    __slots__ = ("values", "max_error")
+
+    def __init__(self, values: np.ndarray, max_error: float) -> None:
+        self.values = values
+        self.max_error = max_error
+
+
+def quantize(quantizer: Quantizer, readings: np.ndarray) -> QuantizedReading:
+    """Apply ``quantizer`` to sensor ``readings`` (shape ``(batch, n)``)."""
+    return QuantizedReading(quantizer(readings), quantizer.max_error)

@@ -1,0 +1,206 @@
+"""The one closed-loop engine: fixed step, zero-order hold, for any :class:`~qcontrol.plants.Plant`.
+
+One step of the loop (DESIGN "Data flow"):
+
+    plant state -> sensor reading -> quantizer -> controller (u, adaptive law) -> actuator -> plant
+
+The controller is evaluated every ``control_period`` (a multiple of ``dt``); ``u`` and the
+quantized reading are held in between, and the adaptive state is integrated exactly under that
+hold. Every row of a :class:`Trajectory` is one instant ``t_k = k dt``: the state there, what the
+controller read, and the input applied over ``[t_k, t_k + dt)``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .controller import Controller
+from .errors import QcontrolInputError
+from .plants.base import Plant
+from .quantizer import Quantizer, quantize
+from .reference import Reference
+
+ProgressCallback = Callable[[int, int], None]
+# observer(start_row, stop_row, runs): rows [start_row, stop_row) of every run are final and may
+# be streamed out (e.g. to a rerun recording); ``runs`` are views truncated at stop_row.
+Observer = Callable[[int, int, list["Trajectory"]], None]
+
+
+@dataclass
+class Trajectory:
+    """Everything one closed-loop run recorded; arrays are time-major (row k is ``t[k]``).
+
+    ``x`` is the true state, ``x_meas`` the sensor reading, ``x_q`` its quantization,
+    ``yd`` holds ``[y_d .. y_d^(n)]``, ``z`` the true errors (7)-(8) from ``x``, ``zbar`` the
+    quantized errors (31)-(33), ``e_z = |z(x_meas) - zbar|`` the Lemma 2 errors with bounds
+    ``L_z``, ``u`` the input held over the next step and ``adaptive`` the controller's adaptive
+    state (``eps_hat`` or ``theta_hat``, named by ``adaptive_name``).
+    """
+
+    t: np.ndarray
+    x: np.ndarray
+    x_meas: np.ndarray
+    x_q: np.ndarray
+    yd: np.ndarray
+    z: np.ndarray
+    zbar: np.ndarray
+    e_z: np.ndarray
+    u: np.ndarray
+    adaptive: np.ndarray
+    adaptive_name: str
+    L_z: np.ndarray
+    dt: float
+    duration: float
+    diverged: bool = False
+    diverged_time: float | None = None
+    divergence_reason: str = ""
+    wall_time_s: float = 0.0
+    info: dict = field(default_factory=dict)
+
+    @property
+    def y(self) -> np.ndarray:
+        return self.x[:, 0]
+
+    @property
+    def steps(self) -> int:
+        return len(self.t) - 1
+
+
+def step_count(duration: float, dt: float, what: str = "simulation.duration") -> int:
+    """Number of ``dt`` steps in ``duration``; refuses a duration that is not a multiple of dt."""
+    if not (np.isfinite(dt) and dt > 0):
+        raise QcontrolInputError(f"simulation.dt must be a finite number > 0, got {dt!r}")
+    if not (np.isfinite(duration) and duration > 0):
+        raise QcontrolInputError(f"{what} must be a finite number > 0, got {duration!r}")
+    steps = round(duration / dt)
+    if steps < 1 or abs(steps * dt - duration) > 1e-9 * max(1.0, duration):
+        raise QcontrolInputError(
+            f"{what} = {duration!r} is not a whole number of steps dt = {dt!r}; "
+            "choose a duration that is a multiple of dt"
+        )
+    return steps
+
+
+def simulate(
+    plant: Plant,
+    controller: Controller,
+    quantizer: Quantizer,
+    reference: Reference,
+    x0: np.ndarray,
+    duration: float,
+    dt: float,
+    control_period: float | None = None,
+    state_bound: float = 1e6,
+    progress: ProgressCallback | None = None,
+    observer: Observer | None = None,
+    observe_every: int = 2000,
+) -> list[Trajectory]:
+    """Run the closed loop for every copy in ``plant``'s batch; one :class:`Trajectory` each.
+
+    A copy whose state turns non-finite or leaves ``|x_i| <= state_bound`` stops there: its
+    trajectory ends with the offending row, ``diverged`` is set and the others run on.
+    ``observer`` is called every ``observe_every`` rows and once at the end with the rows that
+    became final, so a recorder can stream them to disk while the run goes on.
+    """
+    n, batch = plant.n, plant.batch
+    steps = step_count(duration, dt)
+    period = dt if control_period is None else control_period
+    hold = round(period / dt)
+    if hold < 1 or abs(hold * dt - period) > 1e-9 * period:
+        raise QcontrolInputError(
+            f"simulation.control_period = {period!r} must be a whole multiple of dt = {dt!r}"
+        )
+    rows = steps + 1
+    X = np.full((rows, batch, n), np.nan)
+    XM = np.full((rows, batch, n), np.nan)
+    XQ = np.full((rows, batch, n), np.nan)
+    YD = np.full((rows, n + 1), np.nan)
+    Z = np.full((rows, batch, n), np.nan)
+    ZB = np.full((rows, batch, n), np.nan)
+    EZ = np.full((rows, batch, n), np.nan)
+    U = np.full((rows, batch), np.nan)
+    S = np.full((rows, batch, controller.state_size), np.nan)
+    alive = np.ones(batch, dtype=bool)
+    kept = np.full(batch, rows)
+    reasons = [""] * batch
+    diverged_time: list[float | None] = [None] * batch
+
+    t_axis = np.arange(rows) * dt
+
+    def collect(lengths: np.ndarray, now: float) -> list[Trajectory]:
+        return [
+            Trajectory(
+                t=t_axis[: lengths[b]],
+                x=X[: lengths[b], b],
+                x_meas=XM[: lengths[b], b],
+                x_q=XQ[: lengths[b], b],
+                yd=YD[: lengths[b]],
+                z=Z[: lengths[b], b],
+                zbar=ZB[: lengths[b], b],
+                e_z=EZ[: lengths[b], b],
+                u=U[: lengths[b], b],
+                adaptive=S[: lengths[b], b],
+                adaptive_name=controller.state_name,
+                L_z=controller.L_z.copy(),
+                dt=dt,
+                duration=steps * dt,
+                diverged=diverged_time[b] is not None,
+                diverged_time=diverged_time[b],
+                divergence_reason=reasons[b],
+                wall_time_s=now - started,
+            )
+            for b in range(batch)
+        ]
+
+    x0 = np.broadcast_to(np.asarray(x0, dtype=float), (batch, n))
+    adaptive = controller.initial_state(batch)
+    started = time.perf_counter()
+    observed = 0
+    report_every = max(1, rows // 100)
+    with plant, np.errstate(all="ignore"):
+        plant.reset(x0)
+        for k in range(rows):
+            t = k * dt
+            x = plant.state()
+            meas = plant.read_sensors()
+            yd = reference.derivatives(t, n)
+            bad_state = ~np.isfinite(x).all(axis=1) | ~np.isfinite(adaptive).all(axis=1)
+            out_of_bounds = (np.abs(x) > state_bound).any(axis=1)
+            newly = alive & (bad_state | out_of_bounds)
+            for b in np.flatnonzero(newly):
+                kept[b] = k + 1
+                diverged_time[b] = t
+                reasons[b] = (
+                    "state or adaptive estimate became NaN/Inf"
+                    if bad_state[b]
+                    else f"state left the bound |x_i| <= {state_bound:g}"
+                )
+            alive &= ~newly
+
+            reading = quantize(quantizer, meas)
+            if k % hold == 0:
+                out = controller.control(reading, yd, adaptive)
+                zbar = out.zbar
+            else:
+                zbar, _ = controller.quantized_errors(reading.values, yd)
+            X[k], XM[k], XQ[k], YD[k] = x, meas, reading.values, yd
+            Z[k] = controller.errors(x, yd)
+            ZB[k] = zbar
+            EZ[k] = np.abs(controller.errors(meas, yd) - zbar)
+            U[k] = out.u
+            S[k] = adaptive
+            if progress is not None and (k % report_every == 0 or k == rows - 1):
+                progress(k, rows - 1)
+            finished = k == rows - 1 or not alive.any()
+            if observer is not None and (finished or (k + 1) % observe_every == 0):
+                observer(observed, k + 1, collect(np.minimum(kept, k + 1), time.perf_counter()))
+                observed = k + 1
+            if finished:
+                break
+            plant.step(out.u, dt)
+            adaptive = controller.advance(adaptive, out, dt)
+    return collect(kept, time.perf_counter())
