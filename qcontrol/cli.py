@@ -1,0 +1,165 @@
+"""The ``qcontrol`` command line: run, compare, reproduce.
+
+Exit status: 0 success; 1 the run diverged or a theory check failed; 2 bad input; 130 interrupted.
+Bad input is reported as one line on stderr, never as a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from . import __version__
+from .assembly import controller_L, run_scenario
+from .errors import QcontrolInputError
+from .metrics import summary
+from .outputs import prepare_output_dir, write_json
+from .scenario import BACKENDS, Scenario, load_scenario
+
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+LEMMA2_TOLERANCE = 1e-9  # rounding slack on |e_zi| / L_zi <= 1
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line and exit status 2."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _add_scenario_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scenario", type=Path, help="scenario file (TOML), e.g. scenarios/example2.toml")
+    p.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a scenario key, e.g. --set controller.kappa_margin=0.1 (repeatable; the value is "
+        "read as TOML, otherwise as a string)",
+    )
+    p.add_argument("--duration", type=float, metavar="S", help="simulated time in seconds")
+    p.add_argument("--dt", type=float, metavar="S", help="integration step in seconds")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog="qcontrol",
+        description=(
+            "Adaptive backstepping control with quantized states (Sun et al., Electronics 2022, "
+            "11, 3160) on an ideal ODE plant or on MuJoCo physics."
+        ),
+        epilog="Exit status: 0 ok, 1 diverged or a theory check failed, 2 bad input, 130 interrupted.",
+    )
+    parser.add_argument("--version", action="version", version=f"qcontrol {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+
+    run = sub.add_parser(
+        "run",
+        help="run one scenario and print a summary",
+        description="Run one closed loop: plant -> sensors -> quantizer -> controller -> actuator. "
+        "Prints a summary; with --out writes DIR/summary.json.",
+    )
+    _add_scenario_options(run)
+    run.add_argument("--backend", choices=BACKENDS, help="plant backend (default: the scenario's)")
+    run.add_argument("--out", type=Path, metavar="DIR", help="write DIR/summary.json")
+    return parser
+
+
+def _scenario_from_args(args: argparse.Namespace) -> Scenario:
+    overrides = list(args.overrides)
+    if args.duration is not None:
+        overrides.append(f"simulation.duration={args.duration!r}")
+    if args.dt is not None:
+        overrides.append(f"simulation.dt={args.dt!r}")
+    return load_scenario(args.scenario, overrides)
+
+
+class _Progress:
+    """A one-line progress indicator on stderr (only on a terminal, and not with --quiet)."""
+
+    def __init__(self, label: str, enabled: bool) -> None:
+        self.label = label
+        self.enabled = enabled and sys.stderr.isatty()
+        self.last = -1
+
+    def __call__(self, k: int, total: int) -> None:
+        if not self.enabled:
+            return
+        percent = 100 * k // max(total, 1)
+        if percent != self.last:
+            self.last = percent
+            sys.stderr.write(f"\r{self.label}: {percent:3d}%")
+            if k >= total:
+                sys.stderr.write("\n")
+            sys.stderr.flush()
+
+
+def format_summary(s: dict) -> str:
+    rates = "  ".join(f"E({k})={v:.4f}" for k, v in s["error_rate"].items())
+    lines = [
+        f"scenario {s['scenario']} on {s['backend']}: {s['steps']} steps of {s['dt']:g} s "
+        f"({s['duration']:g} s simulated) in {s['wall_time_s']:.2f} s",
+        f"  error rate: {rates}",
+        f"  max |z1| over the last half: {s['max_abs_z1_last_half']:.4g}    max |u|: {s['max_abs_u']:.4g}",
+        f"  final {s['adaptive_state']}: [{', '.join(f'{v:.4g}' for v in s['final_eps_hat'])}]",
+        f"  Lemma 2: max |e_zi|/L_zi = {s['lemma2_max_ratio']:.6f} (<= 1 holds: "
+        f"{'yes' if s['lemma2_max_ratio'] <= 1 + LEMMA2_TOLERANCE else 'NO'})",
+    ]
+    if s["diverged"]:
+        lines.append(f"  DIVERGED at t = {s['diverged_time']:g} s: {s['divergence_reason']}")
+    return "\n".join(lines)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    sc = _scenario_from_args(args)
+    backend = args.backend or sc.simulation.backend
+    if backend == "mujoco" and sc.mujoco is None:
+        raise QcontrolInputError(
+            f"{sc.source}: --backend mujoco needs a [plant.mujoco] table in the scenario; add one or use "
+            "--backend ode"
+        )
+    out = prepare_output_dir(args.out) if args.out else None
+    traj = run_scenario(sc, backend, progress=_Progress(f"{sc.name} [{backend}]", not args.quiet))
+    s = summary(traj, sc.name, backend)
+    s["L"] = controller_L(sc)
+    print(format_summary(s))
+    if out is not None:
+        write_json(out / "summary.json", s)
+        print(f"  wrote {out / 'summary.json'}")
+    return _status(s)
+
+
+def _status(s: dict) -> int:
+    if s["diverged"]:
+        return EXIT_FAILED
+    if not s["lemma2_max_ratio"] <= 1 + LEMMA2_TOLERANCE:
+        print("qcontrol: check failed: a Lemma 2 bound was exceeded", file=sys.stderr)
+        return EXIT_FAILED
+    return EXIT_OK
+
+
+COMMANDS = {"run": cmd_run}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    started = time.perf_counter()
+    try:
+        return COMMANDS[args.command](args)
+    except QcontrolInputError as exc:
+        print(f"qcontrol: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print(f"\nqcontrol: interrupted after {time.perf_counter() - started:.1f} s", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,86 @@
+"""Writing results atomically: a temporary name in the same folder, then ``os.replace``."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from .errors import QcontrolInputError
+
+
+def prepare_output_dir(path: str | Path) -> Path:
+    """Create ``path`` (and parents) and check it is writable; bad paths are input errors."""
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise QcontrolInputError(
+            f"--out {path}: cannot create the output folder ({exc.strerror}); choose a writable folder"
+        ) from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise QcontrolInputError(f"--out {path}: folder is not writable; choose a writable folder")
+    return path
+
+
+def check_output_file(path: str | Path, option: str) -> Path:
+    """Check that the folder of an output file exists (or can be made) and is writable."""
+    path = Path(path)
+    if path.is_dir():
+        raise QcontrolInputError(f"{option} {path}: is a folder; give a file name such as run.rrd")
+    parent = path.parent if str(path.parent) else Path(".")
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise QcontrolInputError(
+            f"{option} {path}: cannot create folder {parent} ({exc.strerror}); choose a writable place"
+        ) from None
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise QcontrolInputError(f"{option} {path}: folder {parent} is not writable; choose another")
+    return path
+
+
+@contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; on success it replaces ``path``, else is removed."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent or ".")
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        os.replace(tmp_path, path)
+    finally:
+        tmp_path.unlink(missing_ok=True)
+
+
+def _clean(value: Any) -> Any:
+    """JSON has no NaN/Inf: write them as null."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_clean(v) for v in value]
+    return value
+
+
+def write_json(path: str | Path, obj: Any) -> Path:
+    """Write ``obj`` as indented JSON, atomically."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(_clean(obj), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    return path
+
+
+def write_text(path: str | Path, text: str) -> Path:
+    """Write ``text`` atomically."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return path
