@@ -1,0 +1,130 @@
+"""The `qcontrol` command: output contract, exit statuses, one-line errors."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from qcontrol.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+EX1 = ROOT / "scenarios" / "example1.toml"
+EX2 = ROOT / "scenarios" / "example2.toml"
+SUMMARY_KEYS = {
+    "scenario", "backend", "duration", "dt", "steps", "wall_time_s", "diverged", "error_rate",
+    "max_abs_z1_last_half", "max_abs_u", "final_eps_hat", "lemma2_max_ratio",
+}
+
+
+def test_run_writes_summary_per_contract(tmp_path, capsys):
+    out = tmp_path / "ex2"
+    assert main(["run", str(EX2), "--out", str(out), "--duration", "2", "-q"]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert SUMMARY_KEYS <= set(s)
+    assert s["scenario"] == "example2" and s["backend"] == "ode"
+    assert s["duration"] == 2.0 and s["dt"] == 0.001 and s["steps"] == 2000
+    assert list(s["error_rate"]) == ["0.100", "0.125", "0.150", "0.175", "0.200"]
+    assert all(0.0 <= v <= 1.0 for v in s["error_rate"].values())
+    assert s["diverged"] is False and len(s["final_eps_hat"]) == 3
+    assert 0.5 < s["lemma2_max_ratio"] <= 1.0
+    assert list(out.iterdir()) == [out / "summary.json"]  # no temporary files left
+    printed = capsys.readouterr().out
+    assert "error rate" in printed and "Lemma 2" in printed
+
+
+def test_diverged_run_exit_1_and_summary_says_so(tmp_path):
+    out = tmp_path / "div"
+    status = main(["run", str(EX1), "--out", str(out), "-q", "--set", 'plant.psi="x2**3"',
+                   "--set", "simulation.state_bound=5.0"])
+    assert status == 1
+    s = json.loads((out / "summary.json").read_text())
+    assert s["diverged"] is True and 0 < s["diverged_time"] < 10
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    return path
+
+
+def _variant(old: str, new: str) -> str:
+    text = EX2.read_text()
+    assert old in text
+    return text.replace(old, new)
+
+
+BAD_SCENARIOS = {
+    "kappa <= L": (_variant("kappa_margin = 1.1", "kappa = 0.025"), "controller.kappa: must exceed L"),
+    "zero gain": (_variant("c = [4.0, 3.0]", "c = [4.0, 0.0]"), "controller.c[1]: must be > 0"),
+    "negative delta": (_variant("delta = 0.01", "delta = -0.01"), "controller.delta: must be > 0"),
+    "zero gamma": (_variant("gamma = 1.0", "gamma = 0"), "controller.gamma: must be > 0"),
+    "zero sigma": (_variant("sigma = 1.0", "sigma = 0.0"), "controller.sigma: must be > 0"),
+    "n < 2": (_variant("order = 2", "order = 1"), "plant.order: must be >= 2"),
+    "r length": (_variant('r = ["1 + q2**2", "1 + 2*q2**2", "1"]', 'r = ["1"]'), "controller.r: has 1"),
+    "theta length": (_variant("theta = [-1.0, -3.5, -34.3]", "theta = [-1.0]"), "plant.theta: has 1"),
+    "x0 length": (_variant("x0 = [0.3, 0.3]", "x0 = [0.3]"), "plant.x0: has 1"),
+    "unknown key": (_variant("gamma = 1.0", "gamma = 1.0\ngama = 2.0"), "controller.gama: unknown key"),
+    "malformed": ("[plant\norder = 2", "malformed TOML"),
+    "bad expression": (_variant('"sin(x1)"]', '"__import__(1)"]'), "unknown function '__import__'"),
+    "r below one": (_variant('"1"]\n', '"0.5"]\n'), "controller.r[2]"),
+    "dt not dividing": (_variant("dt = 0.001", "dt = 0.003"), "not a whole number of steps"),
+    "nan": (_variant("sigma = 1.0", "sigma = nan"), "controller.sigma: must be finite"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_SCENARIOS))
+def test_bad_scenario_exit_2_one_line(tmp_path, capsys, case):
+    text, expected = BAD_SCENARIOS[case]
+    out = tmp_path / "out"
+    assert main(["run", str(_write(tmp_path, text)), "--out", str(out), "-q"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("qcontrol: error: ")
+    assert expected in err
+    assert str(tmp_path / "bad.toml") in err
+    assert not (out / "summary.json").exists()
+
+
+@pytest.mark.parametrize(
+    "args, expected",
+    [
+        (["run", "missing.toml"], "scenario file not found"),
+        (["run", str(EX2), "--set", "nokey"], "expected KEY=VALUE"),
+        (["run", str(EX2), "--set", "controller.kapa=1"], "controller.kapa: unknown key"),
+        (["run", str(EX2), "--set", "controller.c=[1, 2, 3]"], "has 3 entries, expected 2"),
+        (["run", str(ROOT / "scenarios" / "chain3.toml"), "--backend", "mujoco"], "[plant.mujoco]"),
+        (["run", str(EX2), "--duration", "-1"], "simulation.duration: must be > 0"),
+        (["run", str(EX2), "--dt", "0"], "simulation.dt: must be > 0"),
+        (["run", str(EX2), "--backend", "gpu"], "invalid choice"),
+    ],
+)
+def test_bad_command_line_exit_2_one_line(capsys, args, expected):
+    with pytest.raises(SystemExit) if "gpu" in args else _no_raise():
+        assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert expected in err
+
+
+class _no_raise:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
+def test_unwritable_output_dir(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    assert main(["run", str(EX2), "--out", str(blocker / "sub"), "-q", "--duration", "0.01"]) == 2
+    assert "--out" in capsys.readouterr().err
+
+
+def test_console_script_no_traceback(tmp_path):
+    bad = _write(tmp_path, _variant("kappa_margin = 1.1", "kappa = 0.01"))
+    proc = subprocess.run([sys.executable, "-m", "qcontrol.cli", "run", str(bad)], capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1

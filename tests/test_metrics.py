@@ -1,0 +1,42 @@
+"""Error rate of Table 1 against hand-computed cases, and the summary's contract."""
+
+import numpy as np
+import pytest
+
+from qcontrol.metrics import error_rate, lemma2_max_ratio
+
+
+def test_error_rate_small_case_by_hand():
+    # M = 5 samples over T = 4 at instants 0, 1, 2, 3, 4 where z1 = 0, .1, .2, .3, .4
+    t = np.array([0.0, 1.0, 2.0, 3.0, 4.0])
+    z1 = np.array([0.0, 0.1, 0.2, 0.3, 0.4])
+    rates = error_rate(t, z1, 4.0, omegas=(0.15, 0.25, 0.1), samples=5)
+    assert rates == {"0.150": 3 / 5, "0.250": 2 / 5, "0.100": 3 / 5}  # strict '>': 0.1 is not counted
+
+
+def test_error_rate_uses_absolute_value_and_interpolates():
+    t = np.array([0.0, 2.0])
+    z1 = np.array([0.0, -2.0])  # |z1(t)| = t, sampled at 0, 0.5, 1, 1.5, 2
+    assert error_rate(t, z1, 2.0, omegas=(0.75,), samples=5) == {"0.750": 3 / 5}
+
+
+def test_error_rate_table1_default_grid():
+    t = np.linspace(0, 10, 10001)
+    z1 = np.where(t < 1.0, 1.0, 0.0)  # exceeds every omega for t < 1 (and ramps down to 1.001)
+    rates = error_rate(t, z1, 10.0)
+    instants = np.arange(1302) * 10 / 1301
+    expected = np.count_nonzero(np.interp(instants, t, z1) > 0.1) / 1302
+    assert rates["0.100"] == expected
+    assert set(rates) == {"0.100", "0.125", "0.150", "0.175", "0.200"}
+    assert expected == 131 / 1302  # instants i * 10/1301 < 1 for i = 0..130
+
+
+def test_error_rate_counts_missing_tail_of_diverged_run():
+    t = np.linspace(0, 5, 501)
+    rates = error_rate(t, np.zeros_like(t), 10.0, omegas=(0.1,), samples=11)
+    assert rates["0.100"] == pytest.approx(5 / 11)
+
+
+def test_lemma2_ratio_ignores_nan_rows():
+    e = np.array([[0.01, 0.02], [np.nan, np.nan], [0.005, 0.03]])
+    assert lemma2_max_ratio(e, np.array([0.02, 0.04])) == pytest.approx(0.75)
