@@ -1,0 +1,373 @@
+"""The MuJoCo plant (issue 3): MJCF models vs the ODE of eq. (1), callbacks, readings, input errors."""
+
+from __future__ import annotations
+
+import math
+import pathlib
+
+import mujoco
+import numpy as np
+import pytest
+
+from qcontrol.controller import ProposedController
+from qcontrol.errors import QcontrolInputError
+from qcontrol.expr import compile_expression
+from qcontrol.plants import mujoco as qmj
+from qcontrol.plants.mujoco import MujocoPlant, build_model, parse_mujoco_options, scalar_function
+from qcontrol.plants.ode import ChainPlant
+from qcontrol.quantizer import UniformQuantizer
+from qcontrol.reference import Sine
+from qcontrol.sim import simulate
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+SCENARIOS = ROOT / "scenarios"
+X, Q = ["x1", "x2"], ["q1", "q2"]
+
+SLIDER = {"model": "../models/slider.xml", "joint": "slide", "position_sensor": "position",
+          "velocity_sensor": "velocity", "actuator": "force"}
+PENDULUM = {"model": "../models/pendulum.xml", "joint": "hinge", "position_sensor": "angle",
+            "velocity_sensor": "angular_velocity", "actuator": "torque", "native_terms": ["phi1", "phi3"]}
+RIGID = PENDULUM | {"parameters": {"mass": 1.0, "length": 3.5, "damping": 12.25}}
+PHI = ["x2", "x2**2*cos(x1)", "sin(x1)"]
+
+# SPEC 9.1 / 9.2: plant, controller and reference of each example
+EXAMPLES = {
+    "example1": dict(table=SLIDER, psi="0.1*x2**2", phi=[], theta=[], delta=0.1, c=[2.0, 2.0],
+                     kappa=6.0 + 0.15, gamma=0.75, sigma=0.5, r=["0.6*q2**2 + 1"], freq=1.0, x0=[0.8, 1.5]),
+    "example2": dict(table=PENDULUM, psi=None, phi=PHI, theta=[-1.0, -3.5, -34.3], delta=0.01, c=[4.0, 3.0],
+                     kappa=1.1 + 0.025, gamma=1.0, sigma=1.0, r=["1 + q2**2", "1 + 2*q2**2", "1"], freq=1.5,
+                     x0=[0.3, 0.3]),
+}
+EXAMPLES["example2-rigid"] = EXAMPLES["example2"] | dict(table=RIGID, theta=[-1.0, -1.0 / 3.5, -2.8])
+
+
+def options(table: dict, name: str = "test.toml", n_phi: int = 3, has_psi: bool = False,
+            base: pathlib.Path = SCENARIOS) -> qmj.MujocoOptions:
+    return parse_mujoco_options(table, f"{name}: plant.mujoco", base, n_phi, has_psi)
+
+
+def expressions(ex: dict) -> tuple:
+    psi = compile_expression(ex["psi"], X) if ex["psi"] else None
+    return psi, [compile_expression(p, X) for p in ex["phi"]]
+
+
+def plants(name: str, batch: int = 1) -> tuple[MujocoPlant, ChainPlant]:
+    ex = EXAMPLES[name]
+    psi, phi = expressions(ex)
+    opts = options(ex["table"], name, len(phi), psi is not None)
+    return (MujocoPlant(opts, 2, psi, phi, ex["theta"], batch=batch, timestep=1e-3),
+            ChainPlant(2, psi, phi, ex["theta"], batch=batch))
+
+
+def controller(name: str) -> tuple[ProposedController, UniformQuantizer]:
+    ex = EXAMPLES[name]
+    q = UniformQuantizer(ex["delta"])
+    r = [compile_expression(s, Q) for s in ex["r"]]
+    return ProposedController(ex["c"], q.max_error, ex["kappa"], ex["gamma"], ex["sigma"], r), q
+
+
+class Spy:
+    """Wraps a controller and keeps every reading it is handed."""
+
+    def __init__(self, inner: ProposedController) -> None:
+        self.inner = inner
+        self.seen: list[np.ndarray] = []
+
+    def __getattr__(self, name: str):
+        return getattr(self.inner, name)
+
+    def control(self, reading, yd, adaptive):
+        self.seen.append(np.array(reading.values))
+        return self.inner.control(reading, yd, adaptive)
+
+    def quantized_errors(self, values, yd):
+        self.seen.append(np.array(values))
+        return self.inner.quantized_errors(values, yd)
+
+
+# ---------------------------------------------------------------------------------------------
+# model consistency: MuJoCo's acceleration is the ODE right-hand side
+
+
+@pytest.mark.parametrize("name", list(EXAMPLES))
+def test_mujoco_acceleration_equals_ode_rhs(name: str) -> None:
+    mj, ode = plants(name)
+    assert mj.consistency_report["ok"] and mj.consistency_report["max_relative_mismatch"] <= 1e-9
+    rng = np.random.default_rng(7)
+    x = np.column_stack([rng.uniform(-3, 3, 200), rng.uniform(-3, 3, 200)])
+    u = rng.uniform(-30, 30, 200)
+    expected = ode.rhs(x, u)[:, 1]
+    data = mj._datas[0]
+    got = np.empty(200)
+    with mj:
+        for i in range(200):
+            data.qpos[0], data.qvel[0] = x[i]
+            data.ctrl[0] = mj.inertia * u[i]
+            mujoco.mj_forward(mj.model, data)
+            got[i] = data.qacc[0]
+    scale = 1.0 + np.abs(expected) + np.abs(u)
+    assert np.max(np.abs(got - expected) / scale) <= 1e-9
+
+
+def test_inertia_comes_from_the_model() -> None:
+    assert plants("example1")[0].inertia == pytest.approx(1.0, abs=1e-12)
+    assert plants("example2")[0].inertia == pytest.approx(1.0, abs=1e-12)
+    assert plants("example2-rigid")[0].inertia == pytest.approx(12.25, abs=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("table", "theta", "term"),
+    [
+        (PENDULUM, [-1.0, -3.5, -30.0], "phi3 = sin(x1)"),
+        (PENDULUM, [-2.0, -3.5, -34.3], "phi1 = x2"),
+        (PENDULUM | {"native_terms": ["phi1"]}, [-1.0, -3.5, -34.3], "phi3 = sin(x1)"),
+        (RIGID, [-1.0, -3.5, -34.3], "phi"),
+    ],
+)
+def test_inconsistent_model_is_refused_naming_the_term(table: dict, theta: list, term: str) -> None:
+    phi = [compile_expression(p, X) for p in PHI]
+    with pytest.raises(QcontrolInputError) as err:
+        MujocoPlant(options(table), 2, None, phi, theta, timestep=1e-3)
+    message = str(err.value)
+    assert "\n" not in message and term in message and "differs" in message
+
+
+def test_rk4_calls_the_passive_callback_at_every_stage() -> None:
+    mj, _ = plants("example2")
+    with mj:
+        mj.reset(np.array([[0.3, 0.3]]))
+        key = id(mj._datas[0])
+        inner, calls = qmj._ENTRIES[key], []
+        qmj._ENTRIES[key] = lambda: (calls.append(1), inner())
+        mj.step(np.zeros(1), 1e-3)
+        assert len(calls) == 4
+        mj.step(np.zeros(1), 3e-3)  # three mj_steps
+        assert len(calls) == 16
+
+
+def test_scalar_callback_code_matches_the_vectorized_expressions() -> None:
+    rng = np.random.default_rng(1)
+    x = rng.uniform(-2, 2, (50, 2))
+    sources = ["x2**2*cos(x1)", "0.1*x2**2", "-x1/3 + sign(x2)*abs(x2)**1.5", "max(x1, x2, 0.5)",
+               "tanh(x1) - exp(-x2**2) + sqrt(1 + x1**2) + log(2 + sin(x2)) * pi", "min(x1, 1) - tan(x2/4)"]
+    for source in sources:
+        expr = compile_expression(source, X)
+        fn = scalar_function(expr)
+        np.testing.assert_allclose([fn(tuple(row.tolist())) for row in x], expr(x), rtol=1e-14, atol=1e-14)
+
+
+# ---------------------------------------------------------------------------------------------
+# closed loop: the same controller on both backends
+
+
+@pytest.fixture(scope="module")
+def closed_loops() -> dict:
+    runs = {}
+    for name, ex in EXAMPLES.items():
+        mj, ode = plants(name)
+        results = []
+        for plant in (mj, ode):
+            ctrl, q = controller(name)
+            spy = Spy(ctrl)
+            tr = simulate(plant, spy, q, Sine(1.0, ex["freq"]), ex["x0"], 10.0, 1e-3)[0]
+            results.append((tr, spy))
+        runs[name] = results
+    return runs
+
+
+@pytest.mark.parametrize("name", list(EXAMPLES))
+def test_backends_agree_over_the_full_run(closed_loops: dict, name: str) -> None:
+    (mj, _), (ode, _) = closed_loops[name]
+    assert not mj.diverged and not ode.diverged and mj.steps == ode.steps == 10_000
+    assert np.max(np.abs(mj.y - ode.y)) <= 1e-9
+    assert np.max(np.abs(mj.x - ode.x)) <= 1e-9
+    assert np.max(np.abs(mj.u - ode.u)) <= 1e-6
+
+
+@pytest.mark.parametrize("name", list(EXAMPLES))
+def test_controller_only_receives_grid_values_from_mujoco(closed_loops: dict, name: str) -> None:
+    (tr, spy), _ = closed_loops[name]
+    delta = EXAMPLES[name]["delta"]
+    seen = np.concatenate([s.reshape(-1) for s in spy.seen])
+    assert seen.size >= 2 * 10_001
+    for values in (seen, tr.x_q.reshape(-1)):
+        levels = values / delta
+        assert np.max(np.abs(levels - np.round(levels))) < 1e-9
+    # and the readings are the sensors' (sensordata), quantized: |x_meas - x_q| <= delta/2
+    assert np.max(np.abs(tr.x_meas - tr.x_q)) <= delta / 2 + 1e-12
+
+
+def test_readings_come_from_sensordata_not_qpos() -> None:
+    ex = EXAMPLES["example1"]
+    psi, _ = expressions(ex)
+    plant = MujocoPlant(options(SLIDER | {"sensor_delay": 0.003}, n_phi=0, has_psi=True), 2, psi, [], [],
+                        timestep=1e-3)
+    states, readings = [], []
+    with plant:
+        plant.reset(np.array([[0.0, 1.0]]))
+        for _ in range(10):
+            states.append(plant.state()[0])
+            readings.append(plant.read_sensors()[0])
+            plant.step(np.array([0.5]), 1e-3)
+    states, readings = np.array(states), np.array(readings)
+    np.testing.assert_allclose(readings[3:], states[:-3], atol=1e-12)  # delayed by 3 steps
+    np.testing.assert_allclose(readings[:3], np.tile(states[0], (3, 1)), atol=1e-12)
+    assert np.max(np.abs(readings[3:] - states[3:])) > 1e-4
+
+
+# ---------------------------------------------------------------------------------------------
+# the process-global callback is always removed
+
+
+def _previous(model, data) -> None:  # a callback someone else installed
+    return None
+
+
+def test_callback_is_removed_after_a_run_and_the_previous_one_restored() -> None:
+    mj, _ = plants("example2")
+    ctrl, q = controller("example2")
+    mujoco.set_mjcb_passive(_previous)
+    try:
+        simulate(mj, ctrl, q, Sine(1.0, 1.5), [0.3, 0.3], 0.05, 1e-3)
+        assert mujoco.get_mjcb_passive() is _previous
+        assert not qmj._ENTRIES
+    finally:
+        mujoco.set_mjcb_passive(None)
+    simulate(mj, ctrl, q, Sine(1.0, 1.5), [0.3, 0.3], 0.05, 1e-3)
+    assert mujoco.get_mjcb_passive() is None
+
+
+def test_callback_is_removed_when_the_run_raises() -> None:
+    mj, _ = plants("example2")
+    ctrl, q = controller("example2")
+
+    class Boom(Spy):
+        def control(self, reading, yd, adaptive):
+            assert mujoco.get_mjcb_passive() is not None  # installed during the run
+            if len(self.seen) > 5:
+                raise RuntimeError("boom")
+            return super().control(reading, yd, adaptive)
+
+    with pytest.raises(RuntimeError, match="boom"):
+        simulate(mj, Boom(ctrl), q, Sine(1.0, 1.5), [0.3, 0.3], 1.0, 1e-3)
+    assert mujoco.get_mjcb_passive() is None and not qmj._ENTRIES
+
+
+def test_step_outside_a_with_block_is_refused() -> None:
+    mj, _ = plants("example2")
+    mj.reset(np.array([[0.3, 0.3]]))
+    with pytest.raises(RuntimeError, match="with"):
+        mj.step(np.zeros(1), 1e-3)
+
+
+# ---------------------------------------------------------------------------------------------
+# bad input: one clear line
+
+
+def _one_line_error(fn, *needles: str) -> str:
+    with pytest.raises(QcontrolInputError) as err:
+        fn()
+    message = str(err.value)
+    assert "\n" not in message, message
+    for needle in needles:
+        assert needle in message, message
+    return message
+
+
+@pytest.mark.parametrize(
+    ("change", "needles"),
+    [
+        ({"model": "../models/nope.xml"}, ["plant.mujoco.model", "nope.xml", "not found"]),
+        ({"joint": "elbow"}, ["plant.mujoco.joint", "'elbow'", "'hinge'"]),
+        ({"position_sensor": "theta"}, ["plant.mujoco.position_sensor", "'theta'", "'angle'"]),
+        ({"velocity_sensor": "angle"}, ["plant.mujoco.velocity_sensor", "jointvel"]),
+        ({"actuator": "motor"}, ["plant.mujoco.actuator", "'torque'"]),
+        ({"colour": "red"}, ["plant.mujoco.colour", "unknown key", "native_terms"]),
+        ({"native_terms": ["phi4"]}, ["plant.mujoco.native_terms", "'phi4'", "phi1, phi2, phi3"]),
+        ({"integrator": "RK45"}, ["plant.mujoco.integrator", "RK4, Euler"]),
+        ({"parameters": {"lenght": 3.5}}, ["plant.mujoco.parameters.lenght", "mass, length"]),
+        ({"sensor_noise": 0.01}, ["plant.mujoco.noise_seed", "seed"]),
+        ({"frictionloss": -1}, ["plant.mujoco.frictionloss", ">= 0"]),
+    ],
+)
+def test_bad_tables_are_one_line_errors(change: dict, needles: list) -> None:
+    _one_line_error(lambda: options(PENDULUM | change), "test.toml: ", *needles)
+
+
+def test_missing_required_key_and_mjcf_that_does_not_compile(tmp_path: pathlib.Path) -> None:
+    table = dict(PENDULUM)
+    del table["joint"]
+    _one_line_error(lambda: options(table), "plant.mujoco.joint", "missing")
+    broken = tmp_path / "broken.xml"
+    broken.write_text((ROOT / "models" / "pendulum.xml").read_text().replace("</worldbody>", ""))
+    _one_line_error(lambda: options(PENDULUM | {"model": "broken.xml"}, base=tmp_path),
+                    "plant.mujoco.model", "cannot load broken.xml")
+    bad = tmp_path / "bad.xml"
+    bad.write_text((ROOT / "models" / "pendulum.xml").read_text().replace('mass="12.25"', 'mass="-1"'))
+    _one_line_error(lambda: options(PENDULUM | {"model": "bad.xml"}, base=tmp_path), "plant.mujoco.model")
+
+
+def test_plant_order_other_than_two_is_refused() -> None:
+    phi = [compile_expression(p, ["x1", "x2", "x3"]) for p in PHI]
+    _one_line_error(lambda: MujocoPlant(options(PENDULUM), 3, None, phi, [-1, -3.5, -34.3]), "order 3")
+
+
+# ---------------------------------------------------------------------------------------------
+# realism options: reported, not refused
+
+
+def test_realism_options_report_their_mismatch_instead_of_refusing() -> None:
+    phi = [compile_expression(p, X) for p in PHI]
+    theta = [-1.0, -3.5, -34.3]
+    armed = MujocoPlant(options(PENDULUM | {"armature": 0.25}), 2, None, phi, theta, timestep=1e-3)
+    report = armed.consistency_report
+    assert not report["ok"] and report["realism"] == ["armature"]
+    assert armed.inertia == pytest.approx(1.0, abs=1e-12)  # the gain uses the nominal inertia
+    assert report["terms"]["u"]["mujoco"] == pytest.approx(1 / 1.25, rel=1e-9)
+    assert report["terms"]["phi3"]["mujoco"] == pytest.approx(-34.3 / 1.25, rel=1e-9)
+    limited = MujocoPlant(options(PENDULUM | {"torque_limit": 5.0}), 2, None, phi, theta, timestep=1e-3)
+    assert limited.model.actuator_ctrlrange[0].tolist() == [-5.0, 5.0]
+    assert limited.consistency_report["max_abs_mismatch"] > 1.0
+    rod = MujocoPlant(options(PENDULUM | {"rod_mass": 0.5}), 2, None, phi, theta, timestep=1e-3)
+    length = 1 / 3.5
+    inertia = 1.0 + 0.5 * length**2 / 3.0
+    assert rod.consistency_report["terms"]["u"]["mujoco"] == pytest.approx(1 / inertia, rel=1e-9)
+    friction = MujocoPlant(options(PENDULUM | {"frictionloss": 0.5}), 2, None, phi, theta, timestep=1e-3)
+    assert friction.model.dof_frictionloss[0] == 0.5 and not friction.consistency_report["ok"]
+
+
+def test_sensor_noise_is_seeded_and_sized() -> None:
+    phi = [compile_expression(p, X) for p in PHI]
+    table = PENDULUM | {"sensor_noise": [0.001, 0.01], "noise_seed": 5}
+    runs = []
+    for _ in range(2):
+        plant = MujocoPlant(options(table), 2, None, phi, [-1.0, -3.5, -34.3], timestep=1e-3)
+        assert plant.consistency_report["ok"]  # noise does not change the dynamics
+        with plant:
+            plant.reset(np.array([[0.3, 0.3]]))
+            noise = []
+            for _ in range(400):
+                noise.append(plant.read_sensors()[0] - plant.state()[0])
+                plant.step(np.zeros(1), 1e-3)
+        runs.append(np.array(noise))
+    np.testing.assert_array_equal(runs[0], runs[1])
+    np.testing.assert_allclose(runs[0].std(axis=0), [0.001, 0.01], rtol=0.2)
+
+
+def test_build_model_applies_parameters_through_mjspec() -> None:
+    model = build_model(options(RIGID))
+    assert model.body_mass[1] == 1.0 and model.dof_damping[0] == 12.25
+    assert np.linalg.norm(model.body_ipos[1]) == pytest.approx(3.5)
+    assert model.opt.gravity[2] == -9.8 and not math.isnan(model.geom_size[0, 0])
+
+
+def test_a_copy_mujoco_resets_after_blowing_up_reads_as_nan(tmp_path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)  # MuJoCo logs the instability warning to ./MUJOCO_LOG.TXT
+    mj, _ = plants("example2", batch=2)
+    with mj:
+        mj.reset(np.array([[0.3, 0.3], [0.0, 0.0]]))
+        for _ in range(2000):  # open loop: theta2 x2^2 cos(x1) blows up in finite time from (0.3, 0.3)
+            mj.step(np.array([0.0, 0.0]), 1e-3)
+        x, meas = mj.state(), mj.read_sensors()
+    assert np.isnan(x[0]).all() and np.isnan(meas[0]).all()
+    assert np.isfinite(x[1]).all() and np.abs(x[1]).max() < 1e-12
