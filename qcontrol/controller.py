@@ -14,6 +14,7 @@ Everything is vectorized over a leading batch axis: readings have shape ``(batch
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -98,24 +99,28 @@ class Backstepping:
     def errors(self, x: np.ndarray, yd: np.ndarray) -> np.ndarray:
         """True errors ``z`` (eqs. (7), (8)): ``z_1 = x_1 - y_d``, ``z_i = x_i - alpha_{i-1}``.
 
-        ``x`` has shape ``(batch, n)``; ``yd`` holds ``[y_d, ..., y_d^(n)]``.
+        ``x`` has shape ``(..., n)``; ``yd`` holds ``[y_d, ..., y_d^(n)]`` in its last axis and
+        broadcasts against ``x`` (e.g. ``(n+1,)`` for one instant, ``(rows, 1, n+1)`` for many).
         """
         alpha = x @ self.A.T + yd @ self.B.T
-        z = np.empty_like(x)
-        z[:, 0] = x[:, 0] - yd[0]
-        z[:, 1:] = x[:, 1:] - alpha[:, :-1]
+        z = np.empty(np.broadcast_shapes(x.shape, alpha.shape))
+        z[..., 0] = x[..., 0] - yd[..., 0]
+        z[..., 1:] = x[..., 1:] - alpha[..., :-1]
         return z
 
     def quantized_errors(self, q: np.ndarray, yd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Quantized errors ``zbar`` and virtual controls ``alphabar``, eqs. (31)-(34)."""
+        """Quantized errors ``zbar`` and virtual controls ``alphabar``, eqs. (31)-(34).
+
+        Shapes as in :meth:`errors`, with the quantized state ``q`` in place of ``x``.
+        """
         D = q @ self._Dq.T + yd @ self._Dy.T
-        zbar = np.empty_like(q)
-        alphabar = np.empty_like(q)
-        zbar[:, 0] = q[:, 0] - yd[0]
-        alphabar[:, 0] = -self.c[0] * zbar[:, 0] + D[:, 0]
+        zbar = np.empty(D.shape)
+        alphabar = np.empty(D.shape)
+        zbar[..., 0] = q[..., 0] - yd[..., 0]
+        alphabar[..., 0] = -self.c[0] * zbar[..., 0] + D[..., 0]
         for i in range(1, self.n):
-            zbar[:, i] = q[:, i] - alphabar[:, i - 1]
-            alphabar[:, i] = -self.c[i] * zbar[:, i] + D[:, i]
+            zbar[..., i] = q[..., i] - alphabar[..., i - 1]
+            alphabar[..., i] = -self.c[i] * zbar[..., i] + D[..., i]
         return zbar, alphabar
 
     def _values(self, reading: QuantizedReading) -> np.ndarray:
@@ -194,8 +199,14 @@ class ProposedController(Backstepping):
         return np.zeros((batch, self.state_size))
 
     def bounding_functions(self, q: np.ndarray) -> np.ndarray:
-        """``r(x_q)`` with shape ``(batch, len(r))``."""
-        return self.r_scale * np.stack([ri(q) for ri in self.r], axis=-1)
+        """``r(x_q)`` with shape ``(..., len(r))``."""
+        r = np.empty(q.shape[:-1] + (self.state_size,))
+        columns = np.moveaxis(q, -1, 0)
+        for i, ri in enumerate(self.r):
+            r[..., i] = ri.on_columns(columns)
+        if self.r_scale != 1.0:
+            r *= self.r_scale
+        return r
 
     def control(self, reading: QuantizedReading, yd: np.ndarray, eps_hat: np.ndarray) -> ControlOutput:
         """Eq. (44) for the current quantized reading; eq. (45)'s held terms for :meth:`advance`."""
@@ -204,7 +215,7 @@ class ProposedController(Backstepping):
         r = self.bounding_functions(q)
         zn = zbar[:, -1]
         s = zn * zn / self.kappa + self.L
-        robust = np.einsum("bi,bi->b", eps_hat, r)
+        robust = (eps_hat * r).sum(axis=-1)
         u = -(zn / self.kappa) / (self.kappa - self.L) * s * robust + alphabar[:, -1]
         return ControlOutput(u, zbar, s[:, None] * r / self.sigma, self.gamma * self.sigma)
 
@@ -212,7 +223,7 @@ class ProposedController(Backstepping):
     def advance(state: np.ndarray, out: ControlOutput, h: float) -> np.ndarray:
         """Integrate eq. (45) over ``h`` with ``x_q`` held: exact for the linear ODE
         ``eps_hat' = gamma sigma (target - eps_hat)``."""
-        return out.target + (state - out.target) * np.exp(-out.rate * h)
+        return out.target + (state - out.target) * math.exp(-out.rate * h)
 
 
 class BaselineController(Backstepping):
@@ -259,8 +270,10 @@ class BaselineController(Backstepping):
         if self.psi is not None:
             u -= self.psi(q)
         if self.phi:
-            phi_q = np.stack([p(q) for p in self.phi], axis=-1)
-            u -= np.einsum("bi,bi->b", theta_hat, phi_q)
+            phi_q = np.empty(q.shape[:-1] + (len(self.phi),))
+            for i, p in enumerate(self.phi):
+                phi_q[..., i] = p(q)
+            u -= (theta_hat * phi_q).sum(axis=-1)
             rate = self.adaptation_gain * phi_q * zbar[:, -1:]
         else:
             rate = np.zeros_like(theta_hat)

@@ -91,6 +91,11 @@ class Expression:
             return np.full(values.shape[:-1], float(result))
         return np.asarray(result, dtype=float)
 
+    def on_columns(self, columns: Sequence[np.ndarray]) -> np.ndarray | float:
+        """Evaluate on ``columns[i]`` = values of ``variables[i]`` (no reshaping; a constant
+        expression returns a float). The fast path for hot loops."""
+        return self._fn(columns)
+
     @property
     def is_constant(self) -> bool:
         return not self.used

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -10,9 +9,13 @@ import numpy as np
 
 
 class Reference(Protocol):
-    """A reference trajectory. ``derivatives(t, order)`` returns ``[y_d, y_d', ..., y_d^(order)]``."""
+    """A reference trajectory y_d(t).
 
-    def derivatives(self, t: float, order: int) -> np.ndarray: ...
+    ``derivatives(t, order)`` returns ``[y_d, y_d', ..., y_d^(order)]`` in the last axis: shape
+    ``(order + 1,)`` for a scalar ``t``, ``t.shape + (order + 1,)`` for an array of instants.
+    """
+
+    def derivatives(self, t: float | np.ndarray, order: int) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)
@@ -24,17 +27,16 @@ class Sine:
     phase: float = 0.0
     offset: float = 0.0
 
-    def derivatives(self, t: float, order: int) -> np.ndarray:
-        out = np.empty(order + 1)
+    def derivatives(self, t: float | np.ndarray, order: int) -> np.ndarray:
+        t = np.asarray(t, dtype=float)
+        out = np.empty(t.shape + (order + 1,))
         arg = self.frequency * t + self.phase
-        s, c = math.sin(arg), math.cos(arg)
+        s, c = np.sin(arg), np.cos(arg)
         # d^j/dt^j sin(w t + p) = w^j * [sin, cos, -sin, -cos][j mod 4]
         cycle = (s, c, -s, -c)
-        w_pow = 1.0
         for j in range(order + 1):
-            out[j] = self.amplitude * w_pow * cycle[j % 4]
-            w_pow *= self.frequency
-        out[0] += self.offset
+            out[..., j] = self.amplitude * self.frequency**j * cycle[j % 4]
+        out[..., 0] += self.offset
         return out
 
 
@@ -44,9 +46,9 @@ class Constant:
 
     value: float = 0.0
 
-    def derivatives(self, t: float, order: int) -> np.ndarray:
-        out = np.zeros(order + 1)
-        out[0] = self.value
+    def derivatives(self, t: float | np.ndarray, order: int) -> np.ndarray:
+        out = np.zeros(np.shape(t) + (order + 1,))
+        out[..., 0] = self.value
         return out
 
 
@@ -57,10 +59,10 @@ class SumOfSines:
     terms: tuple[Sine, ...]
     offset: float = 0.0
 
-    def derivatives(self, t: float, order: int) -> np.ndarray:
-        out = np.zeros(order + 1)
+    def derivatives(self, t: float | np.ndarray, order: int) -> np.ndarray:
+        out = np.zeros(np.shape(t) + (order + 1,))
         for term in self.terms:
             out += term.derivatives(t, order)
-            out[0] -= term.offset
-        out[0] += self.offset
+            out[..., 0] -= term.offset
+        out[..., 0] += self.offset
         return out

@@ -44,11 +44,12 @@ class ChainPlant:
 
     def uncertainty(self, x: np.ndarray) -> np.ndarray:
         """``psi(x) + theta^T phi(x)``, shape ``(batch,)``."""
-        total = np.zeros(x.shape[:-1])
-        if self.psi is not None:
-            total = total + self.psi(x)
+        columns = x.T
+        total = self.psi.on_columns(columns) if self.psi is not None else 0.0
         for coefficient, term in zip(self.theta, self.phi, strict=True):
-            total = total + coefficient * term(x)
+            total = total + coefficient * term.on_columns(columns)
+        if np.ndim(total) == 0:  # psi and phi absent or constant
+            return np.full(x.shape[:-1], float(total))
         return total
 
     def rhs(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -69,8 +70,9 @@ class ChainPlant:
 
     def step(self, u: np.ndarray, h: float) -> None:
         x = self._x
+        half = 0.5 * h
         k1 = self.rhs(x, u)
-        k2 = self.rhs(x + 0.5 * h * k1, u)
-        k3 = self.rhs(x + 0.5 * h * k2, u)
+        k2 = self.rhs(x + half * k1, u)
+        k3 = self.rhs(x + half * k2, u)
         k4 = self.rhs(x + h * k3, u)
-        self._x = x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        self._x = x + (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
