@@ -23,7 +23,7 @@ def test_run_writes_summary_per_contract(tmp_path, capsys):
     assert main(["run", str(EX2), "--out", str(out), "--duration", "2", "-q"]) == 0
     s = json.loads((out / "summary.json").read_text())
     assert SUMMARY_KEYS <= set(s)
-    assert s["scenario"] == "example2" and s["backend"] == "ode"
+    assert s["scenario"] == "example2" and s["backend"] == "mujoco"  # the scenario's default
     assert s["duration"] == 2.0 and s["dt"] == 0.001 and s["steps"] == 2000
     assert list(s["error_rate"]) == ["0.100", "0.125", "0.150", "0.175", "0.200"]
     assert all(0.0 <= v <= 1.0 for v in s["error_rate"].values())
@@ -50,7 +50,8 @@ def _write(tmp_path: Path, text: str) -> Path:
 
 
 def _variant(old: str, new: str) -> str:
-    text = EX2.read_text()
+    """Example 2 with one edit, loadable from any folder (absolute MJCF path)."""
+    text = EX2.read_text().replace('"../models/', f'"{ROOT}/models/')
     assert old in text
     return text.replace(old, new)
 
