@@ -79,3 +79,22 @@ def summary(traj: Trajectory, scenario: str, backend: str) -> dict:
         "lemma2_max_ratio": lemma2_max_ratio(traj.e_z, traj.L_z),
         "L_z": [float(v) for v in traj.L_z],
     }
+
+
+def backend_deviation(physics: Trajectory, ideal: Trajectory) -> dict:
+    """Largest differences between two runs of the same loop over their common rows.
+
+    ``max_abs_dx`` (one entry per state), ``max_abs_dy``, ``max_abs_du`` and ``max_abs_deps``
+    (the adaptive estimates). NaN where the runs share no finite rows.
+    """
+    rows = min(len(physics.t), len(ideal.t))
+    if rows == 0 or not np.array_equal(physics.t[:rows], ideal.t[:rows]):
+        raise ValueError("the two runs must share the same time grid")
+    dx = np.abs(physics.x[:rows] - ideal.x[:rows])
+    return {
+        "rows_compared": rows,
+        "max_abs_dx": [finite_max_abs(dx[:, i]) for i in range(dx.shape[1])],
+        "max_abs_dy": finite_max_abs(dx[:, 0]),
+        "max_abs_du": finite_max_abs(physics.u[:rows] - ideal.u[:rows]),
+        "max_abs_deps": finite_max_abs(physics.adaptive[:rows] - ideal.adaptive[:rows]),
+    }

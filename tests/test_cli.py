@@ -72,12 +72,18 @@ BAD_SCENARIOS = {
     "r below one": (_variant('"1"]\n', '"0.5"]\n'), "controller.r[2]"),
     "dt not dividing": (_variant("dt = 0.001", "dt = 0.003"), "not a whole number of steps"),
     "nan": (_variant("sigma = 1.0", "sigma = nan"), "controller.sigma: must be finite"),
+    "missing MJCF": (_variant("models/pendulum.xml", "models/no-such-model.xml"), "plant.mujoco.model"),
+    "joint not in MJCF": (_variant('joint = "hinge"', 'joint = "elbow"'), "plant.mujoco.joint"),
+    "sensor not in MJCF": (_variant('position_sensor = "angle"', 'position_sensor = "theta"'),
+                           "plant.mujoco.position_sensor"),
+    "broken MJCF": (_variant(f"{ROOT}/models/pendulum.xml", "broken.xml"), "plant.mujoco.model"),
 }
 
 
 @pytest.mark.parametrize("case", sorted(BAD_SCENARIOS))
 def test_bad_scenario_exit_2_one_line(tmp_path, capsys, case):
     text, expected = BAD_SCENARIOS[case]
+    (tmp_path / "broken.xml").write_text("<mujoco><worldbody><body><joint type='hinge'/></body>")
     out = tmp_path / "out"
     assert main(["run", str(_write(tmp_path, text)), "--out", str(out), "-q"]) == 2
     err = capsys.readouterr().err.strip()
@@ -129,3 +135,19 @@ def test_console_script_no_traceback(tmp_path):
                           text=True, timeout=120)
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_compare_writes_contract_and_backends_agree(tmp_path, capsys):
+    out = tmp_path / "cmp"
+    assert main(["compare", str(EX2), "--out", str(out), "--duration", "2", "-q"]) == 0
+    c = json.loads((out / "compare.json").read_text())
+    assert {"max_abs_dx", "max_abs_dy", "max_abs_du", "mujoco", "ode"} <= set(c)
+    assert len(c["max_abs_dx"]) == 2 and c["max_abs_dy"] <= 1e-9 and c["max_abs_du"] <= 1e-9
+    assert c["mujoco"]["backend"] == "mujoco" and c["ode"]["backend"] == "ode"
+    assert SUMMARY_KEYS <= set(c["mujoco"]) and SUMMARY_KEYS <= set(c["ode"])
+    assert "MuJoCo vs ODE" in capsys.readouterr().out
+
+
+def test_compare_needs_a_mujoco_model(capsys):
+    assert main(["compare", str(ROOT / "scenarios" / "chain3.toml"), "-q"]) == 2
+    assert "[plant.mujoco]" in capsys.readouterr().err
