@@ -10,13 +10,14 @@ import argparse
 import sys
 import time
 from collections.abc import Sequence
+from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 
 from . import __version__
-from .assembly import build_plant, controller_L, run_scenario
+from .assembly import build_controller, build_plant, controller_L, run_scenario
 from .errors import QcontrolInputError
 from .metrics import backend_deviation, summary
-from .outputs import prepare_output_dir, write_json
+from .outputs import check_output_file, prepare_output_dir, write_json
 from .scenario import BACKENDS, Scenario, load_scenario
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -46,6 +47,13 @@ def _add_scenario_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
 
 
+def _add_recording_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--rrd", type=Path, metavar="FILE",
+                   help="write a rerun recording (open it with `rerun FILE`)")
+    p.add_argument("--spawn", action="store_true",
+                   help="stream to a rerun viewer started on this machine (needs a display)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="qcontrol",
@@ -68,6 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_scenario_options(run)
     run.add_argument("--backend", choices=BACKENDS, help="plant backend (default: the scenario's)")
     run.add_argument("--out", type=Path, metavar="DIR", help="write DIR/summary.json")
+    _add_recording_options(run)
 
     compare = sub.add_parser(
         "compare",
@@ -78,6 +87,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_scenario_options(compare)
     compare.add_argument("--out", type=Path, metavar="DIR", help="write DIR/compare.json")
+    _add_recording_options(compare)
     return parser
 
 
@@ -110,6 +120,38 @@ class _Progress:
             sys.stderr.flush()
 
 
+def _recording(args: argparse.Namespace) -> AbstractContextManager:
+    """A rerun Recording when --rrd or --spawn is given; otherwise nothing is imported or logged."""
+    if args.rrd is None and not args.spawn:
+        return nullcontext(None)
+    from .record import Recording  # imports rerun (~0.5 s): only when asked for
+
+    return Recording(args.rrd, spawn=args.spawn)
+
+
+def _log_constants(rec, sc: Scenario) -> None:
+    controller = build_controller(sc)
+    constants: dict = {"delta": sc.controller.delta, "c": list(sc.controller.c), "L": controller.L,
+                       "L_z": list(controller.L_z)}
+    if sc.controller.kind == "proposed":
+        constants.update(kappa=controller.kappa, gamma=controller.gamma, sigma=controller.sigma,
+                         r_scale=controller.r_scale)
+    else:
+        constants.update(baseline_gain=sc.controller.baseline_gain)
+    rec.log_static(sc.text, constants, __version__)
+
+
+def _scene(sc: Scenario, plant=None):
+    """The MuJoCo model and joint to draw in 3-D (None when the scenario has no model)."""
+    if sc.mujoco is None:
+        return None, None
+    if plant is not None and hasattr(plant, "model"):
+        return plant.model, sc.mujoco.joint
+    from .plants.mujoco import build_model
+
+    return build_model(sc.mujoco, sc.simulation.dt), sc.mujoco.joint
+
+
 def format_summary(s: dict) -> str:
     rates = "  ".join(f"E({k})={v:.4f}" for k, v in s["error_rate"].items())
     lines = [
@@ -135,13 +177,24 @@ def cmd_run(args: argparse.Namespace) -> int:
             "--backend ode"
         )
     out = prepare_output_dir(args.out) if args.out else None
-    traj = run_scenario(sc, backend, progress=_Progress(f"{sc.name} [{backend}]", not args.quiet))
+    if args.rrd is not None:
+        check_output_file(args.rrd, "--rrd")
+    plant = build_plant(sc, backend)
+    with _recording(args) as rec:
+        observer = None
+        if rec is not None:
+            _log_constants(rec, sc)
+            observer = rec.observer(backend, *_scene(sc, plant))
+        traj = run_scenario(sc, backend, plant=plant, observer=observer,
+                            progress=_Progress(f"{sc.name} [{backend}]", not args.quiet))
     s = summary(traj, sc.name, backend)
     s["L"] = controller_L(sc)
     print(format_summary(s))
     if out is not None:
         write_json(out / "summary.json", s)
         print(f"  wrote {out / 'summary.json'}")
+    if args.rrd is not None:
+        print(f"  wrote {args.rrd} (open it with: rerun {args.rrd})")
     return _status(s)
 
 
@@ -152,16 +205,25 @@ def cmd_compare(args: argparse.Namespace) -> int:
             f"{sc.source}: compare needs a [plant.mujoco] table (the MuJoCo twin of the ODE); add one"
         )
     out = prepare_output_dir(args.out) if args.out else None
+    if args.rrd is not None:
+        check_output_file(args.rrd, "--rrd")
     plant = build_plant(sc, "mujoco")
     report = plant.consistency_report
     if report.get("realism"):
         print(f"realism options on ({', '.join(report['realism'])}): MuJoCo differs from the ODE model "
               f"by up to {report['max_abs_mismatch']:.3g} in acceleration at sampled states")
     runs = {}
-    for backend in ("mujoco", "ode"):
-        traj = run_scenario(sc, backend, plant=plant if backend == "mujoco" else None,
-                            progress=_Progress(f"{sc.name} [{backend}]", not args.quiet))
-        runs[backend] = (traj, summary(traj, sc.name, backend))
+    with _recording(args) as rec:
+        if rec is not None:
+            _log_constants(rec, sc)
+        for backend in ("mujoco", "ode"):
+            observer = None
+            if rec is not None:  # the ODE twin is drawn as a translucent ghost
+                observer = rec.observer(backend, plant.model, sc.mujoco.joint, ghost=backend == "ode")
+            traj = run_scenario(sc, backend, plant=plant if backend == "mujoco" else None,
+                                observer=observer,
+                                progress=_Progress(f"{sc.name} [{backend}]", not args.quiet))
+            runs[backend] = (traj, summary(traj, sc.name, backend))
     deviation = backend_deviation(runs["mujoco"][0], runs["ode"][0])
     result = {
         "scenario": sc.name,
@@ -183,6 +245,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if out is not None:
         write_json(out / "compare.json", result)
         print(f"  wrote {out / 'compare.json'}")
+    if args.rrd is not None:
+        print(f"  wrote {args.rrd} (open it with: rerun {args.rrd})")
     return max(_status(runs["mujoco"][1]), _status(runs["ode"][1]))
 
 

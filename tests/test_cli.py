@@ -5,6 +5,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from qcontrol.cli import main
@@ -151,3 +152,29 @@ def test_compare_writes_contract_and_backends_agree(tmp_path, capsys):
 def test_compare_needs_a_mujoco_model(capsys):
     assert main(["compare", str(ROOT / "scenarios" / "chain3.toml"), "-q"]) == 2
     assert "[plant.mujoco]" in capsys.readouterr().err
+
+
+def test_compare_rrd_holds_both_runs(tmp_path, capsys):
+    from test_record import read_entities, temporal
+
+    rrd = tmp_path / "rec" / "ex2.rrd"
+    out = tmp_path / "cmp"
+    assert main(["compare", str(EX2), "--rrd", str(rrd), "--out", str(out), "--duration", "1", "-q"]) == 0
+    assert rrd.is_file() and not list(rrd.parent.glob("*.part"))
+    entities = read_entities(rrd)
+    for path in ("world/bodies/arm", "world/ode_ghost/arm", "world/target", "signals/tracking/y",
+                 "signals/tracking/y_d", "signals/tracking/y_ode", "signals/input/u",
+                 "theory/lemma2/z1", "info/scenario"):
+        assert path in entities, path
+    times, y = temporal(entities["signals/tracking/y"], "Scalars:scalars")
+    assert len(times) == 1001 and times[-1] == 1_000_000_000
+    _, y_ode = temporal(entities["signals/tracking/y_ode"], "Scalars:scalars")
+    c = json.loads((out / "compare.json").read_text())
+    assert np.max(np.abs(y - y_ode)) == c["max_abs_dy"] <= 1e-9  # the recording holds the same two runs
+
+
+def test_run_without_rrd_does_not_import_rerun():
+    code = (f"import sys; from qcontrol.cli import main; main(['run', {str(EX2)!r}, '--duration', '0.01', "
+            "'-q']); print('rerun' in sys.modules)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.stdout.strip().splitlines()[-1] == "False", proc.stdout + proc.stderr

@@ -1,0 +1,388 @@
+"""Rerun recordings: what is logged is read back from the .rrd file and compared with the run."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pyarrow as pa
+import pytest
+import rerun as rr
+from rerun.chunk import RrdReader
+
+import qcontrol
+from qcontrol.controller import ProposedController
+from qcontrol.expr import compile_expression as C
+from qcontrol.plants.ode import ChainPlant
+from qcontrol.quantizer import UniformQuantizer
+from qcontrol.record import Recording, temporary_path
+from qcontrol.reference import Sine
+from qcontrol.sim import Trajectory, simulate
+
+X, Q = ["x1", "x2"], ["q1", "q2"]
+RERUN_CLI = Path(sys.executable).with_name("rerun")
+
+PENDULUM = """
+<mujoco>
+  <worldbody>
+    <geom name="floor" type="plane" size="1 1 0.1"/>
+    <body name="arm" pos="0 0 1">
+      <joint name="hinge" type="hinge" axis="0 1 0"/>
+      <geom name="rod" type="capsule" fromto="0 0 0 0 0 -0.5" size="0.02"/>
+      <geom name="bob" type="sphere" pos="0 0 -0.5" size="0.05" rgba="0.8 0.2 0.2 1"/>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+SLIDER = """
+<mujoco>
+  <worldbody>
+    <geom name="rail" type="box" size="2 0.01 0.01"/>
+    <body name="cart" pos="0 0 0.05">
+      <joint name="slide" type="slide" axis="1 0 0"/>
+      <geom name="cart" type="box" size="0.1 0.05 0.04"/>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+
+def example2(
+    duration: float, observer=None, observe_every: int = 500, psi: str | None = None, state_bound: float = 1e6
+) -> Trajectory:
+    """Example 2 of the paper on the ODE backend (optionally with an extra psi to make it diverge)."""
+    plant = ChainPlant(
+        2,
+        None if psi is None else C(psi, X),
+        [C("x2", X), C("x2**2*cos(x1)", X), C("sin(x1)", X)],
+        [-1, -3.5, -34.3],
+    )
+    q = UniformQuantizer(0.01)
+    ctrl = ProposedController(
+        [4, 3], q.max_error, 1.125, 1, 1, [C("1+q2**2", Q), C("1+2*q2**2", Q), C("1", Q)]
+    )
+    (run,) = simulate(
+        plant,
+        ctrl,
+        q,
+        Sine(1, 1.5),
+        [0.3, 0.3],
+        duration,
+        1e-3,
+        state_bound=state_bound,
+        observer=observer,
+        observe_every=observe_every,
+    )
+    return run
+
+
+def read_entities(path: Path) -> dict[str, list[pa.RecordBatch]]:
+    """Every chunk of the recording store, grouped by entity path (without the leading slash)."""
+    entities: dict[str, list[pa.RecordBatch]] = defaultdict(list)
+    for chunk in RrdReader(path).stream():
+        entities[chunk.entity_path.lstrip("/")].append(chunk.to_record_batch())
+    return entities
+
+
+def temporal(batches: list[pa.RecordBatch], component: str) -> tuple[np.ndarray, np.ndarray]:
+    """Times (int64 ns) and values (one row per time) of a component over ``sim_time``, time-sorted."""
+    times, values = [], []
+    for batch in batches:
+        if "sim_time" not in batch.column_names or component not in batch.column_names:
+            continue
+        times.append(batch.column("sim_time").cast(pa.int64()).to_numpy())
+        column = batch.column(component)
+        flat = column.flatten()
+        while pa.types.is_list(flat.type) or pa.types.is_fixed_size_list(flat.type):
+            flat = flat.flatten()
+        values.append(flat.to_numpy(zero_copy_only=False).reshape(len(column), -1))
+    t = np.concatenate(times)
+    order = np.argsort(t, kind="stable")
+    return t[order], np.concatenate(values)[order]
+
+
+def static_value(batches: list[pa.RecordBatch], component: str) -> list:
+    for batch in batches:
+        if "sim_time" not in batch.column_names and component in batch.column_names:
+            return batch.column(component).to_pylist()[0]
+    raise AssertionError(f"no static {component}")
+
+
+def bits(a: np.ndarray) -> np.ndarray:
+    """Bit patterns of float64 values: equality of these is exact equality, NaN included."""
+    return np.ascontiguousarray(a, dtype=np.float64).view(np.uint64)
+
+
+def sim_time_ns(t: np.ndarray) -> np.ndarray:
+    """The sim_time expected for a run at dt = 1 ms: row k is exactly k ms."""
+    k = np.arange(len(t))
+    np.testing.assert_array_equal(t, k * 1e-3)
+    return k * 1_000_000
+
+
+def assert_scalars_exact(entities, path: str, expected: np.ndarray, t: np.ndarray) -> None:
+    times, values = temporal(entities[path], "Scalars:scalars")
+    np.testing.assert_array_equal(times, sim_time_ns(t), err_msg=path)
+    np.testing.assert_array_equal(bits(values[:, 0]), bits(expected), err_msg=path)
+
+
+def rrd_verify(path: Path) -> None:
+    if not RERUN_CLI.exists():
+        pytest.skip("the rerun CLI is not installed in this environment")
+    result = subprocess.run(
+        [str(RERUN_CLI), "rrd", "verify", str(path)], capture_output=True, text=True, timeout=60
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
+@pytest.fixture(scope="module")
+def compare_recording(tmp_path_factory) -> tuple[Path, Trajectory, Trajectory, mujoco.MjModel]:
+    """A 2 s Example 2 run with the pendulum drawn, plus a ghost twin, streamed in 500-row chunks."""
+    path = tmp_path_factory.mktemp("rrd") / "compare.rrd"
+    model = mujoco.MjModel.from_xml_string(PENDULUM)
+    with Recording(path) as rec:
+        rec.log_static("[plant]\norder = 2\n", {"kappa": 1.125, "c": [4.0, 3.0]}, qcontrol.__version__)
+        main = example2(2.0, rec.observer("mujoco", model, "hinge"))
+        ghost = example2(2.0, rec.observer("ode", model, "hinge", ghost=True), psi="0.01*x2")
+    return path, main, ghost, model
+
+
+def test_clean_run_renames_the_temporary_file(compare_recording):
+    path = compare_recording[0]
+    assert path.exists()
+    assert not temporary_path(path).exists()
+    assert list(path.parent.iterdir()) == [path]
+
+
+@pytest.mark.filterwarnings("error:RRD file has no footer")
+def test_closed_file_has_a_footer(compare_recording):
+    """Closing writes rerun's footer (the chunk manifest) before the file gets its final name."""
+    store = RrdReader(compare_recording[0]).store()
+    assert store is not None
+
+
+def test_signals_equal_the_run_bitwise(compare_recording):
+    path, main, ghost, _ = compare_recording
+    entities = read_entities(path)
+    assert_scalars_exact(entities, "signals/tracking/y", main.y, main.t)
+    assert_scalars_exact(entities, "signals/tracking/y_d", main.yd[:, 0], main.t)
+    assert_scalars_exact(entities, "signals/error/z1", main.z[:, 0], main.t)
+    assert_scalars_exact(entities, "signals/input/u", main.u, main.t)
+    for j in range(main.adaptive.shape[1]):
+        assert_scalars_exact(entities, f"signals/adaptive/eps_hat_{j + 1}", main.adaptive[:, j], main.t)
+    for i in range(2):
+        assert_scalars_exact(entities, f"signals/state/x{i + 1}/x", main.x[:, i], main.t)
+        assert_scalars_exact(entities, f"signals/state/x{i + 1}/q", main.x_q[:, i], main.t)
+        assert_scalars_exact(entities, f"theory/lemma2/z{i + 1}", main.e_z[:, i] / main.L_z[i], main.t)
+    assert_scalars_exact(entities, "signals/tracking/y_ode", ghost.y, ghost.t)
+    assert_scalars_exact(entities, "signals/input/u_ode", ghost.u, ghost.t)
+    assert not np.array_equal(main.u, ghost.u)  # the two runs really are different data
+
+
+def test_expected_entities_and_static_content(compare_recording):
+    path, main, _, _ = compare_recording
+    entities = read_entities(path)
+    expected = {
+        "world",
+        "world/fixed/floor",
+        "world/bodies/arm",
+        "world/bodies/arm/rod",
+        "world/bodies/arm/bob",
+        "world/ode_ghost/arm",
+        "world/ode_ghost/arm/rod",
+        "world/ode_ghost/arm/bob",
+        "world/target",
+        "signals/tracking/y",
+        "signals/tracking/y_d",
+        "signals/tracking/y_ode",
+        "signals/error/z1",
+        "signals/error/z1_ode",
+        "signals/input/u",
+        "signals/input/u_ode",
+        "signals/adaptive/eps_hat_1",
+        "signals/adaptive/eps_hat_2",
+        "signals/adaptive/eps_hat_3",
+        "signals/state/x1/x",
+        "signals/state/x1/q",
+        "signals/state/x2/x",
+        "signals/state/x2/q",
+        "theory/lemma2/z1",
+        "theory/lemma2/z2",
+        "theory/lemma2/bound",
+        "info/scenario",
+        "info/constants",
+        "info/version",
+    }
+    assert expected <= set(entities), expected - set(entities)
+    assert "order = 2" in static_value(entities["info/scenario"], "TextDocument:text")[0]
+    assert static_value(entities["info/constants"], "c") == [4.0, 3.0]
+    assert static_value(entities["info/version"], "TextDocument:text") == [f"qcontrol {qcontrol.__version__}"]
+    _, bound = temporal(entities["theory/lemma2/bound"], "Scalars:scalars")
+    assert np.all(bound == 1.0)
+    # A stream of transforms, one per row, for each moving body of both runs; shapes are static.
+    for body in ("world/bodies/arm", "world/ode_ghost/arm"):
+        times, _ = temporal(entities[body], "Transform3D:translation")
+        np.testing.assert_array_equal(times, sim_time_ns(main.t))
+    assert "Capsules3D:lengths" in entities["world/bodies/arm/rod"][0].column_names
+    assert "Ellipsoids3D:half_sizes" in entities["world/bodies/arm/bob"][0].column_names
+
+
+def test_held_and_quantized_series_step(compare_recording):
+    entities = read_entities(compare_recording[0])
+    step, linear = 2, 1  # rerun.components.InterpolationMode: Linear = 1, StepAfter = 2
+    assert rr.components.InterpolationMode.StepAfter.value == step
+    for path in ("signals/input/u", "signals/input/u_ode", "signals/state/x1/q", "signals/state/x2/q"):
+        assert static_value(entities[path], "SeriesLines:interpolation_mode") == [step], path
+    for path in ("signals/tracking/y", "signals/state/x1/x"):
+        assert static_value(entities[path], "SeriesLines:interpolation_mode") == [linear], path
+
+
+def test_bodies_follow_the_joint_and_target_follows_the_reference(compare_recording):
+    path, main, _, model = compare_recording
+    entities = read_entities(path)
+    _, translation = temporal(entities["world/bodies/arm"], "Transform3D:translation")
+    _, quaternion = temporal(entities["world/bodies/arm"], "Transform3D:quaternion")
+    _, target = temporal(entities["world/target"], "Transform3D:translation")
+    data = mujoco.MjData(model)
+    body = model.body("arm").id
+    bob = model.geom("bob").id
+    for k in (0, 137, len(main.t) - 1):
+        data.qpos[0] = main.y[k]
+        mujoco.mj_kinematics(model, data)
+        np.testing.assert_allclose(translation[k], data.xpos[body], atol=1e-6)
+        np.testing.assert_allclose(quaternion[k], data.xquat[body][[1, 2, 3, 0]], atol=1e-6)  # xyzw
+        data.qpos[0] = main.yd[k, 0]
+        mujoco.mj_kinematics(model, data)
+        np.testing.assert_allclose(target[k], data.geom_xpos[bob], atol=1e-6)
+
+
+def test_blueprint_is_present(compare_recording):
+    reader = RrdReader(compare_recording[0])
+    (blueprint,) = reader.blueprints()
+    views = {}
+    for chunk in reader.stream(store=blueprint):
+        batch = chunk.to_record_batch()
+        if "ViewBlueprint:display_name" in batch.column_names:
+            name = batch.column("ViewBlueprint:display_name").to_pylist()[0][0]
+            views[name] = batch.column("ViewBlueprint:space_origin").to_pylist()[0][0]
+    assert views["motion"] == "world"
+    assert views["tracking error z1 = y - y_d"] == "signals/error"
+    assert views["output y and reference y_d"] == "signals/tracking"
+    assert views["x2 and q(x2)"] == "signals/state/x2"
+
+
+def test_rerun_cli_accepts_the_file(compare_recording):
+    rrd_verify(compare_recording[0])
+
+
+def test_diverging_run_ends_at_the_divergence_time(tmp_path):
+    path = tmp_path / "diverged.rrd"
+    with Recording(path) as rec:
+        run = example2(5.0, rec.observer("ode"), psi="100*x2**3")
+    assert run.diverged and run.diverged_time < 5.0
+    assert path.exists() and not temporary_path(path).exists()
+    entities = read_entities(path)
+    times, _ = temporal(entities["signals/tracking/y"], "Scalars:scalars")
+    assert times[-1] == round(run.diverged_time * 1e9) == (len(run.t) - 1) * 1_000_000
+    assert_scalars_exact(entities, "signals/tracking/y", run.y, run.t)  # the non-finite last row too
+    assert_scalars_exact(entities, "signals/input/u", run.u, run.t)
+    rrd_verify(path)
+
+
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")  # the .part file is read while open
+def test_interrupted_run_keeps_the_flushed_chunks(tmp_path, monkeypatch):
+    """A KeyboardInterrupt mid-run still leaves a complete file with every chunk streamed so far;
+    chunks are on disk (readable) while the run goes on, not left in rerun's batcher."""
+    monkeypatch.setenv("RERUN_FLUSH_TICK_SECS", "1000")  # the batcher alone would keep everything
+    monkeypatch.setenv("RERUN_FLUSH_NUM_BYTES", str(10**12))
+    path = tmp_path / "interrupted.rrd"
+    seen: list[int] = []
+    flushes: list[int] = []
+    flush = rr.RecordingStream.flush
+    monkeypatch.setattr(
+        rr.RecordingStream, "flush", lambda self, **kw: (flushes.append(1), flush(self, **kw))[1]
+    )
+
+    with pytest.raises(KeyboardInterrupt), Recording(path) as rec:
+        inner = rec.observer("ode")
+
+        def observer(start: int, stop: int, runs: list[Trajectory]) -> None:
+            before = len(flushes)
+            inner(start, stop, runs)
+            assert len(flushes) > before, "the chunk was not flushed to disk"
+            times, _ = temporal(read_entities(temporary_path(path))["signals/input/u"], "Scalars:scalars")
+            seen.append(len(times))
+            if len(seen) == 2:
+                raise KeyboardInterrupt
+
+        example2(2.0, observer)
+    assert seen == [500, 1000]
+    assert path.exists() and not temporary_path(path).exists()
+    times, _ = temporal(read_entities(path)["signals/input/u"], "Scalars:scalars")
+    np.testing.assert_array_equal(times, np.arange(1000) * 1_000_000)
+    rrd_verify(path)
+
+
+def test_slider_target_is_at_the_reference_position(tmp_path):
+    path = tmp_path / "slider.rrd"
+    model = mujoco.MjModel.from_xml_string(SLIDER)
+    with Recording(path) as rec:
+        run = example2(0.2, rec.observer("mujoco", model))
+    entities = read_entities(path)
+    _, target = temporal(entities["world/target"], "Transform3D:translation")
+    _, cart = temporal(entities["world/bodies/cart"], "Transform3D:translation")
+    np.testing.assert_allclose(target[:, 0], run.yd[:, 0], atol=1e-6)
+    np.testing.assert_allclose(cart[:, 0], run.y, atol=1e-6)
+    np.testing.assert_allclose(cart[:, 1:], np.tile([0.0, 0.05], (len(run.t), 1)), atol=1e-7)
+    assert "Boxes3D:half_sizes" in entities["world/fixed/rail"][0].column_names
+
+
+def test_one_main_run_per_recording_and_unique_ghost_labels(tmp_path):
+    with Recording(tmp_path / "x.rrd") as rec:
+        rec.observer("mujoco")
+        with pytest.raises(ValueError, match="main"):
+            rec.observer("again")
+        rec.observer("ode", ghost=True)
+        with pytest.raises(ValueError, match="ode"):
+            rec.observer("ode", ghost=True)
+    model = mujoco.MjModel.from_xml_string(
+        PENDULUM.replace("</body>", "</body><body><joint/><geom size='1'/></body>")
+    )
+    with Recording(tmp_path / "y.rrd") as rec, pytest.raises(ValueError, match="joint"):
+        rec.observer("mujoco", model)
+
+
+def test_no_viewer_available_warns_and_keeps_the_file(tmp_path, monkeypatch):
+    def no_viewer(**kwargs):
+        raise RuntimeError("Failed to find Rerun Viewer executable in PATH")
+
+    monkeypatch.setattr(rr, "spawn", no_viewer)
+    with pytest.warns(UserWarning, match="viewer"), Recording(None, spawn=True) as rec:
+        assert not rec.enabled
+    path = tmp_path / "file.rrd"
+    with pytest.warns(UserWarning, match="viewer"), Recording(path, spawn=True) as rec:
+        run = example2(0.1, rec.observer("ode"))
+    assert_scalars_exact(read_entities(path), "signals/input/u", run.u, run.t)
+    assert list(tmp_path.iterdir()) == [path]
+
+
+def test_inert_recording_logs_nothing_and_never_imports_rerun(tmp_path):
+    code = (
+        "import sys\n"
+        "from qcontrol.record import Recording\n"
+        "with Recording(None) as rec:\n"
+        "    rec.log_static('x', {}, '0')\n"
+        "    rec.observer('ode')(0, 1, [])\n"
+        "assert not rec.enabled\n"
+        "assert 'rerun' not in sys.modules, 'the inert recording imported rerun'\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=60
+    )
+    assert result.returncode == 0, result.stderr
+    assert list(tmp_path.iterdir()) == []
