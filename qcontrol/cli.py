@@ -88,6 +88,22 @@ def build_parser() -> argparse.ArgumentParser:
     _add_scenario_options(compare)
     compare.add_argument("--out", type=Path, metavar="DIR", help="write DIR/compare.json")
     _add_recording_options(compare)
+
+    rep = sub.add_parser(
+        "reproduce",
+        help="reproduce the paper's Figures 1-8 and Table 1 with an honest report",
+        description="Run both examples of the paper (proposed law and the comparison method of [20]) "
+        "and the sensitivity studies; write figures, table1.md/.json, REPORT.md and recordings.",
+    )
+    rep.add_argument("--out", type=Path, default=Path("results"), metavar="DIR",
+                     help="output folder (default: results)")
+    rep.add_argument("--backend", choices=BACKENDS, default="mujoco",
+                     help="plant for the examples (default: mujoco, with the ODE twin beside it)")
+    rep.add_argument("--duration", type=float, metavar="S",
+                     help="shorter horizon for a quick look (default: the paper's 10 s)")
+    rep.add_argument("--scenarios", type=Path, default=None, metavar="DIR",
+                     help="folder holding example1.toml, example2.toml, example2-rigid.toml")
+    rep.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     return parser
 
 
@@ -259,7 +275,18 @@ def _status(s: dict) -> int:
     return EXIT_OK
 
 
-COMMANDS = {"run": cmd_run, "compare": cmd_compare}
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    from .reproduce import SCENARIO_DIR, reproduce
+
+    if args.duration is not None and not (args.duration > 0):
+        raise QcontrolInputError(f"--duration must be > 0, got {args.duration!r}")
+    scenarios = args.scenarios or SCENARIO_DIR
+    log = (lambda line: None) if args.quiet else (lambda line: print(line, flush=True))
+    reproduce(args.out, args.backend, args.duration, scenarios, log)
+    return EXIT_OK
+
+
+COMMANDS = {"run": cmd_run, "compare": cmd_compare, "reproduce": cmd_reproduce}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

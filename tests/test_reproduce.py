@@ -1,0 +1,80 @@
+"""`qcontrol reproduce` end to end on a shortened horizon: every file, valid contents."""
+
+import json
+import struct
+
+import numpy as np
+import pytest
+
+from qcontrol.cli import main
+from qcontrol.plots import FIG_HEIGHT_PX, FIG_WIDTH_PX
+from qcontrol.report import PAPER_TABLE1
+
+FIGURES = [
+    "fig1_output.png", "fig2_tracking_error.png", "fig3_xi_hat.png", "fig4_input.png",
+    "fig5_outputs.png", "fig6_tracking_errors.png", "fig7_eps_hat.png", "fig8_input.png",
+    "fig_example1_mujoco_vs_ode.png", "fig_example2_mujoco_vs_ode.png", "table1.png",
+    "study_kappa.png", "study_r_scale.png", "study_plant_variants.png",
+]
+OMEGAS = ["0.100", "0.125", "0.150", "0.175", "0.200"]
+
+
+@pytest.fixture(scope="module")
+def reproduction(tmp_path_factory):
+    out = tmp_path_factory.mktemp("reproduce") / "results"
+    assert main(["reproduce", "--out", str(out), "--duration", "0.5", "-q"]) == 0
+    return out
+
+
+def test_every_file_is_written(reproduction):
+    names = {p.name for p in reproduction.iterdir()}
+    expected = set(FIGURES) | {"table1.md", "table1.json", "studies.json", "REPORT.md", "example1.rrd",
+                               "example2.rrd"}
+    assert expected <= names
+    assert not [n for n in names if n.endswith(".part")]
+
+
+def test_table1_json(reproduction):
+    table = json.loads((reproduction / "table1.json").read_text())
+    assert table["omegas"] == OMEGAS
+    assert table["paper"] == PAPER_TABLE1  # verbatim
+    assert table["paper"]["proposed"]["0.100"] == 0.0253 and table["paper"]["comparison"]["0.200"] == 0.8679
+    assert set(table["ours"]) == {"mujoco", "ode"}
+    for backend, methods in table["ours"].items():
+        assert set(methods) == {"proposed", "comparison"}
+        for method, rates in methods.items():
+            assert list(rates) == OMEGAS
+            for w, v in rates.items():
+                assert 0.0 <= v <= 1.0 and np.isfinite(v)
+                diff = table["difference"][backend][method][w]
+                assert diff == pytest.approx(v - PAPER_TABLE1[method][w], abs=1e-15)
+            # E(omega) cannot grow with omega
+            assert all(a >= b for a, b in zip(list(rates.values()), list(rates.values())[1:]))
+
+
+def test_table1_markdown_and_report(reproduction):
+    md = (reproduction / "table1.md").read_text()
+    assert "| proposed (44)-(45) | paper | 0.0253 | 0.0223 | 0.0200 | 0.0177 | 0.0161 |" in md
+    assert "| comparison [20], eq. (46) | paper | 0.9570 | 0.9339 | 0.9132 | 0.8925 | 0.8679 |" in md
+    report = (reproduction / "REPORT.md").read_text()
+    for needle in ("Not reproduced", "Lemma 2", "kappa - L", "scale of r", "MuJoCo vs ODE", "fig5_outputs.png"):
+        assert needle in report
+
+
+def test_studies_cover_the_paper_values(reproduction):
+    studies = json.loads((reproduction / "studies.json").read_text())
+    assert 1.1 in studies["kappa_margin"]["values"] and 0.1 in studies["kappa_margin"]["values"]
+    assert studies["r_scale"]["values"][0] == 1.0
+    for study in studies.values():
+        assert len(study["values"]) == len(study["summaries"])
+        for s in study["summaries"]:
+            assert s["lemma2_max_ratio"] <= 1 + 1e-9
+
+
+@pytest.mark.parametrize("name", FIGURES)
+def test_figures_are_pngs_of_the_stated_size(reproduction, name):
+    data = (reproduction / name).read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    width, height = struct.unpack(">II", data[16:24])
+    assert (width, height) == (FIG_WIDTH_PX, FIG_HEIGHT_PX)
+    assert len(data) > 10_000
