@@ -38,7 +38,8 @@ def test_table1_json(reproduction):
     table = json.loads((reproduction / "table1.json").read_text())
     assert table["omegas"] == OMEGAS
     assert table["paper"] == PAPER_TABLE1  # verbatim
-    assert table["paper"]["proposed"]["0.100"] == 0.0253 and table["paper"]["comparison"]["0.200"] == 0.8679
+    assert table["paper"]["proposed"]["0.100"] == 0.0253
+    assert table["paper"]["comparison"]["0.200"] == 0.8679
     assert set(table["ours"]) == {"mujoco", "ode"}
     for backend, methods in table["ours"].items():
         assert set(methods) == {"proposed", "comparison"}
@@ -48,8 +49,8 @@ def test_table1_json(reproduction):
                 assert 0.0 <= v <= 1.0 and np.isfinite(v)
                 diff = table["difference"][backend][method][w]
                 assert diff == pytest.approx(v - PAPER_TABLE1[method][w], abs=1e-15)
-            # E(omega) cannot grow with omega
-            assert all(a >= b for a, b in zip(list(rates.values()), list(rates.values())[1:]))
+            values = list(rates.values())  # E(omega) cannot grow with omega
+            assert all(a >= b for a, b in zip(values, values[1:], strict=False))
 
 
 def test_table1_markdown_and_report(reproduction):
@@ -57,7 +58,8 @@ def test_table1_markdown_and_report(reproduction):
     assert "| proposed (44)-(45) | paper | 0.0253 | 0.0223 | 0.0200 | 0.0177 | 0.0161 |" in md
     assert "| comparison [20], eq. (46) | paper | 0.9570 | 0.9339 | 0.9132 | 0.8925 | 0.8679 |" in md
     report = (reproduction / "REPORT.md").read_text()
-    for needle in ("Not reproduced", "Lemma 2", "kappa - L", "scale of r", "MuJoCo vs ODE", "fig5_outputs.png"):
+    needles = ("Not reproduced", "Lemma 2", "kappa - L", "scale of r", "MuJoCo vs ODE", "fig5_outputs.png")
+    for needle in needles:
         assert needle in report
 
 
