@@ -5,7 +5,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from qcontrol.assembly import build_plant, run_scenario
+from qcontrol.assembly import run_scenario
+from qcontrol.expr import compile_expression
+from qcontrol.plants.ode import ChainPlant
 from qcontrol.scenario import load_scenario
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
@@ -79,9 +81,7 @@ def test_controller_period_holds_input():
 
 def test_rk4_plant_against_closed_form():
     """x'' = u - x2 (theta1 = -1), u constant: x2(t) = u + (x2(0) - u) e^-t, RK4 to ~1e-13."""
-    sc = load_scenario(SCENARIOS / "example2.toml", ['plant.phi=["x2"]', "plant.theta=[-1.0]",
-                                                        'controller.r=["1"]'])
-    plant = build_plant(sc, "ode")
+    plant = ChainPlant(2, None, [compile_expression("x2", ["x1", "x2"])], [-1.0])
     plant.reset(np.array([[0.0, 2.0]]))
     u = np.array([0.5])
     for _ in range(1000):
