@@ -9,20 +9,39 @@
 * :class:`BaselineController` - the comparison law of reference [20], eq. (46), with our
   reconstructed adaptive law (SPEC 8).
 
-Everything is vectorized over a leading batch axis: readings have shape ``(batch, n)``.
+Everything is vectorized over a leading batch axis: readings have shape ``(batch, n)``. The
+proposed law's scalar parameters (kappa, gamma, sigma, r_scale) may also be given per copy, as
+arrays of shape ``(batch,)``: a parameter sweep then runs as one batch, through the same formulas
+(a single run is a batch of one with scalar parameters).
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from .errors import QcontrolInputError
 from .expr import Expression
 from .quantizer import QuantizedReading
+
+Parameter = float | np.ndarray  # a scalar, or one value per copy of the batch (shape (batch,))
+
+
+def _parameter(name: str, value: float | Sequence[float] | np.ndarray) -> Parameter:
+    """A controller constant as a float, or as a ``(batch,)`` array of per-copy values."""
+    array = np.asarray(value, dtype=float)
+    if array.ndim > 1 or array.size == 0:
+        raise QcontrolInputError(f"controller {name} must be a number or a list of per-copy numbers")
+    if not (np.all(np.isfinite(array)) and np.all(array > 0)):
+        raise QcontrolInputError(f"controller {name} must be a finite number > 0, got {value!r}")
+    return float(array) if array.ndim == 0 else array
+
+
+def _column(value: Parameter) -> Parameter:
+    """Per-copy values as a column ``(batch, 1)``, to scale rows of ``(batch, m)`` arrays."""
+    return value[:, None] if isinstance(value, np.ndarray) else value
 
 
 def backstepping_coefficients(c: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
@@ -95,6 +114,10 @@ class Backstepping:
         for i in range(1, n):
             self._Dq[i, 1 : i + 1] = self.A[i - 1, :i]
             self._Dy[i, 1 : i + 2] = self.B[i - 1, : i + 1]
+        # [zbar | alphabar] = q @ Wq + yd @ Wy: the recursion applied to unit vectors
+        eye_q, eye_y = np.eye(n), np.eye(n + 1)
+        self._Wq = np.hstack(self._recursion(eye_q, np.zeros((n, n + 1))))
+        self._Wy = np.hstack(self._recursion(np.zeros((n + 1, n)), eye_y))
 
     def errors(self, x: np.ndarray, yd: np.ndarray) -> np.ndarray:
         """True errors ``z`` (eqs. (7), (8)): ``z_1 = x_1 - y_d``, ``z_i = x_i - alpha_{i-1}``.
@@ -111,8 +134,15 @@ class Backstepping:
     def quantized_errors(self, q: np.ndarray, yd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Quantized errors ``zbar`` and virtual controls ``alphabar``, eqs. (31)-(34).
 
-        Shapes as in :meth:`errors`, with the quantized state ``q`` in place of ``x``.
+        Shapes as in :meth:`errors`, with the quantized state ``q`` in place of ``x``. Both are
+        linear in ``(q, y_d)``: one product with the coefficients :meth:`_recursion` gives.
         """
+        both = q @ self._Wq + yd @ self._Wy
+        return both[..., : self.n], both[..., self.n :]
+
+    def _recursion(self, q: np.ndarray, yd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Eqs. (31)-(34) as written: ``zbar_1 = q_1 - y_d``, ``alphabar_i = -c_i zbar_i + D_i``,
+        ``zbar_{i+1} = q_{i+1} - alphabar_i``. Evaluated once, on unit vectors, in ``__init__``."""
         D = q @ self._Dq.T + yd @ self._Dy.T
         zbar = np.empty(D.shape)
         alphabar = np.empty(D.shape)
@@ -137,15 +167,14 @@ class Backstepping:
         return reading.values
 
 
-@dataclass(frozen=True)
-class ControlOutput:
+class ControlOutput(NamedTuple):
     """One controller evaluation: input ``u`` (batch,), ``zbar`` (batch, n), and the held
     quantities that drive the adaptive state until the next sample."""
 
     u: np.ndarray
     zbar: np.ndarray
     target: np.ndarray  # proposed: s r / sigma; baseline: Gamma phi zbar_n (a rate)
-    rate: float  # proposed: gamma sigma (exponential decay rate); baseline: 0 (pure integration)
+    rate: float | np.ndarray  # proposed: gamma sigma, a float or a (batch, 1) column; baseline: 0
 
 
 class ProposedController(Backstepping):
@@ -173,13 +202,14 @@ class ProposedController(Backstepping):
         expected_terms: int | None = None,
     ) -> None:
         super().__init__(c, max_error)
-        for name, value in (("gamma", gamma), ("sigma", sigma), ("r_scale", r_scale)):
-            if not (np.isfinite(value) and value > 0):
-                raise QcontrolInputError(f"controller {name} must be a finite number > 0, got {value!r}")
-        if not (np.isfinite(kappa) and kappa > self.L):
+        gamma, sigma, r_scale = (_parameter(k, v) for k, v in (("gamma", gamma), ("sigma", sigma),
+                                                                 ("r_scale", r_scale)))
+        kappa_array = np.asarray(kappa, dtype=float)
+        if not (np.all(np.isfinite(kappa_array)) and np.all(kappa_array > self.L)):
             raise QcontrolInputError(
                 f"controller kappa must exceed L = L_z{self.n} = {self.L:g} (Theorem 1), got {kappa!r}"
             )
+        kappa = _parameter("kappa", kappa)
         if len(r) == 0:
             raise QcontrolInputError("controller r must list at least one bounding function")
         if expected_terms is not None and len(r) != expected_terms:
@@ -187,12 +217,21 @@ class ProposedController(Backstepping):
                 f"controller r has {len(r)} bounding function(s) but the plant has "
                 f"{expected_terms} uncertain term(s) (one per phi_i, plus one for psi)"
             )
-        self.kappa = float(kappa)
-        self.gamma = float(gamma)
-        self.sigma = float(sigma)
+        sizes = {v.size for v in (kappa, gamma, sigma, r_scale) if isinstance(v, np.ndarray)}
+        if len(sizes) > 1:
+            raise QcontrolInputError(f"controller per-copy parameters have different lengths {sorted(sizes)}")
+        self.copies: int | None = sizes.pop() if sizes else None  # batch size the parameters fix
+        self.kappa = kappa
+        self.gamma = gamma
+        self.sigma = sigma
         self.r = tuple(r)
-        self.r_scale = float(r_scale)
+        self.r_scale = r_scale
         self.state_size = len(self.r)
+        # precomputed once: per-copy values as columns, and eq. (45)'s decay rate gamma sigma
+        self._sigma_column = _column(sigma)
+        self._r_scale_column = None if np.all(np.asarray(r_scale) == 1.0) else _column(r_scale)
+        self._rate = _column(gamma * sigma)
+        self._gain = 1.0 / (kappa * (kappa - self.L))  # (44): u = -zbar_n s eps^T r / (kappa (kappa - L))
 
     def initial_state(self, batch: int) -> np.ndarray:
         """``eps_hat(0) = 0``."""
@@ -201,11 +240,11 @@ class ProposedController(Backstepping):
     def bounding_functions(self, q: np.ndarray) -> np.ndarray:
         """``r(x_q)`` with shape ``(..., len(r))``."""
         r = np.empty(q.shape[:-1] + (self.state_size,))
-        columns = np.moveaxis(q, -1, 0)
+        columns = q.T if q.ndim == 2 else np.moveaxis(q, -1, 0)
         for i, ri in enumerate(self.r):
             r[..., i] = ri.on_columns(columns)
-        if self.r_scale != 1.0:
-            r *= self.r_scale
+        if self._r_scale_column is not None:
+            r *= self._r_scale_column
         return r
 
     def control(self, reading: QuantizedReading, yd: np.ndarray, eps_hat: np.ndarray) -> ControlOutput:
@@ -215,15 +254,15 @@ class ProposedController(Backstepping):
         r = self.bounding_functions(q)
         zn = zbar[:, -1]
         s = zn * zn / self.kappa + self.L
-        robust = (eps_hat * r).sum(axis=-1)
-        u = -(zn / self.kappa) / (self.kappa - self.L) * s * robust + alphabar[:, -1]
-        return ControlOutput(u, zbar, s[:, None] * r / self.sigma, self.gamma * self.sigma)
+        robust = np.vecdot(eps_hat, r)  # eps_hat^T r(x_q), per copy
+        u = alphabar[:, -1] - zn * s * robust * self._gain
+        return ControlOutput(u, zbar, s[:, None] * r / self._sigma_column, self._rate)
 
     @staticmethod
     def advance(state: np.ndarray, out: ControlOutput, h: float) -> np.ndarray:
         """Integrate eq. (45) over ``h`` with ``x_q`` held: exact for the linear ODE
         ``eps_hat' = gamma sigma (target - eps_hat)``."""
-        return out.target + (state - out.target) * math.exp(-out.rate * h)
+        return out.target + (state - out.target) * np.exp(-out.rate * h)
 
 
 class BaselineController(Backstepping):

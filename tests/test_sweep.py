@@ -1,0 +1,102 @@
+"""``qcontrol sweep``: the table, diverged grid points, bad input, and the executors."""
+
+import argparse
+import csv
+from pathlib import Path
+
+import pytest
+
+from qcontrol import sweep
+from qcontrol.errors import QcontrolInputError
+from qcontrol.sweep import CSV_METRICS, add_sweep_parser, cmd_sweep, sweep_summaries
+
+EXAMPLE2 = Path(__file__).resolve().parent.parent / "scenarios" / "example2.toml"
+SHORT = "simulation.duration=1.0"
+
+
+def _sweep(*argv: str) -> int:
+    parser = argparse.ArgumentParser()
+    add_sweep_parser(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["sweep", *argv])
+    assert args.func is cmd_sweep
+    return cmd_sweep(args)
+
+
+def _table(path: Path) -> list[dict]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_sweep_csv_has_one_row_per_grid_point(tmp_path):
+    assert _sweep(str(EXAMPLE2), "--grid", "controller.kappa_margin=0.1,1.1", "--grid",
+                  "controller.r_scale=1,2,4", "--set", SHORT, "--out", str(tmp_path), "-q") == 0
+    rows = _table(tmp_path / "sweep.csv")
+    assert list(rows[0]) == ["controller.kappa_margin", "controller.r_scale"] + CSV_METRICS
+    assert [(r["controller.kappa_margin"], r["controller.r_scale"]) for r in rows] == [
+        (k, s) for k in ("0.1", "1.1") for s in ("1", "2", "4")]
+    assert {r["diverged"] for r in rows} == {"False"}
+    assert all(0.0 <= float(r["error_rate_0.100"]) <= 1.0 for r in rows)
+    assert all(float(r["lemma2_max_ratio"]) <= 1.0 + 1e-9 for r in rows)
+    assert (tmp_path / "sweep.png").stat().st_size > 1000
+    assert not list(tmp_path.glob(".*part"))  # atomic writes leave no temporaries
+
+
+def test_a_diverging_grid_point_is_a_row_not_a_stop(tmp_path):
+    # the first point's state bound is left within 0.1 s: a diverged run among finished ones
+    assert _sweep(str(EXAMPLE2), "--grid", "simulation.state_bound=0.35,1e6", "--grid",
+                  "controller.gamma=1,2", "--set", SHORT, "--out", str(tmp_path), "-q") == 0
+    rows = _table(tmp_path / "sweep.csv")
+    assert len(rows) == 4
+    assert [r["diverged"] for r in rows] == ["True", "True", "False", "False"]
+    assert all(float(r["max_abs_u"]) > 0 for r in rows)  # the later points ran to the end
+
+
+def test_random_initial_states(tmp_path):
+    assert _sweep(str(EXAMPLE2), "--grid", "controller.gamma=1,2", "--random-initial", "2", "--seed", "7",
+                  "--set", "simulation.duration=0.2", "--out", str(tmp_path), "-q") == 0
+    rows = _table(tmp_path / "sweep.csv")
+    assert len(rows) == 4 and len({r["plant.x0"] for r in rows}) == 2
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--grid", "controller.gamma"], "expected KEY=V1,V2"),
+    (["--grid", "controller.gamma=1,,2"], "empty value"),
+    (["--grid", "controller.kappa_margin=-1"], "kappa_margin"),
+    (["--grid", "controller.nonsense=1"], "unknown key"),
+    (["--workers", "0"], "--workers"),
+])
+def test_bad_input_is_an_input_error(tmp_path, argv, message):
+    with pytest.raises(QcontrolInputError, match=message):
+        _sweep(str(EXAMPLE2), *argv, "--set", SHORT, "--out", str(tmp_path / "out"), "-q")
+    assert not (tmp_path / "out" / "sweep.csv").exists()
+
+
+SETS = [[SHORT, f"controller.kappa_margin={k}", f"controller.gamma={g}"]
+        for k in (0.1, 1.1) for g in (1.0, 3.0)]
+
+
+def _comparable(summaries):
+    return [{k: v for k, v in s.items() if k != "wall_time_s"} for s in summaries]
+
+
+def test_local_workers_give_the_in_process_table(monkeypatch):
+    monkeypatch.setattr(sweep, "CHUNK", 2)  # two batches, so both workers get one
+    local = sweep_summaries(EXAMPLE2, SETS)
+    assert _comparable(sweep_summaries(EXAMPLE2, SETS, workers=2)) == _comparable(local)
+
+
+def test_dask_cluster_gives_the_local_table(monkeypatch):
+    distributed = pytest.importorskip("distributed")
+    monkeypatch.setattr(sweep, "CHUNK", 2)
+    local = sweep_summaries(EXAMPLE2, SETS)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                                  dashboard_address=None) as cluster:
+        remote = sweep_summaries(EXAMPLE2, SETS, scheduler=cluster.scheduler_address)
+    assert _comparable(remote) == _comparable(local)
+
+
+def test_unreachable_scheduler_is_an_input_error(monkeypatch):
+    pytest.importorskip("distributed")
+    monkeypatch.setattr(sweep, "DASK_CONNECT_TIMEOUT", 1.0)
+    with pytest.raises(QcontrolInputError, match="--scheduler"):
+        sweep_summaries(EXAMPLE2, SETS[:1], scheduler="tcp://127.0.0.1:9")
