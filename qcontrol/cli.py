@@ -19,6 +19,7 @@ from .errors import QcontrolInputError
 from .metrics import backend_deviation, summary
 from .outputs import check_output_file, prepare_output_dir, write_json
 from .scenario import BACKENDS, Scenario, load_scenario
+from .sweep import add_sweep_parser, cmd_sweep
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 LEMMA2_TOLERANCE = 1e-9  # rounding slack on |e_zi| / L_zi <= 1
@@ -104,6 +105,8 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--scenarios", type=Path, default=None, metavar="DIR",
                      help="folder holding example1.toml, example2.toml, example2-rigid.toml")
     rep.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+
+    add_sweep_parser(sub)
     return parser
 
 
@@ -286,7 +289,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-COMMANDS = {"run": cmd_run, "compare": cmd_compare, "reproduce": cmd_reproduce}
+COMMANDS = {"run": cmd_run, "compare": cmd_compare, "reproduce": cmd_reproduce, "sweep": cmd_sweep}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
