@@ -171,6 +171,14 @@ def _scene(sc: Scenario, plant=None):
     return build_model(sc.mujoco, sc.simulation.dt), sc.mujoco.joint
 
 
+def _print_mujoco_warnings(plant: object) -> None:
+    messages = getattr(plant, "mujoco_warnings", [])
+    for message in messages[:3]:
+        print(f"  MuJoCo warned: {message}")
+    if len(messages) > 3:
+        print(f"  ... and {len(messages) - 3} more MuJoCo warnings")
+
+
 def format_summary(s: dict) -> str:
     rates = "  ".join(f"E({k})={v:.4f}" for k, v in s["error_rate"].items())
     lines = [
@@ -209,6 +217,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     s = summary(traj, sc.name, backend)
     s["L"] = controller_L(sc)
     print(format_summary(s))
+    _print_mujoco_warnings(plant)
     if out is not None:
         write_json(out / "summary.json", s)
         print(f"  wrote {out / 'summary.json'}")
@@ -255,6 +264,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     }
     for backend in ("mujoco", "ode"):
         print(format_summary(runs[backend][1]))
+    _print_mujoco_warnings(plant)
     print(
         f"MuJoCo vs ODE over {deviation['rows_compared']} instants: "
         f"max |dy| = {deviation['max_abs_dy']:.3g}, "

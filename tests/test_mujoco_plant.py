@@ -371,3 +371,21 @@ def test_a_copy_mujoco_resets_after_blowing_up_reads_as_nan(tmp_path, monkeypatc
         x, meas = mj.state(), mj.read_sensors()
     assert np.isnan(x[0]).all() and np.isnan(meas[0]).all()
     assert np.isfinite(x[1]).all() and np.abs(x[1]).max() < 1e-12
+
+
+def test_mujoco_warnings_are_kept_not_written_to_the_working_directory(tmp_path, monkeypatch):
+    """A blow-up makes MuJoCo warn; the plant keeps the message instead of MUJOCO_LOG.TXT."""
+    from qcontrol.assembly import build_plant
+    from qcontrol.scenario import load_scenario
+
+    root = pathlib.Path(__file__).resolve().parents[1]
+    monkeypatch.chdir(tmp_path)
+    sc = load_scenario(root / "scenarios" / "example1.toml", ['plant.psi="exp(x2)**2"'])
+    plant = build_plant(sc, "mujoco")
+    with plant:
+        plant.reset(np.array([[0.8, 30.0]]))  # exp(30)^2 ~ 1e26: MuJoCo resets the copy and warns
+        plant.step(np.array([0.0]), 1e-3)
+        assert np.isnan(plant.state()).all()
+    assert plant.mujoco_warnings and "unstable" in plant.mujoco_warnings[0]
+    assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
+    assert mujoco.get_mju_user_warning() is None  # the previous handler is back

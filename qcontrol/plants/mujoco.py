@@ -673,19 +673,27 @@ class MujocoPlant:
         self._noisy = bool(self._noise.any())
         self._rng = np.random.default_rng(options.noise_seed)
         self._entered: Any = None
+        self._previous_warning: Any = None
+        self.mujoco_warnings: list[str] = []  # MuJoCo's warnings during the last run
         self.consistency_report = self._consistency_check()
 
-    # ---- context manager: the process-global passive callback
+    # ---- context manager: the process-global passive callback and warning handler
     def __enter__(self) -> MujocoPlant:
         if self._entered is not None:
             raise RuntimeError("MujocoPlant is already in use by a 'with' block")
         manager = _callback_installed(self._datas, self._qadr, self._ids.dof, self._force)
         manager.__enter__()
         self._entered = manager
+        # MuJoCo's default warning handler appends to MUJOCO_LOG.TXT in the working directory;
+        # keep its messages here instead (the engine reports a blow-up as a divergence).
+        self.mujoco_warnings = []
+        self._previous_warning = mujoco.get_mju_user_warning()
+        mujoco.set_mju_user_warning(self.mujoco_warnings.append)
         return self
 
     def __exit__(self, *exc: object) -> None:
         manager, self._entered = self._entered, None
+        mujoco.set_mju_user_warning(self._previous_warning)
         if manager is not None:
             manager.__exit__(None, None, None)
 
@@ -744,6 +752,8 @@ class MujocoPlant:
         dead, clock = self._dead, self._clock
         mj_step, sensor_pos, sensor_vel = mujoco.mj_step, mujoco.mj_sensorPos, mujoco.mj_sensorVel
         elapsed = substeps * self.timestep
+        messages = self.mujoco_warnings
+        seen = len(messages)
         for b, data in enumerate(self._datas):
             if dead[b]:
                 continue
@@ -753,7 +763,13 @@ class MujocoPlant:
             sensor_pos(model, data)
             sensor_vel(model, data)
             clock[b] += elapsed
-            if data.time < clock[b] - 0.5 * self.timestep:  # MuJoCo reset the copy (NaN or huge qacc)
+            # MuJoCo resets a copy whose ctrl/qpos/qvel/qacc turns NaN, Inf or huge and carries on
+            # from the reset pose; it says so through the warning handler (once per copy), and
+            # the copy's clock falls behind when the reset happened before the last substep.
+            if len(messages) != seen:
+                dead[b] = dead[b] or any("unstable" in m for m in messages[seen:])
+                seen = len(messages)
+            if data.time < clock[b] - 0.5 * self.timestep:
                 dead[b] = True
 
     def _count_substeps(self, h: float) -> int:
