@@ -57,7 +57,12 @@ def finite_max_abs(values: np.ndarray) -> float:
 
 
 def summary(traj: Trajectory, scenario: str, backend: str) -> dict:
-    """The ``summary.json`` object of DESIGN's output contract (plus diverged_time/reason)."""
+    """The ``summary.json`` object of DESIGN's output contract (plus diverged_time/reason).
+
+    The Lemma 2 check covers every instant before a divergence: the row that stopped a diverged
+    run holds an out-of-range state (NaN, Inf, or beyond ``state_bound``, possibly so large that
+    ``x / delta`` has no fractional digits left), where quantization error is meaningless.
+    """
     last_half = traj.t >= traj.duration / 2.0
     z1_last_half = traj.z[last_half, 0] if last_half.any() else np.array([np.nan])
     final = traj.adaptive[-1]
@@ -76,7 +81,7 @@ def summary(traj: Trajectory, scenario: str, backend: str) -> dict:
         "max_abs_u": finite_max_abs(traj.u),
         "final_eps_hat": [float(v) for v in final],
         "adaptive_state": traj.adaptive_name,
-        "lemma2_max_ratio": lemma2_max_ratio(traj.e_z, traj.L_z),
+        "lemma2_max_ratio": lemma2_max_ratio(traj.lemma2_e_z, traj.L_z),
         "L_z": [float(v) for v in traj.L_z],
     }
 

@@ -63,6 +63,12 @@ class Trajectory:
     info: dict = field(default_factory=dict)
 
     @property
+    def lemma2_e_z(self) -> np.ndarray:
+        """The Lemma 2 errors to check: every row, except the one that stopped a diverged run
+        (its state is out of range, where quantization error is meaningless)."""
+        return self.e_z[:-1] if self.diverged else self.e_z
+
+    @property
     def y(self) -> np.ndarray:
         return self.x[:, 0]
 
@@ -111,6 +117,11 @@ class RunMetrics:
 
     @property
     def e_z(self) -> np.ndarray:
+        return self.e_z_max[None, :]
+
+    @property
+    def lemma2_e_z(self) -> np.ndarray:
+        """The Lemma 2 errors to check (already reduced over the rows before any divergence)."""
         return self.e_z_max[None, :]
 
     @property
@@ -308,6 +319,7 @@ class _Reduced:
 
     def __init__(self, rows: int, batch: int, n: int, state_size: int) -> None:
         self.z1 = np.full((rows, batch), np.nan)
+        self.rows = rows
         self.max_abs_u = np.full(batch, -np.inf)
         self.e_z_max = np.full((batch, n), -np.inf)
         self.final = np.full((batch, state_size), np.nan)
@@ -322,7 +334,9 @@ class _Reduced:
         self.z1[rows] = np.where(valid, X[..., 0] - YD[:, None, 0], np.nan)
         zbar, _ = controller.quantized_errors(XQ, yd)
         e_z = np.abs(controller.errors(XM, yd) - zbar)
-        e_z = np.where(valid[..., None] & np.isfinite(e_z), e_z, -np.inf)
+        # as metrics.summary: the Lemma 2 check stops before the row that stopped a diverged copy
+        checked = rows[:, None] < np.where(kept < self.rows, kept - 1, kept)[None, :]
+        e_z = np.where(checked[..., None] & np.isfinite(e_z), e_z, -np.inf)
         np.maximum(self.e_z_max, e_z.max(axis=0), out=self.e_z_max)
         abs_u = np.abs(U)
         np.maximum(self.max_abs_u, np.where(valid & np.isfinite(abs_u), abs_u, -np.inf).max(axis=0),

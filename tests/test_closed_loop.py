@@ -113,3 +113,18 @@ def test_same_scenario_same_numbers():
     a, b = run_scenario(sc, "ode"), run_scenario(sc, "ode")
     for field in ("x", "u", "adaptive", "z", "e_z"):
         assert np.array_equal(getattr(a, field), getattr(b, field))
+
+
+def test_high_gain_sampled_loop_diverges_and_lemma2_is_checked_before_it():
+    """kappa = 0.1 + L with r x 30 is unstable when sampled at 1 kHz (fine at 10 kHz): the run
+    stops, and the Lemma 2 check covers the rows before the out-of-range state (|x| >> 1e6)."""
+    from qcontrol.metrics import summary
+
+    overrides = ["controller.kappa_margin=0.1", "controller.r_scale=30.0", "simulation.duration=2.0"]
+    traj = run_scenario(load_scenario(SCENARIOS / "example2.toml", overrides), "ode")
+    assert traj.diverged and 1.0 < traj.diverged_time < 2.0
+    s = summary(traj, "example2", "ode")
+    assert 0.5 < s["lemma2_max_ratio"] <= 1.0
+    assert np.all(traj.e_z[:-1] <= traj.L_z * (1 + 1e-9))
+    fine = run_scenario(load_scenario(SCENARIOS / "example2.toml", [*overrides, "simulation.dt=0.0001"]), "ode")
+    assert not fine.diverged
