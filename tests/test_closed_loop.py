@@ -126,5 +126,6 @@ def test_high_gain_sampled_loop_diverges_and_lemma2_is_checked_before_it():
     s = summary(traj, "example2", "ode")
     assert 0.5 < s["lemma2_max_ratio"] <= 1.0
     assert np.all(traj.e_z[:-1] <= traj.L_z * (1 + 1e-9))
-    fine = run_scenario(load_scenario(SCENARIOS / "example2.toml", [*overrides, "simulation.dt=0.0001"]), "ode")
+    fine_sc = load_scenario(SCENARIOS / "example2.toml", [*overrides, "simulation.dt=0.0001"])
+    fine = run_scenario(fine_sc, "ode")
     assert not fine.diverged
