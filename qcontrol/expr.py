@@ -22,6 +22,8 @@ from .errors import QcontrolInputError
 MAX_SOURCE_LENGTH = 2000
 MAX_CONSTANT_EXPONENT = 64.0
 MAX_NODES = 500
+MAX_DEPTH = 200  # nesting depth; evaluation recurses once per level, so this bounds the stack it needs
+SHOWN_SOURCE = 100  # messages quote at most this many characters of an expression
 
 _UNARY_FUNCTIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
     "abs": np.abs,
@@ -74,6 +76,18 @@ _FORBIDDEN_DESCRIPTIONS = {
 }
 
 
+def _cut(text: str) -> str:
+    """``text`` cut to :data:`SHOWN_SOURCE` characters, for a message."""
+    if len(text) > SHOWN_SOURCE:
+        return text[:SHOWN_SOURCE] + f"... ({len(text)} characters)"
+    return text
+
+
+def _show(text: str) -> str:
+    """``repr`` of ``text`` for a one-line message: newlines escaped, long text cut."""
+    return _cut(repr(text))
+
+
 @dataclass(frozen=True)
 class Expression:
     """A compiled expression: call it with an array ``values[..., len(variables)]``."""
@@ -124,17 +138,46 @@ def compile_expression(source: object, variables: Sequence[str], where: str = "e
         tree = ast.parse(text.strip(), mode="eval")
     except SyntaxError as exc:
         raise QcontrolInputError(
-            f"{where}: cannot parse {text!r} ({exc.msg}); use numbers, {', '.join(variables)}, "
+            f"{where}: cannot parse {_show(text)} ({exc.msg}); use numbers, {', '.join(variables)}, "
             "+ - * / ** and the allowed functions"
         ) from None
-    except (RecursionError, MemoryError, ValueError):
-        raise QcontrolInputError(f"{where}: expression {text!r} is too deeply nested") from None
+    except ValueError as exc:  # e.g. null bytes (Python < 3.12)
+        raise QcontrolInputError(f"{where}: cannot parse {_show(text)} ({exc}); use plain text") from None
+    except (RecursionError, MemoryError):
+        raise QcontrolInputError(
+            f"{where}: expression {_show(text)} is too deeply nested; simplify it"
+        ) from None
+    nodes, depth = _size(tree.body)
+    if nodes > MAX_NODES:
+        raise QcontrolInputError(
+            f"{where}: too many terms ({nodes} syntax nodes) in {_show(text)}; keep expressions under "
+            f"{MAX_NODES} nodes"
+        )
+    if depth > MAX_DEPTH:
+        raise QcontrolInputError(
+            f"{where}: expression {_show(text)} is nested {depth} levels deep; keep it under {MAX_DEPTH} "
+            "levels (e.g. factor repeated terms)"
+        )
     compiler = _Compiler(text, variables, where)
     try:
         fn, _ = compiler.visit(tree.body)
     except RecursionError:
-        raise QcontrolInputError(f"{where}: expression {text!r} is too deeply nested") from None
+        raise QcontrolInputError(
+            f"{where}: expression {_show(text)} is too deeply nested; simplify it"
+        ) from None
     return Expression(text, variables, frozenset(compiler.used), fn)
+
+
+def _size(root: ast.AST) -> tuple[int, int]:
+    """Number of nodes and nesting depth of an AST, without recursion."""
+    nodes, deepest = 0, 0
+    stack = [(root, 1)]
+    while stack:
+        node, depth = stack.pop()
+        nodes += 1
+        deepest = max(deepest, depth)
+        stack.extend((child, depth + 1) for child in ast.iter_child_nodes(node))
+    return nodes, deepest
 
 
 class _Compiler:
@@ -147,7 +190,7 @@ class _Compiler:
         self.nodes = 0
 
     def fail(self, problem: str, fix: str) -> QcontrolInputError:
-        return QcontrolInputError(f"{self.where}: {problem} in {self.source!r}; {fix}")
+        return QcontrolInputError(f"{self.where}: {problem} in {_show(self.source)}; {fix}")
 
     def allowed_names(self) -> str:
         names = list(self.variables) + list(_CONSTANTS) + list(_UNARY_FUNCTIONS) + list(
@@ -163,11 +206,11 @@ class _Compiler:
         if isinstance(node, ast.Constant):
             value = node.value
             if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise self.fail(f"literal {value!r} is not a real number", "use plain numbers")
+                raise self.fail(f"literal {_cut(repr(value))} is not a real number", "use plain numbers")
             try:
                 as_float = float(value)
             except OverflowError:
-                raise self.fail(f"number {value} is too large", "use a finite number") from None
+                raise self.fail(f"number {_cut(str(value))} is too large", "use a finite number") from None
             if not math.isfinite(as_float):
                 raise self.fail(f"number {value!r} is not finite", "use a finite number")
             return self._constant(as_float)
@@ -205,8 +248,8 @@ class _Compiler:
         if name in _CONSTANTS:
             return self._constant(_CONSTANTS[name])
         if name in _UNARY_FUNCTIONS or name in _VARIADIC_FUNCTIONS:
-            raise self.fail(f"function {name!r} used without a call", f"write {name}(...)")
-        raise self.fail(f"unknown name {name!r}", f"allowed names are {self.allowed_names()}")
+            raise self.fail(f"function {_show(name)} used without a call", f"write {name}(...)")
+        raise self.fail(f"unknown name {_show(name)}", f"allowed names are {self.allowed_names()}")
 
     def _binop(self, node: ast.BinOp) -> tuple[_Node, float | None]:
         op_type = type(node.op)
@@ -279,5 +322,5 @@ class _Compiler:
 
             return reduce, None
         if name in self.index or name in _CONSTANTS:
-            raise self.fail(f"{name!r} is not a function", f"allowed names are {self.allowed_names()}")
-        raise self.fail(f"unknown function {name!r}", f"allowed names are {self.allowed_names()}")
+            raise self.fail(f"{_show(name)} is not a function", f"allowed names are {self.allowed_names()}")
+        raise self.fail(f"unknown function {_show(name)}", f"allowed names are {self.allowed_names()}")

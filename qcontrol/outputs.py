@@ -11,6 +11,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from .errors import QcontrolInputError
 
 
@@ -45,22 +47,54 @@ def check_output_file(path: str | Path, option: str) -> Path:
     return path
 
 
+def _umask() -> int:
+    """The process umask (read by setting it and putting it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 @contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; on success it replaces ``path``, else is removed."""
+    """Yield a temporary path beside ``path``; on success it replaces ``path``, else is removed.
+
+    The temporary file gets the permissions an ordinary ``open()`` would give (``mkstemp`` makes
+    it private, 0600). If the file cannot be created or renamed into place (e.g. ``path`` is a
+    folder, or its folder vanished) the failure is a :class:`QcontrolInputError` naming the path,
+    so the command line reports it as one line instead of a traceback.
+    """
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent or ".")
-    os.close(fd)
+    folder = path.parent if str(path.parent) else Path(".")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=folder)
+    except OSError as exc:
+        raise QcontrolInputError(
+            f"{path}: cannot create a file in {folder} ({exc.strerror or exc}); choose a writable folder"
+        ) from None
     tmp_path = Path(tmp)
     try:
+        try:
+            os.fchmod(fd, 0o666 & ~_umask())
+        finally:
+            os.close(fd)
         yield tmp_path
-        os.replace(tmp_path, path)
+        try:
+            os.replace(tmp_path, path)
+        except OSError as exc:
+            raise QcontrolInputError(
+                f"{path}: cannot write the result ({exc.strerror or exc}); "
+                "remove what is in the way or choose another folder"
+            ) from None
     finally:
         tmp_path.unlink(missing_ok=True)
 
 
 def _clean(value: Any) -> Any:
-    """JSON has no NaN/Inf: write them as null."""
+    """JSON has no NaN/Inf: write them as null. numpy scalars and arrays become plain Python."""
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    elif isinstance(value, np.generic):
+        value = value.item()
     if isinstance(value, float):
         return value if math.isfinite(value) else None
     if isinstance(value, dict):
@@ -73,14 +107,18 @@ def _clean(value: Any) -> Any:
 def write_json(path: str | Path, obj: Any) -> Path:
     """Write ``obj`` as indented JSON, atomically."""
     path = Path(path)
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(_clean(obj), indent=2, allow_nan=False) + "\n", encoding="utf-8")
-    return path
+    return write_text(path, json.dumps(_clean(obj), indent=2, allow_nan=False) + "\n")
 
 
 def write_text(path: str | Path, text: str) -> Path:
     """Write ``text`` atomically."""
     path = Path(path)
     with atomic_path(path) as tmp:
-        tmp.write_text(text, encoding="utf-8")
+        try:
+            tmp.write_text(text, encoding="utf-8")
+        except OSError as exc:
+            raise QcontrolInputError(
+                f"{path}: cannot write the result ({exc.strerror or exc}); free some space or choose "
+                "another folder"
+            ) from None
     return path

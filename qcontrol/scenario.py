@@ -8,7 +8,9 @@ fix. Unknown keys are errors. ``--set key=value`` overrides are applied before v
 
 from __future__ import annotations
 
+import json
 import math
+import re
 import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -24,6 +26,10 @@ _MISSING = object()
 CONTROLLER_KINDS = ("proposed", "baseline")
 BACKENDS = ("ode", "mujoco")
 REFERENCE_KINDS = ("sine", "constant", "sum_of_sines")
+# The engine keeps every row of a run in memory (about 20 float64 per row for n = 2, more for larger
+# n): 20 million steps is ~3 GB. Longer runs are refused at load instead of failing mid-way.
+MAX_STEPS = 20_000_000
+_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+(\[[0-9]+\])*")
 
 
 @dataclass(frozen=True)
@@ -100,6 +106,8 @@ class Scenario:
 def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
     """Read and validate a scenario file, applying ``--set key=value`` overrides first."""
     path = Path(path)
+    if path.is_dir():
+        raise QcontrolInputError(f"{path}: is a folder, not a scenario file; pass a .toml scenario")
     if not path.is_file():
         raise QcontrolInputError(f"{path}: scenario file not found; pass the path of a .toml scenario")
     try:
@@ -133,7 +141,7 @@ def apply_override(data: dict, item: str, source: str) -> None:
     key = key.strip()
     if not sep or not key:
         raise QcontrolInputError(
-            f"--set {item!r}: expected KEY=VALUE such as controller.kappa_margin=0.1"
+            f"--set {item!r}: expected KEY=VALUE; write e.g. --set controller.kappa_margin=0.1"
         )
     parts = key.split(".")
     if any(not p for p in parts):
@@ -178,6 +186,7 @@ class _Table:
         return self.error_at(self._path(key), problem, fix)
 
     def _path(self, key: str) -> str:
+        key = _show_key(key)
         return f"{self.name}.{key}" if self.name else key
 
     def has(self, key: str) -> bool:
@@ -248,6 +257,14 @@ class _Table:
 
     def table(self, key: str, allowed: Sequence[str], default: Any = _MISSING) -> _Table:
         return _Table(self._get(key, default), self.source, self._path(key), allowed)
+
+
+def _show_key(key: str) -> str:
+    """A key as it may appear in a one-line message: bare if it is a plain name (or an indexed
+    one such as ``c[1]``), otherwise quoted like a TOML quoted key (newlines escaped)."""
+    if _BARE_KEY.fullmatch(key):
+        return key
+    return json.dumps(key)
 
 
 def _type(value: Any) -> str:
@@ -321,18 +338,29 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
         baseline_gain=ctrl.number("baseline_gain", 1.0, positive=True),
         baseline_theta=ctrl.string("baseline_theta", "adaptive", ("adaptive", "known")),
     )
-    if kind == "proposed" and kappa is not None:
+    if kind == "proposed":
         from .controller import lemma2_bounds
 
-        L = float(lemma2_bounds(c, delta / 2.0)[0][-1])
-        if kappa <= L:
+        with np.errstate(all="ignore"):
+            L = float(lemma2_bounds(c, delta / 2.0)[0][-1])
+        if not math.isfinite(L):
+            raise ctrl.error("delta", f"with c = {list(c)} gives L = L_z{order} = {L:g}, not a finite number",
+                             "use a smaller quantizer step delta or smaller gains c")
+        if kappa is not None and kappa <= L:
             raise ctrl.error("kappa", f"must exceed L = L_z{order} = {L:g} (Theorem 1), got {kappa:g}",
                              f"use kappa > {L:g}, or kappa_margin = kappa - L > 0")
+        if kappa_margin is not None and not math.isfinite(L + kappa_margin):
+            raise ctrl.error("kappa_margin", f"{kappa_margin:g} makes kappa = L + kappa_margin overflow "
+                             f"(L = {L:g})", "use a smaller margin")
+        if kappa_margin is not None and not L + kappa_margin > L:
+            raise ctrl.error("kappa_margin", f"{kappa_margin:g} is lost in floating point next to L = "
+                             f"L_z{order} = {L:g}, so kappa = L + kappa_margin would not exceed L",
+                             f"use kappa_margin > {max(L, 1.0) * 1e-12:g}, or a smaller delta or gains c")
     if kind == "proposed" and controller.r_scale < 1.0:
         raise ctrl.error("r_scale", f"must be >= 1 to keep r_i >= 1, got {controller.r_scale:g}",
                          "use a scale >= 1")
 
-    reference = _reference(root.table("reference", _REFERENCE))
+    reference = _reference(root.table("reference", _REFERENCE), order)
     sim = root.table("simulation", _SIMULATION)
     simulation = SimulationConfig(
         duration=sim.number("duration", positive=True),
@@ -345,12 +373,21 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
     )
     from .sim import step_count  # local import: sim imports the controller, not the scenario
 
+    ratio = simulation.duration / simulation.dt
+    if ratio > MAX_STEPS:
+        raise sim.error("duration", f"{simulation.duration:g} s at dt = {simulation.dt:g} s is {ratio:.3g} "
+                        f"steps, more than the limit of {MAX_STEPS:,} (every step is kept in memory)",
+                        "shorten the run or use a larger dt")
     try:
         step_count(simulation.duration, simulation.dt)
-        if simulation.control_period is not None:
-            step_count(simulation.control_period, simulation.dt, "simulation.control_period")
     except QcontrolInputError as exc:
         raise QcontrolInputError(f"{source}: {exc}") from None
+    period = simulation.control_period
+    if period is not None:
+        hold = round(period / simulation.dt)
+        if hold < 1 or abs(hold * simulation.dt - period) > 1e-9 * period:
+            raise sim.error("control_period", f"{period:g} s is not a whole number of steps dt = "
+                            f"{simulation.dt:g} s", "choose a control period that is a multiple of dt")
 
     mujoco_options = None
     if plant.has("mujoco"):
@@ -373,18 +410,31 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
     return scenario
 
 
-def _reference(ref: _Table) -> ReferenceConfig:
+def _check_derivatives(ref: _Table, key: str, amplitude: float, frequency: float, order: int) -> None:
+    """The controller uses y_d^(k) = amplitude frequency^k (...) for k <= n: all must be finite."""
+    try:
+        biggest = max(abs(amplitude) * abs(frequency) ** k for k in range(order + 1))
+    except OverflowError:
+        biggest = math.inf
+    if not math.isfinite(biggest):
+        raise ref.error(key, f"amplitude {amplitude:g} at frequency {frequency:g} rad/s gives a non-finite "
+                        f"derivative y_d^(k), k <= {order}", "use a smaller amplitude or frequency")
+
+
+def _reference(ref: _Table, order: int) -> ReferenceConfig:
     kind = ref.string("kind", "sine", REFERENCE_KINDS)
     if kind == "constant":
         return ReferenceConfig(kind, value=ref.number("value", 0.0))
     if kind == "sine":
-        return ReferenceConfig(
+        config = ReferenceConfig(
             kind,
             amplitude=ref.number("amplitude", 1.0),
             frequency=ref.number("frequency", 1.0),
             phase=ref.number("phase", 0.0),
             offset=ref.number("offset", 0.0),
         )
+        _check_derivatives(ref, "frequency", config.amplitude, config.frequency, order)
+        return config
     raw = ref._get("terms", _MISSING)
     if not isinstance(raw, list) or not raw:
         raise ref.error("terms", "must be a non-empty list of tables",
@@ -393,6 +443,7 @@ def _reference(ref: _Table) -> ReferenceConfig:
     for i, term in enumerate(raw):
         t = _Table(term, ref.source, f"{ref.name}.terms[{i}]", ("amplitude", "frequency", "phase"))
         terms.append((t.number("amplitude", 1.0), t.number("frequency", 1.0), t.number("phase", 0.0)))
+        _check_derivatives(t, "frequency", terms[-1][0], terms[-1][1], order)
     return ReferenceConfig(kind, offset=ref.number("offset", 0.0), terms=tuple(terms))
 
 
@@ -421,9 +472,10 @@ def _check_expressions(sc: Scenario) -> None:
             value = expr(samples)
         bad = ~np.isfinite(value) | (value < 1.0 - 1e-12)
         if bad.any():
-            at = samples[np.flatnonzero(bad)[0]]
+            first = np.flatnonzero(bad)[0]
+            at = samples[first]
             raise QcontrolInputError(
                 f"{sc.source}: controller.r[{i}]: {expr.source!r} must be finite and >= 1 for every "
-                f"quantized state (SPEC 6) but is {float(expr(at[None])[0]):g} at q = {at.tolist()}; "
+                f"quantized state (SPEC 6) but is {float(value[first]):g} at q = {at.tolist()}; "
                 "e.g. add 1 to it"
             )

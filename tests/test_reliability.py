@@ -1,0 +1,323 @@
+"""Reliability (issue 7): determinism, seeded sensor noise, atomic outputs, Ctrl-C, and the theorem's
+"global" claim put to the test on random initial states.
+
+The global claim, measured (tools/global_claim.py, ODE backend, dt = 1 ms, 10 s): the sampled
+loop keeps the theorem's promises only in a bounded region that grows as dt shrinks; from
+|x_i(0)| = 10 it diverges within a few milliseconds on both examples in some directions (the
+law's gain grows with the quantized state, so a fixed step eventually exceeds the stability
+limit of the sampled loop). The tests below check the promises on random states inside the
+region measured to work, and record the full +-10 box as a known (strict) failure.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, Phase, given, settings
+from hypothesis import strategies as st
+
+from qcontrol.assembly import build_plant, run_scenario
+from qcontrol.cli import main
+from qcontrol.errors import QcontrolInputError
+from qcontrol.outputs import atomic_path, write_json
+from qcontrol.scenario import load_scenario
+from qcontrol.sim import Trajectory
+
+ROOT = Path(__file__).resolve().parents[1]
+EX1 = ROOT / "scenarios" / "example1.toml"
+EX2 = ROOT / "scenarios" / "example2.toml"
+LEMMA2_TOLERANCE = 1e-9
+ARRAYS = ("t", "x", "x_meas", "x_q", "yd", "z", "zbar", "e_z", "u", "adaptive", "L_z")
+
+
+def _leftovers(folder: Path) -> list[Path]:
+    """Temporary files (``*.part``, ``.summary.json.*``) anywhere under ``folder``."""
+    return [
+        p
+        for p in folder.rglob("*")
+        if p.name.endswith(".part") or p.name.startswith((".summary", ".compare"))
+    ]
+
+
+def _summary(folder: Path) -> dict:
+    s = json.loads((folder / "summary.json").read_text())
+    s.pop("wall_time_s")
+    return s
+
+
+# --------------------------------------------------------------------------------------------
+# determinism
+
+
+@pytest.mark.parametrize("backend", ["ode", "mujoco"])
+def test_same_command_twice_gives_identical_summary(tmp_path: Path, backend: str) -> None:
+    """The same command twice: summary.json identical apart from wall_time_s (floats to the bit:
+    JSON keeps the shortest repr that round-trips)."""
+    for name in ("a", "b"):
+        argv = ["run", str(EX2), "--backend", backend, "--duration", "1", "-q", "--out", str(tmp_path / name)]
+        assert main(argv) == 0
+    assert _summary(tmp_path / "a") == _summary(tmp_path / "b")
+
+
+def test_same_command_in_another_process_gives_identical_summary(tmp_path: Path) -> None:
+    """A fresh interpreter (new hash seed, new imports) computes the very same numbers."""
+    argv = ["run", str(EX1), "--backend", "ode", "--duration", "1", "-q"]
+    assert main([*argv, "--out", str(tmp_path / "here")]) == 0
+    proc = subprocess.run(
+        [sys.executable, "-m", "qcontrol.cli", *argv, "--out", str(tmp_path / "there")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=tmp_path,
+        env={**os.environ, "PYTHONHASHSEED": "12345"},
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert _summary(tmp_path / "here") == _summary(tmp_path / "there")
+
+
+def _run(path: Path, overrides: list[str], backend: str, plant: object = None) -> Trajectory:
+    return run_scenario(load_scenario(path, overrides), backend, plant=plant)  # type: ignore[arg-type]
+
+
+def _assert_identical(a: Trajectory, b: Trajectory) -> None:
+    for name in ARRAYS:
+        x, y = np.asarray(getattr(a, name)), np.asarray(getattr(b, name))
+        assert x.shape == y.shape and x.tobytes() == y.tobytes(), f"{name} differs"
+    assert (a.diverged, a.diverged_time) == (b.diverged, b.diverged_time)
+
+
+@pytest.mark.parametrize("backend", ["ode", "mujoco"])
+def test_trajectories_bit_identical(backend: str) -> None:
+    overrides = ["simulation.duration=1.0"]
+    _assert_identical(_run(EX2, overrides, backend), _run(EX2, overrides, backend))
+
+
+NOISE = ["simulation.duration=0.5", "plant.mujoco.sensor_noise=[0.002, 0.02]"]
+
+
+def test_sensor_noise_follows_the_explicit_seed() -> None:
+    """Same noise_seed: bit-identical runs (also when one plant object is reused); another seed:
+    different readings; the noise really is there (readings differ from the true state)."""
+    a = _run(EX2, [*NOISE, "plant.mujoco.noise_seed=7"], "mujoco")
+    b = _run(EX2, [*NOISE, "plant.mujoco.noise_seed=7"], "mujoco")
+    _assert_identical(a, b)
+    assert np.abs(a.x_meas - a.x).max() > 1e-3  # noise is applied
+    sc = load_scenario(EX2, [*NOISE, "plant.mujoco.noise_seed=7"])
+    plant = build_plant(sc, "mujoco")
+    _assert_identical(run_scenario(sc, "mujoco", plant=plant), run_scenario(sc, "mujoco", plant=plant))
+    c = _run(EX2, [*NOISE, "plant.mujoco.noise_seed=8"], "mujoco")
+    assert not np.array_equal(a.x_meas, c.x_meas)
+    assert not np.array_equal(a.u, c.u)
+
+
+def test_sensor_noise_without_a_seed_is_refused() -> None:
+    with pytest.raises(QcontrolInputError, match="noise_seed: missing"):
+        load_scenario(EX2, NOISE)
+
+
+# --------------------------------------------------------------------------------------------
+# atomic outputs
+
+
+def test_rerun_into_the_same_folder_replaces_results_whole(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "summary.json").write_text('{"scenario": "stale", "half": ')  # a stale, broken file
+    base = ["run", str(EX2), "--backend", "ode", "-q", "--out", str(out)]
+    assert main([*base, "--duration", "1"]) == 0
+    first = json.loads((out / "summary.json").read_text())
+    assert first["duration"] == 1.0 and first["steps"] == 1000
+    assert main([*base, "--duration", "0.5", "--set", "controller.kappa_margin=0.1"]) == 0
+    second = json.loads((out / "summary.json").read_text())
+    assert second["duration"] == 0.5 and second["steps"] == 500  # the new run, whole
+    assert second["error_rate"] != first["error_rate"]
+    assert sorted(p.name for p in out.iterdir()) == ["summary.json"]
+    mode = (out / "summary.json").stat().st_mode & 0o777
+    umask = os.umask(0)
+    os.umask(umask)
+    assert mode == 0o666 & ~umask  # not mkstemp's private 0600
+
+
+def test_diverged_run_still_writes_atomically(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    argv = ["run", str(EX2), "--backend", "ode", "-q", "--out", str(out), "--set", "plant.x0=[10.0, 10.0]"]
+    assert main(argv) == 1
+    s = json.loads((out / "summary.json").read_text())
+    assert s["diverged"] is True and s["diverged_time"] < 0.01
+    assert not _leftovers(tmp_path)
+
+
+def test_failed_write_leaves_no_temporary_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The result cannot be put in place (a folder is in the way): exit 2, one line, nothing left."""
+    out = tmp_path / "out"
+    (out / "summary.json").mkdir(parents=True)
+    argv = ["run", str(EX2), "--backend", "ode", "-q", "--duration", "0.01", "--out", str(out)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "summary.json" in err
+    assert not _leftovers(tmp_path) and (out / "summary.json").is_dir()
+
+
+@pytest.mark.parametrize("failure", [RuntimeError("boom"), KeyboardInterrupt()])
+def test_atomic_path_keeps_the_old_file_on_failure(tmp_path: Path, failure: BaseException) -> None:
+    target = tmp_path / "result.json"
+    write_json(target, {"run": 1})
+    with pytest.raises(type(failure)), atomic_path(target) as tmp:
+        tmp.write_text('{"run": 2, "half')
+        raise failure
+    assert json.loads(target.read_text()) == {"run": 1}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["result.json"]
+
+
+def test_atomic_path_into_a_missing_folder_is_an_input_error(tmp_path: Path) -> None:
+    with (
+        pytest.raises(QcontrolInputError, match="cannot create a file"),
+        atomic_path(tmp_path / "gone" / "x"),
+    ):
+        pass
+
+
+# --------------------------------------------------------------------------------------------
+# Ctrl-C
+
+
+def _interrupt(tmp_path: Path, argv: list[str], ready: Path, settle: float = 1.0) -> tuple[int, str, float]:
+    """Start ``qcontrol argv`` (SIGINT at its default: Python's KeyboardInterrupt), wait until
+    ``ready`` exists (the run has started) plus ``settle`` seconds, send SIGINT; return (exit
+    status, stderr, seconds from the signal to the exit)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "qcontrol.cli", *argv],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "HOME": str(tmp_path)},
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # not inherited as ignored
+    )
+    try:
+        deadline = time.perf_counter() + 60.0
+        while not ready.exists() and proc.poll() is None and time.perf_counter() < deadline:
+            time.sleep(0.05)
+        time.sleep(settle)
+        assert proc.poll() is None, f"finished before the signal: {proc.communicate()}"
+        sent = time.perf_counter()
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=15)
+        return proc.returncode, err, time.perf_counter() - sent
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+@pytest.mark.parametrize("command, backend", [("run", "ode"), ("run", "mujoco"), ("compare", None)])
+def test_ctrl_c_stops_promptly_exit_130_no_temporary_files(
+    tmp_path: Path, command: str, backend: str | None
+) -> None:
+    out = tmp_path / "out"
+    argv = [command, str(EX2), "--duration", "600", "-q", "--out", str(out)]
+    if backend is not None:
+        argv += ["--backend", backend]
+    status, err, seconds = _interrupt(tmp_path, argv, ready=out)
+    assert status == 130, err
+    assert seconds < 5.0
+    assert "Traceback" not in err and "interrupted" in err
+    assert not _leftovers(tmp_path)
+    assert not (out / "summary.json").exists() and not (out / "compare.json").exists()
+
+
+def test_ctrl_c_keeps_the_recording(tmp_path: Path) -> None:
+    """With --rrd: the recording so far is kept under its final name, no .part file is left."""
+    rrd = tmp_path / "run.rrd"
+    argv = ["run", str(EX2), "--backend", "ode", "--duration", "600", "-q", "--rrd", str(rrd)]
+    status, err, seconds = _interrupt(tmp_path, argv, ready=rrd.with_name(rrd.name + ".part"))
+    assert status == 130 and seconds < 5.0, err
+    assert "Traceback" not in err
+    assert not _leftovers(tmp_path)
+    assert rrd.is_file() and rrd.stat().st_size > 0
+
+
+# --------------------------------------------------------------------------------------------
+# the theorem's global claim
+
+
+def _promises_hold(path: Path, x0: tuple[float, float], duration: float = 5.0) -> Trajectory:
+    sc = load_scenario(
+        path,
+        [f"plant.x0=[{x0[0]!r}, {x0[1]!r}]", f"simulation.duration={duration!r}", "simulation.backend='ode'"],
+    )
+    traj = run_scenario(sc, "ode")
+    assert not traj.diverged, f"diverged at t = {traj.diverged_time} s: {traj.divergence_reason}"
+    for name in ("x", "x_q", "z", "zbar", "u", "adaptive"):
+        assert np.isfinite(getattr(traj, name)).all(), name
+    assert np.abs(traj.x).max() < 1e3  # bounded: far below the state bound
+    ratio = traj.e_z / traj.L_z
+    assert ratio.max() <= 1 + LEMMA2_TOLERANCE, f"Lemma 2 violated: {ratio.max()}"  # at every step
+    return traj
+
+
+def _box(half_width: float) -> st.SearchStrategy[tuple[float, float]]:
+    side = st.floats(min_value=-half_width, max_value=half_width, allow_nan=False)
+    return st.tuples(side, side)
+
+
+GLOBAL = settings(
+    max_examples=6,
+    derandomize=True,
+    database=None,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow],
+)
+# the measured region (tools/global_claim.py, dt = 1 ms, 10 s, x0 = s * direction): example1 holds
+# up to s = 16.4-18.2 along the axes and anti-diagonals and 9.6-9.9 along the diagonals; example2 up
+# to s = 2.0-3.1 (6.2 and 4.4 along +-x2). The baseline law (46) stays bounded at all those limits.
+REGION = {"example1": 7.0, "example2": 1.5}
+
+
+@GLOBAL
+@given(x0=_box(REGION["example1"]))
+def test_global_claim_example1_measured_region(x0: tuple[float, float]) -> None:
+    _promises_hold(EX1, x0)
+
+
+@GLOBAL
+@given(x0=_box(REGION["example2"]))
+def test_global_claim_example2_measured_region(x0: tuple[float, float]) -> None:
+    _promises_hold(EX2, x0)
+
+
+@pytest.mark.xfail(
+    strict=True,
+    raises=AssertionError,
+    reason="known: at dt = 1 ms the sampled loop is not global; it diverges from some "
+    "|x_i(0)| <= 10 (tools/global_claim.py)",
+)
+@settings(
+    max_examples=20,
+    derandomize=True,
+    database=None,
+    deadline=None,
+    phases=[Phase.generate],
+    suppress_health_check=[HealthCheck.too_slow],
+)
+@given(example=st.sampled_from([EX1, EX2]), x0=_box(10.0))
+def test_global_claim_full_box_of_ten(example: Path, x0: tuple[float, float]) -> None:
+    _promises_hold(example, x0, duration=2.0)
+
+
+@pytest.mark.parametrize("x0", [(10.0, 10.0), (-10.0, -10.0)])
+def test_outside_the_region_divergence_is_caught_and_reported(x0: tuple[float, float]) -> None:
+    """Where the sampled loop fails it is stopped at once and reported (never a hang, never NaN
+    rows after the stop)."""
+    sc = load_scenario(EX2, [f"plant.x0=[{x0[0]!r}, {x0[1]!r}]", "simulation.backend='ode'"])
+    traj = run_scenario(sc, "ode")
+    assert traj.diverged and traj.diverged_time < 0.01
+    assert len(traj.t) == round(traj.diverged_time / traj.dt) + 1
