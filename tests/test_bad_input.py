@@ -354,6 +354,10 @@ CATALOGUE: dict[str, Case] = {
     "mjcf: unknown integrator": case(
         ex2('actuator = "torque"', 'actuator = "torque"\nintegrator = "RK5"'), "plant.mujoco.integrator"
     ),
+    "mjcf: sensor delay beyond any run": case(
+        ex2('actuator = "torque"', 'actuator = "torque"\nsensor_delay = 1e300'),
+        "plant.mujoco.sensor_delay", "longer than any run",
+    ),
     "mjcf: noise without a seed": case(
         ex2('actuator = "torque"', 'actuator = "torque"\nsensor_noise = 0.01'),
         "plant.mujoco.noise_seed: missing",

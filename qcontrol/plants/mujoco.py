@@ -237,6 +237,10 @@ def parse_mujoco_options(
         raise fail("noise_seed", "missing while sensor_noise is on",
                    "add an explicit integer seed, e.g. noise_seed = 1, so runs are reproducible")
 
+    for key in ("sensor_delay", "sensor_period"):
+        if number(key, 0.0) > MAX_SENSOR_TIME:
+            raise fail(key, f"{table[key]!r} s is longer than any run",
+                       f"use a value under {MAX_SENSOR_TIME:g} s")
     options = MujocoOptions(
         where=where,
         model=model,
@@ -258,6 +262,9 @@ def parse_mujoco_options(
     )
     build_model(options)  # report wrong names and compile errors when the scenario is loaded
     return options
+
+
+MAX_SENSOR_TIME = 1e3  # seconds; MuJoCo's sensor history length is an int of delay / timestep
 
 
 def _number_value(fail: Callable[[str, str, str], QcontrolInputError], key: str, value: Any) -> float:
