@@ -8,7 +8,7 @@ from .plants.ode import ChainPlant
 from .quantizer import UniformQuantizer
 from .reference import Constant, Reference, Sine, SumOfSines
 from .scenario import Scenario
-from .sim import Observer, ProgressCallback, Trajectory, simulate
+from .sim import Observer, ProgressCallback, RunMetrics, Trajectory, simulate
 
 
 def build_quantizer(sc: Scenario) -> UniformQuantizer:
@@ -84,8 +84,10 @@ def run_scenario(
     progress: ProgressCallback | None = None,
     observer: Observer | None = None,
     plant: Plant | None = None,
-) -> Trajectory:
-    """One closed-loop run of the scenario on the chosen backend."""
+    record: str = "full",
+) -> Trajectory | RunMetrics:
+    """One closed-loop run of the scenario on the chosen backend (``record`` as in
+    :func:`~qcontrol.sim.simulate`: ``"metrics"`` keeps memory bounded on long runs)."""
     controller = build_controller(sc)
     plant = plant if plant is not None else build_plant(sc, backend)
     return simulate(
@@ -100,4 +102,5 @@ def run_scenario(
         state_bound=sc.simulation.state_bound,
         progress=progress,
         observer=observer,
+        record=record,
     )[0]

@@ -212,7 +212,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         if rec is not None:
             _log_constants(rec, sc)
             observer = rec.observer(backend, *_scene(sc, plant))
-        traj = run_scenario(sc, backend, plant=plant, observer=observer,
+        # metrics record: memory stays bounded however long the run; the recording streams
+        traj = run_scenario(sc, backend, plant=plant, observer=observer, record="metrics",
                             progress=_Progress(f"{sc.name} [{backend}]", not args.quiet))
     s = summary(traj, sc.name, backend)
     s["L"] = controller_L(sc)

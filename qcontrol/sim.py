@@ -170,15 +170,15 @@ def simulate(
     ``observer`` is called every ``observe_every`` rows and once at the end with the rows that
     became final, so a recorder can stream them to disk while the run goes on.
 
-    ``record="metrics"`` (for sweeps) keeps only :class:`RunMetrics`: the signals are buffered
-    ``METRICS_CHUNK`` rows at a time and reduced, so 1000 copies of a 10 s, 1 kHz run need about
-    80 MB instead of several GB. The closed loop itself is the same.
+    ``record="metrics"`` (for sweeps and long runs) keeps only :class:`RunMetrics`: the signals
+    are buffered ``METRICS_CHUNK`` rows at a time and reduced, so 1000 copies of a 10 s, 1 kHz run
+    need about 80 MB instead of several GB, and memory does not grow with the run's length. The
+    closed loop itself is the same. An observer then receives each buffered chunk as short
+    trajectories (``t`` starting at the chunk's first instant) with rows ``[0, len)`` new.
     """
     if record not in RECORD_MODES:
         raise ValueError(f"record must be one of {RECORD_MODES}, got {record!r}")
     metrics_only = record == "metrics"
-    if metrics_only and observer is not None:
-        raise ValueError("an observer needs the full record; use record='full'")
     n, batch = plant.n, plant.batch
     copies = getattr(controller, "copies", None)
     if copies is not None and copies != batch:
@@ -225,13 +225,28 @@ def simulate(
 
     def collect(lengths: np.ndarray, now: float) -> list[Trajectory]:
         derive(int(lengths.max()))
+        return runs_of(0, lengths, Z, ZB, EZ, now)
+
+    def chunk_runs(stop: int, now: float) -> list[Trajectory]:
+        """record="metrics": the buffered rows [base, stop) as short trajectories."""
+        m = stop - base
+        yd = YD[base:stop, None, :]
+        with np.errstate(all="ignore"):
+            z = controller.errors(X[:m], yd)
+            zbar, _ = controller.quantized_errors(XQ[:m], yd)
+            e_z = np.abs(controller.errors(XM[:m], yd) - zbar)
+        return runs_of(base, np.clip(kept - base, 0, m), z, zbar, e_z, now)
+
+    def runs_of(first: int, lengths: np.ndarray, Z: np.ndarray, ZB: np.ndarray, EZ: np.ndarray,
+                now: float) -> list[Trajectory]:
+        """Trajectories over rows first + [0, lengths[b]) of the held arrays (views, no copies)."""
         return [
             Trajectory(
-                t=t_axis[: lengths[b]],
+                t=t_axis[first : first + lengths[b]],
                 x=X[: lengths[b], b],
                 x_meas=XM[: lengths[b], b],
                 x_q=XQ[: lengths[b], b],
-                yd=YD[: lengths[b]],
+                yd=YD[first : first + lengths[b]],
                 z=Z[: lengths[b], b],
                 zbar=ZB[: lengths[b], b],
                 e_z=EZ[: lengths[b], b],
@@ -295,11 +310,14 @@ def simulate(
             if progress is not None and (k % report_every == 0 or k == rows - 1):
                 progress(k, rows - 1)
             finished = k == rows - 1 or (any_diverged and not alive.any())
-            if observer is not None and (finished or (k + 1) % observe_every == 0):
+            if metrics_only:
+                if finished or j + 1 == buffered:
+                    if observer is not None:
+                        observer(0, k + 1 - base, chunk_runs(k + 1, time.perf_counter()))
+                    reduce(k + 1)
+            elif observer is not None and (finished or (k + 1) % observe_every == 0):
                 observer(observed, k + 1, collect(np.minimum(kept, k + 1), time.perf_counter()))
                 observed = k + 1
-            if metrics_only and (finished or j + 1 == buffered):
-                reduce(k + 1)
             if finished:
                 break
             plant.step(out.u, dt)
