@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -31,8 +31,28 @@ ProgressCallback = Callable[[int, int], None]
 Observer = Callable[[int, int, list["Trajectory"]], None]
 
 
-@dataclass
-class Trajectory:
+@dataclass(kw_only=True)
+class RunRecord:
+    """What every record of a run carries: its time axis (``t[k] = k dt``), the adaptive state's
+    name, the Lemma 2 bounds ``L_z``, and how the run ended."""
+
+    t: np.ndarray
+    adaptive_name: str
+    L_z: np.ndarray
+    dt: float
+    duration: float
+    diverged: bool = False
+    diverged_time: float | None = None
+    divergence_reason: str = ""
+    wall_time_s: float = 0.0
+
+    @property
+    def steps(self) -> int:
+        return len(self.t) - 1
+
+
+@dataclass(kw_only=True)
+class Trajectory(RunRecord):
     """Everything one closed-loop run recorded; arrays are time-major (row k is ``t[k]``).
 
     ``x`` is the true state, ``x_meas`` the sensor reading, ``x_q`` its quantization,
@@ -42,7 +62,6 @@ class Trajectory:
     state (``eps_hat`` or ``theta_hat``, named by ``adaptive_name``).
     """
 
-    t: np.ndarray
     x: np.ndarray
     x_meas: np.ndarray
     x_q: np.ndarray
@@ -52,15 +71,6 @@ class Trajectory:
     e_z: np.ndarray
     u: np.ndarray
     adaptive: np.ndarray
-    adaptive_name: str
-    L_z: np.ndarray
-    dt: float
-    duration: float
-    diverged: bool = False
-    diverged_time: float | None = None
-    divergence_reason: str = ""
-    wall_time_s: float = 0.0
-    info: dict = field(default_factory=dict)
 
     @property
     def lemma2_e_z(self) -> np.ndarray:
@@ -72,13 +82,9 @@ class Trajectory:
     def y(self) -> np.ndarray:
         return self.x[:, 0]
 
-    @property
-    def steps(self) -> int:
-        return len(self.t) - 1
 
-
-@dataclass
-class RunMetrics:
+@dataclass(kw_only=True)
+class RunMetrics(RunRecord):
     """What ``simulate(..., record="metrics")`` keeps of one run: everything
     :func:`qcontrol.metrics.summary` reads, in O(rows) memory instead of O(rows x n).
 
@@ -88,24 +94,10 @@ class RunMetrics:
     :class:`Trajectory`'s shapes (reduced), so the same ``summary`` gives the same numbers.
     """
 
-    t: np.ndarray
     z1: np.ndarray
     max_abs_u: float
     e_z_max: np.ndarray
     final_adaptive: np.ndarray
-    adaptive_name: str
-    L_z: np.ndarray
-    dt: float
-    duration: float
-    diverged: bool = False
-    diverged_time: float | None = None
-    divergence_reason: str = ""
-    wall_time_s: float = 0.0
-    info: dict = field(default_factory=dict)
-
-    @property
-    def steps(self) -> int:
-        return len(self.t) - 1
 
     @property
     def z(self) -> np.ndarray:
