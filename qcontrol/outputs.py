@@ -16,17 +16,18 @@ import numpy as np
 from .errors import QcontrolInputError
 
 
-def prepare_output_dir(path: str | Path) -> Path:
-    """Create ``path`` (and parents) and check it is writable; bad paths are input errors."""
+def prepare_output_dir(path: str | Path, option: str = "--out") -> Path:
+    """Create ``path`` (and parents) and check it is writable; bad paths are input errors
+    naming the command-line ``option`` they came from."""
     path = Path(path)
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise QcontrolInputError(
-            f"--out {path}: cannot create the output folder ({exc.strerror}); choose a writable folder"
+            f"{option} {path}: cannot create the folder ({exc.strerror}); choose a writable folder"
         ) from None
     if not os.access(path, os.W_OK | os.X_OK):
-        raise QcontrolInputError(f"--out {path}: folder is not writable; choose a writable folder")
+        raise QcontrolInputError(f"{option} {path}: folder is not writable; choose a writable folder")
     return path
 
 
@@ -35,15 +36,7 @@ def check_output_file(path: str | Path, option: str) -> Path:
     path = Path(path)
     if path.is_dir():
         raise QcontrolInputError(f"{option} {path}: is a folder; give a file name such as run.rrd")
-    parent = path.parent if str(path.parent) else Path(".")
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise QcontrolInputError(
-            f"{option} {path}: cannot create folder {parent} ({exc.strerror}); choose a writable place"
-        ) from None
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise QcontrolInputError(f"{option} {path}: folder {parent} is not writable; choose another")
+    prepare_output_dir(path.parent if str(path.parent) else Path("."), option)
     return path
 
 
