@@ -53,7 +53,6 @@ so armature and rod mass act as unmodelled dynamics, as they would on hardware.
 
 from __future__ import annotations
 
-import ast
 import math
 import pathlib
 from collections.abc import Callable, Iterator, Sequence
@@ -65,7 +64,7 @@ import mujoco
 import numpy as np
 
 from ..errors import QcontrolInputError
-from ..expr import Expression
+from ..expr import Expression, ScalarFn, scalar_function
 
 INTEGRATORS = {
     "RK4": mujoco.mjtIntegrator.mjINT_RK4,
@@ -456,81 +455,9 @@ def joint_inertia(model: mujoco.MjModel) -> float:
 
 
 # --------------------------------------------------------------------------------------------
-# Scalar evaluation of expressions inside the passive callback
+# The passive callback's generalized force (plain floats: see :func:`qcontrol.expr.scalar_function`)
 
-_SCALAR_FUNCTIONS: dict[str, Callable[[float], float]] = {
-    "abs": abs, "sqrt": math.sqrt, "exp": math.exp, "log": math.log, "sin": math.sin,
-    "cos": math.cos, "tan": math.tan, "tanh": math.tanh,
-    "sign": lambda a: a if a != a else (1.0 if a > 0 else -1.0 if a < 0 else 0.0),  # NaN stays NaN
-}
-ScalarFn = Callable[[Sequence[float]], float]
 GeneralizedForce = Callable[[float, float], float]  # (qpos, qvel) -> generalized force
-
-
-def scalar_function(expression: Expression) -> ScalarFn:
-    """A plain-float version of a (validated) :class:`Expression`: ``f((x1, x2)) -> float``.
-
-    A numpy call on a scalar costs about a microsecond; the callback runs four times per RK4
-    step, so it uses ``math`` instead. Domain errors raise (the caller turns them into NaN).
-    """
-    index = {name: i for i, name in enumerate(expression.variables)}
-    fn, _ = _scalar(ast.parse(expression.source.strip(), mode="eval").body, index)
-    return fn
-
-
-def _scalar(node: ast.AST, index: dict[str, int]) -> tuple[ScalarFn, float | None]:
-    if isinstance(node, ast.Constant):
-        value = float(node.value)
-        return (lambda xs: value), value
-    if isinstance(node, ast.Name):
-        if node.id in index:
-            i = index[node.id]
-            return (lambda xs: xs[i]), None
-        value = math.pi  # the only constant the expression language knows
-        return (lambda xs: value), value
-    if isinstance(node, ast.UnaryOp):
-        inner, value = _scalar(node.operand, index)
-        if isinstance(node.op, ast.UAdd):
-            return inner, value
-        if value is not None:
-            return (lambda xs: -value), -value
-        return (lambda xs: -inner(xs)), None
-    if isinstance(node, ast.BinOp):
-        left, lv = _scalar(node.left, index)
-        right, rv = _scalar(node.right, index)
-        op = type(node.op)
-        if op is ast.Add:
-            fn: ScalarFn = lambda xs: left(xs) + right(xs)  # noqa: E731
-        elif op is ast.Sub:
-            fn = lambda xs: left(xs) - right(xs)  # noqa: E731
-        elif op is ast.Mult:
-            fn = lambda xs: left(xs) * right(xs)  # noqa: E731
-        elif op is ast.Div:
-            fn = lambda xs: left(xs) / right(xs)  # noqa: E731
-        elif rv == 2.0:
-            def fn(xs: Sequence[float]) -> float:
-                a = left(xs)
-                return a * a  # like np.square, exactly
-        else:
-            fn = lambda xs: math.pow(left(xs), right(xs))  # noqa: E731
-        if lv is not None and rv is not None:
-            value = fn(())
-            return (lambda xs: value), value
-        return fn, None
-    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name):
-        parts = [_scalar(arg, index)[0] for arg in node.args]
-        name = node.func.id
-        if name in ("min", "max"):
-            pick = min if name == "min" else max
-
-            def reduce(xs: Sequence[float]) -> float:
-                values = [p(xs) for p in parts]
-                return math.nan if any(v != v for v in values) else pick(values)
-
-            return reduce, None
-        f, arg = _SCALAR_FUNCTIONS[name], parts[0]
-        return (lambda xs: f(arg(xs))), None
-    raise ValueError(f"unexpected syntax in a validated expression: {ast.dump(node)}")
 
 
 def _callback_term(terms: Sequence[tuple[float, ScalarFn]], inertia: float) -> GeneralizedForce:

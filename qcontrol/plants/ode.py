@@ -18,7 +18,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from ..expr import Expression
+from ..expr import Expression, scalar_function
 
 
 class ChainPlant:
@@ -107,8 +107,6 @@ def _scalar_uncertainty(
 ) -> ScalarUncertainty:
     """``psi + theta^T phi`` on plain floats, summed in the order of :meth:`ChainPlant.uncertainty`;
     NaN where a term is undefined (numpy's answer there, too)."""
-    from .mujoco import scalar_function  # the float evaluator of (validated) expressions
-
     first = scalar_function(psi) if psi is not None else None
     terms = [(float(c), scalar_function(p)) for c, p in zip(theta, phi, strict=True)]
 
