@@ -22,7 +22,7 @@ import numpy as np
 from .controller import Controller
 from .errors import QcontrolInputError
 from .plants.base import Plant
-from .quantizer import Quantizer, quantize
+from .quantizer import QuantizedReading, Quantizer, quantize, quantize_floats
 from .reference import Reference
 
 ProgressCallback = Callable[[int, int], None]
@@ -120,6 +120,7 @@ class RunMetrics:
 
 RECORD_MODES = ("full", "metrics")
 METRICS_CHUNK = 1000  # rows buffered per reduction in record="metrics"
+FLUSH_ROWS = 1000  # a batch of one: rows kept as Python tuples before they are written to arrays
 
 
 def step_count(duration: float, dt: float, what: str = "simulation.duration") -> int:
@@ -261,7 +262,72 @@ def simulate(
         base = stop
 
     x0 = np.broadcast_to(np.asarray(x0, dtype=float), (batch, n))
-    adaptive = controller.initial_state(batch)
+    yd_rows = YD.tolist()  # y_d .. y_d^(n) at each instant: floats, the same for every copy
+    # The loop below is one code for both kinds of batch; what differs is how values are held.
+    # A batch of one runs on plain floats: the plant's state as a list, the quantized reading and
+    # the adaptive state as tuples of floats (a numpy call on a one-element array costs about a
+    # microsecond, float arithmetic tens of nanoseconds), and the rows are buffered as tuples and
+    # written to the arrays in blocks. A larger batch holds (batch, n) arrays and (batch,) columns.
+    # The controller's formulas are the same for both (see qcontrol.controller).
+    floats = batch == 1
+    if floats:
+        read_state = getattr(plant, "state_floats", None) or (lambda: plant.state()[0].tolist())
+        read_sensors = getattr(plant, "sensor_floats", None) or (lambda: plant.read_sensors()[0].tolist())
+        step_float = getattr(plant, "step_float", None)
+        step = step_float or (lambda u, h: plant.step(np.array([u]), h))
+        adaptive = tuple(controller.initial_state(1)[0].tolist())
+        pending: list[tuple] = []  # rows not yet written to X .. S
+        pending_start = 0  # buffer row of pending[0]
+
+        def quantize_(meas: list[float]) -> QuantizedReading:
+            return quantize_floats(quantizer, meas)
+
+        def healthy(x: list[float], adaptive: tuple) -> bool:
+            return math.isfinite(sum(x) + sum(adaptive)) and max(map(abs, x)) <= state_bound
+
+        def arrays(x: list[float], adaptive: tuple) -> tuple[np.ndarray, np.ndarray]:
+            return np.array([x], dtype=float), np.array([adaptive], dtype=float).reshape(1, -1)
+
+        def record(j: int, x: list[float], meas: list[float], reading: QuantizedReading, u: float,
+                   adaptive: tuple) -> None:
+            nonlocal pending_start
+            if not pending:
+                pending_start = j
+            pending.append((*x, *meas, *reading.columns, u, *adaptive))
+            if len(pending) == FLUSH_ROWS:
+                flush()
+
+        def flush() -> None:
+            if not pending:
+                return
+            block = np.array(pending, dtype=float)
+            rows_ = slice(pending_start, pending_start + len(pending))
+            X[rows_, 0], XM[rows_, 0] = block[:, :n], block[:, n : 2 * n]
+            XQ[rows_, 0] = block[:, 2 * n : 3 * n]
+            U[rows_, 0], S[rows_, 0] = block[:, 3 * n], block[:, 3 * n + 1 :]
+            pending.clear()
+    else:
+        read_state, read_sensors, step = plant.state, plant.read_sensors, plant.step
+        adaptive = tuple(np.ascontiguousarray(controller.initial_state(batch).T))
+
+        def quantize_(meas: np.ndarray) -> QuantizedReading:
+            return quantize(quantizer, meas)
+
+        def healthy(x: np.ndarray, adaptive: tuple) -> bool:
+            return np.abs(x).max() <= state_bound and math.isfinite(sum(a.sum() for a in adaptive))
+
+        def arrays(x: np.ndarray, adaptive: tuple) -> tuple[np.ndarray, np.ndarray]:
+            return x, (np.stack(np.broadcast_arrays(*adaptive), axis=1) if adaptive else np.empty((batch, 0)))
+
+        def record(j: int, x: np.ndarray, meas: np.ndarray, reading: QuantizedReading, u: np.ndarray,
+                   adaptive: tuple) -> None:
+            X[j], XM[j], XQ[j], U[j] = x, meas, reading.values, u
+            for i, a in enumerate(adaptive):
+                S[j, :, i] = a
+
+        def flush() -> None:
+            return None
+
     started = time.perf_counter()
     observed = 0
     base = 0  # row held in X[0] .. S[0]
@@ -270,29 +336,32 @@ def simulate(
     with plant, np.errstate(all="ignore"):
         plant.reset(x0)
         for k in range(rows):
-            x = plant.state()
-            meas = plant.read_sensors()
-            # fast test first (NaN fails '<='); the per-copy bookkeeping only when it trips
-            if any_diverged or not (np.abs(x).max() <= state_bound and math.isfinite(adaptive.sum())):
-                check_divergence(k, x, adaptive)
+            x = read_state()
+            meas = read_sensors()
+            # fast test first (NaN fails it); the per-copy bookkeeping only when it trips
+            if any_diverged or not healthy(x, adaptive):
+                check_divergence(k, *arrays(x, adaptive))
                 any_diverged = not alive.all()
-            reading = quantize(quantizer, meas)
+            reading = quantize_(meas)
             if k % hold == 0:
-                out = controller.control(reading, YD[k], adaptive)
+                out = controller.control(reading, yd_rows[k], adaptive)
             j = k - base
-            X[j], XM[j], XQ[j], U[j], S[j] = x, meas, reading.values, out.u, adaptive
+            record(j, x, meas, reading, out.u, adaptive)
             if progress is not None and (k % report_every == 0 or k == rows - 1):
                 progress(k, rows - 1)
             finished = k == rows - 1 or (any_diverged and not alive.any())
             if observer is not None and (finished or (k + 1) % observe_every == 0):
+                flush()
                 observer(observed, k + 1, collect(np.minimum(kept, k + 1), time.perf_counter()))
                 observed = k + 1
             if metrics_only and (finished or j + 1 == buffered):
+                flush()
                 reduce(k + 1)
             if finished:
                 break
-            plant.step(out.u, dt)
+            step(out.u, dt)
             adaptive = controller.advance(adaptive, out, dt)
+        flush()
     if metrics_only:
         now = time.perf_counter()
         return [

@@ -675,29 +675,59 @@ class MujocoPlant:
         values = np.asarray(u, dtype=float).ravel().tolist()
         if len(values) != self.batch:
             values = values * self.batch if len(values) == 1 else list(np.broadcast_to(values, (self.batch,)))
-        model, gain, aid = self.model, self._ctrl_per_u, self._ids.actuator
-        dead, clock = self._dead, self._clock
-        mj_step, sensor_pos, sensor_vel = mujoco.mj_step, mujoco.mj_sensorPos, mujoco.mj_sensorVel
-        elapsed = substeps * self.timestep
+        step_copy = self._step_copy
+        for b in range(self.batch):
+            step_copy(b, values[b], substeps)
+
+    def _step_copy(self, b: int, value: float, substeps: int) -> None:
+        """Copy ``b`` through ``substeps`` calls of ``mj_step`` with the input ``value`` held."""
+        dead = self._dead
+        if dead[b]:
+            return
+        data = self._datas[b]
+        model = self.model
+        self._views[b][0][self._ids.actuator] = self._ctrl_per_u * value
         messages = self.mujoco_warnings
         seen = len(messages)
-        for b, data in enumerate(self._datas):
-            if dead[b]:
-                continue
-            self._views[b][0][aid] = gain * values[b]
-            for _ in range(substeps):
-                mj_step(model, data)
-            sensor_pos(model, data)
-            sensor_vel(model, data)
-            clock[b] += elapsed
-            # MuJoCo resets a copy whose ctrl/qpos/qvel/qacc turns NaN, Inf or huge and carries on
-            # from the reset pose; it says so through the warning handler (once per copy), and
-            # the copy's clock falls behind when the reset happened before the last substep.
-            if len(messages) != seen:
-                dead[b] = dead[b] or any("unstable" in m for m in messages[seen:])
-                seen = len(messages)
-            if data.time < clock[b] - 0.5 * self.timestep:
-                dead[b] = True
+        for _ in range(substeps):
+            mujoco.mj_step(model, data)
+        mujoco.mj_sensorPos(model, data)
+        mujoco.mj_sensorVel(model, data)
+        clock = self._clock[b] = self._clock[b] + substeps * self.timestep
+        # MuJoCo resets a copy whose ctrl/qpos/qvel/qacc turns NaN, Inf or huge and carries on
+        # from the reset pose; it says so through the warning handler (once per copy), and
+        # the copy's clock falls behind when the reset happened before the last substep.
+        if len(messages) != seen and any("unstable" in m for m in messages[seen:]):
+            dead[b] = True
+        if data.time < clock - 0.5 * self.timestep:
+            dead[b] = True
+
+    # ---- a batch of one on plain floats (the engine's fast path)
+    def state_floats(self) -> list[float]:
+        """:meth:`state` of the one copy as ``[qpos, qvel]`` (batch of one)."""
+        if self._dead[0]:
+            return [math.nan, math.nan]
+        _, _, qpos, qvel = self._views[0]
+        return [qpos.item(self._qadr), qvel.item(self._ids.dof)]
+
+    def sensor_floats(self) -> list[float]:
+        """:meth:`read_sensors` of the one copy as ``[position, velocity]`` (batch of one)."""
+        if self._dead[0]:
+            if self._noisy:
+                self._rng.normal(0.0, 1.0, size=(1, 2))  # the same noise stream as read_sensors
+            return [math.nan, math.nan]
+        p, v = self._sadr
+        data = self._views[0][1]
+        if self._noisy:
+            noise = (self._rng.normal(0.0, 1.0, size=(1, 2)) * self._noise)[0].tolist()
+            return [data.item(p) + noise[0], data.item(v) + noise[1]]
+        return [data.item(p), data.item(v)]
+
+    def step_float(self, u: float, h: float) -> None:
+        """:meth:`step` for a batch of one, ``u`` a float."""
+        if self._entered is None and self._force is not None:
+            raise RuntimeError("use MujocoPlant in a 'with' block: its passive callback is installed there")
+        self._step_copy(0, u, self._substeps.get(h) or self._count_substeps(h))
 
     def _count_substeps(self, h: float) -> int:
         substeps = round(h / self.timestep)

@@ -8,7 +8,9 @@ deliberate: an adaptive-step solver either steps over the quantizer's jumps or c
 A batch of one is stepped on plain floats (``math`` instead of numpy: a numpy call on a one-element
 array costs about a microsecond, the same arithmetic on floats a few tens of nanoseconds). It is
 the same RK4 with the same operations in the same order; only ``sin``, ``cos``, ... come from the C
-library instead of numpy, which may differ in the last bit.
+library instead of numpy, which may differ in the last bit. Its state is then kept as floats, and
+``state_floats`` / ``sensor_floats`` / ``step_float`` let the engine's batch-of-one loop use them
+without making arrays.
 """
 
 from __future__ import annotations
@@ -49,9 +51,10 @@ class ChainPlant:
         # (coefficient, term): a coefficient is a float, or a (batch,) column of per-copy values
         coefficients = theta.T if theta.ndim == 2 else theta
         self._terms = list(zip(coefficients, self.phi, strict=True))
-        self._x = np.zeros((self.batch, self.n))
+        self._x = np.zeros((self.batch, self.n))  # the state of a batch of more than one
         row = theta[0] if theta.ndim == 2 else theta  # the one copy's theta, for a batch of one
         self._scalar = _scalar_uncertainty(psi, phi, row) if batch == 1 else None
+        self._row = [0.0] * self.n  # the state of a batch of one, as floats
 
     def __enter__(self) -> ChainPlant:
         return self
@@ -78,17 +81,18 @@ class ChainPlant:
 
     def reset(self, x0: np.ndarray) -> None:
         self._x = np.array(np.broadcast_to(x0, (self.batch, self.n)), dtype=float)
+        self._row = self._x[0].tolist()
 
     def state(self) -> np.ndarray:
-        return self._x.copy()
+        return np.array([self._row]) if self._scalar is not None else self._x.copy()
 
     def read_sensors(self) -> np.ndarray:
-        return self._x.copy()
+        return self.state()
 
     def step(self, u: np.ndarray, h: float) -> None:
         """One classical RK4 step of eq. (1) with ``u`` held."""
         if self._scalar is not None:
-            self._x = np.array([_rk4_scalar(self._x[0].tolist(), float(np.ravel(u)[0]), h, self._scalar)])
+            self.step_float(float(np.ravel(u)[0]), h)
             return
         x = self._x
         half = 0.5 * h
@@ -97,6 +101,17 @@ class ChainPlant:
         k3 = self.rhs(x + half * k2, u)
         k4 = self.rhs(x + h * k3, u)
         self._x = x + (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
+
+    # ---- a batch of one on plain floats (the engine's fast path)
+    def state_floats(self) -> list[float]:
+        """The state of the one copy as ``[x1, .., xn]`` (batch of one only)."""
+        return self._row[:]
+
+    sensor_floats = state_floats
+
+    def step_float(self, u: float, h: float) -> None:
+        """:meth:`step` for a batch of one, ``u`` a float."""
+        self._row = _rk4_scalar(self._row, u, h, self._scalar)
 
 
 ScalarUncertainty = Callable[[list[float]], float]
