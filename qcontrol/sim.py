@@ -120,6 +120,7 @@ class RunMetrics:
 
 RECORD_MODES = ("full", "metrics")
 METRICS_CHUNK = 1000  # rows buffered per reduction in record="metrics"
+REDUCE_ELEMENTS = 100_000  # rows x copies per block when deriving z, e_z (cache-sized temporaries)
 FLUSH_ROWS = 1000  # a batch of one: rows kept as Python tuples before they are written to arrays
 
 
@@ -200,17 +201,19 @@ def simulate(
     reasons = [""] * batch
     diverged_time: list[float | None] = [None] * batch
     derived = 0  # rows [0, derived) have z, zbar, e_z filled in
+    block = max(1, REDUCE_ELEMENTS // batch)  # rows per vectorized evaluation of z, zbar, e_z
 
     def derive(stop: int) -> None:
         """Fill z, zbar, e_z for rows [derived, stop): the same formulas as the controller's,
         evaluated for many instants at once instead of inside the time loop."""
         nonlocal derived
-        rows_ = slice(derived, stop)
-        yd = YD[rows_, None, :]
-        with np.errstate(all="ignore"):  # rows of a diverged copy may hold NaN/Inf
-            Z[rows_] = controller.errors(X[rows_], yd)
-            ZB[rows_], _ = controller.quantized_errors(XQ[rows_], yd)
-            EZ[rows_] = np.abs(controller.errors(XM[rows_], yd) - ZB[rows_])
+        for first in range(derived, stop, block):
+            rows_ = slice(first, min(stop, first + block))
+            yd = YD[rows_, None, :]
+            with np.errstate(all="ignore"):  # rows of a diverged copy may hold NaN/Inf
+                Z[rows_] = controller.errors(X[rows_], yd)
+                ZB[rows_], _ = controller.quantized_errors(XQ[rows_], yd)
+                EZ[rows_] = np.abs(controller.errors(XM[rows_], yd) - ZB[rows_])
         derived = stop
 
     def collect(lengths: np.ndarray, now: float) -> list[Trajectory]:
@@ -256,9 +259,11 @@ def simulate(
     def reduce(stop: int) -> None:
         """record="metrics": fold the buffered rows [base, stop) into ``reduced``."""
         nonlocal base
-        m = stop - base
         with np.errstate(all="ignore"):
-            reduced.add(base, X[:m], XM[:m], XQ[:m], U[:m], S[:m], YD[base:stop], kept, controller)
+            for first in range(0, stop - base, block):
+                b_ = slice(first, min(stop - base, first + block))
+                reduced.add(base + first, X[b_], XM[b_], XQ[b_], U[b_], S[b_],
+                            YD[base + b_.start : base + b_.stop], kept, controller)
         base = stop
 
     x0 = np.broadcast_to(np.asarray(x0, dtype=float), (batch, n))
