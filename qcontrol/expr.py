@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import ast
 import math
+import operator
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import cached_property
@@ -344,6 +345,13 @@ def _scalar(node: ast.AST, index: dict[str, int]) -> tuple[ScalarFn, float | Non
         left, lv = _scalar(node.left, index)
         right, rv = _scalar(node.right, index)
         op = type(node.op)
+        li, ri = _variable(node.left, index), _variable(node.right, index)
+        if (op in _ARITHMETIC and (lv is None) != (rv is None)) or (li is not None and ri is not None):
+            # a constant or a variable on either side: read it directly (one call per node)
+            return _leaf_arithmetic(_ARITHMETIC[op] if op in _ARITHMETIC else None, node, left, lv, li,
+                                    right, rv, ri), None
+        if op is ast.Pow and rv == 2.0 and li is not None:
+            return (lambda xs: xs[li] * xs[li]), None  # like np.square, exactly
         if op is ast.Add:
             fn: ScalarFn = lambda xs: left(xs) + right(xs)  # noqa: E731
         elif op is ast.Sub:
@@ -374,5 +382,32 @@ def _scalar(node: ast.AST, index: dict[str, int]) -> tuple[ScalarFn, float | Non
 
             return reduce, None
         f, arg = _SCALAR_FUNCTIONS[name], parts[0]
+        i = _variable(node.args[0], index)
+        if i is not None:
+            return (lambda xs: f(xs[i])), None
         return (lambda xs: f(arg(xs))), None
     raise ValueError(f"unexpected syntax in a validated expression: {ast.dump(node)}")
+
+
+_ARITHMETIC = {
+    ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv,
+}
+
+
+def _variable(node: ast.AST, index: dict[str, int]) -> int | None:
+    """The position of a variable node in ``xs``, or None."""
+    return index.get(node.id) if isinstance(node, ast.Name) else None
+
+
+def _leaf_arithmetic(op: Callable[[float, float], float] | None, node: ast.BinOp, left: ScalarFn,
+                     lv: float | None, li: int | None, right: ScalarFn, rv: float | None,
+                     ri: int | None) -> ScalarFn:
+    """``left op right`` where one side is a constant or both are variables, without a call per
+    leaf. ``op`` is None for ``**`` (then both sides are variables: ``math.pow``)."""
+    if op is None:
+        return lambda xs: math.pow(xs[li], xs[ri])
+    if lv is not None:
+        return (lambda xs: op(lv, xs[ri])) if ri is not None else (lambda xs: op(lv, right(xs)))
+    if rv is not None:
+        return (lambda xs: op(xs[li], rv)) if li is not None else (lambda xs: op(left(xs), rv))
+    return lambda xs: op(xs[li], xs[ri])

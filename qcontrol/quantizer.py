@@ -7,7 +7,7 @@ reading before the controller is called.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -65,37 +65,26 @@ class QuantizedReading:
 
     Two views of the same numbers: ``values`` with shape ``(batch, n)``, and ``columns``, one
     value per state ``q_1 .. q_n``, each a ``(batch,)`` array, or a plain float for a reading of
-    one copy made by :func:`quantize_floats` (``floats`` is then true). The controller's formulas
-    work on columns; either view is made from the other when first asked for.
+    one copy made by :func:`float_quantizer` (``floats`` is then true). The controller's formulas
+    work on columns; the array of a reading of floats is made when first asked for.
     """
 
-    __slots__ = ("_values", "_columns", "max_error", "floats")
+    __slots__ = ("_values", "columns", "max_error", "floats")
 
-    def __init__(self, values: np.ndarray, max_error: float) -> None:
-        self._values: np.ndarray | None = values
-        self._columns: tuple | None = None
+    def __init__(self, values: np.ndarray | None, max_error: float,
+                 float_values: Sequence[float] | None = None) -> None:
+        """``QuantizedReading(values, max_error)`` for a ``(batch, n)`` array, or
+        ``QuantizedReading(None, max_error, float_values)`` for one copy as floats ``q_1 .. q_n``."""
         self.max_error = max_error
-        self.floats = False
-
-    @classmethod
-    def of_floats(cls, values: Sequence[float], max_error: float) -> QuantizedReading:
-        """A reading of one copy as plain floats ``q_1 .. q_n`` (the batch-of-one fast path)."""
-        reading = cls.__new__(cls)
-        reading._values, reading._columns = None, tuple(values)
-        reading.max_error, reading.floats = max_error, True
-        return reading
+        self._values = values
+        self.floats = values is None
+        self.columns: tuple = tuple(float_values) if values is None else tuple(np.asarray(values).T)
 
     @property
     def values(self) -> np.ndarray:
         if self._values is None:
-            self._values = np.array([self._columns], dtype=float)
+            self._values = np.array([self.columns], dtype=float)
         return self._values
-
-    @property
-    def columns(self) -> tuple:
-        if self._columns is None:
-            self._columns = tuple(self._values.T)
-        return self._columns
 
 
 def quantize(quantizer: Quantizer, readings: np.ndarray) -> QuantizedReading:
@@ -103,9 +92,16 @@ def quantize(quantizer: Quantizer, readings: np.ndarray) -> QuantizedReading:
     return QuantizedReading(quantizer(readings), quantizer.max_error)
 
 
-def quantize_floats(quantizer: Quantizer, readings: Sequence[float]) -> QuantizedReading:
-    """Apply ``quantizer`` to the readings of one copy, plain floats ``x_1 .. x_n``. A quantizer
-    with an ``on_floats`` method (:class:`UniformQuantizer`) does it without numpy."""
+def float_quantizer(quantizer: Quantizer) -> Callable[[Sequence[float]], QuantizedReading]:
+    """``quantize`` for the readings of one copy, plain floats ``x_1 .. x_n``: a function made once
+    per run. A quantizer with an ``on_floats`` method (:class:`UniformQuantizer`) needs no numpy."""
     on_floats = getattr(quantizer, "on_floats", None)
-    values = on_floats(readings) if on_floats is not None else quantizer(np.array([readings]))[0].tolist()
-    return QuantizedReading.of_floats(values, quantizer.max_error)
+    max_error = quantizer.max_error
+    if on_floats is None:
+        def on_floats(readings: Sequence[float]) -> tuple[float, ...]:
+            return tuple(quantizer(np.array([readings], dtype=float))[0].tolist())
+
+    def quantize_floats(readings: Sequence[float]) -> QuantizedReading:
+        return QuantizedReading(None, max_error, on_floats(readings))
+
+    return quantize_floats

@@ -22,7 +22,7 @@ import numpy as np
 from .controller import Controller
 from .errors import QcontrolInputError
 from .plants.base import Plant
-from .quantizer import QuantizedReading, Quantizer, quantize, quantize_floats
+from .quantizer import QuantizedReading, Quantizer, float_quantizer, quantize
 from .reference import Reference
 
 ProgressCallback = Callable[[int, int], None]
@@ -267,7 +267,6 @@ def simulate(
         base = stop
 
     x0 = np.broadcast_to(np.asarray(x0, dtype=float), (batch, n))
-    yd_rows = YD.tolist()  # y_d .. y_d^(n) at each instant: floats, the same for every copy
     # The loop below is one code for both kinds of batch; what differs is how values are held.
     # A batch of one runs on plain floats: the plant's state as a list, the quantized reading and
     # the adaptive state as tuples of floats (a numpy call on a one-element array costs about a
@@ -281,32 +280,28 @@ def simulate(
         step_float = getattr(plant, "step_float", None)
         step = step_float or (lambda u, h: plant.step(np.array([u]), h))
         adaptive = tuple(controller.initial_state(1)[0].tolist())
-        pending: list[tuple] = []  # rows not yet written to X .. S
-        pending_start = 0  # buffer row of pending[0]
-
-        def quantize_(meas: list[float]) -> QuantizedReading:
-            return quantize_floats(quantizer, meas)
+        pending: list[tuple] = []  # the rows up to the last one recorded, not yet written to X .. S
+        quantize_ = float_quantizer(quantizer)
 
         def healthy(x: list[float], adaptive: tuple) -> bool:
-            return math.isfinite(sum(x) + sum(adaptive)) and max(map(abs, x)) <= state_bound
+            total = sum(x) + sum(adaptive)  # NaN or Inf if any is (or if the sum overflows)
+            return total - total == 0.0 and max(x) <= state_bound and min(x) >= -state_bound
 
         def arrays(x: list[float], adaptive: tuple) -> tuple[np.ndarray, np.ndarray]:
             return np.array([x], dtype=float), np.array([adaptive], dtype=float).reshape(1, -1)
 
         def record(j: int, x: list[float], meas: list[float], reading: QuantizedReading, u: float,
                    adaptive: tuple) -> None:
-            nonlocal pending_start
-            if not pending:
-                pending_start = j
             pending.append((*x, *meas, *reading.columns, u, *adaptive))
             if len(pending) == FLUSH_ROWS:
-                flush()
+                flush(j + 1)
 
-        def flush() -> None:
+        def flush(stop: int) -> None:
+            """Write the pending rows, which end at buffer row ``stop``."""
             if not pending:
                 return
             block = np.array(pending, dtype=float)
-            rows_ = slice(pending_start, pending_start + len(pending))
+            rows_ = slice(stop - len(pending), stop)
             X[rows_, 0], XM[rows_, 0] = block[:, :n], block[:, n : 2 * n]
             XQ[rows_, 0] = block[:, 2 * n : 3 * n]
             U[rows_, 0], S[rows_, 0] = block[:, 3 * n], block[:, 3 * n + 1 :]
@@ -330,9 +325,11 @@ def simulate(
             for i, a in enumerate(adaptive):
                 S[j, :, i] = a
 
-        def flush() -> None:
+        def flush(stop: int) -> None:
             return None
 
+    yd_block: list[list[float]] = []
+    yd_start = yd_stop = 0
     started = time.perf_counter()
     observed = 0
     base = 0  # row held in X[0] .. S[0]
@@ -349,24 +346,26 @@ def simulate(
                 any_diverged = not alive.all()
             reading = quantize_(meas)
             if k % hold == 0:
-                out = controller.control(reading, yd_rows[k], adaptive)
+                if k >= yd_stop:  # y_d .. y_d^(n) as floats (the same for every copy), a block at a time
+                    yd_block, yd_start, yd_stop = YD[k : k + FLUSH_ROWS].tolist(), k, k + FLUSH_ROWS
+                out = controller.control(reading, yd_block[k - yd_start], adaptive)
             j = k - base
             record(j, x, meas, reading, out.u, adaptive)
             if progress is not None and (k % report_every == 0 or k == rows - 1):
                 progress(k, rows - 1)
             finished = k == rows - 1 or (any_diverged and not alive.any())
             if observer is not None and (finished or (k + 1) % observe_every == 0):
-                flush()
+                flush(j + 1)
                 observer(observed, k + 1, collect(np.minimum(kept, k + 1), time.perf_counter()))
                 observed = k + 1
             if metrics_only and (finished or j + 1 == buffered):
-                flush()
+                flush(j + 1)
                 reduce(k + 1)
             if finished:
                 break
             step(out.u, dt)
             adaptive = controller.advance(adaptive, out, dt)
-        flush()
+        flush(j + 1)
     if metrics_only:
         now = time.perf_counter()
         return [

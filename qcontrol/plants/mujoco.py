@@ -66,6 +66,7 @@ import numpy as np
 from ..errors import QcontrolInputError
 from ..expr import Expression, ScalarFn, scalar_function
 
+_mj_step, _mj_sensor_pos, _mj_sensor_vel = mujoco.mj_step, mujoco.mj_sensorPos, mujoco.mj_sensorVel
 INTEGRATORS = {
     "RK4": mujoco.mjtIntegrator.mjINT_RK4,
     "Euler": mujoco.mjtIntegrator.mjINT_EULER,
@@ -573,6 +574,7 @@ class MujocoPlant:
         self.timestep = float(self.model.opt.timestep)
         self._check_sensor_timing(where)
         self._ids = ids
+        self._aid = ids.actuator
         nominal = self.model if not (options.armature or options.rod_mass) else build_model(
             options.nominal(), timestep)
         self.inertia = joint_inertia(nominal)  # the gain between u and generalized force
@@ -684,15 +686,15 @@ class MujocoPlant:
         dead = self._dead
         if dead[b]:
             return
-        data = self._datas[b]
-        model = self.model
-        self._views[b][0][self._ids.actuator] = self._ctrl_per_u * value
+        data, model = self._datas[b], self.model
+        self._views[b][0][self._aid] = self._ctrl_per_u * value
         messages = self.mujoco_warnings
         seen = len(messages)
-        for _ in range(substeps):
-            mujoco.mj_step(model, data)
-        mujoco.mj_sensorPos(model, data)
-        mujoco.mj_sensorVel(model, data)
+        _mj_step(model, data)
+        for _ in range(substeps - 1):
+            _mj_step(model, data)
+        _mj_sensor_pos(model, data)
+        _mj_sensor_vel(model, data)
         clock = self._clock[b] = self._clock[b] + substeps * self.timestep
         # MuJoCo resets a copy whose ctrl/qpos/qvel/qacc turns NaN, Inf or huge and carries on
         # from the reset pose; it says so through the warning handler (once per copy), and

@@ -17,12 +17,11 @@ floats without making arrays.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from ..expr import Expression, scalar_function
+from ..expr import Expression, ScalarFn, scalar_function
 
 Column = float | np.ndarray  # one value per copy: a (batch,) array, or a float for a batch of one
 Uncertainty = Callable[[list[Column]], Column]  # psi + theta^T phi on the state's columns
@@ -122,19 +121,24 @@ class ChainPlant:
 
 
 def _scalar_uncertainty(psi: Expression | None, phi: Sequence[Expression], theta: np.ndarray) -> Uncertainty:
-    """``psi + theta^T phi`` on plain floats, summed in the order of :meth:`ChainPlant.uncertainty`;
-    NaN where a term is undefined (numpy's answer there, too)."""
-    first = scalar_function(psi) if psi is not None else None
-    terms = [(float(c), scalar_function(p)) for c, p in zip(theta, phi, strict=True)]
+    """``psi + theta^T phi`` on plain floats, summed in the order of :meth:`ChainPlant.uncertainty`.
+    Where ``math`` refuses (a domain error, an overflow) the terms are evaluated again with
+    :meth:`Expression.on_floats`, which gives numpy's answer (NaN, Inf) there."""
+    coefficients = [float(c) for c in theta]
+    fast = (scalar_function(psi) if psi is not None else None, [scalar_function(p) for p in phi])
+    safe = (psi.on_floats if psi is not None else None, [p.on_floats for p in phi])
+
+    def total(x: list[float], first: ScalarFn | None, terms: list[ScalarFn]) -> float:
+        value = first(x) if first is not None else 0.0
+        for coefficient, term in zip(coefficients, terms):  # noqa: B905 (equal lengths)
+            value = value + coefficient * term(x)
+        return value
 
     def uncertainty(x: list[float]) -> float:
         try:
-            total = first(x) if first is not None else 0.0
-            for coefficient, term in terms:
-                total = total + coefficient * term(x)
+            return total(x, *fast)
         except (ValueError, ZeroDivisionError, OverflowError):
-            return math.nan
-        return total
+            return total(x, *safe)
 
     return uncertainty
 
