@@ -9,15 +9,25 @@
 * :class:`BaselineController` - the comparison law of reference [20], eq. (46), with our
   reconstructed adaptive law (SPEC 8).
 
-Everything is vectorized over a leading batch axis: readings have shape ``(batch, n)``. The
-proposed law's scalar parameters (kappa, gamma, sigma, r_scale) may also be given per copy, as
+The formulas are written once, over *columns*: one value per state (``q_1 .. q_n``) or per
+adaptive estimate, each either a ``(batch,)`` array or, for a batch of one, a plain Python float.
+They use only elementwise arithmetic, coefficients precomputed as Python floats, and the compiled
+expressions (numpy on arrays, ``math`` on floats: :meth:`Expression.on_floats`), so the same lines
+step a batch of 1000 copies on numpy arrays and a single run on floats, where a numpy call on a
+one-element array would cost a microsecond each. The engine (:mod:`qcontrol.sim`) passes columns;
+:meth:`ProposedController.control` and friends also accept and return the arrays of shape
+``(batch, n)`` / ``(batch, m)`` of the public interface, converting around the same formulas.
+
+The proposed law's scalar parameters (kappa, gamma, sigma, r_scale) may also be given per copy, as
 arrays of shape ``(batch,)``: a parameter sweep then runs as one batch, through the same formulas
 (a single run is a batch of one with scalar parameters).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from functools import partial
+from operator import mul
 from typing import NamedTuple
 
 import numpy as np
@@ -27,6 +37,9 @@ from .expr import Expression
 from .quantizer import QuantizedReading
 
 Parameter = float | np.ndarray  # a scalar, or one value per copy of the batch (shape (batch,))
+Column = float | np.ndarray  # one value per copy: a (batch,) array, or a float for a batch of one
+Columns = tuple  # of Column: q_1 .. q_n, or the adaptive estimates
+Evaluator = Callable[[Columns], Column]  # an expression evaluated on the reading's columns
 
 
 def _parameter(name: str, value: float | Sequence[float] | np.ndarray) -> Parameter:
@@ -39,9 +52,18 @@ def _parameter(name: str, value: float | Sequence[float] | np.ndarray) -> Parame
     return float(array) if array.ndim == 0 else array
 
 
-def _column(value: Parameter) -> Parameter:
-    """Per-copy values as a column ``(batch, 1)``, to scale rows of ``(batch, m)`` arrays."""
-    return value[:, None] if isinstance(value, np.ndarray) else value
+def _as_float(value: Parameter) -> float:
+    """A parameter of a batch of one as a plain float."""
+    return float(np.ravel(value)[0])
+
+
+def _stack(columns: Sequence[Column], batch: int) -> np.ndarray:
+    """Columns (arrays or floats) side by side: shape ``(batch, len(columns))``, or more rows if
+    the columns are longer (a state of one copy advanced with a batch's targets)."""
+    if not columns:
+        return np.empty((batch, 0))
+    shape = np.broadcast_shapes((batch,), *(np.shape(c) for c in columns))
+    return np.stack([np.broadcast_to(c, shape) for c in columns], axis=1)
 
 
 def backstepping_coefficients(c: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
@@ -105,19 +127,25 @@ class Backstepping:
         self.A, self.B = backstepping_coefficients(c)
         self.L_z, self.L_alpha = lemma2_bounds(c, max_error)
         self.L = float(self.L_z[-1])
-        # alphabar_i = -c_i zbar_i + D_i with D = q @ Dq.T + yd @ Dy.T, eq. (34):
-        # D_1 = y_d',  D_i = sum_{k<i} a[i-1][k] q_{k+1} + sum_{j<i} b[i-1][j] y_d^(j+1).
+        # alphabar_i = -c_i zbar_i + D_i, eq. (34), with
+        # D_1 = y_d',  D_i = sum_{k<i} a[i-1][k] q_{k+1} + sum_{j<i} b[i-1][j] y_d^(j+1),
+        # kept as (index, coefficient) lists of plain floats, zero terms left out.
         n = self.n
-        self._Dq = np.zeros((n, n))
-        self._Dy = np.zeros((n, n + 1))
-        self._Dy[0, 1] = 1.0
+        Dq = np.zeros((n, n))
+        Dy = np.zeros((n, n + 1))
+        Dy[0, 1] = 1.0
         for i in range(1, n):
-            self._Dq[i, 1 : i + 1] = self.A[i - 1, :i]
-            self._Dy[i, 1 : i + 2] = self.B[i - 1, : i + 1]
-        # [zbar | alphabar] = q @ Wq + yd @ Wy: the recursion applied to unit vectors
-        eye_q, eye_y = np.eye(n), np.eye(n + 1)
-        self._Wq = np.hstack(self._recursion(eye_q, np.zeros((n, n + 1))))
-        self._Wy = np.hstack(self._recursion(np.zeros((n + 1, n)), eye_y))
+            Dq[i, 1 : i + 1] = self.A[i - 1, :i]
+            Dy[i, 1 : i + 2] = self.B[i - 1, : i + 1]
+        self._minus_c = [-ci for ci in c.tolist()]
+        self._D_yd = [[(j, b) for j, b in enumerate(row) if b != 0.0] for row in Dy.tolist()]
+        self._D_q = [[(k, a) for k, a in enumerate(row) if a != 0.0] for row in Dq.tolist()]
+        # [zbar | alphabar] = q @ Wq + yd @ Wy (for many instants at once, when recording): the
+        # recursion applied to unit vectors, as columns of a batch of n (or n + 1) copies
+        zbar, alphabar = self._recursion(tuple(np.eye(n)), tuple(np.zeros((n + 1, n))))
+        self._Wq = np.column_stack(zbar + alphabar)
+        zbar, alphabar = self._recursion(tuple(np.zeros((n, n + 1))), tuple(np.eye(n + 1)))
+        self._Wy = np.column_stack(zbar + alphabar)
 
     def errors(self, x: np.ndarray, yd: np.ndarray) -> np.ndarray:
         """True errors ``z`` (eqs. (7), (8)): ``z_1 = x_1 - y_d``, ``z_i = x_i - alpha_{i-1}``.
@@ -140,41 +168,71 @@ class Backstepping:
         both = q @ self._Wq + yd @ self._Wy
         return both[..., : self.n], both[..., self.n :]
 
-    def _recursion(self, q: np.ndarray, yd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Eqs. (31)-(34) as written: ``zbar_1 = q_1 - y_d``, ``alphabar_i = -c_i zbar_i + D_i``,
-        ``zbar_{i+1} = q_{i+1} - alphabar_i``. Evaluated once, on unit vectors, in ``__init__``."""
-        D = q @ self._Dq.T + yd @ self._Dy.T
-        zbar = np.empty(D.shape)
-        alphabar = np.empty(D.shape)
-        zbar[..., 0] = q[..., 0] - yd[..., 0]
-        alphabar[..., 0] = -self.c[0] * zbar[..., 0] + D[..., 0]
-        for i in range(1, self.n):
-            zbar[..., i] = q[..., i] - alphabar[..., i - 1]
-            alphabar[..., i] = -self.c[i] * zbar[..., i] + D[..., i]
+    def _recursion(self, q: Columns, yd: Sequence[Column]) -> tuple[list[Column], list[Column]]:
+        """Eqs. (31)-(34) as written, over columns: ``zbar_1 = q_1 - y_d``,
+        ``alphabar_i = -c_i zbar_i + D_i``, ``zbar_{i+1} = q_{i+1} - alphabar_i``.
+
+        ``q`` holds the columns ``q_1 .. q_n``, ``yd`` the values ``y_d .. y_d^(n)`` (floats, the
+        same for every copy). The control laws call this every sample; ``__init__`` evaluates it
+        once on unit vectors for :meth:`quantized_errors`.
+        """
+        zbar: list[Column] = []
+        alphabar: list[Column] = []
+        previous = yd[0]  # zbar_1 = q_1 - y_d
+        for qi, minus_c, yd_terms, q_terms in zip(q, self._minus_c, self._D_yd, self._D_q):  # noqa: B905
+            z = qi - previous
+            d = 0.0
+            for j, b in yd_terms:
+                d = d + b * yd[j]
+            for k, a in q_terms:
+                d = d + a * q[k]
+            previous = minus_c * z + d
+            zbar.append(z)
+            alphabar.append(previous)
         return zbar, alphabar
 
-    def _values(self, reading: QuantizedReading) -> np.ndarray:
+    def _refuse(self, reading: object) -> None:
+        """Raise for anything but a :class:`QuantizedReading` made with this controller's bound."""
         if not isinstance(reading, QuantizedReading):
             raise TypeError(
                 "controllers accept only QuantizedReading (use qcontrol.quantizer.quantize); "
                 f"got {type(reading).__name__}"
             )
-        if reading.max_error != self.max_error:
-            raise ValueError(
-                f"reading quantized with bound {reading.max_error}, but the controller's Lemma 2 "
-                f"bounds assume {self.max_error}"
-            )
-        return reading.values
+        raise ValueError(
+            f"reading quantized with bound {reading.max_error}, but the controller's Lemma 2 "
+            f"bounds assume {self.max_error}"
+        )
 
 
 class ControlOutput(NamedTuple):
-    """One controller evaluation: input ``u`` (batch,), ``zbar`` (batch, n), and the held
-    quantities that drive the adaptive state until the next sample."""
+    """One controller evaluation: input ``u``, ``zbar``, and the held quantities that drive the
+    adaptive state until the next sample.
+
+    Array form (``control`` given a ``(batch, m)`` state): ``u`` (batch,), ``zbar`` (batch, n),
+    ``target`` (batch, m). Column form (given a tuple of m columns, as the engine does): ``u`` a
+    column, ``zbar`` and ``target`` tuples of columns, ``rate`` a float or a ``(batch,)`` array.
+    """
 
     u: np.ndarray
     zbar: np.ndarray
     target: np.ndarray  # proposed: s r / sigma; baseline: Gamma phi zbar_n (a rate)
-    rate: float | np.ndarray  # proposed: gamma sigma, a float or a (batch, 1) column; baseline: 0
+    rate: float | np.ndarray  # proposed: gamma sigma, a float or per copy; baseline: 0
+
+
+# ControlOutput((u, zbar, target, rate)) without NamedTuple's Python-level __new__ (hot loop)
+_output = partial(tuple.__new__, ControlOutput)
+
+
+class _Law(NamedTuple):
+    """The constants the column formulas read, for one kind of column (arrays, or floats)."""
+
+    kappa: Parameter
+    gain: Parameter  # 1 / (kappa (kappa - L))
+    sigma: Parameter
+    r_scale: Parameter | None  # None when r_scale == 1 everywhere
+    rate: Parameter  # gamma sigma
+    decay: dict  # h -> exp(-gamma sigma h), computed (with numpy) once per step length
+    terms: tuple  # evaluators of the expressions (r, or psi and phi) on the reading's columns
 
 
 class ProposedController(Backstepping):
@@ -227,11 +285,16 @@ class ProposedController(Backstepping):
         self.r = tuple(r)
         self.r_scale = r_scale
         self.state_size = len(self.r)
-        # precomputed once: per-copy values as columns, and eq. (45)'s decay rate gamma sigma
-        self._sigma_column = _column(sigma)
-        self._r_scale_column = None if np.all(np.asarray(r_scale) == 1.0) else _column(r_scale)
-        self._rate = _column(gamma * sigma)
-        self._gain = 1.0 / (kappa * (kappa - self.L))  # (44): u = -zbar_n s eps^T r / (kappa (kappa - L))
+        # precomputed once: eq. (45)'s decay rate gamma sigma, and (44)'s gain
+        rate = gamma * sigma
+        self._rate = rate[:, None] if isinstance(rate, np.ndarray) else rate  # array form of ControlOutput
+        gain = 1.0 / (kappa * (kappa - self.L))  # (44): u = -zbar_n s eps^T r / (kappa (kappa - L))
+        scaled = not np.all(np.asarray(r_scale) == 1.0)
+        self._on_arrays = _Law(kappa, gain, sigma, r_scale if scaled else None, rate, {},
+                               tuple(e.on_columns for e in self.r))
+        self._on_floats = None if self.copies not in (None, 1) else _Law(
+            _as_float(kappa), _as_float(gain), _as_float(sigma), _as_float(r_scale) if scaled else None,
+            _as_float(rate), {}, tuple(e.on_floats for e in self.r))
 
     def initial_state(self, batch: int) -> np.ndarray:
         """``eps_hat(0) = 0``."""
@@ -239,30 +302,55 @@ class ProposedController(Backstepping):
 
     def bounding_functions(self, q: np.ndarray) -> np.ndarray:
         """``r(x_q)`` with shape ``(..., len(r))``."""
-        r = np.empty(q.shape[:-1] + (self.state_size,))
         columns = q.T if q.ndim == 2 else np.moveaxis(q, -1, 0)
-        for i, ri in enumerate(self.r):
-            r[..., i] = ri.on_columns(columns)
-        if self._r_scale_column is not None:
-            r *= self._r_scale_column
-        return r
+        r = [term(columns) for term in self._on_arrays.terms]
+        if self._on_arrays.r_scale is not None:
+            r = [ri * self._on_arrays.r_scale for ri in r]
+        return np.stack([np.broadcast_to(ri, q.shape[:-1]) for ri in r], axis=-1)
 
-    def control(self, reading: QuantizedReading, yd: np.ndarray, eps_hat: np.ndarray) -> ControlOutput:
-        """Eq. (44) for the current quantized reading; eq. (45)'s held terms for :meth:`advance`."""
-        q = self._values(reading)
-        zbar, alphabar = self.quantized_errors(q, yd)
-        r = self.bounding_functions(q)
-        zn = zbar[:, -1]
-        s = zn * zn / self.kappa + self.L
-        robust = np.vecdot(eps_hat, r)  # eps_hat^T r(x_q), per copy
-        u = alphabar[:, -1] - zn * s * robust * self._gain
-        return ControlOutput(u, zbar, s[:, None] * r / self._sigma_column, self._rate)
+    def control(self, reading: QuantizedReading, yd: Sequence[float],
+                eps_hat: np.ndarray | Columns) -> ControlOutput:
+        """Eq. (44) for the current quantized reading; eq. (45)'s held terms for :meth:`advance`.
 
-    @staticmethod
-    def advance(state: np.ndarray, out: ControlOutput, h: float) -> np.ndarray:
+        ``eps_hat`` is a tuple of m columns (column form, as the engine passes it; floats when
+        ``reading.floats``), or a ``(batch, m)`` array: the same formulas then run on the array's
+        columns and the output is in array form. ``yd`` holds ``y_d .. y_d^(n)``.
+        """
+        if not isinstance(reading, QuantizedReading) or reading.max_error != self.max_error:
+            self._refuse(reading)
+        if isinstance(eps_hat, np.ndarray):
+            out = self.control(QuantizedReading(reading.values, reading.max_error), yd, tuple(eps_hat.T))
+            batch = len(eps_hat)
+            return ControlOutput(out.u, _stack(out.zbar, batch), _stack(out.target, batch), self._rate)
+        law = self._on_floats if reading.floats else self._on_arrays
+        if law is None:
+            raise ValueError(f"the controller has per-copy parameters for {self.copies} copies, not one")
+        q = reading.columns
+        zbar, alphabar = self._recursion(q, yd)  # eqs. (31)-(34)
+        r = [term(q) for term in law.terms]  # r(x_q)
+        if law.r_scale is not None:
+            r = [ri * law.r_scale for ri in r]
+        zn = zbar[-1]
+        s = zn * zn / law.kappa + self.L
+        robust = sum(map(mul, eps_hat, r))  # eps_hat^T r(x_q), per copy
+        u = alphabar[-1] - zn * s * robust * law.gain  # eq. (44)
+        sigma = law.sigma
+        return _output((u, tuple(zbar), tuple([s * ri / sigma for ri in r]), law.rate))
+
+    def advance(self, state: np.ndarray | Columns, out: ControlOutput, h: float) -> np.ndarray | Columns:
         """Integrate eq. (45) over ``h`` with ``x_q`` held: exact for the linear ODE
-        ``eps_hat' = gamma sigma (target - eps_hat)``."""
-        return out.target + (state - out.target) * np.exp(-out.rate * h)
+        ``eps_hat' = gamma sigma (target - eps_hat)``. ``state`` and ``out`` in the same form
+        (array or columns) as :meth:`control` took and gave them."""
+        if isinstance(state, np.ndarray):
+            eps = self.advance(tuple(state.T), out._replace(target=tuple(out.target.T)), h)
+            return _stack(eps, len(state))
+        law = self._on_arrays if isinstance(out.u, np.ndarray) else self._on_floats
+        decay = law.decay.get(h)
+        if decay is None:  # exp(-gamma sigma h), with numpy, once per step length h
+            decay = np.exp(-np.asarray(law.rate) * h)
+            decay = law.decay[h] = decay if decay.ndim else float(decay)
+        # zip without strict=: the lengths are equal by construction (and strict= costs ~0.3 us)
+        return tuple([t + (e - t) * decay for e, t in zip(state, out.target)])  # noqa: B905
 
 
 class BaselineController(Backstepping):
@@ -294,6 +382,10 @@ class BaselineController(Backstepping):
         self.adaptation_gain = float(adaptation_gain)
         self.known_theta = None if known_theta is None else np.asarray(known_theta, dtype=float)
         self.state_size = len(self.phi)
+        # (psi or None, phi...) evaluated on the reading's columns: numpy, or math on floats
+        exprs = (self.psi, *self.phi)
+        self._on_arrays = tuple(None if e is None else e.on_columns for e in exprs)
+        self._on_floats = tuple(None if e is None else e.on_floats for e in exprs)
 
     def initial_state(self, batch: int) -> np.ndarray:
         """``theta_hat(0) = 0``, or the true theta in the known-parameter case."""
@@ -301,29 +393,38 @@ class BaselineController(Backstepping):
             return np.tile(self.known_theta, (batch, 1))
         return np.zeros((batch, self.state_size))
 
-    def control(self, reading: QuantizedReading, yd: np.ndarray, theta_hat: np.ndarray) -> ControlOutput:
-        """Eq. (46) with the plant's own psi, phi evaluated at the quantized state."""
-        q = self._values(reading)
-        zbar, alphabar = self.quantized_errors(q, yd)
-        u = alphabar[:, -1].copy()
-        if self.psi is not None:
-            u -= self.psi(q)
-        if self.phi:
-            phi_q = np.empty(q.shape[:-1] + (len(self.phi),))
-            for i, p in enumerate(self.phi):
-                phi_q[..., i] = p(q)
-            u -= (theta_hat * phi_q).sum(axis=-1)
-            rate = self.adaptation_gain * phi_q * zbar[:, -1:]
-        else:
-            rate = np.zeros_like(theta_hat)
-        if self.known_theta is not None:
-            rate = np.zeros_like(theta_hat)
-        return ControlOutput(u, zbar, rate, 0.0)
+    def control(self, reading: QuantizedReading, yd: Sequence[float],
+                theta_hat: np.ndarray | Columns) -> ControlOutput:
+        """Eq. (46) with the plant's own psi, phi evaluated at the quantized state. Array or
+        column form as in :meth:`ProposedController.control`."""
+        if not isinstance(reading, QuantizedReading) or reading.max_error != self.max_error:
+            self._refuse(reading)
+        if isinstance(theta_hat, np.ndarray):
+            out = self.control(QuantizedReading(reading.values, reading.max_error), yd, tuple(theta_hat.T))
+            batch = len(theta_hat)
+            return ControlOutput(out.u, _stack(out.zbar, batch), _stack(out.target, batch), 0.0)
+        q = reading.columns
+        psi, *phi = self._on_floats if reading.floats else self._on_arrays
+        zbar, alphabar = self._recursion(q, yd)  # eqs. (31)-(34)
+        u = alphabar[-1]
+        if psi is not None:
+            u = u - psi(q)
+        rate: tuple = (0.0,) * len(phi)
+        if phi:
+            phi_q = [p(q) for p in phi]
+            u = u - sum(map(mul, theta_hat, phi_q))  # eq. (46): theta_hat^T phi(x_q)
+            if self.known_theta is None:
+                zn = zbar[-1]
+                rate = tuple([self.adaptation_gain * p * zn for p in phi_q])
+        return _output((u, tuple(zbar), rate, 0.0))
 
     @staticmethod
-    def advance(state: np.ndarray, out: ControlOutput, h: float) -> np.ndarray:
+    def advance(state: np.ndarray | Columns, out: ControlOutput, h: float) -> np.ndarray | Columns:
         """``theta_hat`` grows at the held rate (exact for ``x_q`` held over ``h``)."""
-        return state + h * out.target
+        if isinstance(state, np.ndarray):
+            grown = BaselineController.advance(tuple(state.T), out._replace(target=tuple(out.target.T)), h)
+            return _stack(grown, len(state))
+        return tuple([e + h * t for e, t in zip(state, out.target)])  # noqa: B905 (equal lengths)
 
 
 Controller = ProposedController | BaselineController

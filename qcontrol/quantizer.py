@@ -6,6 +6,8 @@ reading before the controller is called.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable, Sequence
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -42,6 +44,14 @@ class UniformQuantizer:
     def __call__(self, x: np.ndarray) -> np.ndarray:
         return self.delta * np.floor(np.asarray(x, dtype=float) / self.delta + 0.5)
 
+    def on_floats(self, values: Sequence[float]) -> tuple[float, ...]:
+        """:meth:`__call__` on plain floats, bit for bit (``floor`` is exact either way)."""
+        d = self.delta
+        try:
+            return tuple([d * math.floor(v / d + 0.5) for v in values])
+        except (ValueError, OverflowError):  # NaN or Inf: numpy's answer
+            return tuple(self(np.array(values)).tolist())
+
     def __repr__(self) -> str:
         return f"UniformQuantizer(delta={self.delta!r})"
 
@@ -52,15 +62,46 @@ class QuantizedReading:
     Controllers refuse plain arrays, so the true state cannot be handed to them by accident.
     ``max_error`` carries the quantizer's bound so the controller can check that its Lemma 2
     bounds were computed for this quantizer.
+
+    Two views of the same numbers: ``values`` with shape ``(batch, n)``, and ``columns``, one
+    value per state ``q_1 .. q_n``, each a ``(batch,)`` array, or a plain float for a reading of
+    one copy made by :func:`float_quantizer` (``floats`` is then true). The controller's formulas
+    work on columns; the array of a reading of floats is made when first asked for.
     """
 
-    __slots__ = ("values", "max_error")
+    __slots__ = ("_values", "columns", "max_error", "floats")
 
-    def __init__(self, values: np.ndarray, max_error: float) -> None:
-        self.values = values
+    def __init__(self, values: np.ndarray | None, max_error: float,
+                 float_values: Sequence[float] | None = None) -> None:
+        """``QuantizedReading(values, max_error)`` for a ``(batch, n)`` array, or
+        ``QuantizedReading(None, max_error, float_values)`` for one copy as floats ``q_1 .. q_n``."""
         self.max_error = max_error
+        self._values = values
+        self.floats = values is None
+        self.columns: tuple = tuple(float_values) if values is None else tuple(np.asarray(values).T)
+
+    @property
+    def values(self) -> np.ndarray:
+        if self._values is None:
+            self._values = np.array([self.columns], dtype=float)
+        return self._values
 
 
 def quantize(quantizer: Quantizer, readings: np.ndarray) -> QuantizedReading:
     """Apply ``quantizer`` to sensor ``readings`` (shape ``(batch, n)``)."""
     return QuantizedReading(quantizer(readings), quantizer.max_error)
+
+
+def float_quantizer(quantizer: Quantizer) -> Callable[[Sequence[float]], QuantizedReading]:
+    """``quantize`` for the readings of one copy, plain floats ``x_1 .. x_n``: a function made once
+    per run. A quantizer with an ``on_floats`` method (:class:`UniformQuantizer`) needs no numpy."""
+    on_floats = getattr(quantizer, "on_floats", None)
+    max_error = quantizer.max_error
+    if on_floats is None:
+        def on_floats(readings: Sequence[float]) -> tuple[float, ...]:
+            return tuple(quantizer(np.array([readings], dtype=float))[0].tolist())
+
+    def quantize_floats(readings: Sequence[float]) -> QuantizedReading:
+        return QuantizedReading(None, max_error, on_floats(readings))
+
+    return quantize_floats

@@ -22,7 +22,7 @@ import numpy as np
 from .controller import Controller
 from .errors import QcontrolInputError
 from .plants.base import Plant
-from .quantizer import Quantizer, quantize
+from .quantizer import QuantizedReading, Quantizer, float_quantizer, quantize
 from .reference import Reference
 
 ProgressCallback = Callable[[int, int], None]
@@ -123,6 +123,8 @@ class RunMetrics(RunRecord):
 
 RECORD_MODES = ("full", "metrics")
 METRICS_CHUNK = 1000  # rows buffered per reduction in record="metrics"
+REDUCE_ELEMENTS = 100_000  # rows x copies per block when deriving z, e_z (cache-sized temporaries)
+FLUSH_ROWS = 1000  # a batch of one: rows kept as Python tuples before they are written to arrays
 
 
 def step_count(duration: float, dt: float, what: str = "simulation.duration") -> int:
@@ -202,17 +204,19 @@ def simulate(
     reasons = [""] * batch
     diverged_time: list[float | None] = [None] * batch
     derived = 0  # rows [0, derived) have z, zbar, e_z filled in
+    block = max(1, REDUCE_ELEMENTS // batch)  # rows per vectorized evaluation of z, zbar, e_z
 
     def derive(stop: int) -> None:
         """Fill z, zbar, e_z for rows [derived, stop): the same formulas as the controller's,
         evaluated for many instants at once instead of inside the time loop."""
         nonlocal derived
-        rows_ = slice(derived, stop)
-        yd = YD[rows_, None, :]
-        with np.errstate(all="ignore"):  # rows of a diverged copy may hold NaN/Inf
-            Z[rows_] = controller.errors(X[rows_], yd)
-            ZB[rows_], _ = controller.quantized_errors(XQ[rows_], yd)
-            EZ[rows_] = np.abs(controller.errors(XM[rows_], yd) - ZB[rows_])
+        for first in range(derived, stop, block):
+            rows_ = slice(first, min(stop, first + block))
+            yd = YD[rows_, None, :]
+            with np.errstate(all="ignore"):  # rows of a diverged copy may hold NaN/Inf
+                Z[rows_] = controller.errors(X[rows_], yd)
+                ZB[rows_], _ = controller.quantized_errors(XQ[rows_], yd)
+                EZ[rows_] = np.abs(controller.errors(XM[rows_], yd) - ZB[rows_])
         derived = stop
 
     def collect(lengths: np.ndarray, now: float) -> list[Trajectory]:
@@ -273,13 +277,77 @@ def simulate(
     def reduce(stop: int) -> None:
         """record="metrics": fold the buffered rows [base, stop) into ``reduced``."""
         nonlocal base
-        m = stop - base
         with np.errstate(all="ignore"):
-            reduced.add(base, X[:m], XM[:m], XQ[:m], U[:m], S[:m], YD[base:stop], kept, controller)
+            for first in range(0, stop - base, block):
+                b_ = slice(first, min(stop - base, first + block))
+                reduced.add(base + first, X[b_], XM[b_], XQ[b_], U[b_], S[b_],
+                            YD[base + b_.start : base + b_.stop], kept, controller)
         base = stop
 
     x0 = np.broadcast_to(np.asarray(x0, dtype=float), (batch, n))
-    adaptive = controller.initial_state(batch)
+    # The loop below is one code for both kinds of batch; what differs is how values are held.
+    # A batch of one runs on plain floats: the plant's state as a list, the quantized reading and
+    # the adaptive state as tuples of floats (a numpy call on a one-element array costs about a
+    # microsecond, float arithmetic tens of nanoseconds), and the rows are buffered as tuples and
+    # written to the arrays in blocks. A larger batch holds (batch, n) arrays and (batch,) columns.
+    # The controller's formulas are the same for both (see qcontrol.controller).
+    floats = batch == 1
+    if floats:
+        read_state = getattr(plant, "state_floats", None) or (lambda: plant.state()[0].tolist())
+        read_sensors = getattr(plant, "sensor_floats", None) or (lambda: plant.read_sensors()[0].tolist())
+        step_float = getattr(plant, "step_float", None)
+        step = step_float or (lambda u, h: plant.step(np.array([u]), h))
+        adaptive = tuple(controller.initial_state(1)[0].tolist())
+        pending: list[tuple] = []  # the rows up to the last one recorded, not yet written to X .. S
+        quantize_ = float_quantizer(quantizer)
+
+        def healthy(x: list[float], adaptive: tuple) -> bool:
+            total = sum(x) + sum(adaptive)  # NaN or Inf if any is (or if the sum overflows)
+            return total - total == 0.0 and max(x) <= state_bound and min(x) >= -state_bound
+
+        def arrays(x: list[float], adaptive: tuple) -> tuple[np.ndarray, np.ndarray]:
+            return np.array([x], dtype=float), np.array([adaptive], dtype=float).reshape(1, -1)
+
+        def record(j: int, x: list[float], meas: list[float], reading: QuantizedReading, u: float,
+                   adaptive: tuple) -> None:
+            pending.append((*x, *meas, *reading.columns, u, *adaptive))
+            if len(pending) == FLUSH_ROWS:
+                flush(j + 1)
+
+        def flush(stop: int) -> None:
+            """Write the pending rows, which end at buffer row ``stop``."""
+            if not pending:
+                return
+            block = np.array(pending, dtype=float)
+            rows_ = slice(stop - len(pending), stop)
+            X[rows_, 0], XM[rows_, 0] = block[:, :n], block[:, n : 2 * n]
+            XQ[rows_, 0] = block[:, 2 * n : 3 * n]
+            U[rows_, 0], S[rows_, 0] = block[:, 3 * n], block[:, 3 * n + 1 :]
+            pending.clear()
+    else:
+        read_state, read_sensors, step = plant.state, plant.read_sensors, plant.step
+        adaptive = tuple(np.ascontiguousarray(controller.initial_state(batch).T))
+
+        def quantize_(meas: np.ndarray) -> QuantizedReading:
+            return quantize(quantizer, meas)
+
+        def healthy(x: np.ndarray, adaptive: tuple) -> bool:
+            return np.abs(x).max() <= state_bound and math.isfinite(sum(a.sum() for a in adaptive))
+
+        def arrays(x: np.ndarray, adaptive: tuple) -> tuple[np.ndarray, np.ndarray]:
+            return x, (np.stack(np.broadcast_arrays(*adaptive), axis=1) if adaptive else np.empty((batch, 0)))
+
+        def record(j: int, x: np.ndarray, meas: np.ndarray, reading: QuantizedReading, u: np.ndarray,
+                   adaptive: tuple) -> None:
+            X[j], XM[j], XQ[j], U[j] = x, meas, reading.values, u
+            for i, a in enumerate(adaptive):
+                S[j, :, i] = a
+
+        def flush(stop: int) -> None:
+            return None
+
+    yd_block: list[list[float]] = []
+    yd_start = yd_stop = 0
     started = time.perf_counter()
     observed = 0
     base = 0  # row held in X[0] .. S[0]
@@ -288,32 +356,37 @@ def simulate(
     with plant, np.errstate(all="ignore"):
         plant.reset(x0)
         for k in range(rows):
-            x = plant.state()
-            meas = plant.read_sensors()
-            # fast test first (NaN fails '<='); the per-copy bookkeeping only when it trips
-            if any_diverged or not (np.abs(x).max() <= state_bound and math.isfinite(adaptive.sum())):
-                check_divergence(k, x, adaptive)
+            x = read_state()
+            meas = read_sensors()
+            # fast test first (NaN fails it); the per-copy bookkeeping only when it trips
+            if any_diverged or not healthy(x, adaptive):
+                check_divergence(k, *arrays(x, adaptive))
                 any_diverged = not alive.all()
-            reading = quantize(quantizer, meas)
+            reading = quantize_(meas)
             if k % hold == 0:
-                out = controller.control(reading, YD[k], adaptive)
+                if k >= yd_stop:  # y_d .. y_d^(n) as floats (the same for every copy), a block at a time
+                    yd_block, yd_start, yd_stop = YD[k : k + FLUSH_ROWS].tolist(), k, k + FLUSH_ROWS
+                out = controller.control(reading, yd_block[k - yd_start], adaptive)
             j = k - base
-            X[j], XM[j], XQ[j], U[j], S[j] = x, meas, reading.values, out.u, adaptive
+            record(j, x, meas, reading, out.u, adaptive)
             if progress is not None and (k % report_every == 0 or k == rows - 1):
                 progress(k, rows - 1)
             finished = k == rows - 1 or (any_diverged and not alive.any())
             if metrics_only:
                 if finished or j + 1 == buffered:
+                    flush(j + 1)
                     if observer is not None:
                         observer(0, k + 1 - base, chunk_runs(k + 1, time.perf_counter()))
                     reduce(k + 1)
             elif observer is not None and (finished or (k + 1) % observe_every == 0):
+                flush(j + 1)
                 observer(observed, k + 1, collect(np.minimum(kept, k + 1), time.perf_counter()))
                 observed = k + 1
             if finished:
                 break
-            plant.step(out.u, dt)
+            step(out.u, dt)
             adaptive = controller.advance(adaptive, out, dt)
+        flush(j + 1)
     if metrics_only:
         now = time.perf_counter()
         return [

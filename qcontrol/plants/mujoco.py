@@ -53,7 +53,6 @@ so armature and rod mass act as unmodelled dynamics, as they would on hardware.
 
 from __future__ import annotations
 
-import ast
 import math
 import pathlib
 from collections.abc import Callable, Iterator, Sequence
@@ -65,8 +64,9 @@ import mujoco
 import numpy as np
 
 from ..errors import QcontrolInputError
-from ..expr import Expression
+from ..expr import Expression, ScalarFn, scalar_function
 
+_mj_step, _mj_sensor_pos, _mj_sensor_vel = mujoco.mj_step, mujoco.mj_sensorPos, mujoco.mj_sensorVel
 INTEGRATORS = {
     "RK4": mujoco.mjtIntegrator.mjINT_RK4,
     "Euler": mujoco.mjtIntegrator.mjINT_EULER,
@@ -463,81 +463,9 @@ def joint_inertia(model: mujoco.MjModel) -> float:
 
 
 # --------------------------------------------------------------------------------------------
-# Scalar evaluation of expressions inside the passive callback
+# The passive callback's generalized force (plain floats: see :func:`qcontrol.expr.scalar_function`)
 
-_SCALAR_FUNCTIONS: dict[str, Callable[[float], float]] = {
-    "abs": abs, "sqrt": math.sqrt, "exp": math.exp, "log": math.log, "sin": math.sin,
-    "cos": math.cos, "tan": math.tan, "tanh": math.tanh,
-    "sign": lambda a: a if a != a else (1.0 if a > 0 else -1.0 if a < 0 else 0.0),  # NaN stays NaN
-}
-ScalarFn = Callable[[Sequence[float]], float]
 GeneralizedForce = Callable[[float, float], float]  # (qpos, qvel) -> generalized force
-
-
-def scalar_function(expression: Expression) -> ScalarFn:
-    """A plain-float version of a (validated) :class:`Expression`: ``f((x1, x2)) -> float``.
-
-    A numpy call on a scalar costs about a microsecond; the callback runs four times per RK4
-    step, so it uses ``math`` instead. Domain errors raise (the caller turns them into NaN).
-    """
-    index = {name: i for i, name in enumerate(expression.variables)}
-    fn, _ = _scalar(ast.parse(expression.source.strip(), mode="eval").body, index)
-    return fn
-
-
-def _scalar(node: ast.AST, index: dict[str, int]) -> tuple[ScalarFn, float | None]:
-    if isinstance(node, ast.Constant):
-        value = float(node.value)
-        return (lambda xs: value), value
-    if isinstance(node, ast.Name):
-        if node.id in index:
-            i = index[node.id]
-            return (lambda xs: xs[i]), None
-        value = math.pi  # the only constant the expression language knows
-        return (lambda xs: value), value
-    if isinstance(node, ast.UnaryOp):
-        inner, value = _scalar(node.operand, index)
-        if isinstance(node.op, ast.UAdd):
-            return inner, value
-        if value is not None:
-            return (lambda xs: -value), -value
-        return (lambda xs: -inner(xs)), None
-    if isinstance(node, ast.BinOp):
-        left, lv = _scalar(node.left, index)
-        right, rv = _scalar(node.right, index)
-        op = type(node.op)
-        if op is ast.Add:
-            fn: ScalarFn = lambda xs: left(xs) + right(xs)  # noqa: E731
-        elif op is ast.Sub:
-            fn = lambda xs: left(xs) - right(xs)  # noqa: E731
-        elif op is ast.Mult:
-            fn = lambda xs: left(xs) * right(xs)  # noqa: E731
-        elif op is ast.Div:
-            fn = lambda xs: left(xs) / right(xs)  # noqa: E731
-        elif rv == 2.0:
-            def fn(xs: Sequence[float]) -> float:
-                a = left(xs)
-                return a * a  # like np.square, exactly
-        else:
-            fn = lambda xs: math.pow(left(xs), right(xs))  # noqa: E731
-        if lv is not None and rv is not None:
-            value = fn(())
-            return (lambda xs: value), value
-        return fn, None
-    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name):
-        parts = [_scalar(arg, index)[0] for arg in node.args]
-        name = node.func.id
-        if name in ("min", "max"):
-            pick = min if name == "min" else max
-
-            def reduce(xs: Sequence[float]) -> float:
-                values = [p(xs) for p in parts]
-                return math.nan if any(v != v for v in values) else pick(values)
-
-            return reduce, None
-        f, arg = _SCALAR_FUNCTIONS[name], parts[0]
-        return (lambda xs: f(arg(xs))), None
-    raise ValueError(f"unexpected syntax in a validated expression: {ast.dump(node)}")
 
 
 def _callback_term(terms: Sequence[tuple[float, ScalarFn]], inertia: float) -> GeneralizedForce:
@@ -653,6 +581,7 @@ class MujocoPlant:
         self.timestep = float(self.model.opt.timestep)
         self._check_sensor_timing(where)
         self._ids = ids
+        self._aid = ids.actuator
         nominal = self.model if not (options.armature or options.rod_mass) else build_model(
             options.nominal(), timestep)
         self.inertia = joint_inertia(nominal)  # the gain between u and generalized force
@@ -755,29 +684,59 @@ class MujocoPlant:
         values = np.asarray(u, dtype=float).ravel().tolist()
         if len(values) != self.batch:
             values = values * self.batch if len(values) == 1 else list(np.broadcast_to(values, (self.batch,)))
-        model, gain, aid = self.model, self._ctrl_per_u, self._ids.actuator
-        dead, clock = self._dead, self._clock
-        mj_step, sensor_pos, sensor_vel = mujoco.mj_step, mujoco.mj_sensorPos, mujoco.mj_sensorVel
-        elapsed = substeps * self.timestep
+        step_copy = self._step_copy
+        for b in range(self.batch):
+            step_copy(b, values[b], substeps)
+
+    def _step_copy(self, b: int, value: float, substeps: int) -> None:
+        """Copy ``b`` through ``substeps`` calls of ``mj_step`` with the input ``value`` held."""
+        dead = self._dead
+        if dead[b]:
+            return
+        data, model = self._datas[b], self.model
+        self._views[b][0][self._aid] = self._ctrl_per_u * value
         messages = self.mujoco_warnings
         seen = len(messages)
-        for b, data in enumerate(self._datas):
-            if dead[b]:
-                continue
-            self._views[b][0][aid] = gain * values[b]
-            for _ in range(substeps):
-                mj_step(model, data)
-            sensor_pos(model, data)
-            sensor_vel(model, data)
-            clock[b] += elapsed
-            # MuJoCo resets a copy whose ctrl/qpos/qvel/qacc turns NaN, Inf or huge and carries on
-            # from the reset pose; it says so through the warning handler (once per copy), and
-            # the copy's clock falls behind when the reset happened before the last substep.
-            if len(messages) != seen:
-                dead[b] = dead[b] or any("unstable" in m for m in messages[seen:])
-                seen = len(messages)
-            if data.time < clock[b] - 0.5 * self.timestep:
-                dead[b] = True
+        _mj_step(model, data)
+        for _ in range(substeps - 1):
+            _mj_step(model, data)
+        _mj_sensor_pos(model, data)
+        _mj_sensor_vel(model, data)
+        clock = self._clock[b] = self._clock[b] + substeps * self.timestep
+        # MuJoCo resets a copy whose ctrl/qpos/qvel/qacc turns NaN, Inf or huge and carries on
+        # from the reset pose; it says so through the warning handler (once per copy), and
+        # the copy's clock falls behind when the reset happened before the last substep.
+        if len(messages) != seen and any("unstable" in m for m in messages[seen:]):
+            dead[b] = True
+        if data.time < clock - 0.5 * self.timestep:
+            dead[b] = True
+
+    # ---- a batch of one on plain floats (the engine's fast path)
+    def state_floats(self) -> list[float]:
+        """:meth:`state` of the one copy as ``[qpos, qvel]`` (batch of one)."""
+        if self._dead[0]:
+            return [math.nan, math.nan]
+        _, _, qpos, qvel = self._views[0]
+        return [qpos.item(self._qadr), qvel.item(self._ids.dof)]
+
+    def sensor_floats(self) -> list[float]:
+        """:meth:`read_sensors` of the one copy as ``[position, velocity]`` (batch of one)."""
+        if self._dead[0]:
+            if self._noisy:
+                self._rng.normal(0.0, 1.0, size=(1, 2))  # the same noise stream as read_sensors
+            return [math.nan, math.nan]
+        p, v = self._sadr
+        data = self._views[0][1]
+        if self._noisy:
+            noise = (self._rng.normal(0.0, 1.0, size=(1, 2)) * self._noise)[0].tolist()
+            return [data.item(p) + noise[0], data.item(v) + noise[1]]
+        return [data.item(p), data.item(v)]
+
+    def step_float(self, u: float, h: float) -> None:
+        """:meth:`step` for a batch of one, ``u`` a float."""
+        if self._entered is None and self._force is not None:
+            raise RuntimeError("use MujocoPlant in a 'with' block: its passive callback is installed there")
+        self._step_copy(0, u, self._substeps.get(h) or self._count_substeps(h))
 
     def _count_substeps(self, h: float) -> int:
         substeps = round(h / self.timestep)

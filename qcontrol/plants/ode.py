@@ -5,20 +5,26 @@
 integrated with classical fixed-step RK4, the input held over each step. A fixed step is
 deliberate: an adaptive-step solver either steps over the quantizer's jumps or crawls at them.
 
-A batch of one is stepped on plain floats (``math`` instead of numpy: a numpy call on a one-element
-array costs about a microsecond, the same arithmetic on floats a few tens of nanoseconds). It is
-the same RK4 with the same operations in the same order; only ``sin``, ``cos``, ... come from the C
-library instead of numpy, which may differ in the last bit.
+The state is kept as columns, one value per state ``x_1 .. x_n``, and :func:`_rk4` is written once
+over them with elementwise arithmetic: for a batch of one the columns are plain floats and the
+terms are evaluated with ``math`` (a numpy call on a one-element array costs about a microsecond,
+the same arithmetic on floats a few tens of nanoseconds), otherwise they are ``(batch,)`` arrays
+and numpy evaluates the terms. Same operations in the same order; only ``sin``, ``cos``, ... come
+from the C library instead of numpy on floats, which may differ in the last bit.
+``state_floats`` / ``sensor_floats`` / ``step_float`` let the engine's batch-of-one loop use the
+floats without making arrays.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from ..expr import Expression
+from ..expr import Expression, ScalarFn, scalar_function
+
+Column = float | np.ndarray  # one value per copy: a (batch,) array, or a float for a batch of one
+Uncertainty = Callable[[list[Column]], Column]  # psi + theta^T phi on the state's columns
 
 
 class ChainPlant:
@@ -49,9 +55,13 @@ class ChainPlant:
         # (coefficient, term): a coefficient is a float, or a (batch,) column of per-copy values
         coefficients = theta.T if theta.ndim == 2 else theta
         self._terms = list(zip(coefficients, self.phi, strict=True))
-        self._x = np.zeros((self.batch, self.n))
-        row = theta[0] if theta.ndim == 2 else theta  # the one copy's theta, for a batch of one
-        self._scalar = _scalar_uncertainty(psi, phi, row) if batch == 1 else None
+        self._floats = self.batch == 1
+        if self._floats:
+            row = theta[0] if theta.ndim == 2 else theta  # the one copy's theta
+            self._g: Uncertainty = _scalar_uncertainty(psi, phi, row)
+        else:
+            self._g = self._uncertainty_columns
+        self._x: list[Column] = [0.0] * self.n if self._floats else [np.zeros(self.batch)] * self.n
 
     def __enter__(self) -> ChainPlant:
         return self
@@ -59,12 +69,16 @@ class ChainPlant:
     def __exit__(self, *exc: object) -> None:
         return None
 
-    def uncertainty(self, x: np.ndarray) -> np.ndarray:
-        """``psi(x) + theta^T phi(x)``, shape ``(batch,)``."""
-        columns = x.T
+    def _uncertainty_columns(self, columns: Sequence[np.ndarray]) -> np.ndarray | float:
+        """``psi + theta^T phi`` on columns (numpy), the terms summed in order."""
         total = self.psi.on_columns(columns) if self.psi is not None else 0.0
         for coefficient, term in self._terms:
             total = total + coefficient * term.on_columns(columns)
+        return total
+
+    def uncertainty(self, x: np.ndarray) -> np.ndarray:
+        """``psi(x) + theta^T phi(x)``, shape ``(batch,)``."""
+        total = self._uncertainty_columns(x.T)
         if np.ndim(total) == 0:  # psi and phi absent or constant
             return np.full(x.shape[:-1], float(total))
         return total
@@ -77,58 +91,63 @@ class ChainPlant:
         return dx
 
     def reset(self, x0: np.ndarray) -> None:
-        self._x = np.array(np.broadcast_to(x0, (self.batch, self.n)), dtype=float)
+        x0 = np.array(np.broadcast_to(x0, (self.batch, self.n)), dtype=float)
+        self._x = x0[0].tolist() if self._floats else list(np.ascontiguousarray(x0.T))
 
     def state(self) -> np.ndarray:
-        return self._x.copy()
+        return np.array([self._x]) if self._floats else np.array(self._x).T
 
     def read_sensors(self) -> np.ndarray:
-        return self._x.copy()
+        return self.state()
 
     def step(self, u: np.ndarray, h: float) -> None:
         """One classical RK4 step of eq. (1) with ``u`` held."""
-        if self._scalar is not None:
-            self._x = np.array([_rk4_scalar(self._x[0].tolist(), float(np.ravel(u)[0]), h, self._scalar)])
-            return
-        x = self._x
-        half = 0.5 * h
-        k1 = self.rhs(x, u)
-        k2 = self.rhs(x + half * k1, u)
-        k3 = self.rhs(x + half * k2, u)
-        k4 = self.rhs(x + h * k3, u)
-        self._x = x + (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
+        if self._floats:
+            u = float(np.ravel(u)[0])
+        elif not (isinstance(u, np.ndarray) and u.shape == (self.batch,)):
+            u = np.broadcast_to(np.asarray(u, dtype=float), (self.batch,))
+        self._x = _rk4(self._x, u, h, self._g)
+
+    # ---- a batch of one on plain floats (the engine's fast path)
+    def state_floats(self) -> list[float]:
+        """The state of the one copy as ``[x1, .., xn]`` (batch of one only)."""
+        return self._x[:]
+
+    sensor_floats = state_floats
+
+    def step_float(self, u: float, h: float) -> None:
+        """:meth:`step` for a batch of one, ``u`` a float."""
+        self._x = _rk4(self._x, u, h, self._g)
 
 
-ScalarUncertainty = Callable[[list[float]], float]
+def _scalar_uncertainty(psi: Expression | None, phi: Sequence[Expression], theta: np.ndarray) -> Uncertainty:
+    """``psi + theta^T phi`` on plain floats, summed in the order of :meth:`ChainPlant.uncertainty`.
+    Where ``math`` refuses (a domain error, an overflow) the terms are evaluated again with
+    :meth:`Expression.on_floats`, which gives numpy's answer (NaN, Inf) there."""
+    coefficients = [float(c) for c in theta]
+    fast = (scalar_function(psi) if psi is not None else None, [scalar_function(p) for p in phi])
+    safe = (psi.on_floats if psi is not None else None, [p.on_floats for p in phi])
 
-
-def _scalar_uncertainty(
-    psi: Expression | None, phi: Sequence[Expression], theta: np.ndarray
-) -> ScalarUncertainty:
-    """``psi + theta^T phi`` on plain floats, summed in the order of :meth:`ChainPlant.uncertainty`;
-    NaN where a term is undefined (numpy's answer there, too)."""
-    from .mujoco import scalar_function  # the float evaluator of (validated) expressions
-
-    first = scalar_function(psi) if psi is not None else None
-    terms = [(float(c), scalar_function(p)) for c, p in zip(theta, phi, strict=True)]
+    def total(x: list[float], first: ScalarFn | None, terms: list[ScalarFn]) -> float:
+        value = first(x) if first is not None else 0.0
+        for coefficient, term in zip(coefficients, terms):  # noqa: B905 (equal lengths)
+            value = value + coefficient * term(x)
+        return value
 
     def uncertainty(x: list[float]) -> float:
         try:
-            total = first(x) if first is not None else 0.0
-            for coefficient, term in terms:
-                total = total + coefficient * term(x)
+            return total(x, *fast)
         except (ValueError, ZeroDivisionError, OverflowError):
-            return math.nan
-        return total
+            return total(x, *safe)
 
     return uncertainty
 
 
-def _rk4_scalar(x: list[float], u: float, h: float, g: ScalarUncertainty) -> list[float]:
-    """:meth:`ChainPlant.step` for one copy, operation for operation, on floats."""
+def _rk4(x: list[Column], u: Column, h: float, g: Uncertainty) -> list[Column]:
+    """One classical RK4 step of eq. (1) on the state's columns (floats or arrays alike)."""
     half = 0.5 * h
 
-    def rhs(s: list[float]) -> list[float]:
+    def rhs(s: list[Column]) -> list[Column]:
         return s[1:] + [u + g(s)]
 
     k1 = rhs(x)

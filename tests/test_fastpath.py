@@ -1,0 +1,141 @@
+"""A batch of one runs on plain floats, a larger batch on numpy columns: both go through the same
+controller code (qcontrol.controller), so they must give the same numbers."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from qcontrol.assembly import build_controller, build_plant, build_quantizer, build_reference
+from qcontrol.controller import BaselineController, ProposedController
+from qcontrol.expr import compile_expression
+from qcontrol.plants.ode import ChainPlant
+from qcontrol.quantizer import QuantizedReading, UniformQuantizer, float_quantizer, quantize
+from qcontrol.scenario import load_scenario
+from qcontrol.sim import simulate
+
+SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
+Q2, X2 = ["q1", "q2"], ["x1", "x2"]
+PHI = ["x2", "x2**2*cos(x1)", "sin(x1)"]
+
+
+def _controllers():
+    r = [compile_expression(e, Q2) for e in ("1 + q2**2", "1 + 2*q2**2", "1")]
+    phi = [compile_expression(e, X2) for e in PHI]
+    psi = compile_expression("0.1*x2**2 - sqrt(abs(x1))", X2)
+    return {
+        "proposed": ProposedController([4.0, 3.0], 0.005, kappa=1.125, gamma=1.5, sigma=0.7, r=r),
+        "proposed-r_scale": ProposedController([4.0, 3.0], 0.005, kappa=1.125, gamma=1.5, sigma=0.7, r=r,
+                                               r_scale=2.5),
+        "baseline": BaselineController([4.0, 3.0], 0.005, psi, phi, adaptation_gain=2.0),
+        "baseline-known": BaselineController([4.0, 3.0], 0.005, None, phi, known_theta=[-1.0, -3.5, -34.3]),
+    }
+
+
+@pytest.mark.parametrize("name", list(_controllers()))
+def test_float_columns_and_numpy_columns_give_the_same_control(name: str) -> None:
+    ctrl = _controllers()[name]
+    quantizer = UniformQuantizer(0.01)
+    rng = np.random.default_rng(5)
+    x = rng.uniform(-2, 2, (40, 2))
+    state = rng.uniform(-1, 1, (40, ctrl.state_size))
+    yd = [0.3, -0.2, 1.1]
+    on_arrays = ctrl.control(quantize(quantizer, x), yd, tuple(np.ascontiguousarray(state.T)))
+    advanced = ctrl.advance(tuple(np.ascontiguousarray(state.T)), on_arrays, 1e-3)
+    to_floats = float_quantizer(quantizer)
+    for b in range(len(x)):
+        reading = to_floats(x[b].tolist())
+        assert reading.floats and all(type(v) is float for v in reading.columns)
+        out = ctrl.control(reading, yd, tuple(state[b].tolist()))
+        assert type(out.u) is float
+        assert out.u == pytest.approx(on_arrays.u[b], rel=1e-12, abs=1e-12)
+        np.testing.assert_allclose(out.zbar, [z[b] for z in on_arrays.zbar], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(out.target, [np.broadcast_to(t, (40,))[b] for t in on_arrays.target],
+                                   rtol=1e-12, atol=1e-12)
+        stepped = ctrl.advance(tuple(state[b].tolist()), out, 1e-3)
+        assert all(type(v) is float for v in stepped)
+        np.testing.assert_allclose(stepped, [a[b] for a in advanced], rtol=1e-12, atol=1e-12)
+
+
+class _Seen:
+    """Wraps a controller and notes whether each reading came as floats."""
+
+    def __init__(self, inner):
+        self.inner, self.floats = inner, set()
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+    def control(self, reading, yd, adaptive):
+        self.floats.add(reading.floats)
+        return self.inner.control(reading, yd, adaptive)
+
+
+@pytest.mark.parametrize("overrides", [[], ["controller.kind=baseline"], ["controller.r_scale=2.0"],
+                                       ["controller.kind=baseline", "controller.baseline_theta=known"],
+                                       ["simulation.control_period=0.004"]])
+@pytest.mark.parametrize("backend", ["ode", "mujoco"])
+def test_batch_of_one_on_floats_equals_the_numpy_batch(overrides: list[str], backend: str) -> None:
+    sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=2.0"] + overrides)
+    runs = {}
+    for batch in (1, 3):
+        ctrl = _Seen(build_controller(sc))
+        plant = build_plant(sc, backend, batch=batch)
+        runs[batch] = simulate(plant, ctrl, build_quantizer(sc), build_reference(sc), sc.x0,
+                               sc.simulation.duration, sc.simulation.dt,
+                               control_period=sc.simulation.control_period)
+        assert ctrl.floats == {batch == 1}  # the float path for one copy, numpy columns otherwise
+    one = runs[1][0]
+    for copy in runs[3]:
+        assert not one.diverged and not copy.diverged and len(one.t) == len(copy.t)
+        for field in ("x", "x_meas", "x_q", "u", "adaptive", "zbar", "e_z"):
+            np.testing.assert_allclose(getattr(one, field), getattr(copy, field), rtol=0, atol=1e-12,
+                                       err_msg=field)
+
+
+@pytest.mark.parametrize(("bound", "reason"), [(10.0, "bound"), (1e300, "NaN")])
+def test_float_path_records_a_diverging_run_like_the_numpy_path(bound: float, reason: str) -> None:
+    phi = [compile_expression("x2**3", X2)]  # x2' = 20 x2^3 + u blows up within milliseconds
+    runs = {}
+    for batch in (1, 2):
+        sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=2.0"])
+        plant = ChainPlant(2, None, phi, [20.0], batch=batch)
+        runs[batch] = simulate(plant, build_controller(sc), build_quantizer(sc), build_reference(sc),
+                               [1.0, 4.0], 2.0, 1e-3, state_bound=bound)
+    one, other = runs[1][0], runs[2][1]
+    assert one.diverged and other.diverged and one.diverged_time == other.diverged_time
+    assert one.divergence_reason == other.divergence_reason and reason in one.divergence_reason
+    np.testing.assert_allclose(one.x, other.x, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(one.adaptive, other.adaptive, rtol=0, atol=1e-12)
+
+
+def test_float_quantizer_matches_the_array_quantizer_bit_for_bit() -> None:
+    quantizer = UniformQuantizer(0.01)
+    rng = np.random.default_rng(2)
+    values = np.concatenate([rng.normal(0, 3, 500), np.arange(-50, 51) * 0.005,
+                             [np.nan, np.inf, -np.inf, 1e300, -0.0]])
+    expected = quantizer(values)
+    to_floats = float_quantizer(quantizer)
+    got = np.array([to_floats([v]).columns[0] for v in values.tolist()])
+    np.testing.assert_array_equal(got, expected)
+
+
+def test_quantized_reading_of_floats_offers_the_array_view() -> None:
+    reading = QuantizedReading(None, 0.005, (0.31, -0.42))
+    assert reading.floats
+    np.testing.assert_array_equal(reading.values, [[0.31, -0.42]])
+    ctrl = _controllers()["proposed"]
+    with pytest.raises(TypeError, match="QuantizedReading"):
+        ctrl.control((0.31, -0.42), [0.0, 0.0, 0.0], (0.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match="Lemma 2"):
+        ctrl.control(QuantizedReading(None, 0.05, (0.3, 0.4)), [0.0, 0.0, 0.0], (0.0, 0.0, 0.0))
+
+
+def test_on_floats_falls_back_to_numpys_answer() -> None:
+    e = compile_expression("sqrt(x1) + log(x2) + 1/x1 + exp(x2)", X2)
+    with np.errstate(all="ignore"):
+        for values in ([4.0, 2.0], [-1.0, 2.0], [0.0, 1.0], [1.0, 0.0], [1.0, 1000.0], [np.nan, 1.0]):
+            expected = float(e(np.array([values]))[0])
+            got = e.on_floats(values)
+            assert type(got) is float
+            assert got == pytest.approx(expected, rel=1e-14) or (np.isnan(got) and np.isnan(expected))
