@@ -37,7 +37,6 @@ nothing; callers should simply not pass an observer then.
 
 from __future__ import annotations
 
-import math
 import os
 import re
 import shutil
@@ -192,6 +191,7 @@ class _Scene:
             for b in self.bodies
         }
         self.tip_geom, self.tip_radius = self._tip(jid)
+        self._reference_pose(jid)
 
     @staticmethod
     def _joint_id(model: mujoco.MjModel, joint: str | None) -> int:
@@ -234,26 +234,74 @@ class _Scene:
 
     def replay(self, position: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Body positions (rows, bodies, 3), quaternions xyzw (rows, bodies, 4) and the tip geom's
-        position (rows, 3) with the joint at each of ``position``; NaN where it is not finite."""
+        position (rows, 3) with the joint at each of ``position``; NaN where it is not finite.
+
+        One joint moves, so every pose is the reference pose (``qpos0``, from ``mj_kinematics``)
+        carried by one rigid motion: a rotation by ``q - q0`` about the hinge's world axis through
+        its anchor, or a translation by ``q - q0`` along the slide's axis. Bodies that do not
+        descend from the joint's body stay put. Evaluated for all rows at once.
+        """
+        q = np.asarray(position, dtype=float) - self.q0
+        ids, moving = self.bodies, self.moving
+        rows = len(q)
+        xpos = np.broadcast_to(self.xpos0[ids], (rows, len(ids), 3)).copy()
+        xquat = np.broadcast_to(self.xquat0[ids], (rows, len(ids), 4)).copy()
+        tip = np.broadcast_to(self.tip0, (rows, 3)).copy()
+        axis, anchor = self.axis, self.anchor
+        if self.hinge:
+            half = 0.5 * q
+            turn = np.concatenate([np.cos(half)[:, None], np.sin(half)[:, None] * axis], axis=1)  # wxyz
+            rotate = _rotation_matrices(turn)
+            moved = self.xpos0[ids][moving] - anchor
+            xpos[:, moving] = anchor + np.einsum("rij,bj->rbi", rotate, moved)
+            xquat[:, moving] = _quat_multiply(turn[:, None, :], self.xquat0[ids][moving][None])
+            if self.tip_moves:
+                tip = anchor + np.einsum("rij,j->ri", rotate, self.tip0 - anchor)
+        else:
+            xpos[:, moving] += q[:, None, None] * axis
+            if self.tip_moves:
+                tip = tip + q[:, None] * axis
+        bad = ~np.isfinite(q)
+        xpos[bad], xquat[bad], tip[bad] = np.nan, np.nan, np.nan
+        return xpos, xquat[..., [1, 2, 3, 0]], tip
+
+    def _reference_pose(self, jid: int) -> None:
+        """Poses at ``qpos0`` and the joint's world axis and anchor, for :meth:`replay`."""
         import mujoco
 
         model, data = self.model, self.data
-        rows = len(position)
-        xpos = np.full((rows, model.nbody, 3), np.nan)
-        xquat = np.full((rows, model.nbody, 4), np.nan)
-        geom_xpos = np.full((rows, model.ngeom, 3), np.nan)
         data.qpos[:] = model.qpos0
-        # Views into MjData, fetched once: attribute access costs more than the kinematics.
-        qpos, body_pos, body_quat, geom_pos = data.qpos, data.xpos, data.xquat, data.geom_xpos
-        kinematics, adr = mujoco.mj_kinematics, self.qpos_adr
-        for k, value in enumerate(np.asarray(position, dtype=float).tolist()):
-            if not math.isfinite(value):
-                continue
-            qpos[adr] = value
-            kinematics(model, data)
-            xpos[k], xquat[k], geom_xpos[k] = body_pos, body_quat, geom_pos
-        ids = self.bodies
-        return xpos[:, ids], xquat[:, ids][..., [1, 2, 3, 0]], geom_xpos[:, self.tip_geom]
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)  # fills xanchor, xaxis
+        self.q0 = float(model.qpos0[self.qpos_adr])
+        self.hinge = int(model.jnt_type[jid]) == _HINGE
+        self.axis = data.xaxis[jid].copy()
+        self.anchor = data.xanchor[jid].copy()
+        self.xpos0, self.xquat0 = data.xpos.copy(), data.xquat.copy()
+        self.tip0 = data.geom_xpos[self.tip_geom].copy()
+        joint_body = int(model.jnt_bodyid[jid])
+        self.moving = np.array([self._descends(b, joint_body) for b in self.bodies], dtype=bool)
+        self.tip_moves = self._descends(int(model.geom_bodyid[self.tip_geom]), joint_body)
+
+
+def _quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of wxyz quaternions (broadcasting)."""
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz,
+                     aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw], axis=-1)
+
+
+def _rotation_matrices(quat: np.ndarray) -> np.ndarray:
+    """Rotation matrices (rows, 3, 3) of unit wxyz quaternions (rows, 4)."""
+    w, x, y, z = quat.T
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
+    ], axis=-2)
 
 
 # --------------------------------------------------------------------------------------------

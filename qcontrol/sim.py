@@ -122,7 +122,9 @@ class RunMetrics(RunRecord):
 
 
 RECORD_MODES = ("full", "metrics")
-METRICS_CHUNK = 1000  # rows buffered per reduction in record="metrics"
+METRICS_CHUNK = 1000  # rows buffered per reduction in record="metrics" (at least; see below)
+METRICS_BUFFER_ELEMENTS = 5000  # rows x copies held at most (so a single run buffers 5000 rows)
+OBSERVE_EVERY = 5000  # rows per observer call: streamed chunks, few enough to keep recording cheap
 REDUCE_ELEMENTS = 100_000  # rows x copies per block when deriving z, e_z (cache-sized temporaries)
 FLUSH_ROWS = 1000  # a batch of one: rows kept as Python tuples before they are written to arrays
 
@@ -154,7 +156,7 @@ def simulate(
     state_bound: float = 1e6,
     progress: ProgressCallback | None = None,
     observer: Observer | None = None,
-    observe_every: int = 2000,
+    observe_every: int = OBSERVE_EVERY,
     record: str = "full",
 ) -> list[Trajectory] | list[RunMetrics]:
     """Run the closed loop for every copy in ``plant``'s batch; one :class:`Trajectory` each.
@@ -165,8 +167,9 @@ def simulate(
     became final, so a recorder can stream them to disk while the run goes on.
 
     ``record="metrics"`` (for sweeps and long runs) keeps only :class:`RunMetrics`: the signals
-    are buffered ``METRICS_CHUNK`` rows at a time and reduced, so 1000 copies of a 10 s, 1 kHz run
-    need about 80 MB instead of several GB, and memory does not grow with the run's length. The
+    are buffered (``METRICS_CHUNK`` rows, more for small batches) and reduced, so 1000 copies of
+    a 10 s, 1 kHz run need about 80 MB instead of several GB, and memory does not grow with the
+    run's signals. The
     closed loop itself is the same. An observer then receives each buffered chunk as short
     trajectories (``t`` starting at the chunk's first instant) with rows ``[0, len)`` new.
     """
@@ -187,7 +190,8 @@ def simulate(
     rows = steps + 1
     t_axis = np.arange(rows) * dt
     YD = np.asarray(reference.derivatives(t_axis, n), dtype=float)  # (rows, n+1), known ahead
-    buffered = min(rows, METRICS_CHUNK) if metrics_only else rows  # rows held in X .. S
+    chunk = max(METRICS_CHUNK, METRICS_BUFFER_ELEMENTS // batch)
+    buffered = min(rows, chunk) if metrics_only else rows  # rows held in X .. S
     X = np.full((buffered, batch, n), np.nan)
     XM = np.full((buffered, batch, n), np.nan)
     XQ = np.full((buffered, batch, n), np.nan)

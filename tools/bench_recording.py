@@ -3,7 +3,7 @@
     /work/venv/bin/python tools/bench_recording.py [--repeat 3] [--duration 10] [--keep FILE]
 
 Prints the median wall time of the bare run and of the recorded run (the recorder streams every
-2000 rows, draws a hinge pendulum posed from x1 and a target marker at y_d), the overhead fraction
+5000 rows, draws a hinge pendulum posed from x1 and a target marker at y_d), the overhead fraction
 (target: <= 0.25), the file size and the rows logged per entity. The one-off ``import rerun`` is
 timed separately: it is paid once per process, not per run.
 """
