@@ -189,7 +189,17 @@ def simulate(
         )
     rows = steps + 1
     t_axis = np.arange(rows) * dt
-    YD = np.asarray(reference.derivatives(t_axis, n), dtype=float)  # (rows, n+1), known ahead
+
+    def reference_rows(first: int, stop: int) -> np.ndarray:
+        """``[y_d .. y_d^(n)]`` at rows [first, stop), shape (stop - first, n+1)."""
+        return np.asarray(reference.derivatives(t_axis[first:stop], n), dtype=float)
+
+    # full record: the whole table, known ahead; metrics: computed per chunk (memory stays flat)
+    YD = None if metrics_only else reference_rows(0, rows)
+
+    def yd_rows(first: int, stop: int) -> np.ndarray:
+        return reference_rows(first, stop) if YD is None else YD[first:stop]
+
     chunk = max(METRICS_CHUNK, METRICS_BUFFER_ELEMENTS // batch)
     buffered = min(rows, chunk) if metrics_only else rows  # rows held in X .. S
     X = np.full((buffered, batch, n), np.nan)
@@ -230,7 +240,7 @@ def simulate(
     def chunk_runs(stop: int, now: float) -> list[Trajectory]:
         """record="metrics": the buffered rows [base, stop) as short trajectories."""
         m = stop - base
-        yd = YD[base:stop, None, :]
+        yd = yd_rows(base, stop)[:, None, :]
         with np.errstate(all="ignore"):
             z = controller.errors(X[:m], yd)
             zbar, _ = controller.quantized_errors(XQ[:m], yd)
@@ -246,7 +256,7 @@ def simulate(
                 x=X[: lengths[b], b],
                 x_meas=XM[: lengths[b], b],
                 x_q=XQ[: lengths[b], b],
-                yd=YD[first : first + lengths[b]],
+                yd=yd_rows(first, first + lengths[b]),
                 z=Z[: lengths[b], b],
                 zbar=ZB[: lengths[b], b],
                 e_z=EZ[: lengths[b], b],
@@ -285,7 +295,7 @@ def simulate(
             for first in range(0, stop - base, block):
                 b_ = slice(first, min(stop - base, first + block))
                 reduced.add(base + first, X[b_], XM[b_], XQ[b_], U[b_], S[b_],
-                            YD[base + b_.start : base + b_.stop], kept, controller)
+                            yd_rows(base + b_.start, base + b_.stop), kept, controller)
         base = stop
 
     x0 = np.broadcast_to(np.asarray(x0, dtype=float), (batch, n))
@@ -369,7 +379,7 @@ def simulate(
             reading = quantize_(meas)
             if k % hold == 0:
                 if k >= yd_stop:  # y_d .. y_d^(n) as floats (the same for every copy), a block at a time
-                    yd_block, yd_start, yd_stop = YD[k : k + FLUSH_ROWS].tolist(), k, k + FLUSH_ROWS
+                    yd_block, yd_start, yd_stop = yd_rows(k, k + FLUSH_ROWS).tolist(), k, k + FLUSH_ROWS
                 out = controller.control(reading, yd_block[k - yd_start], adaptive)
             j = k - base
             record(j, x, meas, reading, out.u, adaptive)
