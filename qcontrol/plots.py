@@ -149,6 +149,15 @@ def _legend(ax: Axes, **kw) -> None:
         ax.legend(loc=kw.pop("loc", "best"), framealpha=0.85, fontsize=kw.pop("fontsize", 9), **kw)
 
 
+def _finish(fig: Figure, ax: Axes, trajs: Sequence[Trajectory], units: Units, title: str,
+            path: str | os.PathLike) -> Path:
+    """The common end of a time-series figure: time axis, title, legend, atomic save."""
+    _time_axis(ax, trajs, units)
+    ax.set_title(title)
+    _legend(ax)
+    return _save(fig, path)
+
+
 def _omega_band(ax: Axes, omega: float | None) -> None:
     if omega is not None and np.isfinite(omega) and omega > 0:
         ax.axhspan(-omega, omega, color="gray", alpha=0.12, label=rf"$|z_1| \leq \omega$ = {omega:g}")
@@ -191,10 +200,7 @@ def fig_output(traj: Trajectory, path: str | os.PathLike, title: str, units: Uni
     _mark_divergence(ax, traj)
     _finite_or_note(ax, traj.y, yd)
     ax.set_ylabel(f"y, $y_d${_unit(units.y)}")
-    _time_axis(ax, [traj], units)
-    ax.set_title(title)
-    _legend(ax)
-    return _save(fig, path)
+    return _finish(fig, ax, [traj], units, title, path)
 
 
 def fig_tracking_error(
@@ -209,10 +215,7 @@ def fig_tracking_error(
     _mark_divergence(ax, traj)
     _finite_or_note(ax, _column(traj.z, 0))
     ax.set_ylabel(f"$y - y_d${_unit(units.y)}")
-    _time_axis(ax, [traj], units)
-    ax.set_title(title)
-    _legend(ax)
-    return _save(fig, path)
+    return _finish(fig, ax, [traj], units, title, path)
 
 
 def fig_adaptive(
@@ -243,10 +246,7 @@ def fig_adaptive(
     _finite_or_note(ax, adaptive)
     what = "estimate" if count == 1 else "estimates"
     ax.set_ylabel(f"adaptive {what}{_unit(units.adaptive)}")
-    _time_axis(ax, [traj], units)
-    ax.set_title(title)
-    _legend(ax)
-    return _save(fig, path)
+    return _finish(fig, ax, [traj], units, title, path)
 
 
 def fig_input(traj: Trajectory, path: str | os.PathLike, title: str, units: Units) -> Path:
@@ -257,10 +257,7 @@ def fig_input(traj: Trajectory, path: str | os.PathLike, title: str, units: Unit
     _mark_divergence(ax, traj)
     _finite_or_note(ax, traj.u)
     ax.set_ylabel(f"u{_unit(units.u)}")
-    _time_axis(ax, [traj], units)
-    ax.set_title(title)
-    _legend(ax)
-    return _save(fig, path)
+    return _finish(fig, ax, [traj], units, title, path)
 
 
 # --------------------------------------------------------------------------------------------
@@ -288,10 +285,7 @@ def fig_compare_output(
         _mark_divergence(ax, traj, label, color=color)
     _finite_or_note(ax, proposed.y, comparison.y, yd)
     ax.set_ylabel(f"y, $y_d${_unit(units.y)}")
-    _time_axis(ax, [proposed, comparison], units)
-    ax.set_title(title)
-    _legend(ax)
-    return _save(fig, path)
+    return _finish(fig, ax, [proposed, comparison], units, title, path)
 
 
 def fig_compare_error(
@@ -313,10 +307,7 @@ def fig_compare_error(
         _mark_divergence(ax, traj, label, color=color)
     _finite_or_note(ax, _column(proposed.z, 0), _column(comparison.z, 0))
     ax.set_ylabel(f"$y - y_d${_unit(units.y)}")
-    _time_axis(ax, [proposed, comparison], units)
-    ax.set_title(title)
-    _legend(ax)
-    return _save(fig, path)
+    return _finish(fig, ax, [proposed, comparison], units, title, path)
 
 
 # --------------------------------------------------------------------------------------------
