@@ -2,44 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import numpy as np
 
-from .sim import Trajectory
-
-TABLE1_OMEGAS = (0.100, 0.125, 0.150, 0.175, 0.200)
-TABLE1_SAMPLES = 1302
-
-
-def omega_key(omega: float) -> str:
-    """Key of an error-rate entry in JSON outputs: ``0.1 -> "0.100"``."""
-    return f"{omega:.3f}"
-
-
-def error_rate(
-    t: np.ndarray,
-    z1: np.ndarray,
-    horizon: float,
-    omegas: Sequence[float] = TABLE1_OMEGAS,
-    samples: int = TABLE1_SAMPLES,
-) -> dict[str, float]:
-    """Error rate of Table 1: ``E(omega) = #{i : |z_1(t_i)| > omega} / M``.
-
-    ``t_i = i T / (M - 1)``, ``i = 0..M-1`` over ``T = horizon`` (SPEC 9). ``z_1`` between recorded
-    instants is interpolated linearly (it is continuous). Sample instants after the end of a
-    diverged run count as exceeding every omega.
-    """
-    if samples < 2:
-        raise ValueError("the error rate needs at least 2 samples")
-    instants = np.arange(samples) * (horizon / (samples - 1))
-    finite = np.isfinite(z1)
-    t_ok, z_ok = t[finite], np.abs(z1[finite])
-    covered = instants <= (t_ok[-1] + 1e-12 if t_ok.size else -np.inf)
-    values = np.full(samples, np.inf)
-    if t_ok.size:
-        values[covered] = np.interp(instants[covered], t_ok, z_ok)
-    return {omega_key(w): float(np.count_nonzero(values > w)) / samples for w in omegas}
+from .error_rate import TABLE1_OMEGAS, TABLE1_SAMPLES, error_rate, omega_key  # noqa: F401 (API)
+from .sim import RunMetrics, Trajectory
 
 
 def lemma2_max_ratio(e_z: np.ndarray, L_z: np.ndarray) -> float:
@@ -56,16 +22,21 @@ def finite_max_abs(values: np.ndarray) -> float:
     return float(v.max()) if v.size else float("nan")
 
 
-def summary(traj: Trajectory, scenario: str, backend: str) -> dict:
+def summary(traj: Trajectory | RunMetrics, scenario: str, backend: str) -> dict:
     """The ``summary.json`` object of DESIGN's output contract (plus diverged_time/reason).
 
     The Lemma 2 check covers every instant before a divergence: the row that stopped a diverged
     run holds an out-of-range state (NaN, Inf, or beyond ``state_bound``, possibly so large that
     ``x / delta`` has no fractional digits left), where quantization error is meaningless.
     """
-    last_half = traj.t >= traj.duration / 2.0
-    z1_last_half = traj.z[last_half, 0] if last_half.any() else np.array([np.nan])
-    final = traj.adaptive[-1]
+    if isinstance(traj, RunMetrics):  # reduced while the run went on
+        rates, z1_late = traj.error_rate, traj.max_abs_z1_last_half
+        max_u, final = finite_max_abs(np.array([traj.max_abs_u])), traj.final_adaptive
+    else:
+        last_half = traj.t >= traj.duration / 2.0
+        z1_late = finite_max_abs(traj.z[last_half, 0] if last_half.any() else np.array([np.nan]))
+        rates = error_rate(traj.t, traj.z[:, 0], traj.duration)
+        max_u, final = finite_max_abs(traj.u), traj.adaptive[-1]
     return {
         "scenario": scenario,
         "backend": backend,
@@ -76,9 +47,9 @@ def summary(traj: Trajectory, scenario: str, backend: str) -> dict:
         "diverged": bool(traj.diverged),
         "diverged_time": traj.diverged_time,
         "divergence_reason": traj.divergence_reason,
-        "error_rate": error_rate(traj.t, traj.z[:, 0], traj.duration),
-        "max_abs_z1_last_half": finite_max_abs(z1_last_half),
-        "max_abs_u": finite_max_abs(traj.u),
+        "error_rate": rates,
+        "max_abs_z1_last_half": z1_late,
+        "max_abs_u": max_u,
         "final_eps_hat": [float(v) for v in final],
         "adaptive_state": traj.adaptive_name,
         "lemma2_max_ratio": lemma2_max_ratio(traj.lemma2_e_z, traj.L_z),

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .controller import Controller
+from .error_rate import ErrorRateStream
 from .errors import QcontrolInputError
 from .plants.base import Plant
 from .quantizer import QuantizedReading, Quantizer, float_quantizer, quantize
@@ -33,10 +34,9 @@ Observer = Callable[[int, int, list["Trajectory"]], None]
 
 @dataclass(kw_only=True)
 class RunRecord:
-    """What every record of a run carries: its time axis (``t[k] = k dt``), the adaptive state's
-    name, the Lemma 2 bounds ``L_z``, and how the run ended."""
+    """What every record of a run carries: the adaptive state's name, the Lemma 2 bounds ``L_z``,
+    the step and horizon, and how the run ended."""
 
-    t: np.ndarray
     adaptive_name: str
     L_z: np.ndarray
     dt: float
@@ -45,10 +45,6 @@ class RunRecord:
     diverged_time: float | None = None
     divergence_reason: str = ""
     wall_time_s: float = 0.0
-
-    @property
-    def steps(self) -> int:
-        return len(self.t) - 1
 
 
 @dataclass(kw_only=True)
@@ -62,6 +58,7 @@ class Trajectory(RunRecord):
     state (``eps_hat`` or ``theta_hat``, named by ``adaptive_name``).
     """
 
+    t: np.ndarray  # t[k] = k dt
     x: np.ndarray
     x_meas: np.ndarray
     x_q: np.ndarray
@@ -82,43 +79,34 @@ class Trajectory(RunRecord):
     def y(self) -> np.ndarray:
         return self.x[:, 0]
 
+    @property
+    def steps(self) -> int:
+        return len(self.t) - 1
+
 
 @dataclass(kw_only=True)
 class RunMetrics(RunRecord):
     """What ``simulate(..., record="metrics")`` keeps of one run: everything
-    :func:`qcontrol.metrics.summary` reads, in O(rows) memory instead of O(rows x n).
+    :func:`qcontrol.metrics.summary` reads, in memory that does not grow with the run's length.
 
-    ``z1`` is the tracking error at every instant; ``max_abs_u`` and ``e_z_max`` (per i) are the
-    largest finite ``|u|`` and Lemma 2 errors over the run, ``final_adaptive`` the last adaptive
-    state. The properties ``z``, ``u``, ``e_z`` and ``adaptive`` present them with a
-    :class:`Trajectory`'s shapes (reduced), so the same ``summary`` gives the same numbers.
+    ``error_rate`` is Table 1's E(omega) (streamed, :mod:`qcontrol.error_rate`),
+    ``max_abs_z1_last_half``, ``max_abs_u`` and ``e_z_max`` (per i) are the largest finite
+    ``|z_1|`` over the last half, ``|u|`` and Lemma 2 errors (``-inf``/NaN when there is none),
+    ``final_adaptive`` the last adaptive state; ``steps`` the steps taken. The same ``summary``
+    gives the same numbers as from a full :class:`Trajectory`.
     """
 
-    z1: np.ndarray
+    steps: int
+    error_rate: dict[str, float]
+    max_abs_z1_last_half: float
     max_abs_u: float
     e_z_max: np.ndarray
     final_adaptive: np.ndarray
 
     @property
-    def z(self) -> np.ndarray:
-        return self.z1[:, None]
-
-    @property
-    def u(self) -> np.ndarray:
-        return np.array([self.max_abs_u])
-
-    @property
-    def e_z(self) -> np.ndarray:
-        return self.e_z_max[None, :]
-
-    @property
     def lemma2_e_z(self) -> np.ndarray:
         """The Lemma 2 errors to check (already reduced over the rows before any divergence)."""
         return self.e_z_max[None, :]
-
-    @property
-    def adaptive(self) -> np.ndarray:
-        return self.final_adaptive[None, :]
 
 
 RECORD_MODES = ("full", "metrics")
@@ -188,11 +176,18 @@ def simulate(
             f"simulation.control_period = {period!r} must be a whole multiple of dt = {dt!r}"
         )
     rows = steps + 1
-    t_axis = np.arange(rows) * dt
+
+    def t_rows(first: int, stop: int) -> np.ndarray:
+        """Instants ``k dt`` of rows [first, stop) (the same floats however they are sliced)."""
+        return np.arange(first, stop) * dt if t_axis is None else t_axis[first:stop]
+
+    t_axis = None  # full record: the whole time axis; metrics: instants computed per chunk
+    if not metrics_only:
+        t_axis = t_rows(0, rows)
 
     def reference_rows(first: int, stop: int) -> np.ndarray:
         """``[y_d .. y_d^(n)]`` at rows [first, stop), shape (stop - first, n+1)."""
-        return np.asarray(reference.derivatives(t_axis[first:stop], n), dtype=float)
+        return np.asarray(reference.derivatives(t_rows(first, stop), n), dtype=float)
 
     # full record: the whole table, known ahead; metrics: computed per chunk (memory stays flat)
     YD = None if metrics_only else reference_rows(0, rows)
@@ -208,7 +203,7 @@ def simulate(
     U = np.full((buffered, batch), np.nan)
     S = np.full((buffered, batch, controller.state_size), np.nan)
     if metrics_only:
-        reduced = _Reduced(rows, batch, n, controller.state_size)
+        reduced = _Reduced(rows, batch, n, controller.state_size, steps * dt)
     else:
         Z = np.full((rows, batch, n), np.nan)
         ZB = np.full((rows, batch, n), np.nan)
@@ -252,7 +247,7 @@ def simulate(
         """Trajectories over rows first + [0, lengths[b]) of the held arrays (views, no copies)."""
         return [
             Trajectory(
-                t=t_axis[first : first + lengths[b]],
+                t=t_rows(first, first + lengths[b]),
                 x=X[: lengths[b], b],
                 x_meas=XM[: lengths[b], b],
                 x_q=XQ[: lengths[b], b],
@@ -294,8 +289,9 @@ def simulate(
         with np.errstate(all="ignore"):
             for first in range(0, stop - base, block):
                 b_ = slice(first, min(stop - base, first + block))
-                reduced.add(base + first, X[b_], XM[b_], XQ[b_], U[b_], S[b_],
-                            yd_rows(base + b_.start, base + b_.stop), kept, controller)
+                span = (base + b_.start, base + b_.stop)
+                reduced.add(base + first, t_rows(*span), X[b_], XM[b_], XQ[b_], U[b_], S[b_],
+                            yd_rows(*span), kept, controller)
         base = stop
 
     x0 = np.broadcast_to(np.asarray(x0, dtype=float), (batch, n))
@@ -404,7 +400,7 @@ def simulate(
     if metrics_only:
         now = time.perf_counter()
         return [
-            reduced.run(b, t_axis, kept[b], controller, dt, steps * dt, diverged_time[b], reasons[b],
+            reduced.run(b, kept[b], controller, dt, steps * dt, diverged_time[b], reasons[b],
                         now - started)
             for b in range(batch)
         ]
@@ -414,21 +410,30 @@ def simulate(
 class _Reduced:
     """The running reductions of ``record="metrics"`` (see :class:`RunMetrics`)."""
 
-    def __init__(self, rows: int, batch: int, n: int, state_size: int) -> None:
-        self.z1 = np.full((rows, batch), np.nan)
+    def __init__(self, rows: int, batch: int, n: int, state_size: int, duration: float) -> None:
         self.rows = rows
+        self.streams = [ErrorRateStream(duration) for _ in range(batch)]
+        self.half = duration / 2.0
+        self.z1_last_half = np.full(batch, -np.inf)
         self.max_abs_u = np.full(batch, -np.inf)
         self.e_z_max = np.full((batch, n), -np.inf)
         self.final = np.full((batch, state_size), np.nan)
 
-    def add(self, base: int, X: np.ndarray, XM: np.ndarray, XQ: np.ndarray, U: np.ndarray, S: np.ndarray,
-            YD: np.ndarray, kept: np.ndarray, controller: Controller) -> None:
-        """Rows ``base .. base + len(X)``; rows at or after a copy's ``kept`` do not count. The
-        formulas are the ones :func:`simulate` uses to derive ``z`` and ``e_z`` in full records."""
+    def add(self, base: int, t: np.ndarray, X: np.ndarray, XM: np.ndarray, XQ: np.ndarray, U: np.ndarray,
+            S: np.ndarray, YD: np.ndarray, kept: np.ndarray, controller: Controller) -> None:
+        """Rows ``base .. base + len(X)`` at instants ``t``; rows at or after a copy's ``kept`` do
+        not count. The formulas are the ones :func:`simulate` uses to derive ``z`` and ``e_z`` in
+        full records, and :func:`qcontrol.metrics.summary` reduces them the same way."""
         rows = np.arange(base, base + len(X))
         valid = rows[:, None] < kept[None, :]
         yd = YD[:, None, :]
-        self.z1[rows] = np.where(valid, X[..., 0] - YD[:, None, 0], np.nan)
+        z1 = X[..., 0] - YD[:, None, 0]  # z_1 = x_1 - y_d, eq. (7)
+        for b, stream in enumerate(self.streams):
+            m = min(max(int(kept[b]) - base, 0), len(X))
+            if m:
+                stream.add(t[:m], z1[:m, b])
+        late = valid & (t >= self.half)[:, None] & np.isfinite(z1)
+        np.maximum(self.z1_last_half, np.where(late, np.abs(z1), -np.inf).max(axis=0), out=self.z1_last_half)
         zbar, _ = controller.quantized_errors(XQ, yd)
         e_z = np.abs(controller.errors(XM, yd) - zbar)
         # as metrics.summary: the Lemma 2 check stops before the row that stopped a diverged copy
@@ -442,11 +447,13 @@ class _Reduced:
         here = (last >= 0) & (last < len(X))
         self.final[here] = S[last[here], np.flatnonzero(here)]
 
-    def run(self, b: int, t_axis: np.ndarray, kept: int, controller: Controller, dt: float, duration: float,
+    def run(self, b: int, kept: int, controller: Controller, dt: float, duration: float,
             diverged_time: float | None, reason: str, wall_time_s: float) -> RunMetrics:
+        z1_late = float(self.z1_last_half[b])
         return RunMetrics(
-            t=t_axis[:kept],
-            z1=self.z1[:kept, b].copy(),
+            steps=int(kept) - 1,
+            error_rate=self.streams[b].rates(),
+            max_abs_z1_last_half=z1_late if math.isfinite(z1_late) else math.nan,
             max_abs_u=float(self.max_abs_u[b]),
             e_z_max=self.e_z_max[b].copy(),
             final_adaptive=self.final[b].copy(),

@@ -129,3 +129,19 @@ def test_high_gain_sampled_loop_diverges_and_lemma2_is_checked_before_it():
     fine_sc = load_scenario(SCENARIOS / "example2.toml", [*overrides, "simulation.dt=0.0001"])
     fine = run_scenario(fine_sc, "ode")
     assert not fine.diverged
+
+
+def test_metrics_record_memory_does_not_grow_with_the_run():
+    """`qcontrol run` keeps a metrics record: a 10x longer run allocates no more at its peak."""
+    import tracemalloc
+
+    def peak(duration: float) -> int:
+        sc = load_scenario(SCENARIOS / "example2.toml", [f"simulation.duration={duration}"])
+        tracemalloc.start()
+        run_scenario(sc, "ode", record="metrics")
+        _, top = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+        return top
+
+    short, long = peak(3.0), peak(30.0)  # 3001 vs 30001 rows: a full record would take ~4 MB more
+    assert long < short + 500_000, (short, long)
