@@ -117,6 +117,14 @@ REDUCE_ELEMENTS = 100_000  # rows x copies per block when deriving z, e_z (cache
 FLUSH_ROWS = 1000  # a batch of one: rows kept as Python tuples before they are written to arrays
 
 
+def lemma2_errors(controller: Controller, x_meas: np.ndarray, x_q: np.ndarray,
+                  yd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``zbar`` (eqs. (31)-(33)) from the quantized readings and the Lemma 2 errors
+    ``e_z = |z(x_meas) - zbar|`` for many instants at once (shapes as in ``controller.errors``)."""
+    zbar, _ = controller.quantized_errors(x_q, yd)
+    return zbar, np.abs(controller.errors(x_meas, yd) - zbar)
+
+
 def step_count(duration: float, dt: float, what: str = "simulation.duration") -> int:
     """Number of ``dt`` steps in ``duration``; refuses a duration that is not a multiple of dt."""
     if not (np.isfinite(dt) and dt > 0):
@@ -224,8 +232,7 @@ def simulate(
             yd = YD[rows_, None, :]
             with np.errstate(all="ignore"):  # rows of a diverged copy may hold NaN/Inf
                 Z[rows_] = controller.errors(X[rows_], yd)
-                ZB[rows_], _ = controller.quantized_errors(XQ[rows_], yd)
-                EZ[rows_] = np.abs(controller.errors(XM[rows_], yd) - ZB[rows_])
+                ZB[rows_], EZ[rows_] = lemma2_errors(controller, XM[rows_], XQ[rows_], yd)
         derived = stop
 
     def collect(lengths: np.ndarray, now: float) -> list[Trajectory]:
@@ -238,8 +245,7 @@ def simulate(
         yd = yd_rows(base, stop)[:, None, :]
         with np.errstate(all="ignore"):
             z = controller.errors(X[:m], yd)
-            zbar, _ = controller.quantized_errors(XQ[:m], yd)
-            e_z = np.abs(controller.errors(XM[:m], yd) - zbar)
+            zbar, e_z = lemma2_errors(controller, XM[:m], XQ[:m], yd)
         return runs_of(base, np.clip(kept - base, 0, m), z, zbar, e_z, now)
 
     def runs_of(first: int, lengths: np.ndarray, Z: np.ndarray, ZB: np.ndarray, EZ: np.ndarray,
@@ -434,8 +440,7 @@ class _Reduced:
                 stream.add(t[:m], z1[:m, b])
         late = valid & (t >= self.half)[:, None] & np.isfinite(z1)
         np.maximum(self.z1_last_half, np.where(late, np.abs(z1), -np.inf).max(axis=0), out=self.z1_last_half)
-        zbar, _ = controller.quantized_errors(XQ, yd)
-        e_z = np.abs(controller.errors(XM, yd) - zbar)
+        _, e_z = lemma2_errors(controller, XM, XQ, yd)
         # as metrics.summary: the Lemma 2 check stops before the row that stopped a diverged copy
         checked = rows[:, None] < np.where(kept < self.rows, kept - 1, kept)[None, :]
         e_z = np.where(checked[..., None] & np.isfinite(e_z), e_z, -np.inf)
