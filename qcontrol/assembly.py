@@ -65,6 +65,20 @@ def build_controller(sc: Scenario) -> Controller:
     )
 
 
+def controller_constants(sc: Scenario) -> dict:
+    """The controller's constants as a recording shows them: delta, c, L, L_z, and kappa, gamma,
+    sigma, r_scale (proposed law) or the adaptation gain (baseline)."""
+    controller = build_controller(sc)
+    constants: dict = {"delta": sc.controller.delta, "c": list(sc.controller.c), "L": controller.L,
+                       "L_z": list(controller.L_z)}
+    if sc.controller.kind == "proposed":
+        constants.update(kappa=controller.kappa, gamma=controller.gamma, sigma=controller.sigma,
+                         r_scale=controller.r_scale)
+    else:
+        constants.update(baseline_gain=sc.controller.baseline_gain)
+    return constants
+
+
 def build_plant(sc: Scenario, backend: str | None = None, batch: int = 1) -> Plant:
     """The ODE chain of eq. (1), or the MuJoCo model of ``[plant.mujoco]``."""
     backend = backend or sc.simulation.backend

@@ -14,7 +14,7 @@ from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 
 from . import __version__
-from .assembly import build_controller, build_plant, controller_L, run_scenario
+from .assembly import build_plant, controller_constants, controller_L, run_scenario
 from .errors import QcontrolInputError
 from .metrics import backend_deviation, summary
 from .outputs import check_output_file, prepare_output_dir, write_json
@@ -149,15 +149,7 @@ def _recording(args: argparse.Namespace) -> AbstractContextManager:
 
 
 def _log_constants(rec, sc: Scenario) -> None:
-    controller = build_controller(sc)
-    constants: dict = {"delta": sc.controller.delta, "c": list(sc.controller.c), "L": controller.L,
-                       "L_z": list(controller.L_z)}
-    if sc.controller.kind == "proposed":
-        constants.update(kappa=controller.kappa, gamma=controller.gamma, sigma=controller.sigma,
-                         r_scale=controller.r_scale)
-    else:
-        constants.update(baseline_gain=sc.controller.baseline_gain)
-    rec.log_static(sc.text, constants, __version__)
+    rec.log_static(sc.text, controller_constants(sc), __version__)
 
 
 def _scene(sc: Scenario, plant=None):

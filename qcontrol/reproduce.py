@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from . import plots
-from .assembly import controller_kappa, controller_L, run_scenario
+from .assembly import controller_constants, controller_kappa, controller_L, run_scenario
 from .metrics import backend_deviation, summary
 from .outputs import prepare_output_dir, write_json, write_text
 from .report import PAPER_TABLE1, study_markdown, table1, table1_markdown
@@ -181,9 +181,7 @@ def _record(path: Path, main: Run, ghosts: dict[str, Run | None]) -> None:
     model = build_model(sc.mujoco, sc.simulation.dt) if sc.mujoco is not None else None
     joint = sc.mujoco.joint if sc.mujoco is not None else None
     with Recording(path) as rec:
-        rec.log_static(sc.text, {"delta": sc.controller.delta, "c": list(sc.controller.c),
-                                 "L": controller_L(sc), "kappa": controller_kappa(sc),
-                                 "gamma": sc.controller.gamma, "sigma": sc.controller.sigma}, __version__)
+        rec.log_static(sc.text, controller_constants(sc), __version__)
         rec.observer(main.backend, model, joint)(0, len(main.traj.t), [main.traj])
         for label, ghost in ghosts.items():
             if ghost is not None:
