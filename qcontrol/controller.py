@@ -33,7 +33,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .errors import QcontrolInputError
-from .expr import Expression
+from .expr import Expression, scalar_function
 from .quantizer import QuantizedReading
 
 Parameter = float | np.ndarray  # a scalar, or one value per copy of the batch (shape (batch,))
@@ -137,9 +137,13 @@ class Backstepping:
         for i in range(1, n):
             Dq[i, 1 : i + 1] = self.A[i - 1, :i]
             Dy[i, 1 : i + 2] = self.B[i - 1, : i + 1]
-        self._minus_c = [-ci for ci in c.tolist()]
-        self._D_yd = [[(j, b) for j, b in enumerate(row) if b != 0.0] for row in Dy.tolist()]
-        self._D_q = [[(k, a) for k, a in enumerate(row) if a != 0.0] for row in Dq.tolist()]
+        # one (-c_i, D_i's y_d terms, D_i's q terms) per i, zipped once (the recursion's hot loop)
+        self._steps = tuple(zip(
+            [-ci for ci in c.tolist()],
+            [tuple((j, b) for j, b in enumerate(row) if b != 0.0) for row in Dy.tolist()],
+            [tuple((k, a) for k, a in enumerate(row) if a != 0.0) for row in Dq.tolist()],
+            strict=True,
+        ))
         # [zbar | alphabar] = q @ Wq + yd @ Wy (for many instants at once, when recording): the
         # recursion applied to unit vectors, as columns of a batch of n (or n + 1) copies
         zbar, alphabar = self._recursion(tuple(np.eye(n)), tuple(np.zeros((n + 1, n))))
@@ -179,7 +183,7 @@ class Backstepping:
         zbar: list[Column] = []
         alphabar: list[Column] = []
         previous = yd[0]  # zbar_1 = q_1 - y_d
-        for qi, minus_c, yd_terms, q_terms in zip(q, self._minus_c, self._D_yd, self._D_q):  # noqa: B905
+        for qi, (minus_c, yd_terms, q_terms) in zip(q, self._steps):  # noqa: B905 (n of each)
             z = qi - previous
             d = 0.0
             for j, b in yd_terms:
@@ -231,7 +235,6 @@ class _Law(NamedTuple):
     sigma: Parameter
     r_scale: Parameter | None  # None when r_scale == 1 everywhere
     rate: Parameter  # gamma sigma
-    decay: dict  # h -> exp(-gamma sigma h), computed (with numpy) once per step length
     terms: tuple  # evaluators of the expressions (r, or psi and phi) on the reading's columns
 
 
@@ -290,11 +293,13 @@ class ProposedController(Backstepping):
         self._rate = rate[:, None] if isinstance(rate, np.ndarray) else rate  # array form of ControlOutput
         gain = 1.0 / (kappa * (kappa - self.L))  # (44): u = -zbar_n s eps^T r / (kappa (kappa - L))
         scaled = not np.all(np.asarray(r_scale) == 1.0)
-        self._on_arrays = _Law(kappa, gain, sigma, r_scale if scaled else None, rate, {},
+        self._on_arrays = _Law(kappa, gain, sigma, r_scale if scaled else None, rate,
                                tuple(e.on_columns for e in self.r))
+        # on floats: math's evaluation (scalar_function); where it raises, control() falls back to
+        # Expression.on_floats, which gives numpy's answer (NaN, Inf) there
         self._on_floats = None if self.copies not in (None, 1) else _Law(
             _as_float(kappa), _as_float(gain), _as_float(sigma), _as_float(r_scale) if scaled else None,
-            _as_float(rate), {}, tuple(e.on_floats for e in self.r))
+            _as_float(rate), tuple(scalar_function(e) for e in self.r))
 
     def initial_state(self, batch: int) -> np.ndarray:
         """``eps_hat(0) = 0``."""
@@ -327,7 +332,10 @@ class ProposedController(Backstepping):
             raise ValueError(f"the controller has per-copy parameters for {self.copies} copies, not one")
         q = reading.columns
         zbar, alphabar = self._recursion(q, yd)  # eqs. (31)-(34)
-        r = [term(q) for term in law.terms]  # r(x_q)
+        try:
+            r = [term(q) for term in law.terms]  # r(x_q)
+        except (ValueError, ArithmeticError):  # math's domain error or overflow (floats only)
+            r = [e.on_floats(q) for e in self.r]
         if law.r_scale is not None:
             r = [ri * law.r_scale for ri in r]
         zn = zbar[-1]
@@ -335,7 +343,7 @@ class ProposedController(Backstepping):
         robust = sum(map(mul, eps_hat, r))  # eps_hat^T r(x_q), per copy
         u = alphabar[-1] - zn * s * robust * law.gain  # eq. (44)
         sigma = law.sigma
-        return _output((u, tuple(zbar), tuple([s * ri / sigma for ri in r]), law.rate))
+        return _output((u, zbar, [s * ri / sigma for ri in r], law.rate))
 
     def advance(self, state: np.ndarray | Columns, out: ControlOutput, h: float) -> np.ndarray | Columns:
         """Integrate eq. (45) over ``h`` with ``x_q`` held: exact for the linear ODE
@@ -344,13 +352,22 @@ class ProposedController(Backstepping):
         if isinstance(state, np.ndarray):
             eps = self.advance(tuple(state.T), out._replace(target=tuple(out.target.T)), h)
             return _stack(eps, len(state))
-        law = self._on_arrays if isinstance(out.u, np.ndarray) else self._on_floats
-        decay = law.decay.get(h)
-        if decay is None:  # exp(-gamma sigma h), with numpy, once per step length h
-            decay = np.exp(-np.asarray(law.rate) * h)
-            decay = law.decay[h] = decay if decay.ndim else float(decay)
-        # zip without strict=: the lengths are equal by construction (and strict= costs ~0.3 us)
-        return tuple([t + (e - t) * decay for e, t in zip(state, out.target)])  # noqa: B905
+        return self.advancer(h, floats=not isinstance(out.u, np.ndarray))(state, out)
+
+    def advancer(self, h: float, floats: bool) -> Callable[[Columns, ControlOutput], Columns]:
+        """:meth:`advance` over a fixed ``h`` in column form, as a function ``(state, out) ->
+        state`` made once per run: ``exp(-gamma sigma h)`` is computed here, not every step."""
+        law = self._on_floats if floats else self._on_arrays
+        if law is None:
+            raise ValueError(f"the controller has per-copy parameters for {self.copies} copies, not one")
+        decay = np.exp(-np.asarray(law.rate) * h)
+        decay = decay if decay.ndim else float(decay)
+
+        def advance(state: Columns, out: ControlOutput) -> Columns:
+            # zip without strict=: the lengths are equal by construction (strict= costs ~0.3 us)
+            return tuple([t + (e - t) * decay for e, t in zip(state, out.target)])  # noqa: B905
+
+        return advance
 
 
 class BaselineController(Backstepping):
@@ -418,13 +435,21 @@ class BaselineController(Backstepping):
                 rate = tuple([self.adaptation_gain * p * zn for p in phi_q])
         return _output((u, tuple(zbar), rate, 0.0))
 
-    @staticmethod
-    def advance(state: np.ndarray | Columns, out: ControlOutput, h: float) -> np.ndarray | Columns:
+    def advance(self, state: np.ndarray | Columns, out: ControlOutput, h: float) -> np.ndarray | Columns:
         """``theta_hat`` grows at the held rate (exact for ``x_q`` held over ``h``)."""
         if isinstance(state, np.ndarray):
-            grown = BaselineController.advance(tuple(state.T), out._replace(target=tuple(out.target.T)), h)
+            grown = self.advance(tuple(state.T), out._replace(target=tuple(out.target.T)), h)
             return _stack(grown, len(state))
-        return tuple([e + h * t for e, t in zip(state, out.target)])  # noqa: B905 (equal lengths)
+        return self.advancer(h, floats=not isinstance(out.u, np.ndarray))(state, out)
+
+    @staticmethod
+    def advancer(h: float, floats: bool) -> Callable[[Columns, ControlOutput], Columns]:
+        """:meth:`advance` over a fixed ``h`` in column form, as a function made once per run."""
+
+        def advance(state: Columns, out: ControlOutput) -> Columns:
+            return tuple([e + h * t for e, t in zip(state, out.target)])  # noqa: B905 (equal lengths)
+
+        return advance
 
 
 Controller = ProposedController | BaselineController

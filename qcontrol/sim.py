@@ -302,24 +302,20 @@ def simulate(
 
     x0 = np.broadcast_to(np.asarray(x0, dtype=float), (batch, n))
     # The loop below is one code for both kinds of batch; what differs is how values are held.
-    # A batch of one runs on plain floats: the plant's state as a list, the quantized reading and
-    # the adaptive state as tuples of floats (a numpy call on a one-element array costs about a
-    # microsecond, float arithmetic tens of nanoseconds), and the rows are buffered as tuples and
-    # written to the arrays in blocks. A larger batch holds (batch, n) arrays and (batch,) columns.
-    # The controller's formulas are the same for both (see qcontrol.controller).
+    # A batch of one runs on plain floats: the plant's state and readings as lists, the quantized
+    # reading and the adaptive state as tuples of floats (a numpy call on a one-element array
+    # costs about a microsecond, float arithmetic tens of nanoseconds), and the rows are buffered
+    # as tuples and written to the arrays in blocks. A larger batch holds (batch, n) arrays and
+    # (batch,) columns. The controller's formulas are the same for both (see qcontrol.controller).
     floats = batch == 1
     if floats:
-        read_state = getattr(plant, "state_floats", None) or (lambda: plant.state()[0].tolist())
-        read_sensors = getattr(plant, "sensor_floats", None) or (lambda: plant.read_sensors()[0].tolist())
-        step_float = getattr(plant, "step_float", None)
-        step = step_float or (lambda u, h: plant.step(np.array([u]), h))
         adaptive = tuple(controller.initial_state(1)[0].tolist())
         pending: list[tuple] = []  # the rows up to the last one recorded, not yet written to X .. S
         quantize_ = float_quantizer(quantizer)
 
         def healthy(x: list[float], adaptive: tuple) -> bool:
-            total = sum(x) + sum(adaptive)  # NaN or Inf if any is (or if the sum overflows)
-            return total - total == 0.0 and max(x) <= state_bound and min(x) >= -state_bound
+            total = sum(adaptive, sum(x))  # NaN or Inf if any is (or if the sum overflows)
+            return total - total == 0.0 and -state_bound <= min(x) and max(x) <= state_bound
 
         def arrays(x: list[float], adaptive: tuple) -> tuple[np.ndarray, np.ndarray]:
             return np.array([x], dtype=float), np.array([adaptive], dtype=float).reshape(1, -1)
@@ -327,8 +323,6 @@ def simulate(
         def record(j: int, x: list[float], meas: list[float], reading: QuantizedReading, u: float,
                    adaptive: tuple) -> None:
             pending.append((*x, *meas, *reading.columns, u, *adaptive))
-            if len(pending) == FLUSH_ROWS:
-                flush(j + 1)
 
         def flush(stop: int) -> None:
             """Write the pending rows, which end at buffer row ``stop``."""
@@ -341,7 +335,6 @@ def simulate(
             U[rows_, 0], S[rows_, 0] = block[:, 3 * n], block[:, 3 * n + 1 :]
             pending.clear()
     else:
-        read_state, read_sensors, step = plant.state, plant.read_sensors, plant.step
         adaptive = tuple(np.ascontiguousarray(controller.initial_state(batch).T))
 
         def quantize_(meas: np.ndarray) -> QuantizedReading:
@@ -362,47 +355,82 @@ def simulate(
         def flush(stop: int) -> None:
             return None
 
+    report_every = max(1, rows // 100)
+
+    def next_event(k: int) -> int:
+        """The first row after ``k`` at which the loop has more to do than step: report progress,
+        write pending rows (every ``FLUSH_ROWS``), reduce a full buffer, call the observer, or end."""
+        upcoming = rows - 1
+        if progress is not None:
+            upcoming = min(upcoming, (k // report_every + 1) * report_every)
+        if floats:
+            upcoming = min(upcoming, ((k + 1) // FLUSH_ROWS + 1) * FLUSH_ROWS - 1)
+        if metrics_only:
+            upcoming = min(upcoming, base + buffered - 1)
+        elif observer is not None:
+            upcoming = min(upcoming, ((k + 1) // observe_every + 1) * observe_every - 1)
+        return upcoming
+
     yd_block: list[list[float]] = []
     yd_start = yd_stop = 0
     started = time.perf_counter()
     observed = 0
     base = 0  # row held in X[0] .. S[0]
-    report_every = max(1, rows // 100)
     any_diverged = False
+    control, advance = controller.control, controller.advancer(dt, floats)
     with plant, np.errstate(all="ignore"):
         plant.reset(x0)
+        if floats and hasattr(plant, "scalar_io"):
+            observe, step = plant.scalar_io(dt)
+        elif floats:
+            def observe() -> tuple[list[float], list[float]]:
+                return plant.state()[0].tolist(), plant.read_sensors()[0].tolist()
+
+            def step(u: float) -> None:
+                plant.step(np.array([u]), dt)
+        else:
+            def observe() -> tuple[np.ndarray, np.ndarray]:
+                return plant.state(), plant.read_sensors()
+
+            def step(u: np.ndarray) -> None:
+                plant.step(u, dt)
+        event = next_event(-1)
         for k in range(rows):
-            x = read_state()
-            meas = read_sensors()
+            x, meas = observe()
             # fast test first (NaN fails it); the per-copy bookkeeping only when it trips
             if any_diverged or not healthy(x, adaptive):
                 check_divergence(k, *arrays(x, adaptive))
                 any_diverged = not alive.all()
+                event = k  # see whether every copy has stopped
             reading = quantize_(meas)
             if k % hold == 0:
                 if k >= yd_stop:  # y_d .. y_d^(n) as floats (the same for every copy), a block at a time
                     yd_block, yd_start, yd_stop = yd_rows(k, k + FLUSH_ROWS).tolist(), k, k + FLUSH_ROWS
-                out = controller.control(reading, yd_block[k - yd_start], adaptive)
-            j = k - base
-            record(j, x, meas, reading, out.u, adaptive)
-            if progress is not None and (k % report_every == 0 or k == rows - 1):
-                progress(k, rows - 1)
-            finished = k == rows - 1 or (any_diverged and not alive.any())
-            if metrics_only:
-                if finished or j + 1 == buffered:
+                out = control(reading, yd_block[k - yd_start], adaptive)
+            record(k - base, x, meas, reading, out.u, adaptive)
+            if k == event:  # the rare rows: everything but the closed loop itself happens here
+                j = k - base
+                if progress is not None and (k % report_every == 0 or k == rows - 1):
+                    progress(k, rows - 1)
+                finished = k == rows - 1 or (any_diverged and not alive.any())
+                if metrics_only:
+                    if finished or j + 1 == buffered:
+                        flush(j + 1)
+                        if observer is not None:
+                            observer(0, k + 1 - base, chunk_runs(k + 1, time.perf_counter()))
+                        reduce(k + 1)
+                elif observer is not None and (finished or (k + 1) % observe_every == 0):
                     flush(j + 1)
-                    if observer is not None:
-                        observer(0, k + 1 - base, chunk_runs(k + 1, time.perf_counter()))
-                    reduce(k + 1)
-            elif observer is not None and (finished or (k + 1) % observe_every == 0):
-                flush(j + 1)
-                observer(observed, k + 1, collect(np.minimum(kept, k + 1), time.perf_counter()))
-                observed = k + 1
-            if finished:
-                break
-            step(out.u, dt)
-            adaptive = controller.advance(adaptive, out, dt)
-        flush(j + 1)
+                    observer(observed, k + 1, collect(np.minimum(kept, k + 1), time.perf_counter()))
+                    observed = k + 1
+                if finished:
+                    break
+                if floats and (k + 1) % FLUSH_ROWS == 0:
+                    flush(k - base + 1)
+                event = next_event(k)
+            step(out.u)
+            adaptive = advance(adaptive, out)
+        flush(k - base + 1)
     if metrics_only:
         now = time.perf_counter()
         return [

@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Protocol
 
 import numpy as np
+
+ScalarObserve = Callable[[], tuple[list[float], list[float]]]  # () -> (true state, sensor reading)
+ScalarStep = Callable[[float], None]  # u -> None: hold u over one engine step
+ScalarIO = tuple[ScalarObserve, ScalarStep]
 
 
 class Plant(Protocol):
@@ -13,6 +18,11 @@ class Plant(Protocol):
     The engine uses a plant as a context manager (``with plant: ...``) so that backends with
     process-global resources (MuJoCo's passive callback) install and remove them safely.
     All arrays are ``float64``; states have shape ``(batch, n)``, inputs ``(batch,)``.
+
+    A plant may also offer ``scalar_io(h) -> (observe, step)`` for a batch of one: ``observe()``
+    returns the true state and the sensor reading as lists of floats, ``step(u)`` holds the float
+    ``u`` over ``h`` seconds. The engine then runs a single copy without making arrays; it is
+    called once per run, inside the ``with`` block, after :meth:`reset`.
     """
 
     n: int

@@ -65,6 +65,7 @@ import numpy as np
 
 from ..errors import QcontrolInputError
 from ..expr import Expression, ScalarFn, scalar_function
+from .base import ScalarIO
 
 _mj_step, _mj_sensor_pos, _mj_sensor_vel = mujoco.mj_step, mujoco.mj_sensorPos, mujoco.mj_sensorVel
 INTEGRATORS = {
@@ -540,6 +541,18 @@ def _callback_installed(datas: Sequence[mujoco.MjData], qadr: int, dof: int,
             _PREVIOUS.clear()
 
 
+def _unstable(messages: Sequence[str]) -> bool:
+    """Whether MuJoCo reported a blow-up among its ``messages``.
+
+    MuJoCo resets a copy whose ctrl/qpos/qvel/qacc turns NaN, Inf or huge and carries on from
+    the reset pose. It reports it through the warning handler the first time per MjData until
+    ``mj_resetData`` clears the counters, which :meth:`MujocoPlant.reset` does before every run;
+    so the first reset of a run always leaves an "unstable" message, and a copy is marked dead
+    from it (the plant's state and readings are NaN from then on).
+    """
+    return any("unstable" in m for m in messages)
+
+
 # --------------------------------------------------------------------------------------------
 # The plant
 
@@ -603,7 +616,6 @@ class MujocoPlant:
                       int(self.model.sensor_adr[ids.velocity_sensor]))
         self._views = [(d.ctrl, d.sensordata, d.qpos, d.qvel) for d in self._datas]
         self._dead = [False] * self.batch
-        self._clock = [0.0] * self.batch  # expected data.time; MuJoCo resets a copy that blows up
         self._substeps: dict[float, int] = {}
         self._noise = np.asarray(options.sensor_noise, dtype=float)
         self._noisy = bool(self._noise.any())
@@ -649,8 +661,7 @@ class MujocoPlant:
                     mujoco.mj_initSensorHistory(model, data, sid, None, np.full((nsample, 1), value), 0.0)
             if model.nhistory:
                 mujoco.mj_forward(model, data)
-        self._dead = [False] * self.batch
-        self._clock = [0.0] * self.batch
+        self._dead[:] = [False] * self.batch  # in place: scalar_io's closures hold this list
         self._rng = np.random.default_rng(self.options.noise_seed)
 
     def state(self) -> np.ndarray:
@@ -697,46 +708,54 @@ class MujocoPlant:
         self._views[b][0][self._aid] = self._ctrl_per_u * value
         messages = self.mujoco_warnings
         seen = len(messages)
-        _mj_step(model, data)
-        for _ in range(substeps - 1):
-            _mj_step(model, data)
+        _mj_step(model, data, substeps)
         _mj_sensor_pos(model, data)
         _mj_sensor_vel(model, data)
-        clock = self._clock[b] = self._clock[b] + substeps * self.timestep
-        # MuJoCo resets a copy whose ctrl/qpos/qvel/qacc turns NaN, Inf or huge and carries on
-        # from the reset pose; it says so through the warning handler (once per copy), and
-        # the copy's clock falls behind when the reset happened before the last substep.
-        if len(messages) != seen and any("unstable" in m for m in messages[seen:]):
-            dead[b] = True
-        if data.time < clock - 0.5 * self.timestep:
+        if len(messages) != seen and _unstable(messages[seen:]):
             dead[b] = True
 
     # ---- a batch of one on plain floats (the engine's fast path)
-    def state_floats(self) -> list[float]:
-        """:meth:`state` of the one copy as ``[qpos, qvel]`` (batch of one)."""
-        if self._dead[0]:
-            return [math.nan, math.nan]
-        _, _, qpos, qvel = self._views[0]
-        return [qpos.item(self._qadr), qvel.item(self._ids.dof)]
-
-    def sensor_floats(self) -> list[float]:
-        """:meth:`read_sensors` of the one copy as ``[position, velocity]`` (batch of one)."""
-        if self._dead[0]:
-            if self._noisy:
-                self._rng.normal(0.0, 1.0, size=(1, 2))  # the same noise stream as read_sensors
-            return [math.nan, math.nan]
+    def scalar_io(self, h: float) -> ScalarIO:
+        """``observe() -> ([qpos, qvel], [position, velocity])`` (:meth:`state` and
+        :meth:`read_sensors` of the one copy, as floats) and ``step(u)`` (:meth:`step` by ``h``
+        with ``u`` a float) for a batch of one: closures over the copy's MjData views, made once
+        per run inside the ``with`` block, so a step costs one ``mj_step`` call and a few
+        attribute-free Python operations more."""
+        if self.batch != 1:
+            raise ValueError(f"scalar_io is for a batch of one, the plant has {self.batch} copies")
+        if self._entered is None:
+            raise RuntimeError("use MujocoPlant in a 'with' block: scalar_io belongs to one run")
+        substeps = self._substeps.get(h) or self._count_substeps(h)
+        model, data = self.model, self._datas[0]
+        ctrl, sensordata, qpos, qvel = self._views[0]
+        actuator, ctrl_per_u = self._aid, self._ctrl_per_u
+        q, dof = self._qadr, self._ids.dof
         p, v = self._sadr
-        data = self._views[0][1]
-        if self._noisy:
-            noise = (self._rng.normal(0.0, 1.0, size=(1, 2)) * self._noise)[0].tolist()
-            return [data.item(p) + noise[0], data.item(v) + noise[1]]
-        return [data.item(p), data.item(v)]
+        dead, messages = self._dead, self.mujoco_warnings
+        noise = self._noise.tolist() if self._noisy else None
+        nan = [math.nan, math.nan]
 
-    def step_float(self, u: float, h: float) -> None:
-        """:meth:`step` for a batch of one, ``u`` a float."""
-        if self._entered is None and self._force is not None:
-            raise RuntimeError("use MujocoPlant in a 'with' block: its passive callback is installed there")
-        self._step_copy(0, u, self._substeps.get(h) or self._count_substeps(h))
+        def observe() -> tuple[list[float], list[float]]:
+            if noise is not None:  # one draw per reading, the same stream as read_sensors
+                e = self._rng.normal(0.0, 1.0, size=(1, 2))[0].tolist()
+            if dead[0]:
+                return nan[:], nan[:]
+            x = [qpos.item(q), qvel.item(dof)]
+            if noise is not None:
+                return x, [sensordata.item(p) + e[0] * noise[0], sensordata.item(v) + e[1] * noise[1]]
+            return x, [sensordata.item(p), sensordata.item(v)]
+
+        def step(u: float) -> None:
+            if dead[0]:
+                return
+            ctrl[actuator] = ctrl_per_u * u
+            _mj_step(model, data, substeps)
+            _mj_sensor_pos(model, data)
+            _mj_sensor_vel(model, data)
+            if messages and _unstable(messages):  # see _unstable: a blow-up always warns
+                dead[0] = True
+
+        return observe, step
 
     def _count_substeps(self, h: float) -> int:
         substeps = round(h / self.timestep)

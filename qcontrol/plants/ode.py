@@ -11,8 +11,8 @@ terms are evaluated with ``math`` (a numpy call on a one-element array costs abo
 the same arithmetic on floats a few tens of nanoseconds), otherwise they are ``(batch,)`` arrays
 and numpy evaluates the terms. Same operations in the same order; only ``sin``, ``cos``, ... come
 from the C library instead of numpy on floats, which may differ in the last bit.
-``state_floats`` / ``sensor_floats`` / ``step_float`` let the engine's batch-of-one loop use the
-floats without making arrays.
+:meth:`ChainPlant.scalar_io` lets the engine's batch-of-one loop use the floats without making
+arrays.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from ..expr import Expression, ScalarFn, scalar_function
+from .base import ScalarIO
 
 Column = float | np.ndarray  # one value per copy: a (batch,) array, or a float for a batch of one
 Uncertainty = Callable[[list[Column]], Column]  # psi + theta^T phi on the state's columns
@@ -109,15 +110,22 @@ class ChainPlant:
         self._x = _rk4(self._x, u, h, self._g)
 
     # ---- a batch of one on plain floats (the engine's fast path)
-    def state_floats(self) -> list[float]:
-        """The state of the one copy as ``[x1, .., xn]`` (batch of one only)."""
-        return self._x[:]
+    def scalar_io(self, h: float) -> ScalarIO:
+        """``observe() -> (x, reading)`` and ``step(u)`` (an RK4 step of ``h`` with ``u`` a float)
+        for a batch of one, as closures made once per run. The ideal plant's sensors read the
+        state exactly, so both lists are the state (the engine only reads them)."""
+        if not self._floats:
+            raise ValueError(f"scalar_io is for a batch of one, the plant has {self.batch} copies")
+        g = self._g
 
-    sensor_floats = state_floats
+        def observe() -> tuple[list[float], list[float]]:
+            x = self._x
+            return x, x
 
-    def step_float(self, u: float, h: float) -> None:
-        """:meth:`step` for a batch of one, ``u`` a float."""
-        self._x = _rk4(self._x, u, h, self._g)
+        def step(u: float) -> None:
+            self._x = _rk4(self._x, u, h, g)
+
+        return observe, step
 
 
 def _scalar_uncertainty(psi: Expression | None, phi: Sequence[Expression], theta: np.ndarray) -> Uncertainty:
