@@ -275,9 +275,16 @@ def simulate(
             for b in range(batch)
         ]
 
-    def check_divergence(k: int, x: np.ndarray, adaptive: np.ndarray) -> None:
+    def unhealthy(x: np.ndarray, adaptive: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(bad_state, out_of_bounds)`` per row of ``x`` (rows, n) and ``adaptive`` (rows, m):
+        a NaN/Inf anywhere, or some ``|x_i| > state_bound``."""
         bad_state = ~np.isfinite(x).all(axis=1) | ~np.isfinite(adaptive).all(axis=1)
-        out_of_bounds = (np.abs(x) > state_bound).any(axis=1)
+        return bad_state, (np.abs(x) > state_bound).any(axis=1)
+
+    def check_divergence(k: int, x: np.ndarray, adaptive: np.ndarray) -> None:
+        """Stop the copies whose state at row ``k`` (``x`` (batch, n), ``adaptive`` (batch, m))
+        is unhealthy: their records end with that row."""
+        bad_state, out_of_bounds = unhealthy(x, adaptive)
         newly = alive & (bad_state | out_of_bounds)
         for b in np.flatnonzero(newly):
             kept[b] = k + 1
@@ -312,28 +319,34 @@ def simulate(
         adaptive = tuple(controller.initial_state(1)[0].tolist())
         pending: list[tuple] = []  # the rows up to the last one recorded, not yet written to X .. S
         quantize_ = float_quantizer(quantizer)
-
-        def healthy(x: list[float], adaptive: tuple) -> bool:
-            total = sum(adaptive, sum(x))  # NaN or Inf if any is (or if the sum overflows)
-            return total - total == 0.0 and -state_bound <= min(x) and max(x) <= state_bound
-
-        def arrays(x: list[float], adaptive: tuple) -> tuple[np.ndarray, np.ndarray]:
-            return np.array([x], dtype=float), np.array([adaptive], dtype=float).reshape(1, -1)
+        healthy = None  # the rows are tested in blocks, when flush writes them
 
         def record(j: int, x: list[float], meas: list[float], reading: QuantizedReading, u: float,
                    adaptive: tuple) -> None:
             pending.append((*x, *meas, *reading.columns, u, *adaptive))
 
-        def flush(stop: int) -> None:
-            """Write the pending rows, which end at buffer row ``stop``."""
+        def flush(stop: int) -> int | None:
+            """Write the pending rows, which end at buffer row ``stop``, and test them: if one is
+            unhealthy, the copy is stopped there (``check_divergence``), the rows after it are
+            dropped, and its run row is returned (else None)."""
             if not pending:
-                return
+                return None
             block = np.array(pending, dtype=float)
-            rows_ = slice(stop - len(pending), stop)
+            pending.clear()
+            x, adaptive = block[:, :n], block[:, 3 * n + 1 :]
+            bad = np.flatnonzero(np.logical_or(*unhealthy(x, adaptive)))
+            if bad.size:
+                block = block[: bad[0] + 1]
+            first = stop - len(x)
+            rows_ = slice(first, first + len(block))
             X[rows_, 0], XM[rows_, 0] = block[:, :n], block[:, n : 2 * n]
             XQ[rows_, 0] = block[:, 2 * n : 3 * n]
             U[rows_, 0], S[rows_, 0] = block[:, 3 * n], block[:, 3 * n + 1 :]
-            pending.clear()
+            if not bad.size:
+                return None
+            row = base + first + int(bad[0])
+            check_divergence(row, x[bad[:1]], adaptive[bad[:1]])
+            return row
     else:
         adaptive = tuple(np.ascontiguousarray(controller.initial_state(batch).T))
 
@@ -343,16 +356,13 @@ def simulate(
         def healthy(x: np.ndarray, adaptive: tuple) -> bool:
             return np.abs(x).max() <= state_bound and math.isfinite(sum(a.sum() for a in adaptive))
 
-        def arrays(x: np.ndarray, adaptive: tuple) -> tuple[np.ndarray, np.ndarray]:
-            return x, (np.stack(np.broadcast_arrays(*adaptive), axis=1) if adaptive else np.empty((batch, 0)))
-
         def record(j: int, x: np.ndarray, meas: np.ndarray, reading: QuantizedReading, u: np.ndarray,
                    adaptive: tuple) -> None:
             X[j], XM[j], XQ[j], U[j] = x, meas, reading.values, u
             for i, a in enumerate(adaptive):
                 S[j, :, i] = a
 
-        def flush(stop: int) -> None:
+        def flush(stop: int) -> int | None:
             return None
 
     report_every = max(1, rows // 100)
@@ -397,9 +407,11 @@ def simulate(
         event = next_event(-1)
         for k in range(rows):
             x, meas = observe()
-            # fast test first (NaN fails it); the per-copy bookkeeping only when it trips
-            if any_diverged or not healthy(x, adaptive):
-                check_divergence(k, *arrays(x, adaptive))
+            # a batch is tested every row (fast test first; NaN fails it), the per-copy
+            # bookkeeping only when it trips; a batch of one in blocks, at the events below
+            if healthy is not None and (any_diverged or not healthy(x, adaptive)):
+                check_divergence(k, x, np.stack(np.broadcast_arrays(*adaptive), axis=1)
+                                 if adaptive else np.empty((batch, 0)))
                 any_diverged = not alive.all()
                 event = k  # see whether every copy has stopped
             reading = quantize_(meas)
@@ -409,6 +421,10 @@ def simulate(
                 out = control(reading, yd_block[k - yd_start], adaptive)
             record(k - base, x, meas, reading, out.u, adaptive)
             if k == event:  # the rare rows: everything but the closed loop itself happens here
+                if floats:  # write and test the rows since the last event
+                    stopped = flush(k - base + 1)
+                    if stopped is not None:  # diverged at an earlier row: end there, as if the
+                        k, any_diverged = stopped, True  # test had run at every row
                 j = k - base
                 if progress is not None and (k % report_every == 0 or k == rows - 1):
                     progress(k, rows - 1)
@@ -425,8 +441,6 @@ def simulate(
                     observed = k + 1
                 if finished:
                     break
-                if floats and (k + 1) % FLUSH_ROWS == 0:
-                    flush(k - base + 1)
                 event = next_event(k)
             step(out.u)
             adaptive = advance(adaptive, out)

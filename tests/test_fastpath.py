@@ -139,3 +139,40 @@ def test_on_floats_falls_back_to_numpys_answer() -> None:
             got = e.on_floats(values)
             assert type(got) is float
             assert got == pytest.approx(expected, rel=1e-14) or (np.isnan(got) and np.isnan(expected))
+
+
+@pytest.mark.parametrize("record", ["full", "metrics"])
+@pytest.mark.parametrize("with_progress", [False, True])
+@pytest.mark.parametrize("bound", [0.5, 0.74, 1.1])
+def test_a_batch_of_one_stops_at_the_first_row_out_of_bounds(bound: float, with_progress: bool,
+                                                             record: str) -> None:
+    """A batch of one tests its rows in blocks (when they are written), not every step; it must
+    still stop at exactly the first row whose state leaves the bound, whether that row falls
+    before, on or between the rows where progress, flushes and metric chunks happen, and agree
+    with a batch of two, which tests every row."""
+    sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=3.0"])
+    free = simulate(build_plant(sc, "ode"), build_controller(sc), build_quantizer(sc), build_reference(sc),
+                    sc.x0, 3.0, 1e-3)[0]
+    first = int(np.argmax((np.abs(free.x) > bound).any(axis=1)))  # the independent answer
+    assert 0 < first < len(free.t) - 1
+    seen: list[int] = []
+    runs = {}
+    for batch in (1, 2):
+        runs[batch] = simulate(build_plant(sc, "ode", batch=batch), build_controller(sc), build_quantizer(sc),
+                               build_reference(sc), sc.x0, 3.0, 1e-3, state_bound=bound, record=record,
+                               progress=(lambda k, total: seen.append(k)) if with_progress else None)
+    for run in (runs[1][0], *runs[2]):
+        assert run.diverged and run.diverged_time == pytest.approx(first * 1e-3, abs=1e-12)
+        assert "left the bound" in run.divergence_reason
+        if record == "full":
+            assert len(run.t) == first + 1
+            np.testing.assert_array_equal(run.x, free.x[: first + 1])
+            np.testing.assert_array_equal(run.adaptive, free.adaptive[: first + 1])
+        else:
+            assert run.steps == first
+            np.testing.assert_array_equal(run.final_adaptive, free.adaptive[first])
+    if record == "metrics":
+        one, two = runs[1][0], runs[2][0]
+        assert one.error_rate == two.error_rate and one.max_abs_u == two.max_abs_u
+        assert one.max_abs_z1_last_half == two.max_abs_z1_last_half or (
+            np.isnan(one.max_abs_z1_last_half) and np.isnan(two.max_abs_z1_last_half))
