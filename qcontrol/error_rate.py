@@ -5,6 +5,10 @@
 last finite row of a diverged run count as exceeding every omega. Feeding the rows in chunks gives
 bit-identical results to feeding them at once: every instant is interpolated on the same pair of
 rows, so a long run needs only ``M`` numbers, not its whole ``z_1``.
+
+One :class:`ErrorRateStream` serves a whole batch of runs that share their time axis (a sweep
+steps 1000 copies together): the interpolation is done for every copy at once, with the formula
+of ``np.interp`` (and its values, bit for bit, which the tests check).
 """
 
 from __future__ import annotations
@@ -24,36 +28,61 @@ def omega_key(omega: float) -> str:
 
 
 class ErrorRateStream:
-    """Accumulates ``|z_1|`` at the sample instants from rows given in time order."""
+    """Accumulates ``|z_1|`` at the sample instants from rows given in time order, for ``batch``
+    runs at once (column ``b`` of every array is run ``b``)."""
 
-    def __init__(self, horizon: float, samples: int = TABLE1_SAMPLES) -> None:
+    def __init__(self, horizon: float, samples: int = TABLE1_SAMPLES, batch: int = 1) -> None:
         if samples < 2:
             raise ValueError("the error rate needs at least 2 samples")
         self.instants = np.arange(samples) * (horizon / (samples - 1))
-        self.values = np.full(samples, np.inf)  # inf: not covered (yet): counts as exceeding
-        self.done = 0  # instants [0, done) have their value
-        self.last: tuple[float, float] | None = None  # (t, |z_1|) of the last finite row so far
+        self.values = np.full((samples, batch), np.inf)  # inf: not covered (yet): counts as exceeding
+        self.done = np.zeros(batch, dtype=np.intp)  # run b's instants [0, done[b]) have their value
+        self.last_t = np.full(batch, np.nan)  # (t, |z_1|) of each run's last finite row so far
+        self.last_z = np.full(batch, np.nan)
 
     def add(self, t: np.ndarray, z1: np.ndarray) -> None:
-        """The next rows (instants ``t``, errors ``z1``); non-finite rows are skipped."""
-        finite = np.isfinite(z1)
-        t, z = t[finite], np.abs(z1[finite])
-        if not t.size:
-            return
-        if self.last is not None:  # the interval from the previous chunk's last row
-            t, z = np.r_[self.last[0], t], np.r_[self.last[1], z]
-        stop = int(np.searchsorted(self.instants, t[-1], side="right"))
-        if stop > self.done:
-            self.values[self.done : stop] = np.interp(self.instants[self.done : stop], t, z)
-            self.done = stop
-        self.last = (float(t[-1]), float(z[-1]))
+        """The next rows: instants ``t`` (rows,) and errors ``z1`` (rows, batch), or (rows,) for a
+        batch of one. Non-finite entries are skipped (a run's rows after it stopped are NaN)."""
+        t = np.asarray(t, dtype=float)
+        z = np.abs(np.asarray(z1, dtype=float).reshape(len(t), -1))
+        # row 0: each run's last finite row before this chunk (NaN if none), rows 1..: the chunk
+        times = np.vstack([self.last_t, np.broadcast_to(t[:, None], z.shape)])
+        z = np.vstack([self.last_z, z])
+        finite = np.isfinite(z)
+        rows, runs = np.arange(len(z))[:, None], np.arange(z.shape[1])
+        # the finite row at or before each row, and the one at or after it (-1 / len(z): none)
+        before = np.maximum.accumulate(np.where(finite, rows, -1), axis=0)
+        after = np.minimum.accumulate(np.where(finite, rows, len(z))[::-1], axis=0)[::-1]
+        last = before[-1]  # each run's last finite row in the chunk, or -1
+        reach = np.where(last >= 0, times[np.maximum(last, 0), runs], -np.inf)
+        stop = np.searchsorted(self.instants, reach, side="right")  # run b covers [0, stop[b])
+        todo = self.done < stop
+        if todo.any():
+            first = int(self.done[todo].min())
+            x = self.instants[first : int(stop.max()), None]  # (instants, 1)
+            at = np.searchsorted(t, x[:, 0], side="right")[:, None]  # the last row with t <= x
+            a = before[at, runs]  # the finite rows that bracket x: a (t <= x), c (after a)
+            c = after[np.minimum(at + 1, len(z) - 1), runs]
+            a = np.where(a < 0, c, a)  # before the first finite row: its value (np.interp's left)
+            a, c = np.minimum(a, len(z) - 1), np.minimum(c, len(z) - 1)  # (none: not filled below)
+            ta, za, tc, zc = times[a, runs], z[a, runs], times[c, runs], z[c, runs]
+            with np.errstate(all="ignore"):  # the slope of a degenerate pair is not used
+                slope = (zc - za) / (tc - ta)
+                # np.interp's formula; a row at x (or, before the first row, the first) gives its value
+                value = np.where(ta >= x, za, slope * (x - ta) + za)
+            index = np.arange(first, first + len(x))[:, None]
+            fill = (index >= self.done) & (index < stop)
+            self.values[first : first + len(x)] = np.where(fill, value, self.values[first : first + len(x)])
+            self.done = np.maximum(self.done, stop)
+        found = last >= 0
+        self.last_t[found], self.last_z[found] = reach[found], z[last[found], runs[found]]
 
-    def rates(self, omegas: Sequence[float] = TABLE1_OMEGAS) -> dict[str, float]:
-        """``E(omega)`` for each omega, keyed by :func:`omega_key`."""
-        values = self.values.copy()
-        if self.last is not None:  # as np.interp does just past the last row: its value
-            stop = int(np.searchsorted(self.instants, self.last[0] + END_TOLERANCE, side="right"))
-            values[self.done : stop] = self.last[1]
+    def rates(self, omegas: Sequence[float] = TABLE1_OMEGAS, run: int = 0) -> dict[str, float]:
+        """``E(omega)`` of run ``run`` for each omega, keyed by :func:`omega_key`."""
+        values = self.values[:, run].copy()
+        if np.isfinite(self.last_t[run]):  # as np.interp does just past the last row: its value
+            stop = int(np.searchsorted(self.instants, self.last_t[run] + END_TOLERANCE, side="right"))
+            values[self.done[run] : stop] = self.last_z[run]
         samples = len(values)
         return {omega_key(w): float(np.count_nonzero(values > w)) / samples for w in omegas}
 

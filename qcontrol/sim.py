@@ -275,26 +275,24 @@ def simulate(
             for b in range(batch)
         ]
 
-    def unhealthy(x: np.ndarray, adaptive: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(bad_state, out_of_bounds)`` per row of ``x`` (rows, n) and ``adaptive`` (rows, m):
-        a NaN/Inf anywhere, or some ``|x_i| > state_bound``."""
-        bad_state = ~np.isfinite(x).all(axis=1) | ~np.isfinite(adaptive).all(axis=1)
-        return bad_state, (np.abs(x) > state_bound).any(axis=1)
-
-    def check_divergence(k: int, x: np.ndarray, adaptive: np.ndarray) -> None:
-        """Stop the copies whose state at row ``k`` (``x`` (batch, n), ``adaptive`` (batch, m))
-        is unhealthy: their records end with that row."""
-        bad_state, out_of_bounds = unhealthy(x, adaptive)
-        newly = alive & (bad_state | out_of_bounds)
-        for b in np.flatnonzero(newly):
-            kept[b] = k + 1
-            diverged_time[b] = k * dt
+    def stop_diverged(first: int, stop: int) -> None:
+        """Test rows [first, stop) of every copy still running: a copy whose state or adaptive
+        estimate is NaN/Inf there, or whose ``|x_i|`` exceeds ``state_bound``, stops at the first
+        such row (its record ends with it)."""
+        held = slice(first - base, stop - base)
+        x, adaptive = X[held], S[held]  # (rows, batch, n), (rows, batch, m)
+        bad_state = ~np.isfinite(x).all(axis=2) | ~np.isfinite(adaptive).all(axis=2)
+        bad = (bad_state | (np.abs(x) > state_bound).any(axis=2)) & alive
+        for b in np.flatnonzero(bad.any(axis=0)):
+            row = int(np.argmax(bad[:, b]))
+            kept[b] = first + row + 1
+            diverged_time[b] = (first + row) * dt
             reasons[b] = (
                 "state or adaptive estimate became NaN/Inf"
-                if bad_state[b]
+                if bad_state[row, b]
                 else f"state left the bound |x_i| <= {state_bound:g}"
             )
-        alive[newly] = False
+            alive[b] = False
 
     def reduce(stop: int) -> None:
         """record="metrics": fold the buffered rows [base, stop) into ``reduced``."""
@@ -319,34 +317,25 @@ def simulate(
         adaptive = tuple(controller.initial_state(1)[0].tolist())
         pending: list[tuple] = []  # the rows up to the last one recorded, not yet written to X .. S
         quantize_ = float_quantizer(quantizer)
-        healthy = None  # the rows are tested in blocks, when flush writes them
+        # tested in blocks at the events below: a per-step test costs about a microsecond in the
+        # MuJoCo loop, as much as the controller's arithmetic. The copy may run on for up to
+        # FLUSH_ROWS steps after it diverged; those rows do not count.
+        healthy = None
 
         def record(j: int, x: list[float], meas: list[float], reading: QuantizedReading, u: float,
                    adaptive: tuple) -> None:
             pending.append((*x, *meas, *reading.columns, u, *adaptive))
 
-        def flush(stop: int) -> int | None:
-            """Write the pending rows, which end at buffer row ``stop``, and test them: if one is
-            unhealthy, the copy is stopped there (``check_divergence``), the rows after it are
-            dropped, and its run row is returned (else None)."""
+        def flush(stop: int) -> None:
+            """Write the pending rows, which end at buffer row ``stop``."""
             if not pending:
-                return None
+                return
             block = np.array(pending, dtype=float)
-            pending.clear()
-            x, adaptive = block[:, :n], block[:, 3 * n + 1 :]
-            bad = np.flatnonzero(np.logical_or(*unhealthy(x, adaptive)))
-            if bad.size:
-                block = block[: bad[0] + 1]
-            first = stop - len(x)
-            rows_ = slice(first, first + len(block))
+            rows_ = slice(stop - len(pending), stop)
             X[rows_, 0], XM[rows_, 0] = block[:, :n], block[:, n : 2 * n]
             XQ[rows_, 0] = block[:, 2 * n : 3 * n]
             U[rows_, 0], S[rows_, 0] = block[:, 3 * n], block[:, 3 * n + 1 :]
-            if not bad.size:
-                return None
-            row = base + first + int(bad[0])
-            check_divergence(row, x[bad[:1]], adaptive[bad[:1]])
-            return row
+            pending.clear()
     else:
         adaptive = tuple(np.ascontiguousarray(controller.initial_state(batch).T))
 
@@ -354,6 +343,7 @@ def simulate(
             return quantize(quantizer, meas)
 
         def healthy(x: np.ndarray, adaptive: tuple) -> bool:
+            """Every row, while its values are in the cache (fast test first; NaN fails it)."""
             return np.abs(x).max() <= state_bound and math.isfinite(sum(a.sum() for a in adaptive))
 
         def record(j: int, x: np.ndarray, meas: np.ndarray, reading: QuantizedReading, u: np.ndarray,
@@ -362,19 +352,18 @@ def simulate(
             for i, a in enumerate(adaptive):
                 S[j, :, i] = a
 
-        def flush(stop: int) -> int | None:
+        def flush(stop: int) -> None:
             return None
 
     report_every = max(1, rows // 100)
 
     def next_event(k: int) -> int:
-        """The first row after ``k`` at which the loop has more to do than step: report progress,
-        write pending rows (every ``FLUSH_ROWS``), reduce a full buffer, call the observer, or end."""
-        upcoming = rows - 1
+        """The first row after ``k`` at which the loop has more to do than step: test the rows
+        for divergence and write pending ones (at least every ``FLUSH_ROWS``), report progress,
+        reduce a full buffer, call the observer, or end."""
+        upcoming = min(rows - 1, ((k + 1) // FLUSH_ROWS + 1) * FLUSH_ROWS - 1)
         if progress is not None:
             upcoming = min(upcoming, (k // report_every + 1) * report_every)
-        if floats:
-            upcoming = min(upcoming, ((k + 1) // FLUSH_ROWS + 1) * FLUSH_ROWS - 1)
         if metrics_only:
             upcoming = min(upcoming, base + buffered - 1)
         elif observer is not None:
@@ -386,7 +375,7 @@ def simulate(
     started = time.perf_counter()
     observed = 0
     base = 0  # row held in X[0] .. S[0]
-    any_diverged = False
+    tested = 0  # rows [0, tested) are tested for divergence
     control, advance = controller.control, controller.advancer(dt, floats)
     with plant, np.errstate(all="ignore"):
         plant.reset(x0)
@@ -407,36 +396,32 @@ def simulate(
         event = next_event(-1)
         for k in range(rows):
             x, meas = observe()
-            # a batch is tested every row (fast test first; NaN fails it), the per-copy
-            # bookkeeping only when it trips; a batch of one in blocks, at the events below
-            if healthy is not None and (any_diverged or not healthy(x, adaptive)):
-                check_divergence(k, x, np.stack(np.broadcast_arrays(*adaptive), axis=1)
-                                 if adaptive else np.empty((batch, 0)))
-                any_diverged = not alive.all()
-                event = k  # see whether every copy has stopped
             reading = quantize_(meas)
             if k % hold == 0:
                 if k >= yd_stop:  # y_d .. y_d^(n) as floats (the same for every copy), a block at a time
                     yd_block, yd_start, yd_stop = yd_rows(k, k + FLUSH_ROWS).tolist(), k, k + FLUSH_ROWS
                 out = control(reading, yd_block[k - yd_start], adaptive)
             record(k - base, x, meas, reading, out.u, adaptive)
+            if healthy is not None and not healthy(x, adaptive):  # a batch: this row
+                stop_diverged(k, k + 1)
+                event = k  # see whether every copy has stopped
             if k == event:  # the rare rows: everything but the closed loop itself happens here
-                if floats:  # write and test the rows since the last event
-                    stopped = flush(k - base + 1)
-                    if stopped is not None:  # diverged at an earlier row: end there, as if the
-                        k, any_diverged = stopped, True  # test had run at every row
+                if healthy is None:  # a batch of one: its pending rows to the arrays, and tested
+                    flush(k - base + 1)
+                    stop_diverged(tested, k + 1)
+                    tested = k + 1
+                if not alive.any():  # every copy has stopped: end where the last one did (the
+                    k = int(kept.max()) - 1  # same row for a batch of one as a per-step test)
                 j = k - base
                 if progress is not None and (k % report_every == 0 or k == rows - 1):
                     progress(k, rows - 1)
-                finished = k == rows - 1 or (any_diverged and not alive.any())
+                finished = k == rows - 1 or not alive.any()
                 if metrics_only:
                     if finished or j + 1 == buffered:
-                        flush(j + 1)
                         if observer is not None:
                             observer(0, k + 1 - base, chunk_runs(k + 1, time.perf_counter()))
                         reduce(k + 1)
                 elif observer is not None and (finished or (k + 1) % observe_every == 0):
-                    flush(j + 1)
                     observer(observed, k + 1, collect(np.minimum(kept, k + 1), time.perf_counter()))
                     observed = k + 1
                 if finished:
@@ -444,7 +429,6 @@ def simulate(
                 event = next_event(k)
             step(out.u)
             adaptive = advance(adaptive, out)
-        flush(k - base + 1)
     if metrics_only:
         now = time.perf_counter()
         return [
@@ -460,7 +444,7 @@ class _Reduced:
 
     def __init__(self, rows: int, batch: int, n: int, state_size: int, duration: float) -> None:
         self.rows = rows
-        self.streams = [ErrorRateStream(duration) for _ in range(batch)]
+        self.stream = ErrorRateStream(duration, batch=batch)
         self.half = duration / 2.0
         self.z1_last_half = np.full(batch, -np.inf)
         self.max_abs_u = np.full(batch, -np.inf)
@@ -476,10 +460,7 @@ class _Reduced:
         valid = rows[:, None] < kept[None, :]
         yd = YD[:, None, :]
         z1 = X[..., 0] - YD[:, None, 0]  # z_1 = x_1 - y_d, eq. (7)
-        for b, stream in enumerate(self.streams):
-            m = min(max(int(kept[b]) - base, 0), len(X))
-            if m:
-                stream.add(t[:m], z1[:m, b])
+        self.stream.add(t, np.where(valid, z1, np.nan))
         late = valid & (t >= self.half)[:, None] & np.isfinite(z1)
         np.maximum(self.z1_last_half, np.where(late, np.abs(z1), -np.inf).max(axis=0), out=self.z1_last_half)
         _, e_z = lemma2_errors(controller, XM, XQ, yd)
@@ -499,7 +480,7 @@ class _Reduced:
         z1_late = float(self.z1_last_half[b])
         return RunMetrics(
             steps=int(kept) - 1,
-            error_rate=self.streams[b].rates(),
+            error_rate=self.stream.rates(run=b),
             max_abs_z1_last_half=z1_late if math.isfinite(z1_late) else math.nan,
             max_abs_u=float(self.max_abs_u[b]),
             e_z_max=self.e_z_max[b].copy(),

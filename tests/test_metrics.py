@@ -40,3 +40,47 @@ def test_error_rate_counts_missing_tail_of_diverged_run():
 def test_lemma2_ratio_ignores_nan_rows():
     e = np.array([[0.01, 0.02], [np.nan, np.nan], [0.005, 0.03]])
     assert lemma2_max_ratio(e, np.array([0.02, 0.04])) == pytest.approx(0.75)
+
+
+def _reference_values(t, z1, instants):
+    """|z1| at the instants by np.interp over the finite rows; inf after the last one."""
+    finite = np.isfinite(z1)
+    tf, zf = t[finite], np.abs(z1[finite])
+    values = np.full(len(instants), np.inf)
+    if tf.size:
+        covered = instants <= tf[-1]
+        values[covered] = np.interp(instants[covered], tf, zf)
+    return values
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_batched_stream_in_chunks_equals_np_interp_per_run_bit_for_bit(seed):
+    """One ErrorRateStream for a batch of runs fed in random chunks gives every run the values
+    np.interp gives on that run's finite rows at once: runs that stop (NaN tails) at different
+    rows, one that never starts, a NaN first row, a chunk boundary exactly at an instant."""
+    from qcontrol.error_rate import ErrorRateStream
+
+    rng = np.random.default_rng(seed)
+    rows, horizon, samples = 2001, 2.0, 57
+    t = np.arange(rows) * (horizon / (rows - 1))
+    z1 = rng.normal(0.0, 0.3, (rows, 6))
+    z1[1500:, 1] = np.nan  # stops at row 1499
+    z1[37:, 2] = np.nan  # stops early, inside the first chunk
+    z1[:, 3] = np.nan  # never finite
+    z1[0, 4] = np.nan  # NaN first row: instants before its first finite row take that value
+    z1[900:, 5] = np.nan
+    cuts = np.sort(rng.choice(np.arange(1, rows), size=12, replace=False)).tolist() + [1001]
+    stream = ErrorRateStream(horizon, samples, batch=6)
+    for lo, hi in zip([0, *sorted(set(cuts))], [*sorted(set(cuts)), rows]):
+        stream.add(t[lo:hi], z1[lo:hi])
+    for run in range(6):
+        expected = _reference_values(t, z1[:, run], stream.instants)
+        done = stream.done[run]
+        np.testing.assert_array_equal(stream.values[:done, run], expected[:done])
+        assert np.all(np.isinf(stream.values[done:, run]))
+        whole = ErrorRateStream(horizon, samples)
+        whole.add(t, z1[:, run])
+        omegas = np.linspace(0.0, 1.0, 41).tolist()
+        assert stream.rates(omegas, run=run) == whole.rates(omegas)
+        if run == 3:
+            assert stream.rates((0.1,), run=3) == {"0.100": 1.0}
