@@ -26,8 +26,8 @@ arrays of shape ``(batch,)``: a parameter sweep then runs as one batch, through 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from functools import partial
-from operator import mul
+from functools import partial, reduce
+from operator import add, mul
 from typing import NamedTuple
 
 import numpy as np
@@ -340,7 +340,7 @@ class ProposedController(Backstepping):
             r = [ri * law.r_scale for ri in r]
         zn = zbar[-1]
         s = zn * zn / law.kappa + self.L
-        robust = sum(map(mul, eps_hat, r))  # eps_hat^T r(x_q), per copy
+        robust = reduce(add, map(mul, eps_hat, r))  # eps_hat^T r(x_q), per copy, summed in order
         u = alphabar[-1] - zn * s * robust * law.gain  # eq. (44)
         sigma = law.sigma
         return _output((u, zbar, [s * ri / sigma for ri in r], law.rate))
@@ -429,7 +429,7 @@ class BaselineController(Backstepping):
         rate: tuple = (0.0,) * len(phi)
         if phi:
             phi_q = [p(q) for p in phi]
-            u = u - sum(map(mul, theta_hat, phi_q))  # eq. (46): theta_hat^T phi(x_q)
+            u = u - reduce(add, map(mul, theta_hat, phi_q))  # eq. (46): theta_hat^T phi(x_q)
             if self.known_theta is None:
                 zn = zbar[-1]
                 rate = tuple([self.adaptation_gain * p * zn for p in phi_q])

@@ -46,15 +46,22 @@ class ErrorRateStream:
         t = np.asarray(t, dtype=float)
         z = np.abs(np.asarray(z1, dtype=float).reshape(len(t), -1))
         # row 0: each run's last finite row before this chunk (NaN if none), rows 1..: the chunk
-        times = np.vstack([self.last_t, np.broadcast_to(t[:, None], z.shape)])
         z = np.vstack([self.last_z, z])
+        t_rows = np.concatenate([[np.nan], t])
+
+        def time_of(row: np.ndarray) -> np.ndarray:
+            return np.where(row == 0, self.last_t, t_rows[row])
+
         finite = np.isfinite(z)
         rows, runs = np.arange(len(z))[:, None], np.arange(z.shape[1])
         # the finite row at or before each row, and the one at or after it (-1 / len(z): none)
-        before = np.maximum.accumulate(np.where(finite, rows, -1), axis=0)
-        after = np.minimum.accumulate(np.where(finite, rows, len(z))[::-1], axis=0)[::-1]
+        if finite.all():  # the usual chunk: every row itself
+            before = after = np.broadcast_to(rows, z.shape)
+        else:
+            before = np.maximum.accumulate(np.where(finite, rows, -1), axis=0)
+            after = np.minimum.accumulate(np.where(finite, rows, len(z))[::-1], axis=0)[::-1]
         last = before[-1]  # each run's last finite row in the chunk, or -1
-        reach = np.where(last >= 0, times[np.maximum(last, 0), runs], -np.inf)
+        reach = np.where(last >= 0, time_of(np.maximum(last, 0)), -np.inf)
         stop = np.searchsorted(self.instants, reach, side="right")  # run b covers [0, stop[b])
         todo = self.done < stop
         if todo.any():
@@ -65,7 +72,7 @@ class ErrorRateStream:
             c = after[np.minimum(at + 1, len(z) - 1), runs]
             a = np.where(a < 0, c, a)  # before the first finite row: its value (np.interp's left)
             a, c = np.minimum(a, len(z) - 1), np.minimum(c, len(z) - 1)  # (none: not filled below)
-            ta, za, tc, zc = times[a, runs], z[a, runs], times[c, runs], z[c, runs]
+            ta, za, tc, zc = time_of(a), z[a, runs], time_of(c), z[c, runs]
             with np.errstate(all="ignore"):  # the slope of a degenerate pair is not used
                 slope = (zc - za) / (tc - ta)
                 # np.interp's formula; a row at x (or, before the first row, the first) gives its value

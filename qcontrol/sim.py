@@ -342,9 +342,9 @@ def simulate(
         def quantize_(meas: np.ndarray) -> QuantizedReading:
             return quantize(quantizer, meas)
 
-        def healthy(x: np.ndarray, adaptive: tuple) -> bool:
-            """Every row, while its values are in the cache (fast test first; NaN fails it)."""
-            return np.abs(x).max() <= state_bound and math.isfinite(sum(a.sum() for a in adaptive))
+        def healthy(j: int) -> bool:
+            """Buffer row ``j`` just recorded, while it is in the cache (NaN fails either test)."""
+            return np.abs(X[j]).max() <= state_bound and math.isfinite(S[j].sum())
 
         def record(j: int, x: np.ndarray, meas: np.ndarray, reading: QuantizedReading, u: np.ndarray,
                    adaptive: tuple) -> None:
@@ -402,7 +402,7 @@ def simulate(
                     yd_block, yd_start, yd_stop = yd_rows(k, k + FLUSH_ROWS).tolist(), k, k + FLUSH_ROWS
                 out = control(reading, yd_block[k - yd_start], adaptive)
             record(k - base, x, meas, reading, out.u, adaptive)
-            if healthy is not None and not healthy(x, adaptive):  # a batch: this row
+            if healthy is not None and not healthy(k - base):  # a batch: this row
                 stop_diverged(k, k + 1)
                 event = k  # see whether every copy has stopped
             if k == event:  # the rare rows: everything but the closed loop itself happens here
@@ -457,17 +457,20 @@ class _Reduced:
         not count. The formulas are the ones :func:`simulate` uses to derive ``z`` and ``e_z`` in
         full records, and :func:`qcontrol.metrics.summary` reduces them the same way."""
         rows = np.arange(base, base + len(X))
-        valid = rows[:, None] < kept[None, :]
+        # every row counts (and is Lemma 2 checked) unless a copy stopped in or before the block
+        everyone = kept.min() > base + len(X)
+        valid = True if everyone else rows[:, None] < kept[None, :]
         yd = YD[:, None, :]
         z1 = X[..., 0] - YD[:, None, 0]  # z_1 = x_1 - y_d, eq. (7)
-        self.stream.add(t, np.where(valid, z1, np.nan))
+        self.stream.add(t, z1 if everyone else np.where(valid, z1, np.nan))
         late = valid & (t >= self.half)[:, None] & np.isfinite(z1)
         np.maximum(self.z1_last_half, np.where(late, np.abs(z1), -np.inf).max(axis=0), out=self.z1_last_half)
         _, e_z = lemma2_errors(controller, XM, XQ, yd)
         # as metrics.summary: the Lemma 2 check stops before the row that stopped a diverged copy
-        checked = rows[:, None] < np.where(kept < self.rows, kept - 1, kept)[None, :]
-        e_z = np.where(checked[..., None] & np.isfinite(e_z), e_z, -np.inf)
-        np.maximum(self.e_z_max, e_z.max(axis=0), out=self.e_z_max)
+        checked = np.isfinite(e_z)
+        if not everyone:
+            checked &= (rows[:, None] < np.where(kept < self.rows, kept - 1, kept)[None, :])[..., None]
+        np.maximum(self.e_z_max, np.where(checked, e_z, -np.inf).max(axis=0), out=self.e_z_max)
         abs_u = np.abs(U)
         np.maximum(self.max_abs_u, np.where(valid & np.isfinite(abs_u), abs_u, -np.inf).max(axis=0),
                    out=self.max_abs_u)

@@ -72,10 +72,11 @@ class ChainPlant:
 
     def _uncertainty_columns(self, columns: Sequence[np.ndarray]) -> np.ndarray | float:
         """``psi + theta^T phi`` on columns (numpy), the terms summed in order."""
-        total = self.psi.on_columns(columns) if self.psi is not None else 0.0
+        total = self.psi.on_columns(columns) if self.psi is not None else None
         for coefficient, term in self._terms:
-            total = total + coefficient * term.on_columns(columns)
-        return total
+            value = coefficient * term.on_columns(columns)
+            total = value if total is None else total + value  # (no 0.0 + value: a numpy call)
+        return 0.0 if total is None else total
 
     def uncertainty(self, x: np.ndarray) -> np.ndarray:
         """``psi(x) + theta^T phi(x)``, shape ``(batch,)``."""
