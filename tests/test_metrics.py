@@ -69,9 +69,11 @@ def test_batched_stream_in_chunks_equals_np_interp_per_run_bit_for_bit(seed):
     z1[:, 3] = np.nan  # never finite
     z1[0, 4] = np.nan  # NaN first row: instants before its first finite row take that value
     z1[900:, 5] = np.nan
-    cuts = np.sort(rng.choice(np.arange(1, rows), size=12, replace=False)).tolist() + [1001]
+    # instants are i / 28 s, rows k / 1000 s: rows 250 and 1000 fall on instants 7 and 28; a chunk
+    # starts at row 250 and at row 1000, and another ends at row 1000
+    cuts = sorted({*rng.choice(np.arange(1, rows), size=12, replace=False).tolist(), 250, 1000, 1001})
     stream = ErrorRateStream(horizon, samples, batch=6)
-    for lo, hi in zip([0, *sorted(set(cuts))], [*sorted(set(cuts)), rows]):
+    for lo, hi in zip([0, *cuts], [*cuts, rows], strict=True):
         stream.add(t[lo:hi], z1[lo:hi])
     for run in range(6):
         expected = _reference_values(t, z1[:, run], stream.instants)
