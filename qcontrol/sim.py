@@ -317,10 +317,10 @@ def simulate(
         adaptive = tuple(controller.initial_state(1)[0].tolist())
         pending: list[tuple] = []  # the rows up to the last one recorded, not yet written to X .. S
         quantize_ = float_quantizer(quantizer)
-        # tested in blocks at the events below: a per-step test cost about 1 us of a 25 us MuJoCo
-        # step (four builtin calls, with the interpreter's caches cold after mj_step). The copy
-        # may run on for up to FLUSH_ROWS steps after it diverged; those rows do not count.
-        healthy = None
+        # tested in blocks at the events below, not every step: a per-step test cost about 1 us of
+        # a 25 us MuJoCo step (four builtin calls, with the interpreter's caches cold after
+        # mj_step). The copy may run on for up to FLUSH_ROWS steps after it diverged; those rows
+        # do not count.
 
         def record(j: int, x: list[float], meas: list[float], reading: QuantizedReading, u: float,
                    adaptive: tuple) -> None:
@@ -352,16 +352,15 @@ def simulate(
             for i, a in enumerate(adaptive):
                 S[j, :, i] = a
 
-        def flush(stop: int) -> None:
-            return None
-
     report_every = max(1, rows // 100)
 
     def next_event(k: int) -> int:
-        """The first row after ``k`` at which the loop has more to do than step: test the rows
-        for divergence and write pending ones (at least every ``FLUSH_ROWS``), report progress,
-        reduce a full buffer, call the observer, or end."""
-        upcoming = min(rows - 1, ((k + 1) // FLUSH_ROWS + 1) * FLUSH_ROWS - 1)
+        """The first row after ``k`` at which the loop has more to do than step: write and test
+        a batch of one's pending rows (at least every ``FLUSH_ROWS``), report progress, reduce a
+        full buffer, call the observer, or end."""
+        upcoming = rows - 1
+        if floats:
+            upcoming = min(upcoming, ((k + 1) // FLUSH_ROWS + 1) * FLUSH_ROWS - 1)
         if progress is not None:
             upcoming = min(upcoming, (k // report_every + 1) * report_every)
         if metrics_only:
@@ -402,11 +401,11 @@ def simulate(
                     yd_block, yd_start, yd_stop = yd_rows(k, k + FLUSH_ROWS).tolist(), k, k + FLUSH_ROWS
                 out = control(reading, yd_block[k - yd_start], adaptive)
             record(k - base, x, meas, reading, out.u, adaptive)
-            if healthy is not None and not healthy(k - base):  # a batch: this row
+            if not floats and not healthy(k - base):  # a batch: this row
                 stop_diverged(k, k + 1)
                 event = k  # see whether every copy has stopped
             if k == event:  # the rare rows: everything but the closed loop itself happens here
-                if healthy is None:  # a batch of one: its pending rows to the arrays, and tested
+                if floats:  # a batch of one: its pending rows to the arrays, and tested
                     flush(k - base + 1)
                     stop_diverged(tested, k + 1)
                     tested = k + 1

@@ -616,7 +616,7 @@ class MujocoPlant:
                       int(self.model.sensor_adr[ids.velocity_sensor]))
         self._views = [(d.ctrl, d.sensordata, d.qpos, d.qvel) for d in self._datas]
         self._dead = [False] * self.batch
-        self._substeps: dict[float, int] = {}
+        self._steppers: dict[float, list[Callable[[float], None]]] = {}  # h -> one per copy
         self._noise = np.asarray(options.sensor_noise, dtype=float)
         self._noisy = bool(self._noise.any())
         self._rng = np.random.default_rng(options.noise_seed)
@@ -635,6 +635,7 @@ class MujocoPlant:
         # MuJoCo's default warning handler appends to MUJOCO_LOG.TXT in the working directory;
         # keep its messages here instead (the engine reports a blow-up as a divergence).
         self.mujoco_warnings = []
+        self._steppers = {}  # (they hold the warnings list)
         self._previous_warning = mujoco.get_mju_user_warning()
         mujoco.set_mju_user_warning(self.mujoco_warnings.append)
         return self
@@ -691,28 +692,39 @@ class MujocoPlant:
         """
         if self._entered is None and self._force is not None:
             raise RuntimeError("use MujocoPlant in a 'with' block: its passive callback is installed there")
-        substeps = self._substeps.get(h) or self._count_substeps(h)
+        steppers = self._steppers.get(h) or self._make_steppers(h)
         values = np.asarray(u, dtype=float).ravel().tolist()
         if len(values) != self.batch:
             values = values * self.batch if len(values) == 1 else list(np.broadcast_to(values, (self.batch,)))
-        step_copy = self._step_copy
-        for b in range(self.batch):
-            step_copy(b, values[b], substeps)
+        for step_copy, value in zip(steppers, values):  # noqa: B905 (one value per copy)
+            step_copy(value)
 
-    def _step_copy(self, b: int, value: float, substeps: int) -> None:
-        """Copy ``b`` through ``substeps`` calls of ``mj_step`` with the input ``value`` held."""
-        dead = self._dead
-        if dead[b]:
-            return
-        data, model = self._datas[b], self.model
-        self._views[b][0][self._aid] = self._ctrl_per_u * value
-        messages = self.mujoco_warnings
-        seen = len(messages)
-        _mj_step(model, data, substeps)
-        _mj_sensor_pos(model, data)
-        _mj_sensor_vel(model, data)
-        if len(messages) != seen and _unstable(messages[seen:]):
-            dead[b] = True
+    def _make_steppers(self, h: float) -> list[Callable[[float], None]]:
+        """One ``step(u)`` per copy for steps of ``h``: closures over the copy's MjData views,
+        made once per step length and ``with`` block (they hold its list of MuJoCo warnings)."""
+        substeps = self._count_substeps(h)
+        model, dead, messages = self.model, self._dead, self.mujoco_warnings
+        actuator, ctrl_per_u = self._aid, self._ctrl_per_u
+
+        def stepper(b: int) -> Callable[[float], None]:
+            data, ctrl = self._datas[b], self._views[b][0]
+
+            def step_copy(u: float) -> None:
+                """Copy ``b`` through ``substeps`` calls of ``mj_step`` with ``u`` held."""
+                if dead[b]:
+                    return
+                ctrl[actuator] = ctrl_per_u * u
+                seen = len(messages)
+                _mj_step(model, data, substeps)
+                _mj_sensor_pos(model, data)
+                _mj_sensor_vel(model, data)
+                if len(messages) != seen and _unstable(messages[seen:]):  # a blow-up always warns
+                    dead[b] = True
+
+            return step_copy
+
+        steppers = self._steppers[h] = [stepper(b) for b in range(self.batch)]
+        return steppers
 
     # ---- a batch of one on plain floats (the engine's fast path)
     def scalar_io(self, h: float) -> ScalarIO:
@@ -725,13 +737,11 @@ class MujocoPlant:
             raise ValueError(f"scalar_io is for a batch of one, the plant has {self.batch} copies")
         if self._entered is None:
             raise RuntimeError("use MujocoPlant in a 'with' block: scalar_io belongs to one run")
-        substeps = self._substeps.get(h) or self._count_substeps(h)
-        model, data = self.model, self._datas[0]
-        ctrl, sensordata, qpos, qvel = self._views[0]
-        actuator, ctrl_per_u = self._aid, self._ctrl_per_u
+        steppers = self._steppers.get(h) or self._make_steppers(h)
+        sensordata, qpos, qvel = self._views[0][1:]
         q, dof = self._qadr, self._ids.dof
         p, v = self._sadr
-        dead, messages = self._dead, self.mujoco_warnings
+        dead = self._dead
         noise = self._noise.tolist() if self._noisy else None
         nan = [math.nan, math.nan]
 
@@ -745,17 +755,7 @@ class MujocoPlant:
                 return x, [sensordata.item(p) + e[0] * noise[0], sensordata.item(v) + e[1] * noise[1]]
             return x, [sensordata.item(p), sensordata.item(v)]
 
-        def step(u: float) -> None:
-            if dead[0]:
-                return
-            ctrl[actuator] = ctrl_per_u * u
-            _mj_step(model, data, substeps)
-            _mj_sensor_pos(model, data)
-            _mj_sensor_vel(model, data)
-            if messages and _unstable(messages):  # see _unstable: a blow-up always warns
-                dead[0] = True
-
-        return observe, step
+        return observe, steppers[0]
 
     def _count_substeps(self, h: float) -> int:
         substeps = round(h / self.timestep)
@@ -764,7 +764,6 @@ class MujocoPlant:
                 f"{self.options.where}: step {h!r} s is not a whole number of MuJoCo timesteps "
                 f"{self.timestep!r} s; use a dt that is a multiple of the model timestep"
             )
-        self._substeps[h] = substeps
         return substeps
 
     # ---- consistency of the MJCF with eq. (1)
