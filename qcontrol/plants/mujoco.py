@@ -662,7 +662,7 @@ class MujocoPlant:
                     mujoco.mj_initSensorHistory(model, data, sid, None, np.full((nsample, 1), value), 0.0)
             if model.nhistory:
                 mujoco.mj_forward(model, data)
-        self._dead[:] = [False] * self.batch  # in place: scalar_io's closures hold this list
+        self._dead[:] = [False] * self.batch  # in place: the step closures hold this list
         self._rng = np.random.default_rng(self.options.noise_seed)
 
     def state(self) -> np.ndarray:
