@@ -111,8 +111,11 @@ class RunMetrics(RunRecord):
 
 RECORD_MODES = ("full", "metrics")
 METRICS_CHUNK = 1000  # rows buffered per reduction in record="metrics" (at least; see below)
-METRICS_BUFFER_ELEMENTS = 5000  # rows x copies held at most (so a single run buffers 5000 rows)
+METRICS_BUFFER_ELEMENTS = 5000  # rows x copies per chunk (so a single run reduces 5000 rows at a time)
 OBSERVE_EVERY = 5000  # rows per observer call: streamed chunks, few enough to keep recording cheap
+# A chunk (of observed or of reduced rows) takes in the run's last rows rather than leave fewer
+# than half a chunk to the end: a 10 s, 1 kHz run streams 5000 + 5001 rows, not 5000 + 5000 + 1
+# (each observer call costs a recording a send per series whatever its length).
 REDUCE_ELEMENTS = 100_000  # rows x copies per block when deriving z, e_z (cache-sized temporaries)
 FLUSH_ROWS = 1000  # a batch of one: rows kept as Python tuples before they are written to arrays
 
@@ -159,8 +162,9 @@ def simulate(
 
     A copy whose state turns non-finite or leaves ``|x_i| <= state_bound`` stops there: its
     trajectory ends with the offending row, ``diverged`` is set and the others run on.
-    ``observer`` is called every ``observe_every`` rows and once at the end with the rows that
-    became final, so a recorder can stream them to disk while the run goes on.
+    ``observer`` is called every ``observe_every`` rows (the last call takes up to half as many
+    more) and at the end with the rows that became final, so a recorder can stream them to disk
+    while the run goes on.
 
     ``record="metrics"`` (for sweeps and long runs) keeps only :class:`RunMetrics`: the signals
     are buffered (``METRICS_CHUNK`` rows, more for small batches) and reduced, so 1000 copies of
@@ -204,7 +208,13 @@ def simulate(
         return reference_rows(first, stop) if YD is None else YD[first:stop]
 
     chunk = max(METRICS_CHUNK, METRICS_BUFFER_ELEMENTS // batch)
-    buffered = min(rows, chunk) if metrics_only else rows  # rows held in X .. S
+    buffered = min(rows, chunk + chunk // 2) if metrics_only else rows  # rows held in X .. S
+
+    def chunk_end(first: int, size: int) -> int:
+        """The last row of the chunk of ``size`` rows that starts at row ``first``, or the run's
+        last row if fewer than ``size // 2`` rows would be left after it."""
+        last = first + size - 1
+        return rows - 1 if rows - 1 - last < size // 2 else last
     X = np.full((buffered, batch, n), np.nan)
     XM = np.full((buffered, batch, n), np.nan)
     XQ = np.full((buffered, batch, n), np.nan)
@@ -364,9 +374,9 @@ def simulate(
         if progress is not None:
             upcoming = min(upcoming, (k // report_every + 1) * report_every)
         if metrics_only:
-            upcoming = min(upcoming, base + buffered - 1)
+            upcoming = min(upcoming, chunk_end(base, chunk))
         elif observer is not None:
-            upcoming = min(upcoming, ((k + 1) // observe_every + 1) * observe_every - 1)
+            upcoming = min(upcoming, chunk_end(observed, observe_every))
         return upcoming
 
     yd_block: list[list[float]] = []
@@ -411,16 +421,15 @@ def simulate(
                     tested = k + 1
                 if not alive.any():  # every copy has stopped: end where the last one did (the
                     k = int(kept.max()) - 1  # same row for a batch of one as a per-step test)
-                j = k - base
                 if progress is not None and (k % report_every == 0 or k == rows - 1):
                     progress(k, rows - 1)
                 finished = k == rows - 1 or not alive.any()
                 if metrics_only:
-                    if finished or j + 1 == buffered:
+                    if finished or k == chunk_end(base, chunk):
                         if observer is not None:
                             observer(0, k + 1 - base, chunk_runs(k + 1, time.perf_counter()))
                         reduce(k + 1)
-                elif observer is not None and (finished or (k + 1) % observe_every == 0):
+                elif observer is not None and (finished or k == chunk_end(observed, observe_every)):
                     observer(observed, k + 1, collect(np.minimum(kept, k + 1), time.perf_counter()))
                     observed = k + 1
                 if finished:
