@@ -1,14 +1,21 @@
-"""Scenario -> the parts of a closed loop (quantizer, reference, controller, plant) -> a run."""
+"""Scenario -> the parts of a closed loop (quantizer, reference, law, plant) -> a run.
+
+The law and the plant come from the registries (:data:`~qcontrol.controller.LAW_KINDS`,
+:data:`~qcontrol.plants.BACKENDS`), for one scenario or for a batch of variants that share
+:func:`batch_structure` (a sweep steps those as one batch).
+"""
 
 from __future__ import annotations
 
-from .controller import BaselineController, Controller, ProposedController, lemma2_bounds
-from .plants.base import Plant
-from .plants.ode import ChainPlant
+from collections.abc import Hashable, Sequence
+from typing import Any
+
+from .controller import BatchLaw, law_kind
+from .engine import Observer, ProgressCallback, RunMetrics, Trajectory, simulate
+from .plants import BACKENDS, Plant, Scene
 from .quantizer import UniformQuantizer
-from .reference import Constant, Reference, Sine, SumOfSines
+from .reference import Reference
 from .scenario import Scenario
-from .sim import Observer, ProgressCallback, RunMetrics, Trajectory, simulate
 
 
 def build_quantizer(sc: Scenario) -> UniformQuantizer:
@@ -18,78 +25,86 @@ def build_quantizer(sc: Scenario) -> UniformQuantizer:
 
 def build_reference(sc: Scenario) -> Reference:
     """The reference y_d with its derivatives (Assumption 3)."""
-    ref = sc.reference
-    if ref.kind == "constant":
-        return Constant(ref.value)
-    if ref.kind == "sine":
-        return Sine(ref.amplitude, ref.frequency, ref.phase, ref.offset)
-    return SumOfSines(tuple(Sine(a, w, p) for a, w, p in ref.terms), ref.offset)
+    return sc.reference.signal
 
 
-def controller_L(sc: Scenario) -> float:
-    """Lemma 2's ``L = L_zn`` for the scenario's gains and quantizer."""
-    return float(lemma2_bounds(sc.controller.c, sc.controller.delta / 2.0)[0][-1])
+def build_law(variants: Sequence[Scenario]) -> BatchLaw:
+    """One law for a batch of variants of the same kind (their settings that may differ become
+    per-copy parameters; see :func:`batch_structure`)."""
+    first = variants[0]
+    return law_kind(first.controller.kind).build([v.controller.settings for v in variants], first.law_context)
 
 
-def controller_kappa(sc: Scenario) -> float:
-    """``kappa`` as given, or ``L + kappa_margin`` (the paper writes kappa = 1.1 + L)."""
-    cfg = sc.controller
-    if cfg.kappa is not None:
-        return cfg.kappa
-    assert cfg.kappa_margin is not None
-    return controller_L(sc) + cfg.kappa_margin
+def build_controller(sc: Scenario) -> BatchLaw:
+    """The scenario's law for a single run."""
+    return build_law([sc])
 
 
-def build_controller(sc: Scenario) -> Controller:
-    """The proposed law (44)-(45), or the baseline (46) of reference [20]."""
-    cfg = sc.controller
-    max_error = build_quantizer(sc).max_error
-    if cfg.kind == "baseline":
-        return BaselineController(
-            cfg.c,
-            max_error,
-            sc.psi_expr,
-            sc.phi_expr,
-            adaptation_gain=cfg.baseline_gain,
-            known_theta=sc.theta if cfg.baseline_theta == "known" else None,
-        )
-    return ProposedController(
-        cfg.c,
-        max_error,
-        kappa=controller_kappa(sc),
-        gamma=cfg.gamma,
-        sigma=cfg.sigma,
-        r=sc.r_expr,
-        r_scale=cfg.r_scale,
-        expected_terms=sc.uncertain_terms,
-    )
+def backend_of(sc: Scenario, backend: str | None = None) -> str:
+    """The backend to run on: ``backend``, or the scenario's ``simulation.backend``."""
+    return backend or sc.simulation.backend
 
 
-def controller_constants(sc: Scenario) -> dict:
-    """The controller's constants as a recording shows them: delta, c, L, L_z, and kappa, gamma,
-    sigma, r_scale (proposed law) or the adaptation gain (baseline)."""
-    controller = build_controller(sc)
-    constants: dict = {"delta": sc.controller.delta, "c": list(sc.controller.c), "L": controller.L,
-                       "L_z": list(controller.L_z)}
-    if sc.controller.kind == "proposed":
-        constants.update(kappa=controller.kappa, gamma=controller.gamma, sigma=controller.sigma,
-                         r_scale=controller.r_scale)
-    else:
-        constants.update(baseline_gain=sc.controller.baseline_gain)
-    return constants
+def build_plants(variants: Sequence[Scenario], backend: str | None = None) -> Plant:
+    """One plant with a copy per variant, on ``backend`` (default: the first variant's)."""
+    first = variants[0]
+    entry = BACKENDS[backend_of(first, backend)]
+    options = first.backends.get(entry.name)
+    entry.require(options, first.source)
+    return entry.build([v.terms for v in variants], options, first.simulation.dt)
 
 
 def build_plant(sc: Scenario, backend: str | None = None, batch: int = 1) -> Plant:
-    """The ODE chain of eq. (1), or the MuJoCo model of ``[plant.mujoco]``."""
-    backend = backend or sc.simulation.backend
-    if backend == "mujoco":
-        from .plants.mujoco import MujocoPlant
+    """``batch`` identical copies of the scenario's plant on ``backend``."""
+    return build_plants([sc] * batch, backend)
 
-        return MujocoPlant(
-            sc.mujoco, sc.order, sc.psi_expr, sc.phi_expr, sc.theta, batch=batch,
-            timestep=sc.simulation.dt,
-        )
-    return ChainPlant(sc.order, sc.psi_expr, sc.phi_expr, sc.theta, batch=batch)
+
+def batch_structure(sc: Scenario, backend: str | None = None) -> Hashable:
+    """What variants must share to be stepped as one batch: everything but the numbers the law
+    and the backend take per copy (e.g. kappa, gamma, sigma, r_scale, x0, theta on the ODE)."""
+    name = backend_of(sc, backend)
+    entry = BACKENDS[name]
+    c = sc.controller
+    return (
+        name, entry.structure(sc.terms, sc.backends.get(name)), c.kind, c.delta, c.c,
+        law_kind(c.kind).structure(c.settings, sc.law_context), sc.reference, sc.simulation,
+    )
+
+
+def scene(sc: Scenario) -> Scene | None:
+    """What a recording of the scenario draws in 3-D, whichever backend runs it: the model of the
+    first backend section that has one (an ODE run of Example 2 replays the MuJoCo pendulum)."""
+    for name, options in sc.backends.items():
+        drawn = BACKENDS[name].scene(options, sc.simulation.dt)
+        if drawn is not None:
+            return drawn
+    return None
+
+
+def controller_constants(sc: Scenario, law: BatchLaw | None = None) -> dict[str, Any]:
+    """The controller's constants as a recording shows them: delta, c, L, L_z and the law's own."""
+    law = law if law is not None else build_controller(sc)
+    coordinates = law.coordinates
+    return {"delta": sc.controller.delta, "c": list(sc.controller.c), "L": coordinates.L,
+            "L_z": list(coordinates.L_z)} | law.constants()
+
+
+def run_variants(
+    variants: Sequence[Scenario],
+    backend: str | None = None,
+    progress: ProgressCallback | None = None,
+    observer: Observer | None = None,
+    plant: Plant | None = None,
+    record: str = "full",
+) -> list[Trajectory] | list[RunMetrics]:
+    """Closed-loop runs of variants that share :func:`batch_structure`, as one batch."""
+    first = variants[0]
+    sim = first.simulation
+    plant = plant if plant is not None else build_plants(variants, backend)
+    x0 = [v.x0 for v in variants]
+    return simulate(plant, build_law(variants), build_quantizer(first), build_reference(first), x0,
+                    sim.duration, sim.dt, control_period=sim.control_period, state_bound=sim.state_bound,
+                    progress=progress, observer=observer, record=record)
 
 
 def run_scenario(
@@ -101,20 +116,5 @@ def run_scenario(
     record: str = "full",
 ) -> Trajectory | RunMetrics:
     """One closed-loop run of the scenario on the chosen backend (``record`` as in
-    :func:`~qcontrol.sim.simulate`: ``"metrics"`` keeps memory bounded on long runs)."""
-    controller = build_controller(sc)
-    plant = plant if plant is not None else build_plant(sc, backend)
-    return simulate(
-        plant,
-        controller,
-        build_quantizer(sc),
-        build_reference(sc),
-        sc.x0,
-        sc.simulation.duration,
-        sc.simulation.dt,
-        control_period=sc.simulation.control_period,
-        state_bound=sc.simulation.state_bound,
-        progress=progress,
-        observer=observer,
-        record=record,
-    )[0]
+    :func:`~qcontrol.engine.simulate`: ``"metrics"`` keeps memory bounded on long runs)."""
+    return run_variants([sc], backend, progress, observer, plant, record)[0]

@@ -14,11 +14,15 @@ from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 
 from . import __version__
-from .assembly import build_plant, controller_constants, controller_L, run_scenario
+from .assembly import build_plant, controller_constants, run_scenario, scene
+from .controller import lemma2_L
+from .engine import Observer
 from .errors import QcontrolInputError
 from .metrics import backend_deviation, summary
 from .outputs import check_output_file, prepare_output_dir, write_json
-from .scenario import BACKENDS, Scenario, load_scenario
+from .plants import BACKENDS, Plant
+from .progress import ProgressLine
+from .scenario import Scenario, load_scenario
 from .sweep import add_sweep_parser, cmd_sweep
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -75,7 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
         "Prints a summary; with --out writes DIR/summary.json.",
     )
     _add_scenario_options(run)
-    run.add_argument("--backend", choices=BACKENDS, help="plant backend (default: the scenario's)")
+    run.add_argument("--backend", choices=tuple(BACKENDS), help="plant backend (default: the scenario's)")
     run.add_argument("--out", type=Path, metavar="DIR", help="write DIR/summary.json")
     _add_recording_options(run)
 
@@ -98,7 +102,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     rep.add_argument("--out", type=Path, default=Path("results"), metavar="DIR",
                      help="output folder (default: results)")
-    rep.add_argument("--backend", choices=BACKENDS, default="mujoco",
+    rep.add_argument("--backend", choices=tuple(BACKENDS), default="mujoco",
                      help="plant for the examples (default: mujoco, with the ODE twin beside it)")
     rep.add_argument("--duration", type=float, metavar="S",
                      help="shorter horizon for a quick look (default: the paper's 10 s)")
@@ -119,56 +123,34 @@ def _scenario_from_args(args: argparse.Namespace) -> Scenario:
     return load_scenario(args.scenario, overrides)
 
 
-class _Progress:
-    """A one-line progress indicator on stderr (only on a terminal, and not with --quiet)."""
-
-    def __init__(self, label: str, enabled: bool) -> None:
-        self.label = label
-        self.enabled = enabled and sys.stderr.isatty()
-        self.last = -1
-
-    def __call__(self, k: int, total: int) -> None:
-        if not self.enabled:
-            return
-        percent = 100 * k // max(total, 1)
-        if percent != self.last:
-            self.last = percent
-            sys.stderr.write(f"\r{self.label}: {percent:3d}%")
-            if k >= total:
-                sys.stderr.write("\n")
-            sys.stderr.flush()
-
-
 def _recording(args: argparse.Namespace) -> AbstractContextManager:
     """A rerun Recording when --rrd or --spawn is given; otherwise nothing is imported or logged."""
     if args.rrd is None and not args.spawn:
         return nullcontext(None)
-    from .record import Recording  # imports rerun (~0.5 s): only when asked for
+    from .recording import Recording  # imports rerun (~0.5 s) when it opens: only when asked for
 
     return Recording(args.rrd, spawn=args.spawn)
 
 
-def _log_constants(rec, sc: Scenario) -> None:
-    rec.log_static(sc.text, controller_constants(sc), __version__)
+def _progress(sc: Scenario, backend: str, args: argparse.Namespace) -> ProgressLine:
+    return ProgressLine(f"{sc.name} [{backend}]", not args.quiet)
 
 
-def _scene(sc: Scenario, plant=None):
-    """The MuJoCo model and joint to draw in 3-D (None when the scenario has no model)."""
-    if sc.mujoco is None:
-        return None, None
-    if plant is not None and hasattr(plant, "model"):
-        return plant.model, sc.mujoco.joint
-    from .plants.mujoco import build_model
+def _observer(rec: object, sc: Scenario, backend: str, ghost: bool = False) -> Observer | None:
+    """The recording's observer of a run on ``backend`` (None without a recording)."""
+    if rec is None:
+        return None
+    drawn = scene(sc)
+    if drawn is None:
+        return rec.observer(backend, ghost=ghost)
+    return rec.observer(backend, drawn.model, drawn.joint, ghost=ghost)
 
-    return build_model(sc.mujoco, sc.simulation.dt), sc.mujoco.joint
 
-
-def _print_mujoco_warnings(plant: object) -> None:
-    messages = getattr(plant, "mujoco_warnings", [])
-    for message in messages[:3]:
+def _print_warnings(plant: Plant) -> None:
+    for message in plant.warnings[:3]:
         print(f"  MuJoCo warned: {message}")
-    if len(messages) > 3:
-        print(f"  ... and {len(messages) - 3} more MuJoCo warnings")
+    if len(plant.warnings) > 3:
+        print(f"  ... and {len(plant.warnings) - 3} more MuJoCo warnings")
 
 
 def format_summary(s: dict) -> str:
@@ -190,27 +172,23 @@ def format_summary(s: dict) -> str:
 def cmd_run(args: argparse.Namespace) -> int:
     sc = _scenario_from_args(args)
     backend = args.backend or sc.simulation.backend
-    if backend == "mujoco" and sc.mujoco is None:
-        raise QcontrolInputError(
-            f"{sc.source}: --backend mujoco needs a [plant.mujoco] table in the scenario; add one or use "
-            "--backend ode"
-        )
+    BACKENDS[backend].require(sc.backends.get(backend), sc.source)
     out = prepare_output_dir(args.out) if args.out else None
     if args.rrd is not None:
         check_output_file(args.rrd, "--rrd")
     plant = build_plant(sc, backend)
+    progress = _progress(sc, backend, args)
     with _recording(args) as rec:
-        observer = None
         if rec is not None:
-            _log_constants(rec, sc)
-            observer = rec.observer(backend, *_scene(sc, plant))
+            rec.log_static(sc.text, controller_constants(sc), __version__)
         # metrics record: memory stays bounded however long the run; the recording streams
-        traj = run_scenario(sc, backend, plant=plant, observer=observer, record="metrics",
-                            progress=_Progress(f"{sc.name} [{backend}]", not args.quiet))
-    s = summary(traj, sc.name, backend)
-    s["L"] = controller_L(sc)
+        run = run_scenario(sc, backend, plant=plant, observer=_observer(rec, sc, backend), record="metrics",
+                           progress=progress)
+    progress.finish()
+    s = summary(run, sc.name, backend)
+    s["L"] = lemma2_L(sc.controller.c, sc.controller.delta)
     print(format_summary(s))
-    _print_mujoco_warnings(plant)
+    _print_warnings(plant)
     if out is not None:
         write_json(out / "summary.json", s)
         print(f"  wrote {out / 'summary.json'}")
@@ -221,7 +199,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     sc = _scenario_from_args(args)
-    if sc.mujoco is None:
+    if "mujoco" not in sc.backends:
         raise QcontrolInputError(
             f"{sc.source}: compare needs a [plant.mujoco] table (the MuJoCo twin of the ODE); add one"
         )
@@ -236,19 +214,18 @@ def cmd_compare(args: argparse.Namespace) -> int:
     runs = {}
     with _recording(args) as rec:
         if rec is not None:
-            _log_constants(rec, sc)
-        for backend in ("mujoco", "ode"):
-            observer = None
-            if rec is not None:  # the ODE twin is drawn as a translucent ghost
-                observer = rec.observer(backend, plant.model, sc.mujoco.joint, ghost=backend == "ode")
+            rec.log_static(sc.text, controller_constants(sc), __version__)
+        for backend in ("mujoco", "ode"):  # the ODE twin is drawn as a translucent ghost
+            progress = _progress(sc, backend, args)
             traj = run_scenario(sc, backend, plant=plant if backend == "mujoco" else None,
-                                observer=observer,
-                                progress=_Progress(f"{sc.name} [{backend}]", not args.quiet))
+                                observer=_observer(rec, sc, backend, ghost=backend == "ode"),
+                                progress=progress)
+            progress.finish()
             runs[backend] = (traj, summary(traj, sc.name, backend))
     deviation = backend_deviation(runs["mujoco"][0], runs["ode"][0])
     result = {
         "scenario": sc.name,
-        "integrator": sc.mujoco.integrator,
+        "integrator": sc.backends["mujoco"].integrator,
         "dt": sc.simulation.dt,
         **deviation,
         "consistency": report,
@@ -257,7 +234,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     }
     for backend in ("mujoco", "ode"):
         print(format_summary(runs[backend][1]))
-    _print_mujoco_warnings(plant)
+    _print_warnings(plant)
     print(
         f"MuJoCo vs ODE over {deviation['rows_compared']} instants: "
         f"max |dy| = {deviation['max_abs_dy']:.3g}, "

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .error_rate import TABLE1_OMEGAS, TABLE1_SAMPLES, error_rate, omega_key  # noqa: F401 (API)
-from .sim import RunMetrics, Trajectory
+from .engine import RunMetrics, Trajectory
+from .error_rate import TABLE1_OMEGAS, error_rate, omega_key
+
+__all__ = ["TABLE1_OMEGAS", "backend_deviation", "error_rate", "finite_max_abs", "lemma2_max_ratio",
+           "omega_key", "summary"]
 
 
 def lemma2_max_ratio(e_z: np.ndarray, L_z: np.ndarray) -> float:
@@ -22,38 +25,33 @@ def finite_max_abs(values: np.ndarray) -> float:
     return float(v.max()) if v.size else float("nan")
 
 
-def summary(traj: Trajectory | RunMetrics, scenario: str, backend: str) -> dict:
-    """The ``summary.json`` object of DESIGN's output contract (plus diverged_time/reason).
+def summary(run: Trajectory | RunMetrics, scenario: str, backend: str) -> dict:
+    """The ``summary.json`` object of a run (see the README's output contract).
 
-    The Lemma 2 check covers every instant before a divergence: the row that stopped a diverged
-    run holds an out-of-range state (NaN, Inf, or beyond ``state_bound``, possibly so large that
-    ``x / delta`` has no fractional digits left), where quantization error is meaningless.
+    The metrics are the reductions of the signal table, the same whether the run kept every row
+    or only its metrics. The Lemma 2 check covers every instant before a divergence: the row that
+    stopped a diverged run holds an out-of-range state (NaN, Inf, or beyond ``state_bound``,
+    possibly so large that ``x / delta`` has no fractional digits left), where quantization error
+    is meaningless.
     """
-    if isinstance(traj, RunMetrics):  # reduced while the run went on
-        rates, z1_late = traj.error_rate, traj.max_abs_z1_last_half
-        max_u, final = finite_max_abs(np.array([traj.max_abs_u])), traj.final_adaptive
-    else:
-        last_half = traj.t >= traj.duration / 2.0
-        z1_late = finite_max_abs(traj.z[last_half, 0] if last_half.any() else np.array([np.nan]))
-        rates = error_rate(traj.t, traj.z[:, 0], traj.duration)
-        max_u, final = finite_max_abs(traj.u), traj.adaptive[-1]
+    values = run.reduced()
     return {
         "scenario": scenario,
         "backend": backend,
-        "duration": traj.duration,
-        "dt": traj.dt,
-        "steps": traj.steps,
-        "wall_time_s": traj.wall_time_s,
-        "diverged": bool(traj.diverged),
-        "diverged_time": traj.diverged_time,
-        "divergence_reason": traj.divergence_reason,
-        "error_rate": rates,
-        "max_abs_z1_last_half": z1_late,
-        "max_abs_u": max_u,
-        "final_eps_hat": [float(v) for v in final],
-        "adaptive_state": traj.adaptive_name,
-        "lemma2_max_ratio": lemma2_max_ratio(traj.lemma2_e_z, traj.L_z),
-        "L_z": [float(v) for v in traj.L_z],
+        "duration": run.duration,
+        "dt": run.dt,
+        "steps": run.steps,
+        "wall_time_s": run.wall_time_s,
+        "diverged": bool(run.diverged),
+        "diverged_time": run.diverged_time,
+        "divergence_reason": run.divergence_reason,
+        "error_rate": values["error_rate"],
+        "max_abs_z1_last_half": values["max_abs_z1_last_half"],
+        "max_abs_u": values["max_abs_u"],
+        "final_eps_hat": [float(v) for v in values["final_adaptive"]],
+        "adaptive_state": run.adaptive_name,
+        "lemma2_max_ratio": lemma2_max_ratio(values["e_z_max"][None, :], run.L_z),
+        "L_z": [float(v) for v in run.L_z],
     }
 
 

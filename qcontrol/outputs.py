@@ -1,4 +1,5 @@
-"""Writing results atomically: a temporary name in the same folder, then ``os.replace``."""
+"""Writing results: output folders checked before anything runs, and every file written atomically
+(a temporary name in the same folder, then ``os.replace``)."""
 
 from __future__ import annotations
 
@@ -47,39 +48,67 @@ def _umask() -> int:
     return mask
 
 
-@contextmanager
-def atomic_path(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; on success it replaces ``path``, else is removed.
+class AtomicFile:
+    """A result written under a temporary name in its own folder, then moved into place with
+    ``os.replace``: a reader never sees half a file under the final name.
 
-    The temporary file gets the permissions an ordinary ``open()`` would give (``mkstemp`` makes
-    it private, 0600). If the file cannot be created or renamed into place (e.g. ``path`` is a
-    folder, or its folder vanished) the failure is a :class:`QcontrolInputError` naming the path,
-    so the command line reports it as one line instead of a traceback.
+    The temporary file is made with the permissions an ordinary ``open()`` would give
+    (``mkstemp`` makes it private, 0600), or, with ``temporary``, is left to the writer to create
+    (a recording streams to ``<name>.part``). A file that cannot be created or moved into place
+    (e.g. the path is a folder, or its folder vanished) is a :class:`QcontrolInputError` naming
+    the path, so the command line reports it as one line.
     """
-    path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=folder)
-    except OSError as exc:
-        raise QcontrolInputError(
-            f"{path}: cannot create a file in {folder} ({exc.strerror or exc}); choose a writable folder"
-        ) from None
-    tmp_path = Path(tmp)
-    try:
+
+    def __init__(self, path: str | Path, temporary: Path | None = None) -> None:
+        self.path = Path(path)
+        folder = self.path.parent if str(self.path.parent) else Path(".")
+        if temporary is not None:
+            self.temporary = temporary
+            return
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".part", dir=folder)
+        except OSError as exc:
+            raise QcontrolInputError(
+                f"{self.path}: cannot create a file in {folder} ({exc.strerror or exc}); "
+                "choose a writable folder"
+            ) from None
+        self.temporary = Path(tmp)
         try:
             os.fchmod(fd, 0o666 & ~_umask())
         finally:
             os.close(fd)
-        yield tmp_path
+
+    def commit(self) -> None:
+        """Move the written file into place."""
         try:
-            os.replace(tmp_path, path)
+            os.replace(self.temporary, self.path)
         except OSError as exc:
+            self.discard()
             raise QcontrolInputError(
-                f"{path}: cannot write the result ({exc.strerror or exc}); "
+                f"{self.path}: cannot write the result ({exc.strerror or exc}); "
                 "remove what is in the way or choose another folder"
             ) from None
+
+    def discard(self) -> None:
+        self.temporary.unlink(missing_ok=True)
+
+
+@contextmanager
+def atomic_path(path: str | Path, *, keep_partial: bool = False,
+                temporary: Path | None = None) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; on success it replaces ``path``. On an exception it
+    is removed, or, with ``keep_partial``, moved into place too (what was written is kept)."""
+    file = AtomicFile(path, temporary)
+    try:
+        yield file.temporary
+    except BaseException:
+        if keep_partial and file.temporary.exists():
+            file.commit()
+        raise
+    else:
+        file.commit()
     finally:
-        tmp_path.unlink(missing_ok=True)
+        file.discard()
 
 
 def _clean(value: Any) -> Any:

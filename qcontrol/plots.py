@@ -2,9 +2,8 @@
 
 Every function draws one matplotlib figure on the Agg canvas (never pyplot's global state, never
 a display), writes it as a PNG of exactly ``FIG_WIDTH_PX x FIG_HEIGHT_PX`` pixels and returns the
-path. The file is written atomically: to a hidden temporary name in the destination folder, then
-moved into place with :func:`os.replace`, so a reader never sees half a PNG. Missing folders are
-created.
+path. The file is written atomically (:func:`qcontrol.outputs.atomic_path`), so a reader never
+sees half a PNG. Missing folders are created.
 
 The signatures follow one pattern: the data first, then ``path`` and ``title``, then keywords.
 Trajectory figures take a :class:`Units` (``EXAMPLE1_UNITS`` or ``EXAMPLE2_UNITS``) for the axis
@@ -19,7 +18,6 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,7 +27,8 @@ from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from .sim import Trajectory
+from .engine import Trajectory
+from .outputs import atomic_path
 
 FIG_WIDTH_PX = 1200
 """Width of every PNG written here, in pixels."""
@@ -37,9 +36,6 @@ FIG_HEIGHT_PX = 800
 """Height of every PNG written here, in pixels."""
 FIG_DPI = 150
 """Resolution used to render; the figure size in inches is ``(FIG_WIDTH_PX, FIG_HEIGHT_PX) / FIG_DPI``."""
-
-_FILE_MODE = 0o644
-"""Permissions of the written PNGs (``mkstemp`` would leave them private, 0600)."""
 
 LOG_FLOOR = 1e-18
 """Default floor of the log-scale difference plot: exact zeros (and anything smaller) are drawn here."""
@@ -95,21 +91,11 @@ def _new_figure(rows: int = 1, cols: int = 1, **subplot_kw) -> tuple[Figure, np.
 
 
 def _save(fig: Figure, path: str | os.PathLike) -> Path:
-    """Write ``fig`` as a PNG to ``path`` atomically (temp file in the same folder + ``os.replace``)."""
+    """Write ``fig`` as a PNG to ``path`` atomically (missing folders are created)."""
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fig.savefig(fh, format="png", dpi=FIG_DPI)
-        os.chmod(tmp, _FILE_MODE)
-        os.replace(tmp, target)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+    with atomic_path(target) as tmp:
+        fig.savefig(tmp, format="png", dpi=FIG_DPI)
     return target
 
 

@@ -1,4 +1,4 @@
-"""State quantizers, SPEC section 2, the paper's eqs. (3)-(4).
+"""State quantizers, the paper's eqs. (3)-(4).
 
 The controller only ever sees ``q(x)``; the engine applies a :class:`Quantizer` to every sensor
 reading before the controller is called.
@@ -8,14 +8,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import Protocol, runtime_checkable
+from typing import Protocol
 
 import numpy as np
 
 from .errors import QcontrolInputError
 
 
-@runtime_checkable
 class Quantizer(Protocol):
     """Anything that maps readings to quantized readings, elementwise, with a known bound.
 
@@ -26,6 +25,9 @@ class Quantizer(Protocol):
     max_error: float
 
     def __call__(self, x: np.ndarray) -> np.ndarray: ...
+
+    def on_floats(self, values: Sequence[float]) -> tuple[float, ...]:
+        """``__call__`` on the plain floats of one copy's reading (the engine's batch of one)."""
 
 
 class UniformQuantizer:
@@ -94,12 +96,8 @@ def quantize(quantizer: Quantizer, readings: np.ndarray) -> QuantizedReading:
 
 def float_quantizer(quantizer: Quantizer) -> Callable[[Sequence[float]], QuantizedReading]:
     """``quantize`` for the readings of one copy, plain floats ``x_1 .. x_n``: a function made once
-    per run. A quantizer with an ``on_floats`` method (:class:`UniformQuantizer`) needs no numpy."""
-    on_floats = getattr(quantizer, "on_floats", None)
-    max_error = quantizer.max_error
-    if on_floats is None:
-        def on_floats(readings: Sequence[float]) -> tuple[float, ...]:
-            return tuple(quantizer(np.array([readings], dtype=float))[0].tolist())
+    per run."""
+    on_floats, max_error = quantizer.on_floats, quantizer.max_error
 
     def quantize_floats(readings: Sequence[float]) -> QuantizedReading:
         return QuantizedReading(None, max_error, on_floats(readings))

@@ -17,12 +17,13 @@ from pathlib import Path
 import numpy as np
 
 from . import plots
-from .assembly import controller_constants, controller_kappa, controller_L, run_scenario
+from .assembly import controller_constants, run_scenario, scene
+from .controller import lemma2_L
+from .engine import Trajectory
 from .metrics import backend_deviation, summary
 from .outputs import prepare_output_dir, write_json, write_text
 from .report import PAPER_TABLE1, study_markdown, table1, table1_markdown
 from .scenario import Scenario, load_scenario
-from .sim import Trajectory
 from .sweep import sweep_summaries
 
 SCENARIO_DIR = Path(__file__).resolve().parents[1] / "scenarios"
@@ -174,12 +175,11 @@ def _example2_figures(o: Path, run: Run, twin: Run | None, base: Run) -> None:
 def _record(path: Path, main: Run, ghosts: dict[str, Run | None]) -> None:
     """A rerun recording of the main run with its ghosts (ODE twin, comparison method)."""
     from . import __version__
-    from .plants.mujoco import build_model
-    from .record import Recording
+    from .recording import Recording
 
     sc = main.scenario
-    model = build_model(sc.mujoco, sc.simulation.dt) if sc.mujoco is not None else None
-    joint = sc.mujoco.joint if sc.mujoco is not None else None
+    drawn = scene(sc)
+    model, joint = (None, None) if drawn is None else (drawn.model, drawn.joint)
     with Recording(path) as rec:
         rec.log_static(sc.text, controller_constants(sc), __version__)
         rec.observer(main.backend, model, joint)(0, len(main.traj.t), [main.traj])
@@ -241,7 +241,8 @@ def _report(rep: Reproduction, table: dict, studies: dict, deviations: dict, ex1
     ours_p = table["ours"][b]["proposed"]
     ours_c = table["ours"][b]["comparison"]
     zn_max = float(np.nanmax(np.abs(ex2.traj.z[ex2.traj.t >= ex2.traj.duration / 2, -1])))
-    kappa_l = controller_kappa(ex2.scenario) + controller_L(ex2.scenario)
+    c = ex2.scenario.controller
+    kappa_l = c.settings.kappa + lemma2_L(c.c, c.delta)
     lines = [
         "# Reproduction report: Sun et al., Electronics 2022, 11, 3160",
         "",

@@ -3,18 +3,18 @@
     qcontrol sweep SCENARIO --grid key=v1,v2,... [--grid ...] [--random-initial N --seed S]
                    [--backend ode|mujoco] [--workers N] [--scheduler ADDRESS] [--out DIR]
 
-How runs are grouped. Variants whose structure is the same (plant expressions, controller kind,
-gains c, delta, r, reference, dt, duration, ...) differ only in numbers that the engine accepts
-per copy: ``kappa``/``kappa_margin``, ``gamma``, ``sigma``, ``r_scale`` (per-copy controller
-parameters), ``x0`` and, on the ODE, ``theta``. Such variants are stepped together as one batch
-in one :func:`qcontrol.sim.simulate` call (``record="metrics"``). Anything else (e.g. a grid over
-``controller.c``) splits the runs into groups, each its own batch.
+How runs are grouped. Variants that share :func:`qcontrol.assembly.batch_structure` (plant
+expressions, controller kind, gains c, delta, r, reference, dt, duration, ...) differ only in
+numbers the law and the backend take per copy (for the proposed law ``kappa``/``kappa_margin``,
+``gamma``, ``sigma``, ``r_scale``; ``x0``; on the ODE ``theta``). Such variants are stepped
+together as one batch in one :func:`qcontrol.engine.simulate` call (``record="metrics"``).
+Anything else (e.g. a grid over ``controller.c``) splits the runs into groups, each its own batch.
 
 Determinism. Groups are cut into chunks of at most ``CHUNK`` runs in input order, whatever the
 executor; a chunk is one batch. So the in-process path, local worker processes and a Dask cluster
 run the very same batches and give identical numbers (only ``wall_time_s`` differs).
 
-MuJoCo. Chunks run as :class:`qcontrol.plants.mujoco.MujocoPlant` batches (one ``MjData`` per
+MuJoCo. Chunks run as :class:`qcontrol.plants.mujoco.plant.MujocoPlant` batches (one ``MjData`` per
 copy, the unmodelled term in the passive callback exactly as in a single run), spread over worker
 processes. ``mujoco.batch`` threads are not used: they refuse Python physics callbacks, and
 holding the term in ``qfrc_applied`` over a step would cost accuracy (see the bench report).
@@ -30,7 +30,6 @@ import csv
 import io
 import itertools
 import math
-import sys
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -38,13 +37,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .assembly import build_plant, build_quantizer, build_reference, controller_kappa, controller_L
-from .controller import BaselineController, Controller, ProposedController
+from .assembly import batch_structure, run_variants
+from .controller import lemma2_L
 from .errors import QcontrolInputError
 from .metrics import TABLE1_OMEGAS, omega_key, summary
 from .outputs import atomic_path, prepare_output_dir, write_text
-from .scenario import BACKENDS, Scenario, load_scenario
-from .sim import simulate
+from .plants import BACKENDS
+from .progress import ProgressLine
+from .scenario import Scenario, load_scenario
 
 CHUNK = 250  # runs per batch: fixed, so every executor runs the same batches
 DASK_CONNECT_TIMEOUT = 10.0  # seconds to reach a --scheduler
@@ -58,62 +58,16 @@ CSV_METRICS = [f"error_rate_{omega_key(w)}" for w in TABLE1_OMEGAS] + [
 # grouping and batched runs
 
 
-def _structure(sc: Scenario, backend: str) -> tuple:
-    """What must be equal for two variants to share a batch (everything but per-copy numbers)."""
-    cfg = sc.controller
-    per_copy_theta = backend == "ode" and not (cfg.kind == "baseline" and cfg.baseline_theta == "known")
-    return (
-        sc.order, sc.psi, sc.phi, None if per_copy_theta else sc.theta,
-        cfg.kind, cfg.delta, cfg.c, cfg.r, cfg.baseline_gain, cfg.baseline_theta,
-        cfg.gamma if cfg.kind == "baseline" else None,
-        sc.reference, sc.simulation, repr(sc.mujoco) if backend == "mujoco" else None,
-    )
-
-
-def _controller(scs: Sequence[Scenario]) -> Controller:
-    """One controller for a batch of variants: the proposed law with per-copy parameters."""
-    sc = scs[0]
-    cfg = sc.controller
-    max_error = build_quantizer(sc).max_error
-    if cfg.kind == "baseline":
-        return BaselineController(cfg.c, max_error, sc.psi_expr, sc.phi_expr,
-                                  adaptation_gain=cfg.baseline_gain,
-                                  known_theta=sc.theta if cfg.baseline_theta == "known" else None)
-
-    def per_copy(values: list[float]) -> float | np.ndarray:
-        return values[0] if len(scs) == 1 else np.array(values)
-
-    return ProposedController(
-        cfg.c, max_error,
-        kappa=per_copy([controller_kappa(s) for s in scs]),
-        gamma=per_copy([s.controller.gamma for s in scs]),
-        sigma=per_copy([s.controller.sigma for s in scs]),
-        r=sc.r_expr,
-        r_scale=per_copy([s.controller.r_scale for s in scs]),
-        expected_terms=sc.uncertain_terms,
-    )
-
-
 def run_batch(scs: Sequence[Scenario], backend: str) -> list[dict]:
-    """Run structurally equal variants as one batch; one summary dict per variant."""
-    sc = scs[0]
-    batch = len(scs)
-    plant = build_plant(sc, backend, batch=batch)
-    if backend == "ode" and batch > 1:  # theta per copy
-        plant = type(plant)(sc.order, sc.psi_expr, sc.phi_expr, np.array([s.theta for s in scs]), batch=batch)
+    """Run variants that share their batch structure as one batch; one summary dict per variant."""
     started = time.perf_counter()
-    runs = simulate(
-        plant, _controller(scs), build_quantizer(sc), build_reference(sc),
-        np.array([s.x0 for s in scs]), sc.simulation.duration, sc.simulation.dt,
-        control_period=sc.simulation.control_period, state_bound=sc.simulation.state_bound,
-        record="metrics",
-    )
-    share = (time.perf_counter() - started) / batch
+    runs = run_variants(scs, backend, record="metrics")
+    share = (time.perf_counter() - started) / len(scs)
     out = []
     for s, run in zip(scs, runs, strict=True):
         run.wall_time_s = share  # the batch's time, per run
         result = summary(run, s.name, backend)
-        result["L"] = controller_L(s)
+        result["L"] = lemma2_L(s.controller.c, s.controller.delta)
         out.append(result)
     return out
 
@@ -128,10 +82,8 @@ def plan(scenario_path: str | Path, override_sets: Sequence[Sequence[str]], back
     groups: dict[tuple, list[int]] = {}
     for i, overrides in enumerate(override_sets):
         sc = load_scenario(scenario_path, list(overrides))
-        if backend == "mujoco" and sc.mujoco is None:
-            raise QcontrolInputError(f"{sc.source}: --backend mujoco needs a [plant.mujoco] table; "
-                                     "add one or use --backend ode")
-        groups.setdefault(_structure(sc, backend), []).append(i)
+        BACKENDS[backend].require(sc.backends.get(backend), sc.source)
+        groups.setdefault(batch_structure(sc, backend), []).append(i)
     return [ids[k : k + CHUNK] for ids in groups.values() for k in range(0, len(ids), CHUNK)]
 
 
@@ -310,7 +262,7 @@ def sweep_figure(rows: Sequence[dict], keys: Sequence[str], path: Path, title: s
 
 
 def add_sweep_parser(subparsers: argparse._SubParsersAction) -> None:
-    """Register ``qcontrol sweep`` (handler: :func:`cmd_sweep`, set as ``func`` default)."""
+    """Register ``qcontrol sweep`` (its handler is :func:`cmd_sweep`)."""
     p = subparsers.add_parser(
         "sweep",
         help="run a grid of scenario variants (batched) and tabulate them",
@@ -334,30 +286,6 @@ def add_sweep_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, default=Path("sweep"), metavar="DIR",
                    help="output folder (default: ./sweep)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
-    p.set_defaults(func=cmd_sweep)
-
-
-class _Bar:
-    """A plain-text progress bar on stderr: redrawn in place on a terminal, else a few lines."""
-
-    def __init__(self, enabled: bool) -> None:
-        self.enabled = enabled
-        self.tty = sys.stderr.isatty()
-        self.shown = -1
-
-    def __call__(self, done: int, total: int) -> None:
-        if not self.enabled:
-            return
-        tenth = 10 * done // max(total, 1)
-        if self.tty:
-            filled = 30 * done // max(total, 1)
-            sys.stderr.write(f"\rsweep [{'#' * filled}{'.' * (30 - filled)}] {done}/{total} runs")
-            if done >= total:
-                sys.stderr.write("\n")
-        elif tenth != self.shown:
-            sys.stderr.write(f"sweep: {done}/{total} runs\n")
-        self.shown = tenth
-        sys.stderr.flush()
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
@@ -375,7 +303,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     out = prepare_output_dir(args.out)
     started = time.perf_counter()
     summaries = sweep_summaries(args.scenario, sets, args.backend, args.workers, args.scheduler,
-                                _Bar(not args.quiet))
+                                ProgressLine("sweep", not args.quiet, "runs", piped_every=10))
     wall = time.perf_counter() - started
     rows = sweep_rows(points, summaries)
     write_text(out / "sweep.csv", csv_text(rows, keys))

@@ -61,12 +61,13 @@ def r0(expr: str) -> str:
 
 
 def _without_section(base: Path, header: str) -> str:
-    """``base`` with the table ``header`` and its keys removed."""
+    """``base`` with the table ``header``, its sub-tables and their keys removed."""
     lines = _text(base).splitlines(keepends=True)
     out, skipping = [], False
     for line in lines:
         if line.startswith("["):
-            skipping = line.split("#")[0].strip() == header
+            name = line.split("#")[0].strip()
+            skipping = name == header or name.startswith(header[:-1] + ".")
         if not skipping:
             out.append(line)
     return "".join(out)
@@ -141,7 +142,7 @@ CATALOGUE: dict[str, Case] = {
         _sum_of_sines("[{amplitude = 1.0, freq = 2.0}]"), "reference.terms[0].freq: unknown key"
     ),
     "unknown: quoted key with a newline": case(
-        ex2("gamma = 1.0", 'gamma = 1.0\n"gam\\nma" = 1.0'), 'controller."gam\\nma": unknown key'
+        ex2("gamma = 1.0", 'gamma = 1.0\n"gam\\nma" = 1.0'), 'controller.proposed."gam\\nma": unknown key'
     ),
     # ---- wrong types -----------------------------------------------------------------------
     "type: order is a string": case(
@@ -164,7 +165,7 @@ CATALOGUE: dict[str, Case] = {
     ),
     "type: r holds numbers": case(
         ex2('r = ["1 + q2**2", "1 + 2*q2**2", "1"]', "r = [1, 1, 1]"),
-        "controller.r[0]: must be an expression string",
+        "controller.proposed.r[0]: must be an expression string",
     ),
     "type: psi is a number": case(ex1('psi = "0.1*x2**2"', "psi = 0.1"), "plant.psi: must be a string"),
     "type: controller kind": case(
@@ -182,7 +183,8 @@ CATALOGUE: dict[str, Case] = {
     # ---- missing keys and tables -----------------------------------------------------------
     "missing: [simulation]": case(_without_section(EX2, "[simulation]"), "[simulation]: missing table"),
     "missing: [controller]": case(_without_section(EX2, "[controller]"), "[controller]: missing table"),
-    "missing: controller.delta": case(ex2("delta = 0.01\n", ""), "controller.delta: missing", "add it"),
+    "missing: controller.delta": case(ex2("delta = 0.01 ", "# delta "), "controller.delta: missing",
+                                      "add it"),
     "missing: plant.x0": case(ex2("x0 = [0.3, 0.3]\n", ""), "plant.x0: missing"),
     "missing: simulation.dt": case(ex2("dt = 0.001\n", ""), "simulation.dt: missing"),
     "missing: simulation.duration": case(ex2("duration = 10.0\n", ""), "simulation.duration: missing"),
@@ -195,24 +197,26 @@ CATALOGUE: dict[str, Case] = {
     "sign: negative gain": case(
         ex2("c = [4.0, 3.0]", "c = [-4.0, 3.0]"), "controller.c[0]: must be > 0, got -4"
     ),
-    "sign: negative gamma": case(ex2("gamma = 1.0", "gamma = -1.0"), "controller.gamma: must be > 0, got -1"),
+    "sign: negative gamma": case(
+        ex2("gamma = 1.0", "gamma = -1.0"), "controller.proposed.gamma: must be > 0, got -1"
+    ),
     "sign: negative sigma": case(
-        ex2("sigma = 1.0", "sigma = -0.5"), "controller.sigma: must be > 0, got -0.5"
+        ex2("sigma = 1.0", "sigma = -0.5"), "controller.proposed.sigma: must be > 0, got -0.5"
     ),
     "sign: negative dt": case(ex2("dt = 0.001", "dt = -0.001"), "simulation.dt: must be > 0"),
     "sign: zero duration": case(ex2("duration = 10.0", "duration = 0.0"), "simulation.duration: must be > 0"),
     "sign: zero kappa_margin": case(
-        ex2("kappa_margin = 1.1", "kappa_margin = 0.0"), "controller.kappa_margin: must be > 0"
+        ex2("kappa_margin = 1.1", "kappa_margin = 0.0"), "controller.proposed.kappa_margin: must be > 0"
     ),
     "sign: r_scale below 1": case(
-        ex2("gamma = 1.0", "gamma = 1.0\nr_scale = 0.5"), "controller.r_scale: must be >= 1", "0.5"
+        ex2("gamma = 1.0", "gamma = 1.0\nr_scale = 0.5"), "controller.proposed.r_scale: must be >= 1", "0.5"
     ),
     "sign: zero state bound": case(
         ex2("dt = 0.001", "dt = 0.001\nstate_bound = 0"), "simulation.state_bound: must be > 0"
     ),
     "sign: baseline gain": case(
-        ex2('kind = "proposed"', 'kind = "baseline"').replace("baseline_gain = 1.0", "baseline_gain = 0.0"),
-        "controller.baseline_gain: must be > 0",
+        ex2('kind = "proposed"', 'kind = "baseline"').replace("gain = 1.0", "gain = 0.0"),
+        "controller.baseline.gain: must be > 0",
     ),
     "sign: negative MJCF mass parameter": case(
         _edit(SCENARIOS / "example2-rigid.toml", "mass = 1.0", "mass = -1.0"),
@@ -220,15 +224,17 @@ CATALOGUE: dict[str, Case] = {
     ),
     # ---- kappa <= L (Theorem 1) ------------------------------------------------------------
     "kappa: equal to L": case(
-        ex2("kappa_margin = 1.1", "kappa = 0.025"), "controller.kappa: must exceed L", "0.025"
+        ex2("kappa_margin = 1.1", "kappa = 0.025"), "controller.proposed.kappa: must exceed L", "0.025"
     ),
-    "kappa: below L": case(ex2("kappa_margin = 1.1", "kappa = 0.001"), "controller.kappa: must exceed L"),
+    "kappa: below L": case(
+        ex2("kappa_margin = 1.1", "kappa = 0.001"), "controller.proposed.kappa: must exceed L"
+    ),
     "kappa: margin lost in rounding": case(
-        ex2("kappa_margin = 1.1", "kappa_margin = 1e-300"), "controller.kappa_margin: 1e-300 is lost"
+        ex2("kappa_margin = 1.1", "kappa_margin = 1e-300"), "controller.proposed.kappa_margin: 1e-300 is lost"
     ),
     "kappa: both kappa and margin": case(
         ex2("kappa_margin = 1.1", "kappa_margin = 1.1\nkappa = 2.0"),
-        "controller.kappa: given together with kappa_margin",
+        "controller.proposed.kappa: given together with kappa_margin",
     ),
     # ---- NaN and Inf anywhere (TOML has nan and inf) ---------------------------------------
     "nonfinite: x0 nan": case(
@@ -271,7 +277,7 @@ CATALOGUE: dict[str, Case] = {
     ),
     "length: r": case(
         ex2('r = ["1 + q2**2", "1 + 2*q2**2", "1"]', 'r = ["1", "1", "1", "1"]'),
-        "controller.r: has 4 bounding function(s)",
+        "controller.proposed.r: has 4 bounding function(s)",
         "3 uncertain term(s)",
     ),
     "length: sensor noise": case(
@@ -284,7 +290,8 @@ CATALOGUE: dict[str, Case] = {
     ),
     "expr: state beyond the order": case(phi("x3"), "plant.phi[1]", "unknown name 'x3'"),
     "expr: quantized name in the plant": case(phi("q1"), "plant.phi[1]", "unknown name 'q1'"),
-    "expr: plant name in a bounding function": case(r0("1 + x2**2"), "controller.r[0]", "unknown name 'x2'"),
+    "expr: plant name in a bounding function": case(r0("1 + x2**2"), "controller.proposed.r[0]",
+                                                    "unknown name 'x2'"),
     "expr: attribute access": case(phi("x1.real"), "plant.phi[1]", "attribute access"),
     "expr: dunder attribute chain": case(phi("x1.__class__.__mro__"), "attribute access"),
     "expr: dunder name": case(phi("__builtins__"), "unknown name '__builtins__'"),
@@ -317,8 +324,10 @@ CATALOGUE: dict[str, Case] = {
     "expr: division by a zero constant": case(phi("x2/(2 - 2)"), "division by zero"),
     "expr: log(0)": case(phi("log(0) + x2"), "log(0) is not finite"),
     "expr: not finite at x0": case(phi("1/(x1 - 0.3)"), "plant.phi[1]", "not finite at x0"),
-    "expr: bounding function below 1": case(r0("q2**2"), "controller.r[0]", "must be finite and >= 1"),
-    "expr: bounding function infinite": case(r0("1 + 1/q1"), "controller.r[0]", "must be finite and >= 1"),
+    "expr: bounding function below 1": case(r0("q2**2"), "controller.proposed.r[0]",
+                                            "must be finite and >= 1"),
+    "expr: bounding function infinite": case(r0("1 + 1/q1"), "controller.proposed.r[0]",
+                                             "must be finite and >= 1"),
     "expr: syntax error": case(phi("sin(x1"), "cannot parse"),
     "expr: empty": case(phi(""), "plant.phi[1]", "empty expression"),
     "expr: too long": case(phi("x1+" * 700 + "x1"), "characters long; the limit is 2000"),
@@ -405,7 +414,7 @@ CATALOGUE: dict[str, Case] = {
     "steps: negative --dt": case(None, "simulation.dt: must be > 0", scenario=EX2, args=("--dt", "-0.001")),
     "steps: control period not a multiple": case(
         ex2("dt = 0.001", "dt = 0.001\ncontrol_period = 0.0015"),
-        "simulation.control_period: 0.0015 s is not a whole number of steps",
+        "simulation.control_period = 0.0015 s is not a whole number of steps",
         "multiple of dt",
     ),
     # ---- output folder ---------------------------------------------------------------------

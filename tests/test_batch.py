@@ -6,12 +6,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from qcontrol.assembly import build_plant, build_quantizer, build_reference, run_scenario
+from qcontrol.assembly import build_law, build_plant, build_quantizer, build_reference, run_scenario
+from qcontrol.engine import simulate
 from qcontrol.metrics import summary
 from qcontrol.plants.ode import ChainPlant
 from qcontrol.scenario import load_scenario
-from qcontrol.sim import simulate
-from qcontrol.sweep import _controller, run_batch, sweep_summaries
+from qcontrol.sweep import run_batch, sweep_summaries
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
 EXAMPLE2 = SCENARIOS / "example2.toml"
@@ -28,7 +28,7 @@ VARIANTS = [  # several parameter sets in one batch
 def _batch(scs, record="full"):
     sc = scs[0]
     plant = ChainPlant(sc.order, sc.psi_expr, sc.phi_expr, np.array([s.theta for s in scs]), batch=len(scs))
-    return simulate(plant, _controller(scs), build_quantizer(sc), build_reference(sc),
+    return simulate(plant, build_law(scs), build_quantizer(sc), build_reference(sc),
                     np.array([s.x0 for s in scs]), sc.simulation.duration, sc.simulation.dt,
                     state_bound=sc.simulation.state_bound, record=record)
 
@@ -79,7 +79,7 @@ def test_per_copy_parameters_must_fit_the_batch():
     scs = [load_scenario(EXAMPLE2, SHORT + v) for v in VARIANTS[:2]]
     plant = build_plant(scs[0], "ode", batch=3)
     with pytest.raises(ValueError, match="per-copy parameters for 2 copies"):
-        simulate(plant, _controller(scs), build_quantizer(scs[0]), build_reference(scs[0]),
+        simulate(plant, build_law(scs), build_quantizer(scs[0]), build_reference(scs[0]),
                  scs[0].x0, 0.01, 0.001)
 
 

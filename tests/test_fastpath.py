@@ -8,11 +8,11 @@ import pytest
 
 from qcontrol.assembly import build_controller, build_plant, build_quantizer, build_reference
 from qcontrol.controller import BaselineController, ProposedController
+from qcontrol.engine import simulate
 from qcontrol.expr import compile_expression
 from qcontrol.plants.ode import ChainPlant
 from qcontrol.quantizer import QuantizedReading, UniformQuantizer, float_quantizer, quantize
 from qcontrol.scenario import load_scenario
-from qcontrol.sim import simulate
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
 Q2, X2 = ["q1", "q2"], ["x1", "x2"]
@@ -66,13 +66,13 @@ class _Seen:
     def __getattr__(self, name):
         return getattr(self.inner, name)
 
-    def control(self, reading, yd, adaptive):
+    def control(self, reading, yd, adaptive, t=0.0):
         self.floats.add(reading.floats)
-        return self.inner.control(reading, yd, adaptive)
+        return self.inner.control(reading, yd, adaptive, t)
 
 
 @pytest.mark.parametrize("overrides", [[], ["controller.kind=baseline"], ["controller.r_scale=2.0"],
-                                       ["controller.kind=baseline", "controller.baseline_theta=known"],
+                                       ["controller.kind=baseline", "controller.theta=known"],
                                        ["simulation.control_period=0.004"]])
 @pytest.mark.parametrize("backend", ["ode", "mujoco"])
 def test_batch_of_one_on_floats_equals_the_numpy_batch(overrides: list[str], backend: str) -> None:

@@ -10,14 +10,20 @@ import numpy as np
 import pytest
 
 from qcontrol.controller import ProposedController
+from qcontrol.engine import simulate
 from qcontrol.errors import QcontrolInputError
-from qcontrol.expr import compile_expression
-from qcontrol.plants import mujoco as qmj
-from qcontrol.plants.mujoco import MujocoPlant, build_model, parse_mujoco_options, scalar_function
+from qcontrol.expr import compile_expression, scalar_function
+from qcontrol.plants import mujoco as mujoco_backend
+from qcontrol.plants.backends import PlantContext
+from qcontrol.plants.base import PlantTerms
+from qcontrol.plants.mujoco import callbacks as qmj
+from qcontrol.plants.mujoco.model import build_model
+from qcontrol.plants.mujoco.options import MujocoOptions
+from qcontrol.plants.mujoco.plant import MujocoPlant
 from qcontrol.plants.ode import ChainPlant
 from qcontrol.quantizer import UniformQuantizer
 from qcontrol.reference import Sine
-from qcontrol.sim import simulate
+from qcontrol.schema import Table
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCENARIOS = ROOT / "scenarios"
@@ -30,7 +36,7 @@ PENDULUM = {"model": "../models/pendulum.xml", "joint": "hinge", "position_senso
 RIGID = PENDULUM | {"parameters": {"mass": 1.0, "length": 3.5, "damping": 12.25}}
 PHI = ["x2", "x2**2*cos(x1)", "sin(x1)"]
 
-# SPEC 9.1 / 9.2: plant, controller and reference of each example
+# the paper's Section 4: plant, controller and reference of each example
 EXAMPLES = {
     "example1": dict(table=SLIDER, psi="0.1*x2**2", phi=[], theta=[], delta=0.1, c=[2.0, 2.0],
                      kappa=6.0 + 0.15, gamma=0.75, sigma=0.5, r=["0.6*q2**2 + 1"], freq=1.0, x0=[0.8, 1.5]),
@@ -42,8 +48,17 @@ EXAMPLES["example2-rigid"] = EXAMPLES["example2"] | dict(table=RIGID, theta=[-1.
 
 
 def options(table: dict, name: str = "test.toml", n_phi: int = 3, has_psi: bool = False,
-            base: pathlib.Path = SCENARIOS) -> qmj.MujocoOptions:
-    return parse_mujoco_options(table, f"{name}: plant.mujoco", base, n_phi, has_psi)
+            base: pathlib.Path = SCENARIOS) -> MujocoOptions:
+    """The options of a ``[plant.mujoco]`` table, checked as a scenario's are when it loads (the
+    model compiled with dt = 1 ms)."""
+    psi = compile_expression("0", X) if has_psi else None
+    terms = PlantTerms(2, psi, tuple(compile_expression("x1", X) for _ in range(n_phi)), (0.0,) * n_phi)
+    return mujoco_backend.parse(Table(table, name, "plant.mujoco", None), PlantContext(terms, base, 1e-3))
+
+
+def mujoco_plant(opts: MujocoOptions, n: int, psi, phi, theta, batch: int = 1,
+                 timestep: float | None = None) -> MujocoPlant:
+    return MujocoPlant(opts, PlantTerms(n, psi, tuple(phi), tuple(theta)), batch=batch, timestep=timestep)
 
 
 def expressions(ex: dict) -> tuple:
@@ -55,7 +70,7 @@ def plants(name: str, batch: int = 1) -> tuple[MujocoPlant, ChainPlant]:
     ex = EXAMPLES[name]
     psi, phi = expressions(ex)
     opts = options(ex["table"], name, len(phi), psi is not None)
-    return (MujocoPlant(opts, 2, psi, phi, ex["theta"], batch=batch, timestep=1e-3),
+    return (mujoco_plant(opts, 2, psi, phi, ex["theta"], batch=batch, timestep=1e-3),
             ChainPlant(2, psi, phi, ex["theta"], batch=batch))
 
 
@@ -76,9 +91,9 @@ class Spy:
     def __getattr__(self, name: str):
         return getattr(self.inner, name)
 
-    def control(self, reading, yd, adaptive):
+    def control(self, reading, yd, adaptive, t=0.0):
         self.seen.append(np.array(reading.values))
-        return self.inner.control(reading, yd, adaptive)
+        return self.inner.control(reading, yd, adaptive, t)
 
     def quantized_errors(self, values, yd):
         self.seen.append(np.array(values))
@@ -127,7 +142,7 @@ def test_inertia_comes_from_the_model() -> None:
 def test_inconsistent_model_is_refused_naming_the_term(table: dict, theta: list, term: str) -> None:
     phi = [compile_expression(p, X) for p in PHI]
     with pytest.raises(QcontrolInputError) as err:
-        MujocoPlant(options(table), 2, None, phi, theta, timestep=1e-3)
+        mujoco_plant(options(table), 2, None, phi, theta, timestep=1e-3)
     message = str(err.value)
     assert "\n" not in message and term in message and "differs" in message
 
@@ -200,7 +215,7 @@ def test_controller_only_receives_grid_values_from_mujoco(closed_loops: dict, na
 def test_readings_come_from_sensordata_not_qpos() -> None:
     ex = EXAMPLES["example1"]
     psi, _ = expressions(ex)
-    plant = MujocoPlant(options(SLIDER | {"sensor_delay": 0.003}, n_phi=0, has_psi=True), 2, psi, [], [],
+    plant = mujoco_plant(options(SLIDER | {"sensor_delay": 0.003}, n_phi=0, has_psi=True), 2, psi, [], [],
                         timestep=1e-3)
     states, readings = [], []
     with plant:
@@ -242,11 +257,11 @@ def test_callback_is_removed_when_the_run_raises() -> None:
     ctrl, q = controller("example2")
 
     class Boom(Spy):
-        def control(self, reading, yd, adaptive):
+        def control(self, reading, yd, adaptive, t=0.0):
             assert mujoco.get_mjcb_passive() is not None  # installed during the run
             if len(self.seen) > 5:
                 raise RuntimeError("boom")
-            return super().control(reading, yd, adaptive)
+            return super().control(reading, yd, adaptive, t)
 
     with pytest.raises(RuntimeError, match="boom"):
         simulate(mj, Boom(ctrl), q, Sine(1.0, 1.5), [0.3, 0.3], 1.0, 1e-3)
@@ -309,7 +324,7 @@ def test_missing_required_key_and_mjcf_that_does_not_compile(tmp_path: pathlib.P
 
 def test_plant_order_other_than_two_is_refused() -> None:
     phi = [compile_expression(p, ["x1", "x2", "x3"]) for p in PHI]
-    _one_line_error(lambda: MujocoPlant(options(PENDULUM), 3, None, phi, [-1, -3.5, -34.3]), "order 3")
+    _one_line_error(lambda: mujoco_plant(options(PENDULUM), 3, None, phi, [-1, -3.5, -34.3]), "order 3")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -319,20 +334,20 @@ def test_plant_order_other_than_two_is_refused() -> None:
 def test_realism_options_report_their_mismatch_instead_of_refusing() -> None:
     phi = [compile_expression(p, X) for p in PHI]
     theta = [-1.0, -3.5, -34.3]
-    armed = MujocoPlant(options(PENDULUM | {"armature": 0.25}), 2, None, phi, theta, timestep=1e-3)
+    armed = mujoco_plant(options(PENDULUM | {"armature": 0.25}), 2, None, phi, theta, timestep=1e-3)
     report = armed.consistency_report
     assert not report["ok"] and report["realism"] == ["armature"]
     assert armed.inertia == pytest.approx(1.0, abs=1e-12)  # the gain uses the nominal inertia
     assert report["terms"]["u"]["mujoco"] == pytest.approx(1 / 1.25, rel=1e-9)
     assert report["terms"]["phi3"]["mujoco"] == pytest.approx(-34.3 / 1.25, rel=1e-9)
-    limited = MujocoPlant(options(PENDULUM | {"torque_limit": 5.0}), 2, None, phi, theta, timestep=1e-3)
+    limited = mujoco_plant(options(PENDULUM | {"torque_limit": 5.0}), 2, None, phi, theta, timestep=1e-3)
     assert limited.model.actuator_ctrlrange[0].tolist() == [-5.0, 5.0]
     assert limited.consistency_report["max_abs_mismatch"] > 1.0
-    rod = MujocoPlant(options(PENDULUM | {"rod_mass": 0.5}), 2, None, phi, theta, timestep=1e-3)
+    rod = mujoco_plant(options(PENDULUM | {"rod_mass": 0.5}), 2, None, phi, theta, timestep=1e-3)
     length = 1 / 3.5
     inertia = 1.0 + 0.5 * length**2 / 3.0
     assert rod.consistency_report["terms"]["u"]["mujoco"] == pytest.approx(1 / inertia, rel=1e-9)
-    friction = MujocoPlant(options(PENDULUM | {"frictionloss": 0.5}), 2, None, phi, theta, timestep=1e-3)
+    friction = mujoco_plant(options(PENDULUM | {"frictionloss": 0.5}), 2, None, phi, theta, timestep=1e-3)
     assert friction.model.dof_frictionloss[0] == 0.5 and not friction.consistency_report["ok"]
 
 
@@ -341,7 +356,7 @@ def test_sensor_noise_is_seeded_and_sized() -> None:
     table = PENDULUM | {"sensor_noise": [0.001, 0.01], "noise_seed": 5}
     runs = []
     for _ in range(2):
-        plant = MujocoPlant(options(table), 2, None, phi, [-1.0, -3.5, -34.3], timestep=1e-3)
+        plant = mujoco_plant(options(table), 2, None, phi, [-1.0, -3.5, -34.3], timestep=1e-3)
         assert plant.consistency_report["ok"]  # noise does not change the dynamics
         with plant:
             plant.reset(np.array([[0.3, 0.3]]))
@@ -386,6 +401,7 @@ def test_mujoco_warnings_are_kept_not_written_to_the_working_directory(tmp_path,
         plant.reset(np.array([[0.8, 30.0]]))  # exp(30)^2 ~ 1e26: MuJoCo resets the copy and warns
         plant.step(np.array([0.0]), 1e-3)
         assert np.isnan(plant.state()).all()
-    assert plant.mujoco_warnings and "unstable" in plant.mujoco_warnings[0]
+    assert plant.warnings and "unstable" in plant.warnings[0]
     assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
-    assert mujoco.get_mju_user_warning() is None  # the previous handler is back
+    # outside a run, warnings are kept in memory too: nothing ever writes MUJOCO_LOG.TXT
+    assert mujoco.get_mju_user_warning() is qmj._warn

@@ -13,11 +13,11 @@ from matplotlib.image import imread
 
 from qcontrol import plots as P
 from qcontrol.controller import BaselineController, ProposedController
+from qcontrol.engine import Trajectory, simulate
 from qcontrol.expr import compile_expression as C
 from qcontrol.plants.ode import ChainPlant
 from qcontrol.quantizer import UniformQuantizer
 from qcontrol.reference import Sine
-from qcontrol.sim import Trajectory, simulate
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 X = ["x1", "x2"]
@@ -53,7 +53,7 @@ def diverged() -> Trajectory:
     x[5:9, 0] = np.nan
     u = traj.u.copy()
     u[-1] = np.nan
-    return dataclasses.replace(traj, x=x, u=u)
+    return traj.with_signals(x=x, u=u)
 
 
 def png_size(path: Path) -> tuple[int, int]:
@@ -124,8 +124,7 @@ def test_figures_of_a_diverged_trajectory_with_nans(runs, diverged, tmp_path):
 
 def test_all_nan_trajectory_still_plots(runs, tmp_path):
     proposed, _ = runs
-    nan = dataclasses.replace(
-        proposed,
+    nan = proposed.with_signals(
         x=np.full_like(proposed.x, np.nan),
         z=np.full_like(proposed.z, np.nan),
         u=np.full_like(proposed.u, np.nan),
@@ -151,7 +150,7 @@ def test_output_difference_on_different_grids_and_lengths(runs, diverged):
     finite = np.isfinite(diff)
     assert finite.any() and np.all(diff[finite] == np.abs(diverged.y - proposed.y[: len(t)])[finite])
     # A coarser grid of the same run: interpolation reproduces it at the shared instants.
-    coarse = dataclasses.replace(proposed, t=proposed.t[::10], x=proposed.x[::10])
+    coarse = dataclasses.replace(proposed.with_signals(x=proposed.x[::10]), t=proposed.t[::10])
     t, diff = P.output_difference(proposed, coarse)
     assert len(t) == len(proposed.t)
     assert np.nanmax(diff[::10]) < 1e-12

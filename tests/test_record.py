@@ -16,12 +16,12 @@ from rerun.chunk import RrdReader
 
 import qcontrol
 from qcontrol.controller import ProposedController
+from qcontrol.engine import Trajectory, simulate
 from qcontrol.expr import compile_expression as C
 from qcontrol.plants.ode import ChainPlant
 from qcontrol.quantizer import UniformQuantizer
-from qcontrol.record import Recording, temporary_path
+from qcontrol.recording import Recording, temporary_path
 from qcontrol.reference import Sine
-from qcontrol.sim import Trajectory, simulate
 
 X, Q = ["x1", "x2"], ["q1", "q2"]
 RERUN_CLI = Path(sys.executable).with_name("rerun")
@@ -371,15 +371,19 @@ def test_no_viewer_available_warns_and_keeps_the_file(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == [path]
 
 
-def test_inert_recording_logs_nothing_and_never_imports_rerun(tmp_path):
+def test_a_recording_needs_a_file_or_a_viewer_and_opening_none_imports_nothing(tmp_path):
+    """Without --rrd or --spawn the command line makes no recording; asking for one with neither is
+    a programming error. Importing the package does not import rerun."""
     code = (
         "import sys\n"
-        "from qcontrol.record import Recording\n"
-        "with Recording(None) as rec:\n"
-        "    rec.log_static('x', {}, '0')\n"
-        "    rec.observer('ode')(0, 1, [])\n"
-        "assert not rec.enabled\n"
-        "assert 'rerun' not in sys.modules, 'the inert recording imported rerun'\n"
+        "from qcontrol.recording import Recording\n"
+        "assert 'rerun' not in sys.modules, 'importing qcontrol.recording imported rerun'\n"
+        "try:\n"
+        "    Recording(None)\n"
+        "except ValueError as exc:\n"
+        "    assert 'file' in str(exc)\n"
+        "else:\n"
+        "    raise AssertionError('Recording(None) was accepted')\n"
     )
     result = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=60

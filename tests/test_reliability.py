@@ -26,10 +26,10 @@ from hypothesis import strategies as st
 
 from qcontrol.assembly import build_plant, run_scenario
 from qcontrol.cli import main
+from qcontrol.engine import Trajectory
 from qcontrol.errors import QcontrolInputError
 from qcontrol.outputs import atomic_path, write_json
 from qcontrol.scenario import load_scenario
-from qcontrol.sim import Trajectory
 
 ROOT = Path(__file__).resolve().parents[1]
 EX1 = ROOT / "scenarios" / "example1.toml"

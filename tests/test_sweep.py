@@ -18,7 +18,6 @@ def _sweep(*argv: str) -> int:
     parser = argparse.ArgumentParser()
     add_sweep_parser(parser.add_subparsers(dest="command"))
     args = parser.parse_args(["sweep", *argv])
-    assert args.func is cmd_sweep
     return cmd_sweep(args)
 
 

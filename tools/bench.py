@@ -33,11 +33,18 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from qcontrol.assembly import build_controller, build_plant, build_quantizer, build_reference, run_scenario
+from qcontrol.assembly import (
+    build_controller,
+    build_law,
+    build_plant,
+    build_quantizer,
+    build_reference,
+    run_scenario,
+)
+from qcontrol.engine import simulate
 from qcontrol.quantizer import QuantizedReading
 from qcontrol.scenario import Scenario, load_scenario
-from qcontrol.sim import simulate
-from qcontrol.sweep import _controller, sweep_summaries
+from qcontrol.sweep import sweep_summaries
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIOS = ("example1", "example2")
@@ -116,7 +123,7 @@ def batch_times(duration: float, sizes: list[int], repeat: int) -> dict:
         sc = scs[0]
 
         def run(scs: list[Scenario] = scs, sc: Scenario = sc, size: int = size) -> None:
-            simulate(build_plant(sc, "ode", batch=size), _controller(scs), build_quantizer(sc),
+            simulate(build_plant(sc, "ode", batch=size), build_law(scs), build_quantizer(sc),
                      build_reference(sc), sc.x0, duration, sc.simulation.dt, record="metrics")
 
         times[str(size)] = best_of(repeat if size <= 100 else max(1, repeat // 2), run)

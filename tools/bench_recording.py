@@ -23,11 +23,11 @@ import numpy as np
 
 import qcontrol
 from qcontrol.controller import ProposedController
+from qcontrol.engine import Observer, Trajectory, simulate
 from qcontrol.expr import compile_expression as C
 from qcontrol.plants.ode import ChainPlant
 from qcontrol.quantizer import UniformQuantizer
 from qcontrol.reference import Sine
-from qcontrol.sim import Observer, Trajectory, simulate
 
 PENDULUM = """
 <mujoco>
@@ -63,7 +63,7 @@ def timed_bare(duration: float) -> float:
 def timed_recorded(duration: float, path: Path, model: mujoco.MjModel) -> tuple[float, float]:
     """Wall time of one run with the recorder, from opening the file to its final rename, and the
     part of it spent in the recorder (opening, observer calls, closing)."""
-    from qcontrol.record import Recording
+    from qcontrol.recording import Recording
 
     inside = 0.0
     started = time.perf_counter()

@@ -29,8 +29,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from qcontrol.assembly import run_scenario  # noqa: E402
+from qcontrol.engine import Trajectory  # noqa: E402
 from qcontrol.scenario import load_scenario  # noqa: E402
-from qcontrol.sim import Trajectory  # noqa: E402
 
 DIRECTIONS = [(1, 0), (0, 1), (1, 1), (1, -1), (-1, 0), (0, -1), (-1, -1), (-1, 1)]
 GRID = [0.5, 1, 2, 3, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000, 1e4]

@@ -1,5 +1,11 @@
-"""Plants the closed-loop engine can drive: the ideal ODE chain and the MuJoCo model."""
+"""Plants the closed-loop engine can drive, and the registry of backends a scenario selects:
+the ideal ODE chain of eq. (1) (:mod:`.ode`) and the MuJoCo model (:mod:`.mujoco`)."""
 
-from .base import Plant
+from . import mujoco, ode
+from .backends import BACKENDS, Backend, PlantContext, Scene, register_backend
+from .base import Plant, PlantTerms
 
-__all__ = ["Plant"]
+for _backend in (ode.BACKEND, mujoco.BACKEND):
+    register_backend(_backend)
+
+__all__ = ["BACKENDS", "Backend", "Plant", "PlantContext", "PlantTerms", "Scene", "register_backend"]

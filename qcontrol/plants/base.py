@@ -1,32 +1,51 @@
-"""The interface every plant offers to the closed-loop engine (:mod:`qcontrol.sim`)."""
+"""What the closed-loop engine uses of a plant, and the terms of eq. (1) every plant is built from."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Protocol
+from dataclasses import dataclass
+from typing import Any, Protocol
 
 import numpy as np
 
-ScalarObserve = Callable[[], tuple[list[float], list[float]]]  # () -> (true state, sensor reading)
-ScalarStep = Callable[[float], None]  # u -> None: hold u over one engine step
-ScalarIO = tuple[ScalarObserve, ScalarStep]
+from ..expr import Expression
+
+Observe = Callable[[], tuple[Any, Any]]  # () -> (true state, sensor reading)
+Step = Callable[[Any], None]  # u -> None: hold u over one engine step
+IO = tuple[Observe, Step]
+
+
+@dataclass(frozen=True)
+class PlantTerms:
+    """The right-hand side of eq. (1): ``x_i' = x_{i+1}``, ``x_n' = u + psi(x) + theta^T phi(x)``.
+
+    ``psi`` is unknown to the controller, ``phi`` known in form with ``theta`` unknown.
+    """
+
+    order: int
+    psi: Expression | None
+    phi: tuple[Expression, ...]
+    theta: tuple[float, ...]
+
+    @property
+    def names(self) -> list[str]:
+        """Names of the terms of ``psi + theta^T phi``: ``psi`` (if present), ``phi1`` .. ``phil``."""
+        return (["psi"] if self.psi is not None else []) + [f"phi{i + 1}" for i in range(len(self.phi))]
 
 
 class Plant(Protocol):
     """A batch of ``batch`` independent copies of an n-th order plant, eq. (1).
 
     The engine uses a plant as a context manager (``with plant: ...``) so that backends with
-    process-global resources (MuJoCo's passive callback) install and remove them safely.
-    All arrays are ``float64``; states have shape ``(batch, n)``, inputs ``(batch,)``.
-
-    A plant may also offer ``scalar_io(h) -> (observe, step)`` for a batch of one: ``observe()``
-    returns the true state and the sensor reading as lists of floats, ``step(u)`` holds the float
-    ``u`` over ``h`` seconds. The engine then runs a single copy without making arrays; it is
-    called once per run, inside the ``with`` block, after :meth:`reset`.
+    process-global resources (MuJoCo's passive callback) install and remove them safely, calls
+    :meth:`reset`, then takes the two functions of :meth:`io` for the run. All arrays are
+    ``float64``; states have shape ``(batch, n)``, inputs ``(batch,)``.
     """
 
     n: int
     batch: int
+    warnings: list[str]  # what the physics engine warned about during the last run (shown to users)
+    consistency_report: dict[str, Any]  # how the plant agrees with eq. (1) ({} for the ODE, which is eq. (1))
 
     def __enter__(self) -> Plant: ...
 
@@ -35,11 +54,35 @@ class Plant(Protocol):
     def reset(self, x0: np.ndarray) -> None:
         """Set the state of every copy; ``x0`` has shape ``(batch, n)``."""
 
+    def io(self, h: float) -> IO:
+        """``observe() -> (x, reading)`` and ``step(u)`` (hold ``u`` over ``h`` seconds) for one run.
+
+        For a batch of one they work on plain floats (lists of n floats, a float ``u``): a numpy
+        call on a one-element array costs about a microsecond, float arithmetic tens of
+        nanoseconds. Otherwise on ``(batch, n)`` arrays and a ``(batch,)`` array. Called once per
+        run, inside the ``with`` block, after :meth:`reset`. ``x`` is the true state (for the
+        record and the metrics only; never given to a controller); ``reading`` is what the
+        sensors report, which the engine quantizes before control.
+        """
+
     def state(self) -> np.ndarray:
-        """The true state ``x`` (for recording and metrics only; never given to a controller)."""
+        """The true state ``x``, shape ``(batch, n)``."""
 
     def read_sensors(self) -> np.ndarray:
-        """What the sensors report for ``x``; the engine quantizes this before control."""
+        """What the sensors report for ``x``, shape ``(batch, n)``."""
 
     def step(self, u: np.ndarray, h: float) -> None:
         """Advance every copy by ``h`` seconds with the input ``u`` held (zero-order hold)."""
+
+
+def array_io(plant: Plant, h: float) -> IO:
+    """:meth:`Plant.io` in array form, from a plant's :meth:`~Plant.state`,
+    :meth:`~Plant.read_sensors` and :meth:`~Plant.step`."""
+
+    def observe() -> tuple[np.ndarray, np.ndarray]:
+        return plant.state(), plant.read_sensors()
+
+    def step(u: np.ndarray) -> None:
+        plant.step(u, h)
+
+    return observe, step

@@ -11,18 +11,19 @@ terms are evaluated with ``math`` (a numpy call on a one-element array costs abo
 the same arithmetic on floats a few tens of nanoseconds), otherwise they are ``(batch,)`` arrays
 and numpy evaluates the terms. Same operations in the same order; only ``sin``, ``cos``, ... come
 from the C library instead of numpy on floats, which may differ in the last bit.
-:meth:`ChainPlant.scalar_io` lets the engine's batch-of-one loop use the floats without making
-arrays.
+:meth:`ChainPlant.io` lets the engine's batch-of-one loop use the floats without making arrays.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Hashable, Sequence
+from typing import Any
 
 import numpy as np
 
 from ..expr import Expression, ScalarFn, scalar_function
-from .base import ScalarIO
+from .backends import Backend
+from .base import IO, PlantTerms, array_io
 
 Column = float | np.ndarray  # one value per copy: a (batch,) array, or a float for a batch of one
 Uncertainty = Callable[[list[Column]], Column]  # psi + theta^T phi on the state's columns
@@ -63,6 +64,8 @@ class ChainPlant:
         else:
             self._g = self._uncertainty_columns
         self._x: list[Column] = [0.0] * self.n if self._floats else [np.zeros(self.batch)] * self.n
+        self.warnings: list[str] = []  # an ODE has nothing to warn about
+        self.consistency_report: dict[str, Any] = {}  # it is eq. (1)
 
     def __enter__(self) -> ChainPlant:
         return self
@@ -110,13 +113,12 @@ class ChainPlant:
             u = np.broadcast_to(np.asarray(u, dtype=float), (self.batch,))
         self._x = _rk4(self._x, u, h, self._g)
 
-    # ---- a batch of one on plain floats (the engine's fast path)
-    def scalar_io(self, h: float) -> ScalarIO:
-        """``observe() -> (x, reading)`` and ``step(u)`` (an RK4 step of ``h`` with ``u`` a float)
-        for a batch of one, as closures made once per run. The ideal plant's sensors read the
-        state exactly, so both lists are the state (the engine only reads them)."""
+    def io(self, h: float) -> IO:
+        """``observe() -> (x, reading)`` and ``step(u)`` (an RK4 step of ``h``) for one run; for a
+        batch of one on plain floats, as closures made once per run. The ideal plant's sensors read
+        the state exactly, so both are the state (the engine only reads them)."""
         if not self._floats:
-            raise ValueError(f"scalar_io is for a batch of one, the plant has {self.batch} copies")
+            return array_io(self, h)
         g = self._g
 
         def observe() -> tuple[list[float], list[float]]:
@@ -165,3 +167,23 @@ def _rk4(x: list[Column], u: Column, h: float, g: Uncertainty) -> list[Column]:
     k4 = rhs([a + h * b for a, b in zip(x, k3, strict=True)])
     sixth = h / 6.0
     return [a + sixth * (b + 2.0 * (c + d) + e) for a, b, c, d, e in zip(x, k1, k2, k3, k4, strict=True)]
+
+
+# --------------------------------------------------------------------------------------------
+# The "ode" backend: no keys of its own; theta may differ between the copies of a batch
+
+
+def build(terms: Sequence[PlantTerms], options: Any, dt: float) -> ChainPlant:
+    """One ChainPlant copy per variant (theta per copy when there is more than one)."""
+    first = terms[0]
+    theta = first.theta if len(terms) == 1 else np.array([t.theta for t in terms])
+    return ChainPlant(first.order, first.psi, first.phi, theta, batch=len(terms))
+
+
+def structure(terms: PlantTerms, options: Any) -> Hashable:
+    """Variants sharing a batch share the plant's form; theta goes per copy."""
+    return terms.order, None if terms.psi is None else terms.psi.source, tuple(p.source for p in terms.phi)
+
+
+BACKEND = Backend("ode", None, None, build, structure, lambda options, dt: None,
+                  "the ideal ODE of eq. (1), fixed-step RK4 (vectorised over batches)")

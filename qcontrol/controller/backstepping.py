@@ -1,0 +1,242 @@
+"""Backstepping coordinates with quantized states: the mathematics every law shares.
+
+* :func:`backstepping_coefficients`: the constant coefficients of the virtual controls,
+  recursion after eq. (27): ``alpha_i = sum_k a[i][k] x_k + sum_j b[i][j] y_d^(j)``.
+* :func:`lemma2_bounds` and :func:`lemma2_L`: Lemma 2 (Appendix A), ``|z_i - zbar_i| <= L_zi``.
+* :class:`Backstepping`: true errors z, eqs. (7), (8), (12), (20), (27), and quantized errors
+  zbar and virtual controls alphabar, eqs. (31)-(34).
+* :class:`ControlOutput`: what one evaluation of a law hands the engine.
+
+The laws' formulas are written once, over *columns*: one value per state (``q_1 .. q_n``) or per
+adaptive estimate, each either a ``(batch,)`` array or, for a batch of one, a plain Python float.
+They use only elementwise arithmetic and coefficients precomputed as Python floats, so the same
+lines step a batch of 1000 copies on numpy arrays and a single run on floats, where a numpy call on
+a one-element array would cost a microsecond each.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from functools import partial
+from typing import NamedTuple
+
+import numpy as np
+
+from ..errors import QcontrolInputError
+from ..quantizer import QuantizedReading
+
+Parameter = float | np.ndarray  # a scalar, or one value per copy of the batch (shape (batch,))
+Column = float | np.ndarray  # one value per copy: a (batch,) array, or a float for a batch of one
+Columns = tuple  # of Column: q_1 .. q_n, or the adaptive estimates
+
+
+def parameter(name: str, value: float | Sequence[float] | np.ndarray) -> Parameter:
+    """A controller constant as a float, or as a ``(batch,)`` array of per-copy values."""
+    array = np.asarray(value, dtype=float)
+    if array.ndim > 1 or array.size == 0:
+        raise QcontrolInputError(f"controller {name} must be a number or a list of per-copy numbers")
+    if not (np.all(np.isfinite(array)) and np.all(array > 0)):
+        raise QcontrolInputError(f"controller {name} must be a finite number > 0, got {value!r}")
+    return float(array) if array.ndim == 0 else array
+
+
+def as_float(value: Parameter) -> float:
+    """A parameter of a batch of one as a plain float."""
+    return float(np.ravel(value)[0])
+
+
+def stack(columns: Sequence[Column], batch: int) -> np.ndarray:
+    """Columns (arrays or floats) side by side: shape ``(batch, len(columns))``, or more rows if
+    the columns are longer (a state of one copy advanced with a batch's targets)."""
+    if not columns:
+        return np.empty((batch, 0))
+    shape = np.broadcast_shapes((batch,), *(np.shape(c) for c in columns))
+    return np.stack([np.broadcast_to(c, shape) for c in columns], axis=1)
+
+
+def backstepping_coefficients(c: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    """Coefficients of ``alpha_i`` in x and in the reference derivatives (recursion after eq. (27)).
+
+    Returns ``A`` of shape ``(n, n)`` with ``A[i-1, k-1] = a[i][k]`` (zero for k > i) and ``B`` of
+    shape ``(n, n+1)`` with ``B[i-1, j] = b[i][j]`` (coefficient of ``y_d^(j)``).
+    """
+    c = np.asarray(c, dtype=float)
+    n = c.size
+    A = np.zeros((n, n))
+    B = np.zeros((n, n + 1))
+    A[0, 0] = -c[0]
+    B[0, 0], B[0, 1] = c[0], 1.0
+    for i in range(1, n):  # row i holds alpha_{i+1}
+        ci = c[i]
+        A[i, 0] = ci * A[i - 1, 0]
+        A[i, 1:i] = ci * A[i - 1, 1:i] + A[i - 1, 0 : i - 1]
+        A[i, i] = -ci + A[i - 1, i - 1]
+        B[i, 0] = ci * B[i - 1, 0]
+        B[i, 1 : i + 2] = ci * B[i - 1, 1 : i + 2] + B[i - 1, 0 : i + 1]
+    return A, B
+
+
+def lemma2_bounds(c: Sequence[float], max_error: float) -> tuple[np.ndarray, np.ndarray]:
+    """Lemma 2 (Appendix A): bounds ``L_z`` and ``L_alpha`` (both shape ``(n,)``).
+
+    ``max_error`` is the quantizer's bound ``delta/2`` of property (4).
+    ``L_z1 = delta/2``, ``L_alpha1 = c_1 delta/2``; ``L_zi = delta/2 + L_alpha(i-1)``,
+    ``L_alphai = c_i L_zi + (delta/2) sum_{k<i} |a[i-1][k]|``. The paper's ``L`` is ``L_z[-1]``.
+    """
+    c = np.asarray(c, dtype=float)
+    A, _ = backstepping_coefficients(c)
+    n = c.size
+    L_z = np.empty(n)
+    L_alpha = np.empty(n)
+    L_z[0] = max_error
+    L_alpha[0] = c[0] * max_error
+    for i in range(1, n):
+        L_z[i] = max_error + L_alpha[i - 1]
+        L_alpha[i] = c[i] * L_z[i] + max_error * np.abs(A[i - 1, :i]).sum()
+    return L_z, L_alpha
+
+
+def lemma2_L(c: Sequence[float], delta: float) -> float:
+    """The paper's ``L = L_zn`` (Lemma 2) for gains ``c`` and quantizer step ``delta``
+    (``(1 + c_1) delta / 2`` for n = 2); ``kappa`` must exceed it (Theorem 1)."""
+    with np.errstate(all="ignore"):
+        return float(lemma2_bounds(c, delta / 2.0)[0][-1])
+
+
+class Backstepping:
+    """Backstepping coordinates for gains ``c`` and a quantizer with bound ``max_error``."""
+
+    def __init__(self, c: Sequence[float], max_error: float) -> None:
+        c = np.asarray(c, dtype=float)
+        if c.ndim != 1 or c.size < 2:
+            raise QcontrolInputError(
+                f"the plant order n must be >= 2 (one gain c_i per state), got {c.size} gain(s)"
+            )
+        if not np.all(np.isfinite(c)) or np.any(c <= 0):
+            raise QcontrolInputError(f"every design gain c_i must be a finite number > 0, got {c.tolist()}")
+        if not (np.isfinite(max_error) and max_error > 0):
+            raise QcontrolInputError(f"quantizer step delta must be > 0, got bound {max_error!r}")
+        self.c = c
+        self.n = c.size
+        self.max_error = float(max_error)
+        self.A, self.B = backstepping_coefficients(c)
+        self.L_z, self.L_alpha = lemma2_bounds(c, max_error)
+        self.L = float(self.L_z[-1])
+        self._steps = self._recursion_steps()
+        # [zbar | alphabar] = q @ Wq + yd @ Wy (for many instants at once, when recording): the
+        # recursion applied to unit vectors, as columns of a batch of n (or n + 1) copies
+        n = self.n
+        zbar, alphabar = self.recursion(tuple(np.eye(n)), tuple(np.zeros((n + 1, n))))
+        self._Wq = np.column_stack(zbar + alphabar)
+        zbar, alphabar = self.recursion(tuple(np.zeros((n, n + 1))), tuple(np.eye(n + 1)))
+        self._Wy = np.column_stack(zbar + alphabar)
+
+    @property
+    def coordinates(self) -> Backstepping:
+        """The coordinates the engine records z, zbar and the Lemma 2 errors in: these."""
+        return self
+
+    def _recursion_steps(self) -> tuple:
+        """``alphabar_i = -c_i zbar_i + D_i``, eq. (34), with ``D_1 = y_d'`` and
+        ``D_i = sum_{k<i} a[i-1][k] q_{k+1} + sum_{j<i} b[i-1][j] y_d^(j+1)``: one
+        ``(-c_i, D_i's y_d terms, D_i's q terms)`` per i as plain floats, zero terms left out."""
+        n = self.n
+        Dq = np.zeros((n, n))
+        Dy = np.zeros((n, n + 1))
+        Dy[0, 1] = 1.0
+        for i in range(1, n):
+            Dq[i, 1 : i + 1] = self.A[i - 1, :i]
+            Dy[i, 1 : i + 2] = self.B[i - 1, : i + 1]
+        return tuple(zip(
+            [-ci for ci in self.c.tolist()],
+            [tuple((j, b) for j, b in enumerate(row) if b != 0.0) for row in Dy.tolist()],
+            [tuple((k, a) for k, a in enumerate(row) if a != 0.0) for row in Dq.tolist()],
+            strict=True,
+        ))
+
+    def errors(self, x: np.ndarray, yd: np.ndarray) -> np.ndarray:
+        """True errors ``z`` (eqs. (7), (8)): ``z_1 = x_1 - y_d``, ``z_i = x_i - alpha_{i-1}``.
+
+        ``x`` has shape ``(..., n)``; ``yd`` holds ``[y_d, ..., y_d^(n)]`` in its last axis and
+        broadcasts against ``x`` (e.g. ``(n+1,)`` for one instant, ``(rows, 1, n+1)`` for many).
+        """
+        alpha = x @ self.A.T + yd @ self.B.T
+        z = np.empty(np.broadcast_shapes(x.shape, alpha.shape))
+        z[..., 0] = x[..., 0] - yd[..., 0]
+        z[..., 1:] = x[..., 1:] - alpha[..., :-1]
+        return z
+
+    def quantized_errors(self, q: np.ndarray, yd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Quantized errors ``zbar`` and virtual controls ``alphabar``, eqs. (31)-(34).
+
+        Shapes as in :meth:`errors`, with the quantized state ``q`` in place of ``x``. Both are
+        linear in ``(q, y_d)``: one product with the coefficients :meth:`recursion` gives.
+        """
+        both = q @ self._Wq + yd @ self._Wy
+        return both[..., : self.n], both[..., self.n :]
+
+    def lemma2_errors(self, x_meas: np.ndarray, x_q: np.ndarray, yd: np.ndarray) -> tuple[np.ndarray,
+                                                                                          np.ndarray]:
+        """``zbar`` (eqs. (31)-(33)) from the quantized readings and the Lemma 2 errors
+        ``e_z = |z(x_meas) - zbar|`` for many instants at once (shapes as in :meth:`errors`)."""
+        zbar, _ = self.quantized_errors(x_q, yd)
+        return zbar, np.abs(self.errors(x_meas, yd) - zbar)
+
+    def recursion(self, q: Columns, yd: Sequence[Column]) -> tuple[list[Column], list[Column]]:
+        """Eqs. (31)-(34) as written, over columns: ``zbar_1 = q_1 - y_d``,
+        ``alphabar_i = -c_i zbar_i + D_i``, ``zbar_{i+1} = q_{i+1} - alphabar_i``.
+
+        ``q`` holds the columns ``q_1 .. q_n``, ``yd`` the values ``y_d .. y_d^(n)`` (floats, the
+        same for every copy). Returns the lists ``zbar_1..zbar_n`` and ``alphabar_1..alphabar_n``.
+        The laws call this every sample; ``__init__`` evaluates it once on unit vectors for
+        :meth:`quantized_errors`.
+        """
+        zbar: list[Column] = []
+        alphabar: list[Column] = []
+        previous = yd[0]  # zbar_1 = q_1 - y_d
+        for qi, (minus_c, yd_terms, q_terms) in zip(q, self._steps):  # noqa: B905 (n of each)
+            z = qi - previous
+            d = 0.0
+            for j, b in yd_terms:
+                d = d + b * yd[j]
+            for k, a in q_terms:
+                d = d + a * q[k]
+            previous = minus_c * z + d
+            zbar.append(z)
+            alphabar.append(previous)
+        return zbar, alphabar
+
+    def check_reading(self, reading: object) -> None:
+        """Refuse anything but a :class:`QuantizedReading` made with this controller's bound."""
+        if isinstance(reading, QuantizedReading) and reading.max_error == self.max_error:
+            return
+        if not isinstance(reading, QuantizedReading):
+            raise TypeError(
+                "controllers accept only QuantizedReading (use qcontrol.quantizer.quantize); "
+                f"got {type(reading).__name__}"
+            )
+        raise ValueError(
+            f"reading quantized with bound {reading.max_error}, but the controller's Lemma 2 "
+            f"bounds assume {self.max_error}"
+        )
+
+
+class ControlOutput(NamedTuple):
+    """One evaluation of a law: input ``u``, ``zbar``, and the held quantities that drive the
+    adaptive state until the next sample.
+
+    Array form (``control`` given a ``(batch, m)`` state): ``u`` (batch,), ``zbar`` (batch, n),
+    ``target`` (batch, m). Column form (given a tuple of m columns, as the engine does): ``u`` a
+    column, ``zbar`` and ``target`` tuples of columns, ``rate`` a float or a ``(batch,)`` array.
+    """
+
+    u: np.ndarray
+    zbar: np.ndarray
+    target: np.ndarray  # proposed: s r / sigma; baseline: Gamma phi zbar_n (a rate)
+    rate: float | np.ndarray  # proposed: gamma sigma, a float or per copy; baseline: 0
+
+
+# ControlOutput((u, zbar, target, rate)) without NamedTuple's Python-level __new__ (hot loop)
+output = partial(tuple.__new__, ControlOutput)
+
+Advance = Callable[[Columns, ControlOutput], Columns]  # (state, held output) -> state one step on

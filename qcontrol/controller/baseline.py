@@ -1,0 +1,152 @@
+"""The comparison law of the paper's reference [20], eq. (46), and its scenario keys.
+
+Reference [20] assumes psi and phi globally Lipschitz and known in form, and feeds them the
+quantized state directly. The paper does not print [20]'s adaptive law: the standard
+tuning-function law ``theta_hat' = Gamma phi(x_q) zbar_n`` used here is our reconstruction, and
+outputs label it so.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Hashable, Sequence
+from dataclasses import dataclass
+from functools import reduce
+from operator import add, mul
+from typing import Any
+
+import numpy as np
+
+from ..errors import QcontrolInputError
+from ..expr import Expression
+from ..quantizer import QuantizedReading
+from ..schema import Key, KindKeys, Table, number, read_keys, string
+from .backstepping import Advance, Backstepping, Columns, ControlOutput, output, stack
+from .law import LawContext, LawKind
+
+
+class BaselineController(Backstepping):
+    """Comparison law of reference [20], eq. (46), with our reconstructed adaptive law.
+
+    ``u = alphabar_n - psi(x_q) - theta_hat^T phi(x_q)`` with
+    ``theta_hat' = Gamma phi(x_q) zbar_n`` (our reconstruction; the paper does not print it), or
+    ``theta_hat = theta`` held fixed when ``known_theta`` is given.
+    """
+
+    state_name = "theta_hat"
+    copies = None  # no per-copy parameters
+
+    def __init__(
+        self,
+        c: Sequence[float],
+        max_error: float,
+        psi: Expression | None,
+        phi: Sequence[Expression],
+        adaptation_gain: float = 1.0,
+        known_theta: Sequence[float] | None = None,
+    ) -> None:
+        super().__init__(c, max_error)
+        if not (np.isfinite(adaptation_gain) and adaptation_gain > 0):
+            raise QcontrolInputError(
+                f"baseline adaptation gain Gamma must be a finite number > 0, got {adaptation_gain!r}"
+            )
+        self.psi = psi
+        self.phi = tuple(phi)
+        self.adaptation_gain = float(adaptation_gain)
+        self.known_theta = None if known_theta is None else np.asarray(known_theta, dtype=float)
+        self.state_size = len(self.phi)
+        # (psi or None, phi...) evaluated on the reading's columns: numpy, or math on floats
+        exprs = (self.psi, *self.phi)
+        self._on_arrays = tuple(None if e is None else e.on_columns for e in exprs)
+        self._on_floats = tuple(None if e is None else e.on_floats for e in exprs)
+
+    def initial_state(self, batch: int) -> np.ndarray:
+        """``theta_hat(0) = 0``, or the true theta in the known-parameter case."""
+        if self.known_theta is not None:
+            return np.tile(self.known_theta, (batch, 1))
+        return np.zeros((batch, self.state_size))
+
+    def constants(self) -> dict[str, Any]:
+        return {"baseline_gain": self.adaptation_gain}
+
+    def control(self, reading: QuantizedReading, yd: Sequence[float],
+                theta_hat: np.ndarray | Columns, t: float = 0.0) -> ControlOutput:
+        """Eq. (46) with the plant's own psi, phi evaluated at the quantized state. Array or
+        column form as in :meth:`ProposedController.control`."""
+        if not isinstance(reading, QuantizedReading) or reading.max_error != self.max_error:
+            self.check_reading(reading)
+        if isinstance(theta_hat, np.ndarray):
+            out = self.control(QuantizedReading(reading.values, reading.max_error), yd, tuple(theta_hat.T))
+            batch = len(theta_hat)
+            return ControlOutput(out.u, stack(out.zbar, batch), stack(out.target, batch), 0.0)
+        q = reading.columns
+        psi, *phi = self._on_floats if reading.floats else self._on_arrays
+        zbar, alphabar = self.recursion(q, yd)  # eqs. (31)-(34)
+        u = alphabar[-1]
+        if psi is not None:
+            u = u - psi(q)
+        rate: tuple = (0.0,) * len(phi)
+        if phi:
+            phi_q = [p(q) for p in phi]
+            u = u - reduce(add, map(mul, theta_hat, phi_q))  # eq. (46): theta_hat^T phi(x_q)
+            if self.known_theta is None:
+                zn = zbar[-1]
+                rate = tuple([self.adaptation_gain * p * zn for p in phi_q])
+        return output((u, tuple(zbar), rate, 0.0))
+
+    def advance(self, state: np.ndarray | Columns, out: ControlOutput, h: float) -> np.ndarray | Columns:
+        """``theta_hat`` grows at the held rate (exact for ``x_q`` held over ``h``)."""
+        if isinstance(state, np.ndarray):
+            grown = self.advance(tuple(state.T), out._replace(target=tuple(out.target.T)), h)
+            return stack(grown, len(state))
+        return self.advancer(h, floats=not isinstance(out.u, np.ndarray))(state, out)
+
+    @staticmethod
+    def advancer(h: float, floats: bool) -> Advance:
+        """:meth:`advance` over a fixed ``h`` in column form, as a function made once per run."""
+
+        def advance(state: Columns, out: ControlOutput) -> Columns:
+            return tuple([e + h * t for e, t in zip(state, out.target)])  # noqa: B905 (equal lengths)
+
+        return advance
+
+
+# --------------------------------------------------------------------------------------------
+# Scenario keys: [controller] with kind = "baseline" (or [controller.baseline])
+
+KEYS = KindKeys(
+    "baseline",
+    (
+        Key("gain", number(positive=True), 1.0,
+            meaning="adaptation gain Gamma of theta_hat' = Gamma phi(x_q) zbar_n"),
+        Key("theta", string(("adaptive", "known")), "adaptive",
+            meaning='"adaptive": theta_hat(0) = 0 and adapted; "known": theta_hat = the plant\'s theta, '
+                    "held fixed"),
+    ),
+    meaning="the comparison law (46) of the paper's reference [20], with our reconstructed adaptive law",
+)
+
+
+@dataclass(frozen=True)
+class BaselineSettings:
+    gain: float
+    theta: str
+
+
+def parse(table: Table, ctx: LawContext) -> BaselineSettings:
+    v = read_keys(table, KEYS.keys, {"n": ctx.order})
+    return BaselineSettings(v["gain"], v["theta"])
+
+
+def build(settings: Sequence[BaselineSettings], ctx: LawContext) -> BaselineController:
+    """One controller for the whole batch: the variants share its settings (see :func:`structure`)."""
+    s = settings[0]
+    return BaselineController(ctx.c, ctx.max_error, ctx.psi, ctx.phi, adaptation_gain=s.gain,
+                              known_theta=ctx.theta if s.theta == "known" else None)
+
+
+def structure(settings: BaselineSettings, ctx: LawContext) -> Hashable:
+    """Everything the law reads must be shared: its settings and, when theta is known, theta."""
+    return settings, ctx.theta if settings.theta == "known" else None
+
+
+KIND = LawKind("baseline", KEYS, parse, build, structure)

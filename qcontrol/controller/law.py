@@ -1,0 +1,111 @@
+"""What the closed-loop engine uses of a control law, and the registry of controller kinds.
+
+A scenario's ``[controller] kind`` names an entry of :data:`LAW_KINDS`. Each entry declares the
+keys its kind takes (the schema the scenario loader validates with and the documentation is made
+from), parses and checks them, and builds a :class:`BatchLaw` for a batch of variants. Adding a
+law is one module with its class and its :class:`LawKind`, plus one :func:`register_kind` call.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Hashable, Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+
+from ..errors import QcontrolInputError
+from ..expr import Expression
+from ..quantizer import QuantizedReading
+from ..schema import KindKeys, Table
+from .backstepping import Advance, Backstepping, Columns, ControlOutput
+
+
+class BatchLaw(Protocol):
+    """A control law for a batch of copies, as the engine drives it.
+
+    The engine calls :meth:`control` at every control sample with the quantized reading (the only
+    state the law may see), ``[y_d .. y_d^(n)]`` and the adaptive state as a tuple of columns
+    (floats for a batch of one, ``(batch,)`` arrays otherwise), holds the output's ``u`` over the
+    control period, and advances the adaptive state every step with the function
+    :meth:`advancer` made once per run. ``coordinates`` defines the errors z, zbar and the Lemma 2
+    bounds the engine records and checks.
+    """
+
+    state_name: str  # names the adaptive state in outputs: "eps_hat", "theta_hat", ...
+    state_size: int  # m >= 0 adaptive states
+    copies: int | None  # the batch size that per-copy parameters fix, or None
+
+    @property
+    def coordinates(self) -> Backstepping: ...
+
+    def initial_state(self, batch: int) -> np.ndarray:
+        """The adaptive state at t = 0, shape ``(batch, m)``."""
+
+    def control(self, reading: QuantizedReading, yd: Sequence[float], state: Columns,
+                t: float = 0.0) -> ControlOutput:
+        """``u`` and the held terms that drive the adaptive state until the next sample."""
+
+    def advancer(self, h: float, floats: bool) -> Advance:
+        """``(state, output) -> state`` over a step ``h`` with the output held."""
+
+    def constants(self) -> dict[str, Any]:
+        """The law's own constants as a recording shows them (kappa, gamma, ...)."""
+
+
+@dataclass(frozen=True)
+class LawContext:
+    """What a law's keys are checked against and what its builder may read of the scenario:
+    the common controller keys (``delta``, ``c``) and the plant's terms. The proposed law only
+    counts the terms; the comparison law (46) evaluates them at the quantized state."""
+
+    source: str
+    order: int
+    delta: float
+    c: tuple[float, ...]
+    psi: Expression | None
+    phi: tuple[Expression, ...]
+    theta: tuple[float, ...]
+
+    @property
+    def uncertain_terms(self) -> int:
+        """Entries of eps, eqs. (37)-(43): one per phi_i, plus one for psi."""
+        return len(self.phi) + (self.psi is not None)
+
+    @property
+    def max_error(self) -> float:
+        """The quantizer's bound delta / 2, property (4)."""
+        return self.delta / 2.0
+
+
+@dataclass(frozen=True)
+class LawKind:
+    """One controller kind.
+
+    ``keys`` declares the keys of the kind (None for a law registered from Python, whose factory
+    checks its own table); ``parse`` reads and checks them from the merged controller table into
+    the kind's settings; ``build`` makes one law for a batch of variants that share
+    ``structure(settings, context)`` (the settings that may differ within a batch become
+    per-copy parameters); the first variant's context is passed.
+    """
+
+    name: str
+    keys: KindKeys | None
+    parse: Callable[[Table, LawContext], Any]
+    build: Callable[[Sequence[Any], LawContext], BatchLaw]
+    structure: Callable[[Any, LawContext], Hashable]
+
+
+LAW_KINDS: dict[str, LawKind] = {}
+
+
+def register_kind(kind: LawKind) -> None:
+    """Add a controller kind; its name must be new."""
+    if kind.name in LAW_KINDS:
+        raise QcontrolInputError(f"controller kind {kind.name!r} is already registered; choose another name")
+    LAW_KINDS[kind.name] = kind
+
+
+def law_kind(name: str) -> LawKind:
+    """The registered kind ``name`` (the scenario loader has checked that it exists)."""
+    return LAW_KINDS[name]

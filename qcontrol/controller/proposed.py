@@ -1,0 +1,297 @@
+"""The paper's quantized adaptive law: control law (44) and adaptive law (45), and its scenario keys.
+
+The scalar parameters (kappa, gamma, sigma, r_scale) may be given per copy, as arrays of shape
+``(batch,)``: a parameter sweep then runs as one batch through the same formulas (a single run is
+a batch of one with scalar parameters).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Hashable, Sequence
+from dataclasses import dataclass, field
+from functools import reduce
+from operator import add, mul
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from ..errors import QcontrolInputError
+from ..expr import Expression, compile_expression, scalar_function
+from ..quantizer import QuantizedReading
+from ..schema import OPTIONAL, Key, KindKeys, Table, expressions, number, read_keys
+from .backstepping import (
+    Advance,
+    Backstepping,
+    Columns,
+    ControlOutput,
+    Parameter,
+    as_float,
+    lemma2_L,
+    output,
+    parameter,
+    stack,
+)
+from .law import LawContext, LawKind
+
+R_CHECK_SAMPLES = 2000  # quantized states at which every r_i is checked to be finite and >= 1
+R_CHECK_RANGE = 10.0  # ... drawn uniformly from [-R_CHECK_RANGE, R_CHECK_RANGE]^n (and the origin)
+
+
+class _Law(NamedTuple):
+    """The constants the column formulas read, for one kind of column (arrays, or floats)."""
+
+    kappa: Parameter
+    gain: Parameter  # 1 / (kappa (kappa - L))
+    sigma: Parameter
+    r_scale: Parameter | None  # None when r_scale == 1 everywhere
+    rate: Parameter  # gamma sigma
+    terms: tuple  # the bounding functions r evaluated on the reading's columns
+
+
+class ProposedController(Backstepping):
+    """The paper's quantized adaptive controller, control law (44) and adaptive law (45).
+
+    ``s = zbar_n^2 / kappa + L``,
+    ``u = -(zbar_n / kappa) / (kappa - L) * s * eps_hat^T r(x_q) + alphabar_n``,
+    ``eps_hat' = gamma (s r(x_q) - sigma eps_hat)``, ``eps_hat(0) = 0``.
+
+    ``r`` are the bounding functions of eqs. (37)-(43), expressions over ``q1..qn``; each is
+    multiplied by ``r_scale`` (any constant >= 1 keeps the bounds of (37)-(43) valid).
+    """
+
+    state_name = "eps_hat"
+
+    def __init__(
+        self,
+        c: Sequence[float],
+        max_error: float,
+        kappa: float,
+        gamma: float,
+        sigma: float,
+        r: Sequence[Expression],
+        r_scale: float = 1.0,
+        expected_terms: int | None = None,
+    ) -> None:
+        super().__init__(c, max_error)
+        gamma, sigma, r_scale = (parameter(k, v) for k, v in (("gamma", gamma), ("sigma", sigma),
+                                                                ("r_scale", r_scale)))
+        kappa_array = np.asarray(kappa, dtype=float)
+        if not (np.all(np.isfinite(kappa_array)) and np.all(kappa_array > self.L)):
+            raise QcontrolInputError(
+                f"controller kappa must exceed L = L_z{self.n} = {self.L:g} (Theorem 1), got {kappa!r}"
+            )
+        kappa = parameter("kappa", kappa)
+        if len(r) == 0:
+            raise QcontrolInputError("controller r must list at least one bounding function")
+        if expected_terms is not None and len(r) != expected_terms:
+            raise QcontrolInputError(
+                f"controller r has {len(r)} bounding function(s) but the plant has "
+                f"{expected_terms} uncertain term(s) (one per phi_i, plus one for psi)"
+            )
+        sizes = {v.size for v in (kappa, gamma, sigma, r_scale) if isinstance(v, np.ndarray)}
+        if len(sizes) > 1:
+            raise QcontrolInputError(f"controller per-copy parameters have different lengths {sorted(sizes)}")
+        self.copies: int | None = sizes.pop() if sizes else None  # batch size the parameters fix
+        self.kappa, self.gamma, self.sigma, self.r_scale = kappa, gamma, sigma, r_scale
+        self.r = tuple(r)
+        self.state_size = len(self.r)
+        self._on_arrays, self._on_floats = self._constants_by_column_kind()
+
+    def _constants_by_column_kind(self) -> tuple[_Law, _Law | None]:
+        """The constants of the column formulas, computed once: eq. (45)'s decay rate
+        ``gamma sigma`` and eq. (44)'s gain ``1 / (kappa (kappa - L))``, for arrays and (for a
+        batch of one) as floats with ``math``'s evaluation of r (where ``math`` raises,
+        :meth:`control` falls back to :meth:`Expression.on_floats`, numpy's answer there)."""
+        kappa, sigma, r_scale = self.kappa, self.sigma, self.r_scale
+        rate = self.gamma * sigma
+        self._rate = rate[:, None] if isinstance(rate, np.ndarray) else rate  # array form of ControlOutput
+        gain = 1.0 / (kappa * (kappa - self.L))  # (44): u = -zbar_n s eps^T r / (kappa (kappa - L))
+        scaled = not np.all(np.asarray(r_scale) == 1.0)
+        on_arrays = _Law(kappa, gain, sigma, r_scale if scaled else None, rate,
+                         tuple(e.on_columns for e in self.r))
+        on_floats = None if self.copies not in (None, 1) else _Law(
+            as_float(kappa), as_float(gain), as_float(sigma), as_float(r_scale) if scaled else None,
+            as_float(rate), tuple(scalar_function(e) for e in self.r))
+        return on_arrays, on_floats
+
+    def initial_state(self, batch: int) -> np.ndarray:
+        """``eps_hat(0) = 0``."""
+        return np.zeros((batch, self.state_size))
+
+    def constants(self) -> dict[str, Any]:
+        return {"kappa": self.kappa, "gamma": self.gamma, "sigma": self.sigma, "r_scale": self.r_scale}
+
+    def control(self, reading: QuantizedReading, yd: Sequence[float],
+                eps_hat: np.ndarray | Columns, t: float = 0.0) -> ControlOutput:
+        """Eq. (44) for the current quantized reading; eq. (45)'s held terms for :meth:`advance`.
+
+        ``eps_hat`` is a tuple of m columns (column form, as the engine passes it; floats when
+        ``reading.floats``), or a ``(batch, m)`` array: the same formulas then run on the array's
+        columns and the output is in array form. ``yd`` holds ``y_d .. y_d^(n)``.
+        """
+        if not isinstance(reading, QuantizedReading) or reading.max_error != self.max_error:
+            self.check_reading(reading)
+        if isinstance(eps_hat, np.ndarray):
+            out = self.control(QuantizedReading(reading.values, reading.max_error), yd, tuple(eps_hat.T))
+            batch = len(eps_hat)
+            return ControlOutput(out.u, stack(out.zbar, batch), stack(out.target, batch), self._rate)
+        law = self._on_floats if reading.floats else self._on_arrays
+        if law is None:
+            raise ValueError(f"the controller has per-copy parameters for {self.copies} copies, not one")
+        q = reading.columns
+        zbar, alphabar = self.recursion(q, yd)  # eqs. (31)-(34)
+        try:
+            r = [term(q) for term in law.terms]  # r(x_q)
+        except (ValueError, ArithmeticError):  # math's domain error or overflow (floats only)
+            r = [e.on_floats(q) for e in self.r]
+        if law.r_scale is not None:
+            r = [ri * law.r_scale for ri in r]
+        zn = zbar[-1]
+        s = zn * zn / law.kappa + self.L
+        robust = reduce(add, map(mul, eps_hat, r))  # eps_hat^T r(x_q), per copy, summed in order
+        u = alphabar[-1] - zn * s * robust * law.gain  # eq. (44)
+        sigma = law.sigma
+        return output((u, zbar, [s * ri / sigma for ri in r], law.rate))
+
+    def advance(self, state: np.ndarray | Columns, out: ControlOutput, h: float) -> np.ndarray | Columns:
+        """Integrate eq. (45) over ``h`` with ``x_q`` held: exact for the linear ODE
+        ``eps_hat' = gamma sigma (target - eps_hat)``. ``state`` and ``out`` in the same form
+        (array or columns) as :meth:`control` took and gave them."""
+        if isinstance(state, np.ndarray):
+            eps = self.advance(tuple(state.T), out._replace(target=tuple(out.target.T)), h)
+            return stack(eps, len(state))
+        return self.advancer(h, floats=not isinstance(out.u, np.ndarray))(state, out)
+
+    def advancer(self, h: float, floats: bool) -> Advance:
+        """:meth:`advance` over a fixed ``h`` in column form, as a function ``(state, out) ->
+        state`` made once per run: ``exp(-gamma sigma h)`` is computed here, not every step."""
+        law = self._on_floats if floats else self._on_arrays
+        if law is None:
+            raise ValueError(f"the controller has per-copy parameters for {self.copies} copies, not one")
+        decay = np.exp(-np.asarray(law.rate) * h)
+        decay = decay if decay.ndim else float(decay)
+
+        def advance(state: Columns, out: ControlOutput) -> Columns:
+            # zip without strict=: the lengths are equal by construction (strict= costs ~0.3 us)
+            return tuple([t + (e - t) * decay for e, t in zip(state, out.target)])  # noqa: B905
+
+        return advance
+
+
+# --------------------------------------------------------------------------------------------
+# Scenario keys: [controller] with kind = "proposed" (or [controller.proposed])
+
+KEYS = KindKeys(
+    "proposed",
+    (
+        Key("kappa", number(positive=True), OPTIONAL,
+            meaning="kappa > L of law (44); give it or kappa_margin"),
+        Key("kappa_margin", number(positive=True), OPTIONAL,
+            meaning="kappa = L + kappa_margin (the paper writes kappa = 1.1 + L)"),
+        Key("gamma", number(positive=True), meaning="adaptation gain gamma of law (45)"),
+        Key("sigma", number(positive=True), meaning="sigma-modification sigma of law (45)"),
+        Key("r", expressions("q1..qn"),
+            meaning="bounding functions r_i(x_q) >= 1 of eqs. (37)-(43): one per phi_i, then one for psi"),
+        Key("r_scale", number(positive=True), 1.0, meaning="constant factor >= 1 on every r_i"),
+    ),
+    meaning="the paper's law (44) with the adaptive law (45)",
+    alternatives=(("kappa", "kappa_margin"),),
+)
+
+
+@dataclass(frozen=True)
+class ProposedSettings:
+    """The validated keys of the proposed law; ``kappa`` is resolved (given, or L + margin)."""
+
+    kappa: float
+    kappa_margin: float | None
+    gamma: float
+    sigma: float
+    r: tuple[str, ...]
+    r_scale: float
+    r_expr: tuple[Expression, ...] = field(default=(), repr=False, compare=False)
+
+
+def parse(table: Table, ctx: LawContext) -> ProposedSettings:
+    """Read and check the proposed law's keys (Theorem 1's kappa > L, r_i >= 1, one r_i per term)."""
+    v = read_keys(table, KEYS.keys, {"n": ctx.order})
+    kappa = _kappa(table, ctx, v["kappa"], v["kappa_margin"])
+    r = v["r"]
+    if len(r) != ctx.uncertain_terms:
+        raise table.error("r", f"has {len(r)} bounding function(s) but the plant has {ctx.uncertain_terms} "
+                          "uncertain term(s)", "give one r_i per phi_i, plus one for psi (eqs. (37)-(43))")
+    if v["r_scale"] < 1.0:
+        raise table.error("r_scale", f"must be >= 1 to keep r_i >= 1, got {v['r_scale']:g}",
+                          "use a scale >= 1")
+    q_names = [f"q{i + 1}" for i in range(ctx.order)]
+    r_expr = tuple(compile_expression(e, q_names, f"{table.source}: {table.path(f'r[{i}]')}")
+                   for i, e in enumerate(r))
+    _check_bounding_functions(table, r_expr, ctx)
+    return ProposedSettings(kappa, v["kappa_margin"], v["gamma"], v["sigma"], r, v["r_scale"], r_expr)
+
+
+def _kappa(table: Table, ctx: LawContext, kappa: float | None, margin: float | None) -> float:
+    """kappa as given, or L + kappa_margin; both must exceed L = L_zn (Theorem 1)."""
+    if kappa is not None and margin is not None:
+        raise table.error("kappa", "given together with kappa_margin",
+                          "give either kappa or kappa_margin (kappa = L + kappa_margin), not both")
+    if kappa is None and margin is None:
+        raise table.error("kappa_margin", "missing", "give kappa_margin (kappa = L + margin) or kappa")
+    L, n = lemma2_L(ctx.c, ctx.delta), ctx.order
+    if not math.isfinite(L):
+        raise table.error_at("controller.delta", f"with c = {list(ctx.c)} gives L = L_z{n} = {L:g}, not a "
+                             "finite number", "use a smaller quantizer step delta or smaller gains c")
+    if kappa is not None:
+        if kappa <= L:
+            raise table.error("kappa", f"must exceed L = L_z{n} = {L:g} (Theorem 1), got {kappa:g}",
+                              f"use kappa > {L:g}, or kappa_margin = kappa - L > 0")
+        return kappa
+    if not math.isfinite(L + margin):
+        raise table.error("kappa_margin", f"{margin:g} makes kappa = L + kappa_margin overflow (L = {L:g})",
+                          "use a smaller margin")
+    if not L + margin > L:
+        raise table.error("kappa_margin", f"{margin:g} is lost in floating point next to L = L_z{n} = {L:g}, "
+                          "so kappa = L + kappa_margin would not exceed L",
+                          f"use kappa_margin > {max(L, 1.0) * 1e-12:g}, or a smaller delta or gains c")
+    return L + margin
+
+
+def _check_bounding_functions(table: Table, r_expr: Sequence[Expression], ctx: LawContext) -> None:
+    """Every r_i must be finite and >= 1 on quantized states (eqs. (37)-(43)): checked at the origin
+    and at :data:`R_CHECK_SAMPLES` states drawn with a fixed seed."""
+    rng = np.random.default_rng(0)
+    samples = np.vstack([np.zeros(ctx.order),
+                         rng.uniform(-R_CHECK_RANGE, R_CHECK_RANGE, size=(R_CHECK_SAMPLES, ctx.order))])
+    samples = ctx.delta * np.round(samples / ctx.delta)
+    for i, expr in enumerate(r_expr):
+        with np.errstate(all="ignore"):
+            value = expr(samples)
+        bad = ~np.isfinite(value) | (value < 1.0 - 1e-12)
+        if bad.any():
+            first = np.flatnonzero(bad)[0]
+            raise table.error(f"r[{i}]", f"{expr.source!r} must be finite and >= 1 for every quantized "
+                              f"state (eqs. (37)-(43)) but is {float(value[first]):g} at q = "
+                              f"{samples[first].tolist()}", "e.g. add 1 to it")
+
+
+def build(settings: Sequence[ProposedSettings], ctx: LawContext) -> ProposedController:
+    """One controller for a batch of variants: kappa, gamma, sigma and r_scale per copy."""
+
+    def per_copy(values: list[float]) -> float | np.ndarray:
+        return values[0] if len(values) == 1 else np.array(values)
+
+    return ProposedController(
+        ctx.c, ctx.max_error,
+        kappa=per_copy([s.kappa for s in settings]), gamma=per_copy([s.gamma for s in settings]),
+        sigma=per_copy([s.sigma for s in settings]), r=settings[0].r_expr,
+        r_scale=per_copy([s.r_scale for s in settings]), expected_terms=ctx.uncertain_terms,
+    )
+
+
+def structure(settings: ProposedSettings, ctx: LawContext) -> Hashable:
+    """Variants sharing a batch must share r; kappa, gamma, sigma and r_scale go per copy."""
+    return settings.r
+
+
+KIND = LawKind("proposed", KEYS, parse, build, structure)

@@ -1,0 +1,166 @@
+"""What a run keeps: every row (:class:`FullRecord`) or only its metrics (:class:`MetricsRecord`).
+
+Both receive the loop's rows through a :class:`~qcontrol.engine.rows.RowBuffer`, derive the
+signals the loop does not record (z, zbar, e_z: :func:`~qcontrol.engine.signals.derive`) for many
+rows at once, hand finished rows to an observer (a recording streams them to disk while the run
+goes on), and tell the loop at which rows they need it to stop and call :meth:`at`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from ..controller.law import BatchLaw
+from ..timegrid import TimeGrid
+from .divergence import Divergence
+from .reductions import Chunk
+from .reference_rows import ReferenceRows
+from .results import RunMetrics, Trajectory
+from .rows import NEVER, RowBuffer
+from .signals import DERIVED, REDUCTIONS, SIGNALS, SignalContext, derive
+
+# observer(start_row, stop_row, runs): rows [start_row, stop_row) of every run are final and may
+# be streamed out (e.g. to a rerun recording); ``runs`` are views truncated at stop_row.
+Observer = Callable[[int, int, list[Trajectory]], None]
+
+OBSERVE_EVERY = 5000  # rows per observer call: streamed chunks, few enough to keep recording cheap
+METRICS_CHUNK = 1000  # rows buffered per reduction in a metrics-only run (at least; see below)
+METRICS_BUFFER_ELEMENTS = 5000  # rows x copies per chunk (so a single run reduces 5000 rows at a time)
+REDUCE_ELEMENTS = 100_000  # rows x copies per block when deriving z, e_z (cache-sized temporaries)
+
+
+def chunk_end(first: int, size: int, rows: int) -> int:
+    """The last row of the chunk of ``size`` rows that starts at row ``first``, or the run's last
+    row if fewer than ``size // 2`` rows would be left after it (a 10 s, 1 kHz run streams 5000 +
+    5001 rows, not 5000 + 5000 + 1: each chunk costs a recording a send per series)."""
+    last = first + size - 1
+    return rows - 1 if rows - 1 - last < size // 2 else last
+
+
+class _Record:
+    """What both records share: the run's parts, and how rows become trajectories."""
+
+    def __init__(self, grid: TimeGrid, law: BatchLaw, reference: ReferenceRows, divergence: Divergence,
+                 capacity: int, batch: int, n: int, observer: Observer | None) -> None:
+        self.grid, self.law, self.reference, self.divergence = grid, law, reference, divergence
+        self.batch, self.observer = batch, observer
+        self.buffer = RowBuffer(capacity, batch, n, law.state_size)
+        self.context = SignalContext(law.coordinates)
+        self.started = 0.0  # the run's start (time.perf_counter), set by the loop
+
+    def signals(self, first: int, stop: int) -> dict[str, np.ndarray]:
+        """Every signal of run rows ``[first, stop)`` (views of the buffer, derived signals new)."""
+        block = self.buffer.rows(first, stop)
+        block["yd"] = self.reference.block(first, stop)[:, None, :]
+        return derive(block, self.context)
+
+    def trajectories(self, first: int, lengths: np.ndarray, signals: dict[str, np.ndarray],
+                     now: float) -> list[Trajectory]:
+        """Trajectories over run rows ``first + [0, lengths[b])`` of ``signals`` (views)."""
+        d = self.divergence
+        return [
+            Trajectory(
+                t=self.grid.instants(first, first + lengths[b]),
+                signals={s.name: signals[s.name][: lengths[b], 0 if s.shared else b] for s in SIGNALS},
+                adaptive_name=self.law.state_name, L_z=self.law.coordinates.L_z.copy(), dt=self.grid.dt,
+                duration=self.grid.duration, diverged=d.times[b] is not None, diverged_time=d.times[b],
+                divergence_reason=d.reasons[b], wall_time_s=now - self.started,
+            )
+            for b in range(self.batch)
+        ]
+
+
+class FullRecord(_Record):
+    """Keeps every row of every copy; derives z, zbar and e_z in cache-sized blocks when they are
+    first asked for; calls the observer every ``observe_every`` rows (the last call takes up to
+    half as many more) and at the end."""
+
+    def __init__(self, grid: TimeGrid, law: BatchLaw, reference: ReferenceRows, divergence: Divergence,
+                 batch: int, n: int, observer: Observer | None, observe_every: int) -> None:
+        super().__init__(grid, law, reference, divergence, grid.rows, batch, n, observer)
+        self.observe_every = observe_every
+        self.observed = 0  # rows [0, observed) went to the observer
+        self.derived = 0  # rows [0, derived) have their derived signals
+        self.arrays = self.buffer.arrays | {"yd": reference.table[:, None, :]}
+        for s in DERIVED:
+            self.arrays[s.name] = np.full((grid.rows, batch, s.size(n, law.state_size)), np.nan)
+
+    def next_event(self, k: int) -> int:
+        return NEVER if self.observer is None else chunk_end(self.observed, self.observe_every,
+                                                             self.grid.rows)
+
+    def at(self, end: int, finished: bool, now: float) -> None:
+        if self.observer is None or not (finished or end == self.next_event(end)):
+            return
+        self.observer(self.observed, end + 1, self._runs(np.minimum(self.divergence.kept, end + 1), now))
+        self.observed = end + 1
+
+    def results(self, now: float) -> list[Trajectory]:
+        return self._runs(self.divergence.kept, now)
+
+    def _runs(self, lengths: np.ndarray, now: float) -> list[Trajectory]:
+        self._derive(int(lengths.max()))
+        return self.trajectories(0, lengths, self.arrays, now)
+
+    def _derive(self, stop: int) -> None:
+        """Fill the derived signals of rows ``[derived, stop)``, a cache-sized block at a time."""
+        block = max(1, REDUCE_ELEMENTS // self.batch)
+        for first in range(self.derived, stop, block):
+            last = min(stop, first + block)
+            signals = self.signals(first, last)
+            for s in DERIVED:
+                self.arrays[s.name][first:last] = signals[s.name]
+        self.derived = max(self.derived, stop)
+
+
+class MetricsRecord(_Record):
+    """Keeps only the reductions of the signal table (:class:`RunMetrics`): rows are buffered a
+    chunk at a time (``METRICS_CHUNK`` rows, more for small batches) and folded in, so 1000 copies
+    of a 10 s, 1 kHz run need about 80 MB instead of several GB and memory does not grow with the
+    run. An observer receives each chunk as short trajectories (rows ``[0, len)`` new)."""
+
+    def __init__(self, grid: TimeGrid, law: BatchLaw, reference: ReferenceRows, divergence: Divergence,
+                 batch: int, n: int, observer: Observer | None) -> None:
+        self.chunk = max(METRICS_CHUNK, METRICS_BUFFER_ELEMENTS // batch)
+        super().__init__(grid, law, reference, divergence, min(grid.rows, self.chunk + self.chunk // 2),
+                         batch, n, observer)
+        widths = {s.name: s.size(n, law.state_size) for s in SIGNALS}
+        self.reductions = [(name, fold(batch, widths[name], grid.duration)) for name, fold in REDUCTIONS]
+
+    def next_event(self, k: int) -> int:
+        return chunk_end(self.buffer.base, self.chunk, self.grid.rows)
+
+    def at(self, end: int, finished: bool, now: float) -> None:
+        if not (finished or end == self.next_event(end)):
+            return
+        base, stop = self.buffer.base, end + 1
+        if self.observer is not None:
+            lengths = np.clip(self.divergence.kept - base, 0, stop - base)
+            self.observer(0, stop - base, self.trajectories(base, lengths, self.signals(base, stop), now))
+        self._reduce(base, stop)
+        self.buffer.base = stop
+
+    def _reduce(self, base: int, stop: int) -> None:
+        """Fold rows ``[base, stop)`` into the reductions, a cache-sized block at a time."""
+        diverged = self.divergence.kept < self.grid.rows
+        block = max(1, REDUCE_ELEMENTS // self.batch)
+        for first in range(base, stop, block):
+            last = min(stop, first + block)
+            chunk = Chunk(first, self.grid.instants(first, last), self.divergence.kept, diverged)
+            signals = self.signals(first, last)
+            for name, fold in self.reductions:
+                fold.add(chunk, signals[name])
+
+    def results(self, now: float) -> list[RunMetrics]:
+        d = self.divergence
+        return [
+            RunMetrics(
+                steps=int(d.kept[b]) - 1, values={fold.name: fold.value(b) for _, fold in self.reductions},
+                adaptive_name=self.law.state_name, L_z=self.law.coordinates.L_z.copy(), dt=self.grid.dt,
+                duration=self.grid.duration, diverged=d.times[b] is not None, diverged_time=d.times[b],
+                divergence_reason=d.reasons[b], wall_time_s=now - self.started,
+            )
+            for b in range(self.batch)
+        ]

@@ -1,0 +1,93 @@
+"""What a closed-loop run returns: a full :class:`Trajectory` or, for sweeps and long runs, its
+:class:`RunMetrics`. Their array fields and metrics are made from the signal table
+(:data:`~qcontrol.engine.signals.SIGNALS`), so every recorded signal is an attribute here."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from .reductions import Chunk
+from .signals import REDUCTIONS, SIGNALS
+
+
+@dataclass(kw_only=True)
+class RunRecord:
+    """What every record of a run carries: the adaptive state's name, the Lemma 2 bounds ``L_z``,
+    the step and horizon, and how the run ended."""
+
+    adaptive_name: str
+    L_z: np.ndarray
+    dt: float
+    duration: float
+    diverged: bool = False
+    diverged_time: float | None = None
+    divergence_reason: str = ""
+    wall_time_s: float = 0.0
+
+
+@dataclass(kw_only=True)
+class Trajectory(RunRecord):
+    """Everything one closed-loop run recorded; arrays are time-major (row k is ``t[k] = k dt``).
+
+    ``signals`` maps each name of the signal table to its array: ``(rows, n)`` for a state-wide
+    signal, ``(rows, n+1)`` for ``yd``, ``(rows, m)`` for ``adaptive``, ``(rows,)`` for ``u``. Each
+    is also an attribute (``traj.x``, ``traj.x_q``, ``traj.u``, ...; see the table for what each
+    means). A diverged run ends with the row that stopped it.
+    """
+
+    t: np.ndarray
+    signals: dict[str, np.ndarray] = field(repr=False)
+
+    @property
+    def y(self) -> np.ndarray:
+        """The output ``y = x_1``."""
+        return self.signals["x"][:, 0]
+
+    @property
+    def steps(self) -> int:
+        return len(self.t) - 1
+
+    def with_signals(self, **arrays: np.ndarray) -> Trajectory:
+        """A copy with the named signals replaced (e.g. ``traj.with_signals(x=x, u=u)``)."""
+        unknown = set(arrays) - set(self.signals)
+        if unknown:
+            raise ValueError(f"no signal named {sorted(unknown)[0]!r}; signals are {', '.join(self.signals)}")
+        return replace(self, signals=self.signals | arrays)
+
+    def reduced(self) -> dict[str, Any]:
+        """The metrics of the run, by the same reductions as a metrics-only run (one chunk)."""
+        rows = len(self.t)
+        chunk = Chunk(0, self.t, np.array([rows]), np.array([self.diverged]))
+        values = {}
+        for signal, reduction in REDUCTIONS:
+            array = self.signals[signal]
+            fold = reduction(1, array.shape[-1] if array.ndim > 1 else 1, self.duration)
+            fold.add(chunk, array[:, None])
+            values[reduction.name] = fold.value(0)
+        return values
+
+
+for _signal in SIGNALS:
+    setattr(Trajectory, _signal.name, property(lambda traj, key=_signal.name: traj.signals[key],
+                                               doc=f"{_signal.meaning} ({_signal.width} wide)"))
+
+
+@dataclass(kw_only=True)
+class RunMetrics(RunRecord):
+    """What a run recorded in metrics mode keeps: the reductions of the signal table (``values``,
+    each also an attribute: ``error_rate``, ``max_abs_u``, ...), in memory that does not grow with
+    the run's length; ``steps`` the steps taken."""
+
+    steps: int
+    values: dict[str, Any] = field(repr=False)
+
+    def reduced(self) -> dict[str, Any]:
+        return self.values
+
+
+for _, _reduction in REDUCTIONS:
+    setattr(RunMetrics, _reduction.name, property(lambda run, key=_reduction.name: run.values[key]))
+del _signal, _reduction

@@ -1,0 +1,140 @@
+"""The one table of recorded signals (:data:`SIGNALS`).
+
+Every signal of a run is declared here once: its name, width, unit, whether it is held over the
+step (drawn as steps) or interpolated, what it means, and either that the loop records it every
+row or the function that derives it from recorded ones (for many rows at once, after the loop
+recorded them). The engine's row buffers, the fields of :class:`~qcontrol.engine.results.Trajectory`,
+the metrics of :class:`~qcontrol.engine.results.RunMetrics` (each signal's ``reductions``), the
+saved trajectory files and the rerun series are all made from this table.
+
+Adding a signal is one row plus the function that computes it; a derived signal may read the
+signals above it in the table.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..controller.backstepping import Backstepping
+from .reductions import (
+    ErrorRate,
+    FinalValue,
+    LargestAbs,
+    LastHalfLargestAbs,
+    Lemma2Largest,
+    Reduction,
+)
+
+Block = Mapping[str, np.ndarray]  # signals of rows [first, stop): (rows, batch, width); y_d (rows, 1, n+1)
+
+
+@dataclass(frozen=True)
+class SignalContext:
+    """What derivations may read besides the block: the coordinates of the recorded errors."""
+
+    coordinates: Backstepping
+
+
+Derive = Callable[[Block, SignalContext], np.ndarray]
+
+
+def _z(block: Block, ctx: SignalContext) -> np.ndarray:
+    """The true errors (7)-(8) from the true state."""
+    return ctx.coordinates.errors(block["x"], block["yd"])
+
+
+def _zbar(block: Block, ctx: SignalContext) -> np.ndarray:
+    """The quantized errors (31)-(33) from the quantized reading (what the controller computed)."""
+    return ctx.coordinates.quantized_errors(block["x_q"], block["yd"])[0]
+
+
+def _e_z(block: Block, ctx: SignalContext) -> np.ndarray:
+    """Lemma 2's errors ``|z(x_meas) - zbar|``: the errors of the very reading the quantizer saw."""
+    return np.abs(ctx.coordinates.errors(block["x_meas"], block["yd"]) - block["zbar"])
+
+
+@dataclass(frozen=True)
+class Plot:
+    """Where recordings draw a signal: one series per shown component, at ``path`` with the legend
+    ``label`` (``{i}`` is the component's number from 1, ``{a}`` the adaptive state's name).
+    ``components``: the ones shown (None: all); ``per_bound``: divided by the Lemma 2 bound L_zi;
+    ``twin``: also drawn for a twin run (the ODE beside MuJoCo); ``color``: "main", "reference",
+    "quantized" or "palette" (one colour per component)."""
+
+    path: str
+    label: str
+    components: tuple[int, ...] | None = None
+    per_bound: bool = False
+    twin: bool = False
+    color: str = "main"
+
+
+@dataclass(frozen=True)
+class Signal:
+    """One recorded signal.
+
+    ``width``: ``"n"`` (one per state), ``"n+1"`` (y_d and its n derivatives), ``"m"`` (one per
+    adaptive state) or ``"1"`` (a scalar: its arrays have no last axis). ``derive`` is None for
+    the signals the loop records every row; a derivation may read the signals above it.
+    ``shared``: one value for every copy of a batch (the reference, computed from the grid).
+    ``reductions``: what a metrics-only run keeps of it (the summary reads them); ``plots``:
+    where recordings draw it.
+    """
+
+    name: str
+    width: str
+    unit: str
+    held: bool
+    meaning: str
+    derive: Derive | None = None
+    shared: bool = False
+    reductions: tuple[type[Reduction], ...] = ()
+    plots: tuple[Plot, ...] = ()
+
+    @property
+    def recorded(self) -> bool:
+        """Recorded by the loop every row (not derived, not the reference)."""
+        return self.derive is None and not self.shared
+
+    def size(self, n: int, m: int) -> int:
+        return {"n": n, "n+1": n + 1, "m": m, "1": 1}[self.width]
+
+
+SIGNALS: tuple[Signal, ...] = (
+    Signal("x", "n", "state", False, "true state x_1..x_n of eq. (1) (never shown to the controller)",
+           plots=(Plot("signals/tracking/y", "y", (0,), twin=True), Plot("signals/state/x{i}/x", "x{i}"))),
+    Signal("x_meas", "n", "state", False, "sensor reading of x, before quantization"),
+    Signal("x_q", "n", "state", True, "quantized reading q(x_meas), eq. (3): all the controller sees",
+           plots=(Plot("signals/state/x{i}/q", "q(x{i})", color="quantized"),)),
+    Signal("u", "1", "input", True, "input held over [t_k, t_k + dt): law (44), (46) or a user law",
+           reductions=(LargestAbs,), plots=(Plot("signals/input/u", "u", twin=True),)),
+    Signal("adaptive", "m", "adaptive", False, "adaptive estimates (eps_hat of (45), theta_hat of (46), ...)",
+           reductions=(FinalValue,), plots=(Plot("signals/adaptive/{a}_{i}", "{a}_{i}", color="palette"),)),
+    Signal("yd", "n+1", "y", False, "reference y_d and its derivatives y_d', ..., y_d^(n)", shared=True,
+           plots=(Plot("signals/tracking/y_d", "y_d", (0,), color="reference"),)),
+    Signal("z", "n", "state", False, "errors z_i of eqs. (7)-(8), from the true state", _z,
+           reductions=(ErrorRate, LastHalfLargestAbs),
+           plots=(Plot("signals/error/z1", "z1", (0,), twin=True),)),
+    Signal("zbar", "n", "state", False, "quantized errors zbar_i of eqs. (31)-(33)", _zbar),
+    Signal("e_z", "n", "state", False, "Lemma 2 errors |z_i(x_meas) - zbar_i| (bound L_zi)", _e_z,
+           reductions=(Lemma2Largest,),
+           plots=(Plot("theory/lemma2/z{i}", "|e_z{i}| / L_z{i}", per_bound=True, color="palette"),)),
+)
+RECORDED = tuple(s for s in SIGNALS if s.recorded)
+DERIVED = tuple(s for s in SIGNALS if s.derive is not None)
+REDUCTIONS: tuple[tuple[str, type[Reduction]], ...] = tuple(
+    (s.name, r) for s in SIGNALS for r in s.reductions)
+assert tuple(s.name for s in RECORDED) == ("x", "x_meas", "x_q", "u", "adaptive"), (
+    "the loop records exactly these, in this order (see qcontrol.engine.rows)")
+
+
+def derive(block: dict[str, np.ndarray], ctx: SignalContext) -> dict[str, np.ndarray]:
+    """Add the derived signals, in table order, to ``block`` (which holds the recorded signals of
+    some rows and ``yd`` shaped ``(rows, 1, n+1)``) and return it."""
+    with np.errstate(all="ignore"):  # rows of a diverged copy may hold NaN/Inf
+        for signal in DERIVED:
+            block[signal.name] = signal.derive(block, ctx)
+    return block

@@ -1,0 +1,78 @@
+"""The registry of plant backends a scenario's ``simulation.backend`` selects.
+
+Each backend declares the keys of its own section ``[plant.<name>]`` (None: it takes none),
+parses and checks them, builds a :class:`~qcontrol.plants.base.Plant` for a batch of variants, and
+says what variants must share to be stepped as one batch. Adding a backend is one module with its
+plant class and its :class:`Backend`, plus one :func:`register_backend` call.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Hashable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ..errors import QcontrolInputError
+from ..schema import Section, Table
+from .base import Plant, PlantTerms
+
+
+@dataclass(frozen=True)
+class PlantContext:
+    """What a backend's section is checked against: the plant's terms, the scenario file's folder
+    (paths are relative to it) and the step dt."""
+
+    terms: PlantTerms
+    base_dir: Path
+    dt: float
+
+
+@dataclass(frozen=True)
+class Scene:
+    """What a recording draws in 3-D: a MuJoCo model and the joint that x1 drives."""
+
+    model: Any  # mujoco.MjModel
+    joint: str
+
+
+@dataclass(frozen=True)
+class Backend:
+    """One plant backend.
+
+    ``section``/``parse``: the keys of ``[plant.<name>]`` and their parsed options (None when the
+    backend takes no section); ``build(terms, options, dt)`` makes one plant of ``len(terms)``
+    copies; ``structure(terms, options)`` is what variants stepped as one batch must share;
+    ``scene(options, dt)`` what recordings draw (None: nothing to draw).
+    """
+
+    name: str
+    section: Section | None
+    parse: Callable[[Table, PlantContext], Any] | None
+    build: Callable[[Sequence[PlantTerms], Any, float], Plant]
+    structure: Callable[[PlantTerms, Any], Hashable]
+    scene: Callable[[Any, float], Scene | None]
+    summary: str
+
+    def require(self, options: Any, source: str) -> None:
+        """Refuse a scenario that lacks the section this backend needs to run."""
+        if self.section is not None and options is None:
+            raise QcontrolInputError(
+                f"{source}: backend {self.name!r} needs a [plant.{self.name}] table "
+                f"({self.section.meaning}); "
+                f"add one, or use --backend {_other(self.name)}"
+            )
+
+
+def _other(name: str) -> str:
+    return next((b for b in BACKENDS if b != name), "ode")
+
+
+BACKENDS: dict[str, Backend] = {}
+
+
+def register_backend(backend: Backend) -> None:
+    """Add a plant backend; its name must be new."""
+    if backend.name in BACKENDS:
+        raise QcontrolInputError(f"plant backend {backend.name!r} is already registered; choose another name")
+    BACKENDS[backend.name] = backend

@@ -1,0 +1,127 @@
+"""MuJoCo's process-global hooks: the passive-force callback and the warning handler.
+
+``mjcb_passive`` is one function for the whole process. One dispatcher serves every plant in use:
+each ``MjData`` has its own entry (:func:`passive_forces`), and the callback found before the
+first plant is restored after the last. A term of eq. (1) with no rigid-body counterpart
+(Example 1's psi, Example 2's theta2 x2^2 cos x1) is added to ``qfrc_passive`` here; MuJoCo's
+RK4 calls the callback at each of its four stages, so MuJoCo and the ODE integrate the same
+vector field with the same scheme.
+
+MuJoCo's default warning handler appends to ``MUJOCO_LOG.TXT`` in the working folder. Importing
+this module replaces it for the whole process with :func:`collect_warnings`' sinks: a plant
+collects its run's warnings (a blow-up is reported as a divergence), and warnings outside any run
+(e.g. of the model check at load) are kept in :data:`UNCLAIMED_WARNINGS`, never written to disk.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from typing import Any
+
+import mujoco
+
+from ...expr import ScalarFn
+
+GeneralizedForce = Callable[[float, float], float]  # (qpos, qvel) -> generalized force
+
+_ENTRIES: dict[int, Callable[[], None]] = {}  # id(MjData) -> adds the non-native terms to it
+_PREVIOUS: list[Any] = []  # the passive callback that was installed before the dispatcher
+UNCLAIMED_WARNINGS: list[str] = []  # warnings while no run collects them (the last 100)
+_SINKS: list[list[str]] = []  # the innermost collecting run's list is last
+
+
+def generalized_force(terms: Sequence[tuple[float, ScalarFn]], inertia: float) -> GeneralizedForce:
+    """``(q, v) -> I * sum(coefficient * term(q, v))`` on plain floats, NaN where a term is
+    undefined (see :func:`qcontrol.expr.scalar_function`)."""
+    pairs = tuple((inertia * c, f) for c, f in terms)
+
+    def force(q: float, v: float) -> float:
+        xs = (q, v)
+        total = 0.0
+        try:
+            for c, f in pairs:
+                total += c * f(xs)
+        except (ValueError, ZeroDivisionError, OverflowError):
+            return math.nan
+        return total
+
+    return force
+
+
+def _dispatch(model: mujoco.MjModel, data: mujoco.MjData) -> None:
+    """The installed ``mjcb_passive``: MuJoCo passes the very MjData objects the plants own."""
+    apply = _ENTRIES.get(id(data))
+    if apply is not None:
+        apply()
+    elif _PREVIOUS and _PREVIOUS[0] is not None:
+        _PREVIOUS[0](model, data)
+
+
+def _applier(data: mujoco.MjData, qadr: int, dof: int, force: GeneralizedForce) -> Callable[[], None]:
+    qpos, qvel, qfrc = data.qpos, data.qvel, data.qfrc_passive  # views, made once
+
+    def apply() -> None:
+        qfrc[dof] += force(qpos.item(qadr), qvel.item(dof))
+
+    return apply
+
+
+@contextmanager
+def passive_forces(datas: Sequence[mujoco.MjData], qadr: int, dof: int,
+                   force: GeneralizedForce | None) -> Iterator[None]:
+    """Register ``datas`` with the dispatcher, installing it if needed; undo everything on exit."""
+    if force is None:
+        yield
+        return
+    if not _ENTRIES:
+        previous = mujoco.get_mjcb_passive()
+        _PREVIOUS[:] = [None if previous is _dispatch else previous]
+        mujoco.set_mjcb_passive(_dispatch)
+    keys = []
+    try:
+        for data in datas:
+            _ENTRIES[id(data)] = _applier(data, qadr, dof, force)
+            keys.append(id(data))
+        yield
+    finally:
+        for key in keys:
+            _ENTRIES.pop(key, None)
+        if not _ENTRIES:
+            mujoco.set_mjcb_passive(_PREVIOUS[0] if _PREVIOUS else None)
+            _PREVIOUS.clear()
+
+
+def _warn(message: str) -> None:
+    """The process's MuJoCo warning handler: into the collecting run's list, else kept aside."""
+    if _SINKS:
+        _SINKS[-1].append(message)
+    else:
+        UNCLAIMED_WARNINGS.append(message)
+        del UNCLAIMED_WARNINGS[:-100]
+
+
+@contextmanager
+def collect_warnings(sink: list[str]) -> Iterator[None]:
+    """MuJoCo's warnings go to ``sink`` inside the block (nested blocks: the innermost)."""
+    _SINKS.append(sink)
+    try:
+        yield
+    finally:
+        _SINKS.remove(sink)
+
+
+def unstable(messages: Sequence[str]) -> bool:
+    """Whether MuJoCo reported a blow-up among its ``messages``.
+
+    MuJoCo resets a copy whose ctrl/qpos/qvel/qacc turns NaN, Inf or huge and carries on from
+    the reset pose. It reports it through the warning handler the first time per MjData until
+    ``mj_resetData`` clears the counters, which the plant's ``reset`` does before every run; so
+    the first reset of a run always leaves an "unstable" message, and a copy is marked dead from
+    it (the plant's state and readings are NaN from then on).
+    """
+    return any("unstable" in m for m in messages)
+
+
+mujoco.set_mju_user_warning(_warn)

@@ -1,0 +1,271 @@
+"""Compiling the MJCF of ``[plant.mujoco]``: parameter overrides and realism options through
+``mujoco.MjSpec``, the element checks, and the joint's inertia. A model is compiled once per
+options, step and file content (:func:`compiled`), however many plants and recordings use it.
+
+Physical parameters have one source of truth: the MJCF holds the canonical numbers; a scenario
+may override them with ``parameters``:
+
+    mass     mass of the joint's body (its explicit <inertial>)        [kg]
+    length   distance from the hinge to that body's centre of mass;     [m]
+             the body's geoms are scaled with it (hinge joints only)
+    damping  joint damping                                              [N s/m or N m s/rad]
+    gravity  magnitude of gravity, pointing along -z                    [m/s^2]
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from ...errors import QcontrolInputError
+from .options import MujocoOptions
+
+INTEGRATORS = {
+    "RK4": mujoco.mjtIntegrator.mjINT_RK4,
+    "Euler": mujoco.mjtIntegrator.mjINT_EULER,
+    "implicit": mujoco.mjtIntegrator.mjINT_IMPLICIT,
+    "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
+}
+Fail = Callable[[str, str, str], QcontrolInputError]
+
+
+@dataclass(frozen=True)
+class Ids:
+    """Indices of the elements the plant uses, and the actuator's generalized force per ctrl."""
+
+    joint: int
+    dof: int
+    qpos: int  # the joint's address in qpos
+    position_sensor: int
+    velocity_sensor: int
+    actuator: int
+    actuator_gain: float
+
+
+@dataclass(frozen=True)
+class CompiledModel:
+    """A compiled model, its element ids and the nominal joint inertia I (the gain between u and
+    generalized force: the model with armature and rod mass off, which the ODE describes)."""
+
+    model: mujoco.MjModel
+    ids: Ids
+    inertia: float
+
+
+def compiled(options: MujocoOptions, timestep: float | None = None) -> CompiledModel:
+    """The model of ``options`` with ``timestep`` (the scenario's dt; it sizes the sensor history
+    buffers), compiled once per options, step and MJCF file content. Compile errors and missing or
+    unsuitable elements raise :class:`QcontrolInputError`. Users of the result must not modify
+    the model (it is shared)."""
+    try:
+        content = options.model.read_bytes()
+    except OSError as exc:
+        raise _fail(options)("model", f"cannot read {options.model.name} ({exc.strerror})",
+                             "give a readable MJCF file") from None
+    return _compiled(options, timestep, hashlib.sha256(content).hexdigest())
+
+
+def build_model(options: MujocoOptions, timestep: float | None = None) -> mujoco.MjModel:
+    """The compiled MjModel of ``options`` (see :func:`compiled`)."""
+    return compiled(options, timestep).model
+
+
+@lru_cache(maxsize=64)
+def _compiled(options: MujocoOptions, timestep: float | None, content_sha256: str) -> CompiledModel:
+    model, ids = _compile(options, timestep)
+    nominal = model if not (options.armature or options.rod_mass) else _compile(options.nominal(),
+                                                                                timestep)[0]
+    return CompiledModel(model, ids, joint_inertia(nominal))
+
+
+def _fail(options: MujocoOptions) -> Fail:
+    def fail(key: str, problem: str, fix: str) -> QcontrolInputError:
+        return QcontrolInputError(f"{options.where}.{key}: {problem}; {fix}")
+
+    return fail
+
+
+def _one_line(text: object) -> str:
+    return " ".join(str(text).split())
+
+
+def _compile(options: MujocoOptions, timestep: float | None) -> tuple[mujoco.MjModel, Ids]:
+    fail = _fail(options)
+    try:
+        spec = mujoco.MjSpec.from_file(str(options.model))
+    except Exception as exc:  # MuJoCo raises ValueError with a multi-line parser message
+        raise fail("model", f"MuJoCo cannot load {options.model.name}: {_one_line(exc)}",
+                   "fix the MJCF file") from None
+    joint, actuator = _find_elements(spec, options, fail)
+    if timestep is not None:
+        spec.option.timestep = timestep
+    spec.option.integrator = INTEGRATORS[options.integrator]
+    _apply_parameters(spec, joint, options, fail)
+    _apply_realism(spec, joint, actuator, options, fail)
+    try:
+        model = spec.compile()
+    except Exception as exc:
+        raise fail("model", f"MuJoCo cannot compile {options.model.name}: {_one_line(exc)}",
+                   "fix the MJCF file or the [plant.mujoco] options") from None
+    return model, _check_elements(model, options, fail)
+
+
+def _find_elements(spec: mujoco.MjSpec, options: MujocoOptions, fail: Fail) -> tuple[Any, Any]:
+    """The joint and the actuator the options name (and the sensors exist)."""
+    joint = _find(spec.joints, options.joint)
+    if joint is None:
+        raise fail("joint", f"no joint named {options.joint!r} in {options.model.name}",
+                   f"use one of {_names(spec.joints)}")
+    for key, name in (("position_sensor", options.position_sensor), ("velocity_sensor",
+                                                                     options.velocity_sensor)):
+        if _find(spec.sensors, name) is None:
+            raise fail(key, f"no sensor named {name!r} in {options.model.name}",
+                       f"use one of {_names(spec.sensors)}")
+    actuator = _find(spec.actuators, options.actuator)
+    if actuator is None:
+        raise fail("actuator", f"no actuator named {options.actuator!r} in {options.model.name}",
+                   f"use one of {_names(spec.actuators)}")
+    return joint, actuator
+
+
+def _find(elements: Sequence[Any], name: str) -> Any:
+    return next((e for e in elements if e.name == name), None)
+
+
+def _names(elements: Sequence[Any]) -> str:
+    names = [repr(e.name) for e in elements if e.name]
+    return ", ".join(names) if names else "(none: name the element in the MJCF)"
+
+
+def _apply_parameters(spec: mujoco.MjSpec, joint: Any, options: MujocoOptions, fail: Fail) -> None:
+    body = joint.parent
+    params = dict(options.parameters)
+    if "damping" in params:
+        damping = np.array(joint.damping, dtype=float)  # [linear, polynomial terms...] in mujoco 4
+        damping[0] = params["damping"]
+        joint.damping = damping
+    if "gravity" in params:
+        spec.option.gravity = [0.0, 0.0, -params["gravity"]]
+    if ("mass" in params or "length" in params) and not body.explicitinertial:
+        raise fail("parameters", f"body {body.name!r} of joint {joint.name!r} has no explicit <inertial>",
+                   "give the body an <inertial> element so mass and length have one source of truth")
+    if "mass" in params:
+        body.mass = params["mass"]
+    if "length" in params:
+        _scale_length(body, joint, params["length"], fail)
+
+
+def _scale_length(body: Any, joint: Any, length: float, fail: Fail) -> None:
+    """Move the body's centre of mass to ``length`` from the hinge, scaling its geoms with it."""
+    if joint.type != mujoco.mjtJoint.mjJNT_HINGE:
+        raise fail("parameters.length", f"joint {joint.name!r} is not a hinge",
+                   "remove length (it is the hinge-to-centre-of-mass distance)")
+    pivot = np.asarray(joint.pos, dtype=float)
+    arm = np.asarray(body.ipos, dtype=float) - pivot
+    old = float(np.linalg.norm(arm))
+    if old == 0.0:
+        raise fail("parameters.length", f"the centre of mass of {body.name!r} is on the hinge",
+                   "place the <inertial> away from the joint in the MJCF")
+    scale = length / old
+    body.ipos = pivot + arm * scale
+    for geom in body.geoms:  # keep the picture consistent with the physics
+        geom.pos = pivot + (np.asarray(geom.pos) - pivot) * scale
+        fromto = np.asarray(geom.fromto, dtype=float)
+        if np.all(np.isfinite(fromto)):
+            base = np.tile(pivot, 2)
+            geom.fromto = base + (fromto - base) * scale
+
+
+def _apply_realism(spec: mujoco.MjSpec, joint: Any, actuator: Any, options: MujocoOptions,
+                   fail: Fail) -> None:
+    if options.torque_limit is not None:
+        actuator.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+        actuator.ctrlrange = [-options.torque_limit, options.torque_limit]
+    joint.frictionloss = options.frictionloss or joint.frictionloss
+    joint.armature = options.armature or joint.armature
+    if options.rod_mass > 0:
+        _add_rod(joint, options.rod_mass, fail)
+    delay, period = options.sensor_delay, options.sensor_period
+    noise = dict(zip((options.position_sensor, options.velocity_sensor), options.sensor_noise, strict=True))
+    for sensor in spec.sensors:
+        if sensor.name in noise:
+            sensor.noise = noise[sensor.name]  # metadata only; the plant adds the noise
+            if delay > 0 or period > 0:
+                sensor.nsample = int(math.ceil(delay / spec.option.timestep - 1e-9)) + 1
+                sensor.delay = delay
+                sensor.interval = [period, 0.0]
+
+
+def _add_rod(joint: Any, mass: float, fail: Fail) -> None:
+    """A uniform rod of ``mass`` from the hinge to the body's centre of mass (a welded body)."""
+    if joint.type != mujoco.mjtJoint.mjJNT_HINGE:
+        raise fail("rod_mass", f"joint {joint.name!r} is not a hinge", "remove rod_mass")
+    body = joint.parent
+    arm = np.asarray(body.ipos, dtype=float) - np.asarray(joint.pos, dtype=float)
+    length = float(np.linalg.norm(arm))
+    axis = arm / length
+    # thin uniform rod about its centre (plus MuJoCo's minimum along the rod's axis)
+    inertia = mass * length**2 / 12.0 * (np.eye(3) - np.outer(axis, axis)) + 1e-12 * np.eye(3)
+    rod = body.add_body(name=f"{body.name}_rod_mass", pos=[0.0, 0.0, 0.0])
+    rod.explicitinertial = True
+    rod.mass = mass
+    rod.ipos = np.asarray(joint.pos, dtype=float) + arm / 2.0
+    rod.fullinertia = [inertia[0, 0], inertia[1, 1], inertia[2, 2], inertia[0, 1], inertia[0, 2], inertia[1,
+                                                                                                          2]]
+
+
+def _check_elements(model: mujoco.MjModel, options: MujocoOptions, fail: Fail) -> Ids:
+    """One scalar joint with a position and a velocity sensor on it and a plain motor."""
+    jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, options.joint)
+    if int(model.jnt_type[jid]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
+        raise fail("joint", f"joint {options.joint!r} is not a hinge or slide joint",
+                   "eq. (1) with n = 2 needs one scalar joint")
+    if model.nv != 1:
+        raise fail("model", f"{options.model.name} has {model.nv} degrees of freedom",
+                   "a plant of order 2 needs a model with exactly one scalar joint")
+    wanted = {"position_sensor": (options.position_sensor, mujoco.mjtSensor.mjSENS_JOINTPOS),
+              "velocity_sensor": (options.velocity_sensor, mujoco.mjtSensor.mjSENS_JOINTVEL)}
+    sensor_ids = {}
+    for key, (name, kind) in wanted.items():
+        sid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, name)
+        if int(model.sensor_type[sid]) != int(kind) or int(model.sensor_objid[sid]) != jid:
+            tag = kind.name[6:].lower()
+            raise fail(key, f"sensor {name!r} is not a {tag} sensor on joint {options.joint!r}",
+                       f"use <{tag} joint=\"{options.joint}\"/> in the MJCF")
+        sensor_ids[key] = sid
+    aid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, options.actuator)
+    gain = float(model.actuator_gainprm[aid, 0] * model.actuator_gear[aid, 0])
+    if not _plain_motor(model, aid, jid) or gain == 0.0:
+        raise fail("actuator", f"actuator {options.actuator!r} is not a <motor> on joint {options.joint!r}",
+                   f"use <motor joint=\"{options.joint}\" gear=\"1\"/> in the MJCF")
+    return Ids(jid, int(model.jnt_dofadr[jid]), int(model.jnt_qposadr[jid]), sensor_ids["position_sensor"],
+               sensor_ids["velocity_sensor"], aid, gain)
+
+
+def _plain_motor(model: mujoco.MjModel, aid: int, jid: int) -> bool:
+    return (
+        int(model.actuator_trntype[aid]) == int(mujoco.mjtTrn.mjTRN_JOINT)
+        and int(model.actuator_trnid[aid, 0]) == jid
+        and int(model.actuator_dyntype[aid]) == int(mujoco.mjtDyn.mjDYN_NONE)
+        and int(model.actuator_gaintype[aid]) == int(mujoco.mjtGain.mjGAIN_FIXED)
+        and int(model.actuator_biastype[aid]) == int(mujoco.mjtBias.mjBIAS_NONE)
+    )
+
+
+def joint_inertia(model: mujoco.MjModel) -> float:
+    """The (1x1) generalized inertia of a one-dof model at ``qpos0``, via ``mj_fullM``.
+
+    For a single hinge or slide joint it does not depend on the joint's position.
+    """
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    full = np.zeros((model.nv, model.nv))
+    mujoco.mj_fullM(model, data, full)
+    return float(full[0, 0])

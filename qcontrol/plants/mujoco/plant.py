@@ -1,0 +1,215 @@
+"""The MuJoCo-backed plant of eq. (1) with n = 2: one joint of an MJCF model.
+
+How the ODE maps to the model. The plant of eq. (1),
+
+    x1' = x2,    x2' = u + psi(x) + theta^T phi(x),
+
+is one scalar joint with x1 = its position (``qpos``) and x2 = its velocity (``qvel``). MuJoCo
+integrates ``I qacc = tau + qfrc_bias + qfrc_passive`` where ``I`` is the joint's generalized
+inertia. So:
+
+* ``u`` is acceleration-level (the ODE's unit input gain); the actuator command is ``I * u``
+  (divided by the motor's gain), with ``I`` read from the model by ``mujoco.mj_fullM``.
+* Terms MuJoCo's own physics produces (``native_terms``, e.g. joint damping for ``theta1 * x2``
+  and gravity for ``theta3 * sin(x1)`` in Example 2) are left to MuJoCo; every other term is
+  added by the passive callback (:mod:`.callbacks`).
+* The controller reads ``sensordata`` (jointpos, jointvel sensors), never ``qpos``/``qvel``.
+
+Realism options (each off by default) make the model differ from eq. (1) as hardware would; the
+actuator gain and the callback keep using the nominal inertia, so armature and rod mass act as
+unmodelled dynamics. ``sensor_noise`` is added by the plant (MuJoCo's sensor ``noise`` attribute
+is metadata only), seeded by ``noise_seed``; ``sensor_delay`` and ``sensor_period`` use MuJoCo's
+sensor history (``nsample``/``delay``/``interval``); the readings before t = delay are x(0).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from ...errors import QcontrolInputError
+from ...expr import scalar_function
+from ...timegrid import whole_steps
+from ..base import IO, PlantTerms, array_io
+from .callbacks import collect_warnings, generalized_force, passive_forces, unstable
+from .consistency import consistency_report
+from .model import compiled
+from .options import MujocoOptions
+
+_mj_step, _mj_sensor_pos, _mj_sensor_vel = mujoco.mj_step, mujoco.mj_sensorPos, mujoco.mj_sensorVel
+
+
+class MujocoPlant:
+    """Batch of ``batch`` MuJoCo copies of the plant of eq. (1), n = 2 (see the module docstring).
+
+    ``timestep`` is the scenario's dt: ``model.opt.timestep`` is set to it, so ``step(u, dt)`` is
+    one ``mj_step``; a step ``h`` that is a multiple of it takes several. After construction,
+    ``consistency_report`` holds the measured agreement of MuJoCo's acceleration with eq. (1).
+    """
+
+    def __init__(self, options: MujocoOptions, terms: PlantTerms, batch: int = 1,
+                 timestep: float | None = None) -> None:
+        where = options.where
+        if terms.order != 2:
+            raise QcontrolInputError(
+                f"{where}: the MuJoCo backend models one joint, i.e. plant order 2, but the plant has "
+                f"order {terms.order}; use backend = \"ode\" for this scenario"
+            )
+        if batch < 1:
+            raise QcontrolInputError(f"{where}: batch must be >= 1, got {batch}")
+        if timestep is not None and not (math.isfinite(timestep) and timestep > 0):
+            raise QcontrolInputError(f"{where}: timestep must be a finite number > 0, got {timestep!r}")
+        self.n, self.batch, self.options = 2, int(batch), options
+        built = compiled(options, timestep)
+        self.model, self._ids, self.inertia = built.model, built.ids, built.inertia
+        self.timestep = float(self.model.opt.timestep)
+        for key, value in (("sensor_delay", options.sensor_delay), ("sensor_period", options.sensor_period)):
+            if value > 0:
+                whole_steps(value, self.timestep, f"{where}.{key}", "the scenario's dt")
+        self._ctrl_per_u = self.inertia / self._ids.actuator_gain
+        native = tuple(name in options.native_terms for name in terms.names)
+        exprs = ([terms.psi] if terms.psi is not None else []) + list(terms.phi)
+        coefficients = ([1.0] if terms.psi is not None else []) + list(terms.theta)
+        applied = [(c, scalar_function(e)) for c, e, n in zip(coefficients, exprs, native,
+                                                              strict=True) if not n]
+        self._force = generalized_force(applied, self.inertia) if applied else None
+        self._datas = [mujoco.MjData(self.model) for _ in range(self.batch)]
+        self._views = [(d.ctrl, d.sensordata, d.qpos, d.qvel) for d in self._datas]
+        self._sadr = (int(self.model.sensor_adr[self._ids.position_sensor]),
+                      int(self.model.sensor_adr[self._ids.velocity_sensor]))
+        self._dead = [False] * self.batch
+        self._steppers: dict[float, list[Callable[[float], None]]] = {}  # h -> one per copy
+        self._noise = np.asarray(options.sensor_noise, dtype=float)
+        self._noisy = bool(self._noise.any())
+        self._rng = np.random.default_rng(options.noise_seed)
+        self._entered: list[Any] = []
+        self.warnings: list[str] = []  # MuJoCo's warnings during the last run
+        self.consistency_report = consistency_report(built, options, terms, native, self._force)
+
+    # ---- context manager: the process-global passive callback, and the run's warnings
+    def __enter__(self) -> MujocoPlant:
+        if self._entered:
+            raise RuntimeError("MujocoPlant is already in use by a 'with' block")
+        self.warnings = []
+        self._steppers = {}  # (they hold the warnings list)
+        self._entered = [passive_forces(self._datas, self._ids.qpos, self._ids.dof, self._force),
+                         collect_warnings(self.warnings)]
+        for manager in self._entered:
+            manager.__enter__()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        managers, self._entered = self._entered, []
+        for manager in reversed(managers):
+            manager.__exit__(None, None, None)
+
+    # ---- Plant protocol
+    def reset(self, x0: np.ndarray) -> None:
+        """Put every copy at ``x0`` (shape ``(batch, 2)``); sensor histories are filled with it."""
+        x0 = np.broadcast_to(np.asarray(x0, dtype=float), (self.batch, 2))
+        model, ids = self.model, self._ids
+        for b, data in enumerate(self._datas):
+            mujoco.mj_resetData(model, data)
+            data.qpos[ids.qpos] = x0[b, 0]
+            data.qvel[ids.dof] = x0[b, 1]
+            mujoco.mj_forward(model, data)
+            for sid, value in ((ids.position_sensor, x0[b, 0]), (ids.velocity_sensor, x0[b, 1])):
+                nsample = int(model.sensor_history[sid, 0])
+                if nsample > 0:  # the sensor has read x(0) for all t < 0
+                    mujoco.mj_initSensorHistory(model, data, sid, None, np.full((nsample, 1), value), 0.0)
+            if model.nhistory:
+                mujoco.mj_forward(model, data)
+        self._dead[:] = [False] * self.batch  # in place: the step closures hold this list
+        self._rng = np.random.default_rng(self.options.noise_seed)
+
+    def state(self) -> np.ndarray:
+        """The true ``(qpos, qvel)`` of every copy (NaN for a copy MuJoCo had to reset)."""
+        q, dof = self._ids.qpos, self._ids.dof
+        out = np.array([(qpos.item(q), qvel.item(dof)) for _, _, qpos, qvel in self._views])
+        if True in self._dead:
+            out[np.asarray(self._dead)] = np.nan
+        return out
+
+    def read_sensors(self) -> np.ndarray:
+        """``sensordata`` of the position and velocity sensors (plus noise, if configured)."""
+        p, v = self._sadr
+        out = np.array([(data.item(p), data.item(v)) for _, data, _, _ in self._views])
+        if self._noisy:
+            out += self._rng.normal(0.0, 1.0, size=out.shape) * self._noise
+        if True in self._dead:
+            out[np.asarray(self._dead)] = np.nan
+        return out
+
+    def step(self, u: np.ndarray, h: float) -> None:
+        """Hold ``u`` for ``h`` seconds: ``h / timestep`` calls of ``mj_step`` per copy.
+
+        ``mj_step`` leaves ``sensordata`` at the state before its last substep, so
+        ``mj_sensorPos``/``mj_sensorVel`` then bring the (joint position and velocity) sensors to
+        the new state; with a sensor delay they read MuJoCo's history buffer instead.
+        """
+        if not self._entered and self._force is not None:
+            raise RuntimeError("use MujocoPlant in a 'with' block: its passive callback is installed there")
+        steppers = self._steppers.get(h) or self._make_steppers(h)
+        values = np.asarray(u, dtype=float).ravel().tolist()
+        if len(values) != self.batch:
+            values = values * self.batch if len(values) == 1 else list(np.broadcast_to(values, (self.batch,)))
+        for step_copy, value in zip(steppers, values):  # noqa: B905 (one value per copy)
+            step_copy(value)
+
+    def _make_steppers(self, h: float) -> list[Callable[[float], None]]:
+        """One ``step(u)`` per copy for steps of ``h``: closures over the copy's MjData views,
+        made once per step length and ``with`` block (they hold its list of MuJoCo warnings)."""
+        substeps = whole_steps(h, self.timestep, f"{self.options.where}: step", "the model timestep")
+        model, dead, messages = self.model, self._dead, self.warnings
+        actuator, ctrl_per_u = self._ids.actuator, self._ctrl_per_u
+
+        def stepper(b: int) -> Callable[[float], None]:
+            data, ctrl = self._datas[b], self._views[b][0]
+
+            def step_copy(u: float) -> None:
+                """Copy ``b`` through ``substeps`` calls of ``mj_step`` with ``u`` held."""
+                if dead[b]:
+                    return
+                ctrl[actuator] = ctrl_per_u * u
+                seen = len(messages)
+                _mj_step(model, data, substeps)
+                _mj_sensor_pos(model, data)
+                _mj_sensor_vel(model, data)
+                if len(messages) != seen and unstable(messages[seen:]):  # a blow-up always warns
+                    dead[b] = True
+
+            return step_copy
+
+        steppers = self._steppers[h] = [stepper(b) for b in range(self.batch)]
+        return steppers
+
+    def io(self, h: float) -> IO:
+        """:meth:`~qcontrol.plants.base.Plant.io`; for a batch of one, closures over the copy's
+        MjData views, so a step costs one ``mj_step`` call and a few attribute-free operations."""
+        if not self._entered:
+            raise RuntimeError("use MujocoPlant in a 'with' block: io() belongs to one run")
+        if self.batch != 1:
+            return array_io(self, h)
+        steppers = self._steppers.get(h) or self._make_steppers(h)
+        sensordata, qpos, qvel = self._views[0][1:]
+        q, dof = self._ids.qpos, self._ids.dof
+        p, v = self._sadr
+        dead = self._dead
+        noise = self._noise.tolist() if self._noisy else None
+        nan = [math.nan, math.nan]
+
+        def observe() -> tuple[list[float], list[float]]:
+            if noise is not None:  # one draw per reading, the same stream as read_sensors
+                e = self._rng.normal(0.0, 1.0, size=(1, 2))[0].tolist()
+            if dead[0]:
+                return nan[:], nan[:]
+            x = [qpos.item(q), qvel.item(dof)]
+            if noise is not None:
+                return x, [sensordata.item(p) + e[0] * noise[0], sensordata.item(v) + e[1] * noise[1]]
+            return x, [sensordata.item(p), sensordata.item(v)]
+
+        return observe, steppers[0]

@@ -1,0 +1,343 @@
+"""Rerun recordings of closed-loop runs: 3-D motion, every signal, Lemma 2 margins, a default layout.
+
+A :class:`Recording` writes one ``.rrd`` file while runs go on. Each run streams into it through an
+engine observer (:meth:`Recording.observer`, see :func:`qcontrol.engine.simulate`): every call sends
+the rows that became final as columns (``send_columns``) on the duration timeline ``sim_time`` and
+flushes them to disk, so an interrupted or diverged run leaves a readable recording up to its last
+chunk. The series come from the signal table (:mod:`.series`), the 3-D bodies from the MuJoCo
+model (:mod:`.scene`); the static entities are ``info/scenario``, ``info/constants`` and
+``info/version``. Times are integer nanoseconds ``round(t * 1e9)``. Only ``runs[0]`` of a batch
+is streamed.
+
+File handling: data goes to ``<path>.part`` while the recording is open. On *any* exit of the
+``with`` block (clean, exception, ``KeyboardInterrupt``) the stream is flushed and closed and the
+file renamed to ``path``: what was recorded up to the last chunk is kept, no temporary file is
+left behind. Only a killed process leaves the ``.part`` file (readable up to its last flush).
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import sys
+import warnings
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from types import TracebackType
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..engine import Observer, Trajectory
+from ..outputs import AtomicFile
+from .scene import Scene
+from .series import RED, TIMELINE, Series, default_blueprint, run_series
+
+if TYPE_CHECKING:
+    import mujoco
+    import rerun as rr
+
+_GHOST_ALPHA = 70
+_MAIN_RUN_TAKEN = "a main (non-ghost) run is already being recorded into this file"
+
+
+def temporary_path(path: Path) -> Path:
+    """The name a recording is written under until it is closed: ``<path>.part``."""
+    return path.with_name(path.name + ".part")
+
+
+def time_nanoseconds(t: np.ndarray) -> np.ndarray:
+    """The ``sim_time`` values logged for times ``t`` (seconds): ``round(t * 1e9)`` as int64 ns."""
+    return np.round(np.asarray(t, dtype=float) * 1e9).astype(np.int64)
+
+
+def _label_suffix(label: str) -> str:
+    cleaned = re.sub(r"[^A-Za-z0-9_\-]", "_", label)
+    if not cleaned:
+        raise ValueError("a ghost run needs a non-empty label (it names its entities, e.g. 'ode')")
+    return cleaned
+
+
+def _viewer_executable() -> str | None:
+    """The rerun viewer: on PATH, else beside this interpreter (a venv not on PATH), else None."""
+    found = shutil.which("rerun")
+    if found is None:
+        beside = Path(sys.executable).with_name("rerun")
+        found = str(beside) if beside.exists() else None
+    return found
+
+
+def _ignore(start: int, stop: int, runs: list[Trajectory]) -> None:
+    """The observer of a recording that has nowhere to write (its viewer could not start)."""
+
+
+class Recording:
+    """A rerun recording of one or more closed-loop runs, written while they go on.
+
+    Use as a context manager; see the module docstring for the entity layout and file handling.
+    ``path`` is the file to write, ``spawn=True`` opens a viewer (when one can be started) and
+    streams to it as well; at least one of them must be given.
+    """
+
+    def __init__(self, path: Path | None, *, spawn: bool = False, application_id: str = "qcontrol") -> None:
+        if path is None and not spawn:
+            raise ValueError("a recording needs a file (path) or a viewer (spawn=True)")
+        self.path = None if path is None else Path(path)
+        self.spawn = spawn
+        self._file: AtomicFile | None = None
+        self.application_id = application_id
+        self._stream: rr.RecordingStream | None = None
+        self._main_taken = False
+        self._ghosts: set[str] = set()
+        self._blueprint_sent = False
+        self._fixed_logged = False
+        self._flush_failed = False
+        self._open()
+
+    @property
+    def enabled(self) -> bool:
+        """Whether this recording logs anything (it is open, with a file, a viewer or both)."""
+        return self._stream is not None
+
+    @property
+    def part_path(self) -> Path | None:
+        """Where the file is written until the recording is closed."""
+        return None if self.path is None else temporary_path(self.path)
+
+    def _open(self) -> None:
+        import rerun as rr
+
+        stream = rr.RecordingStream(self.application_id)
+        sinks: list[Any] = []
+        if self.path is not None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._file = AtomicFile(self.path, temporary=temporary_path(self.path))
+            sinks.append(rr.FileSink(str(self._file.temporary)))
+        if self.spawn:
+            try:
+                rr.spawn(connect=False, recording=stream, executable_path=_viewer_executable())
+                sinks.append(rr.GrpcSink())
+            except Exception as exc:  # no viewer available: keep the file, if any
+                warnings.warn(
+                    f"could not start a rerun viewer ({exc}); not streaming to a viewer", stacklevel=3
+                )
+        if not sinks:  # nowhere to write: stay inert rather than buffer the run in memory
+            return
+        stream.set_sinks(*sinks)
+        stream.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        self._stream = stream
+
+    def __enter__(self) -> Recording:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Flush and close the stream, then rename the file to its final name (idempotent)."""
+        if self._stream is None:
+            return
+        try:
+            self.flush()
+            self._stream.disconnect()  # closes the file: writes rerun's footer
+        finally:
+            self._stream = None
+            if self._file is not None and self._file.temporary.exists():
+                self._file.commit()
+
+    def flush(self) -> None:
+        """Block until everything logged so far is written; a failure (e.g. a viewer that went
+        away) is reported once as a warning and does not stop the run."""
+        if self._stream is None:
+            return
+        try:
+            self._stream.flush()
+        except RuntimeError as exc:
+            if not self._flush_failed:
+                warnings.warn(f"rerun could not flush the recording: {exc}", stacklevel=2)
+            self._flush_failed = True
+
+    # -- static content -------------------------------------------------------------------
+
+    def log_static(
+        self, scenario_text: str, constants: Mapping[str, float | Sequence[float]], version: str
+    ) -> None:
+        """Log the scenario file's text, the controller constants and the package version."""
+        if self._stream is None:
+            return
+        import rerun as rr
+
+        markdown = rr.components.MediaType.MARKDOWN
+        self._stream.log(
+            "info/scenario",
+            rr.TextDocument(f"```toml\n{scenario_text}\n```", media_type=markdown),
+            static=True,
+        )
+        rows = "\n".join(f"| {key} | {_format_constant(value)} |" for key, value in constants.items())
+        values = {key: np.atleast_1d(np.asarray(value, dtype=float)) for key, value in constants.items()}
+        self._stream.log(
+            "info/constants",
+            rr.TextDocument(f"| constant | value |\n|---|---|\n{rows}\n", media_type=markdown),
+            rr.AnyValues(**values),
+            static=True,
+        )
+        self._stream.log(
+            "info/version", rr.TextDocument(f"qcontrol {version}"), rr.AnyValues(version=version), static=True
+        )
+
+    # -- runs ------------------------------------------------------------------------------
+
+    def observer(
+        self,
+        label: str,
+        model: mujoco.MjModel | None = None,
+        joint: str | None = None,
+        ghost: bool = False,
+    ) -> Observer:
+        """An engine observer streaming ``runs[0]`` of a :func:`~qcontrol.engine.simulate` call.
+
+        ``label`` names the run ("mujoco", "ode"): it tags the main run's series names and, for a
+        ghost, its entity paths (``world/{label}_ghost``, ``signals/tracking/y_{label}``, ...).
+        With ``model`` the bodies are drawn and posed by replaying x1 into ``joint`` (a hinge or
+        slide; may be omitted when the model has one joint). One main run per recording; a ghost
+        run adds the translucent twin and its y, z1, u.
+        """
+        if self._stream is None:
+            return _ignore
+        if ghost:
+            suffix = _label_suffix(label)
+            if suffix in self._ghosts:
+                raise ValueError(f"a ghost run labelled {label!r} is already being recorded")
+            self._ghosts.add(suffix)
+            world = f"world/{suffix}_ghost"
+        else:
+            if self._main_taken:
+                raise ValueError(_MAIN_RUN_TAKEN)
+            self._main_taken = True
+            suffix, world = "", "world/bodies"
+        scene = None if model is None else Scene(model, joint)
+        if scene is not None:
+            self._log_scene(scene, world, ghost)
+        return _RunStreamer(self, label, suffix, ghost, scene, world)
+
+    def _log_scene(self, scene: Scene, world: str, ghost: bool) -> None:
+        """The static geometry: shapes in their bodies, world-body geoms, the target marker."""
+        import rerun as rr
+
+        stream = self._stream
+        for geom in scene.geoms:
+            if geom.body == 0 and self._fixed_logged:
+                continue
+            parent = "world/fixed" if geom.body == 0 else f"{world}/{scene.body_names[geom.body]}"
+            rgba = (*geom.rgba[:3], _GHOST_ALPHA) if ghost else geom.rgba
+            stream.log(
+                f"{parent}/{geom.name}",
+                rr.Transform3D(translation=geom.pos, quaternion=rr.Quaternion(xyzw=geom.quat_xyzw)),
+                geom.shape(rgba),
+                static=True,
+            )
+        self._fixed_logged = True
+        if not ghost:
+            radius = 1.3 * max(scene.tip_radius, 0.01)
+            stream.log(
+                "world/target",
+                rr.Ellipsoids3D(
+                    half_sizes=[[radius] * 3],
+                    colors=[(*RED, 255)],
+                    fill_mode=rr.components.FillMode.MajorWireframe,
+                ),
+                static=True,
+            )
+
+    def _send_blueprint(self, n: int) -> None:
+        if not self._blueprint_sent:
+            self._stream.send_blueprint(default_blueprint(n), make_active=False, make_default=True)
+            self._blueprint_sent = True
+
+
+def _format_constant(value: float | Sequence[float]) -> str:
+    values = np.atleast_1d(np.asarray(value, dtype=float))
+    text = ", ".join(f"{v:.6g}" for v in values)
+    return text if np.ndim(value) == 0 else f"[{text}]"
+
+
+class _RunStreamer:
+    """The observer of one run: sends each batch of final rows as columns and flushes them."""
+
+    def __init__(
+        self, recording: Recording, label: str, suffix: str, ghost: bool, scene: Scene | None, world: str
+    ) -> None:
+        self.recording = recording
+        self.label = label
+        self.suffix = suffix
+        self.ghost = ghost
+        self.scene = scene
+        self.world = world
+        self.series: list[Series] | None = None
+
+    def __call__(self, start: int, stop: int, runs: list[Trajectory]) -> None:
+        stream = self.recording._stream
+        if stream is None or not runs:
+            return
+        run = runs[0]
+        stop = min(stop, len(run.t))
+        if start >= stop:
+            return
+        if self.series is None:
+            self._start(run)
+        rows = slice(start, stop)
+        times = self._time_column(run.t[rows])
+        import rerun as rr
+
+        for s in self.series:
+            stream.send_columns(
+                s.path, indexes=[times], columns=rr.Scalars.columns(scalars=s.values(run)[rows])
+            )
+        if not self.ghost:
+            ends = self._time_column(run.t[[start, stop - 1]])
+            stream.send_columns(
+                "theory/lemma2/bound", indexes=[ends], columns=rr.Scalars.columns(scalars=[1.0, 1.0])
+            )
+        if self.scene is not None:
+            self._send_poses(run, rows, times)
+        self.recording.flush()
+
+    @staticmethod
+    def _time_column(t: np.ndarray) -> rr.TimeColumn:
+        import rerun as rr
+
+        return rr.TimeColumn(TIMELINE, duration=time_nanoseconds(t).view("timedelta64[ns]"))
+
+    def _start(self, run: Trajectory) -> None:
+        """On the first rows: the series styles (static) and, once per file, the blueprint."""
+        import rerun as rr
+
+        stream = self.recording._stream
+        self.series = run_series(run, self.label, self.suffix if self.ghost else None)
+        for s in self.series:
+            mode = "StepAfter" if s.step else "Linear"
+            stream.log(
+                s.path, rr.SeriesLines(names=s.name, colors=[s.color], interpolation_mode=mode), static=True
+            )
+        if not self.ghost:
+            stream.log("theory/lemma2/bound", rr.SeriesLines(names="bound 1", colors=[RED]), static=True)
+        self.recording._send_blueprint(run.x.shape[1])
+
+    def _send_poses(self, run: Trajectory, rows: slice, times: rr.TimeColumn) -> None:
+        import rerun as rr
+
+        stream, scene = self.recording._stream, self.scene
+        pos, quat, _ = scene.replay(run.x[rows, 0])
+        for j, body in enumerate(scene.bodies):
+            stream.send_columns(
+                f"{self.world}/{scene.body_names[body]}",
+                indexes=[times],
+                columns=rr.Transform3D.columns(translation=pos[:, j], quaternion=quat[:, j]),
+            )
+        if not self.ghost:
+            _, _, target = scene.replay(run.yd[rows, 0])
+            stream.send_columns(
+                "world/target", indexes=[times], columns=rr.Transform3D.columns(translation=target)
+            )

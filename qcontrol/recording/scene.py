@@ -1,0 +1,236 @@
+"""The 3-D scene of a recording: a MuJoCo model's drawable geoms, and the poses of its bodies as
+the one joint moves (replayed from the recorded joint position, all rows at once).
+
+Entity layout (``{L}`` a twin run's label, e.g. ``ode``)::
+
+    world                          view coordinates (MuJoCo is Z-up), static
+    world/fixed/{geom}             geoms of MuJoCo's world body, static
+    world/bodies/{body}            Transform3D per row: the body pose from the replayed joint position
+    world/bodies/{body}/{geom}     the geom's shape and its pose in the body, static
+    world/{L}_ghost/{body}[/{geom}]  the same for a twin run, translucent
+    world/target                   Transform3D per row: where the tip geom would be at y_d
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    import mujoco
+
+# MuJoCo geom types (mjtGeom) and joint types (mjtJoint) that matter here.
+_PLANE, _SPHERE, _CAPSULE, _ELLIPSOID, _CYLINDER, _BOX, _MESH = 0, 2, 3, 4, 5, 6, 7
+_SLIDE, _HINGE = 2, 3
+
+
+def entity_name(name: str, fallback: str) -> str:
+    """A MuJoCo name made safe as one entity-path part."""
+    cleaned = re.sub(r"[^A-Za-z0-9_\-]", "_", name)
+    return cleaned or fallback
+
+
+@dataclass(frozen=True)
+class Geom:
+    """One drawable MuJoCo geom: its entity name, the rerun shape, its pose in its body."""
+
+    name: str
+    body: int
+    shape: Callable[[tuple[int, int, int, int]], Any]  # colour -> rerun archetype
+    rgba: tuple[int, int, int, int]
+    pos: np.ndarray
+    quat_xyzw: np.ndarray
+
+
+def _geom_shape(model: mujoco.MjModel, g: int) -> Callable[[tuple[int, int, int, int]], Any] | None:
+    """A factory for the rerun archetype drawing geom ``g`` centred at its frame, or None."""
+    import rerun as rr
+
+    kind, size = int(model.geom_type[g]), model.geom_size[g].astype(float)
+    solid = rr.components.FillMode.Solid
+    if kind == _SPHERE:
+        return lambda c: rr.Ellipsoids3D(half_sizes=[[size[0]] * 3], colors=[c], fill_mode=solid)
+    if kind == _ELLIPSOID:
+        return lambda c: rr.Ellipsoids3D(half_sizes=[size], colors=[c], fill_mode=solid)
+    if kind == _CAPSULE:  # MuJoCo: centred, half-length size[1]; rerun: from z=0 to z=length
+        return lambda c: rr.Capsules3D(
+            lengths=[2 * size[1]], radii=[size[0]], translations=[[0, 0, -size[1]]], colors=[c]
+        )
+    if kind == _CYLINDER:
+        return lambda c: rr.Cylinders3D(lengths=[2 * size[1]], radii=[size[0]], colors=[c], fill_mode=solid)
+    if kind == _BOX:
+        return lambda c: rr.Boxes3D(half_sizes=[size], colors=[c], fill_mode=solid)
+    if kind == _PLANE and size[0] > 0 and size[1] > 0:  # a finite plane; infinite ones are left out
+        return lambda c: rr.Boxes3D(half_sizes=[[size[0], size[1], 1e-3]], colors=[c], fill_mode=solid)
+    if kind == _MESH and model.geom_dataid[g] >= 0:
+        mesh = int(model.geom_dataid[g])
+        v0, nv = int(model.mesh_vertadr[mesh]), int(model.mesh_vertnum[mesh])
+        f0, nf = int(model.mesh_faceadr[mesh]), int(model.mesh_facenum[mesh])
+        vertices = model.mesh_vert[v0 : v0 + nv].copy()
+        faces = model.mesh_face[f0 : f0 + nf].copy()
+        return lambda c: rr.Mesh3D(vertex_positions=vertices, triangle_indices=faces, albedo_factor=c)
+    return None
+
+
+def _geom_rgba(model: mujoco.MjModel, g: int) -> tuple[int, int, int, int]:
+    rgba = model.mat_rgba[model.geom_matid[g]] if model.geom_matid[g] >= 0 else model.geom_rgba[g]
+    r, gr, b, a = (int(round(255 * float(np.clip(v, 0.0, 1.0)))) for v in rgba)
+    return r, gr, b, a
+
+
+def _drawable_geoms(model: mujoco.MjModel) -> list[Geom]:
+    """The geoms MuJoCo's viewer shows by default (groups 0-2, not fully transparent)."""
+    import mujoco
+
+    geoms = []
+    for g in range(model.ngeom):
+        shape = _geom_shape(model, g)
+        rgba = _geom_rgba(model, g)
+        if shape is None or model.geom_group[g] > 2 or rgba[3] == 0:
+            continue
+        name = entity_name(mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or "", f"geom{g}")
+        geoms.append(
+            Geom(
+                name,
+                int(model.geom_bodyid[g]),
+                shape,
+                rgba,
+                model.geom_pos[g].copy(),
+                model.geom_quat[g][[1, 2, 3, 0]].copy(),
+            )
+        )
+    return geoms
+
+
+class Scene:
+    """Poses of a MuJoCo model's bodies as one 1-DoF joint moves; a private MjData replays it."""
+
+    def __init__(self, model: mujoco.MjModel, joint: str | None) -> None:
+        import mujoco
+
+        self.model = model
+        self.data = mujoco.MjData(model)
+        jid = self._joint_id(model, joint)
+        self.qpos_adr = int(model.jnt_qposadr[jid])
+        self.geoms = _drawable_geoms(model)
+        self.bodies = sorted({g.body for g in self.geoms if g.body > 0})
+        self.body_names = {
+            b: entity_name(mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b) or "", f"body{b}")
+            for b in self.bodies
+        }
+        self.tip_geom, self.tip_radius = self._tip(jid)
+        self._reference_pose(jid)
+
+    @staticmethod
+    def _joint_id(model: mujoco.MjModel, joint: str | None) -> int:
+        import mujoco
+
+        if joint is None:
+            if model.njnt != 1:
+                raise ValueError(f"the model has {model.njnt} joints: name the one that x1 drives")
+            jid = 0
+        else:
+            jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, joint)
+            if jid < 0:
+                raise ValueError(f"the model has no joint named {joint!r}")
+        if int(model.jnt_type[jid]) not in (_SLIDE, _HINGE):
+            raise ValueError("the recorded joint must be a hinge or a slide joint (one position x1)")
+        return jid
+
+    def _tip(self, jid: int) -> tuple[int, float]:
+        """The moving geom farthest from the joint anchor (the bob, the cart) and its size."""
+        import mujoco
+
+        model, data = self.model, self.data
+        data.qpos[:] = model.qpos0
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)  # fills xanchor
+        joint_body = int(model.jnt_bodyid[jid])
+        moving = [g for g in range(model.ngeom) if self._descends(int(model.geom_bodyid[g]), joint_body)]
+        if not moving:
+            raise ValueError("no geom moves with the recorded joint: nothing to draw the target for")
+        anchor = data.xanchor[jid]
+        far = max(moving, key=lambda g: (np.linalg.norm(data.geom_xpos[g] - anchor), g))
+        return far, float(model.geom_rbound[far])
+
+    def _descends(self, body: int, ancestor: int) -> bool:
+        while body > 0:
+            if body == ancestor:
+                return True
+            body = int(self.model.body_parentid[body])
+        return body == ancestor
+
+    def replay(self, position: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Body positions (rows, bodies, 3), quaternions xyzw (rows, bodies, 4) and the tip geom's
+        position (rows, 3) with the joint at each of ``position``; NaN where it is not finite.
+
+        One joint moves, so every pose is the reference pose (``qpos0``, from ``mj_kinematics``)
+        carried by one rigid motion: a rotation by ``q - q0`` about the hinge's world axis through
+        its anchor, or a translation by ``q - q0`` along the slide's axis. Bodies that do not
+        descend from the joint's body stay put. Evaluated for all rows at once.
+        """
+        q = np.asarray(position, dtype=float) - self.q0
+        ids, moving = self.bodies, self.moving
+        rows = len(q)
+        xpos = np.broadcast_to(self.xpos0[ids], (rows, len(ids), 3)).copy()
+        xquat = np.broadcast_to(self.xquat0[ids], (rows, len(ids), 4)).copy()
+        tip = np.broadcast_to(self.tip0, (rows, 3)).copy()
+        axis, anchor = self.axis, self.anchor
+        if self.hinge:
+            half = 0.5 * q
+            turn = np.concatenate([np.cos(half)[:, None], np.sin(half)[:, None] * axis], axis=1)  # wxyz
+            rotate = _rotation_matrices(turn)
+            moved = self.xpos0[ids][moving] - anchor
+            xpos[:, moving] = anchor + np.einsum("rij,bj->rbi", rotate, moved)
+            xquat[:, moving] = _quat_multiply(turn[:, None, :], self.xquat0[ids][moving][None])
+            if self.tip_moves:
+                tip = anchor + np.einsum("rij,j->ri", rotate, self.tip0 - anchor)
+        else:
+            xpos[:, moving] += q[:, None, None] * axis
+            if self.tip_moves:
+                tip = tip + q[:, None] * axis
+        bad = ~np.isfinite(q)
+        xpos[bad], xquat[bad], tip[bad] = np.nan, np.nan, np.nan
+        return xpos, xquat[..., [1, 2, 3, 0]], tip
+
+    def _reference_pose(self, jid: int) -> None:
+        """Poses at ``qpos0`` and the joint's world axis and anchor, for :meth:`replay`."""
+        import mujoco
+
+        model, data = self.model, self.data
+        data.qpos[:] = model.qpos0
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)  # fills xanchor, xaxis
+        self.q0 = float(model.qpos0[self.qpos_adr])
+        self.hinge = int(model.jnt_type[jid]) == _HINGE
+        self.axis = data.xaxis[jid].copy()
+        self.anchor = data.xanchor[jid].copy()
+        self.xpos0, self.xquat0 = data.xpos.copy(), data.xquat.copy()
+        self.tip0 = data.geom_xpos[self.tip_geom].copy()
+        joint_body = int(model.jnt_bodyid[jid])
+        self.moving = np.array([self._descends(b, joint_body) for b in self.bodies], dtype=bool)
+        self.tip_moves = self._descends(int(model.geom_bodyid[self.tip_geom]), joint_body)
+
+
+def _quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of wxyz quaternions (broadcasting)."""
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz,
+                     aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw], axis=-1)
+
+
+def _rotation_matrices(quat: np.ndarray) -> np.ndarray:
+    """Rotation matrices (rows, 3, 3) of unit wxyz quaternions (rows, 4)."""
+    w, x, y, z = quat.T
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
+    ], axis=-2)

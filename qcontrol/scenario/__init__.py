@@ -1,0 +1,17 @@
+"""Scenario files (TOML) -> validated scenarios: the keys (:mod:`.keys`), the loader
+(:mod:`.load`) and the validated data (:mod:`.model`)."""
+
+from .keys import MAX_STEPS
+from .load import apply_override, load_scenario, parse_scenario
+from .model import ControllerConfig, ReferenceConfig, Scenario, SimulationConfig
+
+__all__ = [
+    "MAX_STEPS",
+    "ControllerConfig",
+    "ReferenceConfig",
+    "Scenario",
+    "SimulationConfig",
+    "apply_override",
+    "load_scenario",
+    "parse_scenario",
+]

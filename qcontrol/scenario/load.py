@@ -1,0 +1,206 @@
+"""Scenario files: TOML -> validated :class:`~qcontrol.scenario.model.Scenario`.
+
+A scenario is data: the plant (order, psi, phi, theta, x0, and a model per backend), the
+controller (kind, delta, gains and the kind's own settings), the reference, and the simulation
+settings. Every key is declared once (:mod:`.keys`, and the kinds' own modules); every problem is
+reported as one line naming the file, the key, what is wrong and the fix. Unknown keys, and keys
+that do not apply to the chosen kind, are errors. ``--set key=value`` overrides are applied
+before validation.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..controller.law import LawContext, law_kind
+from ..errors import QcontrolInputError
+from ..expr import compile_expression
+from ..plants.backends import BACKENDS, PlantContext
+from ..plants.base import PlantTerms
+from ..reference import REFERENCE_KINDS
+from ..schema import Section, Table, kind_table, read_keys
+from ..timegrid import TimeGrid
+from .keys import (
+    MAX_STEPS,
+    PLANT,
+    REQUIRED_TABLES,
+    TOP,
+    controller_section,
+    reference_section,
+    scenario_section,
+    simulation_section,
+)
+from .model import ControllerConfig, ReferenceConfig, Scenario, SimulationConfig
+
+
+def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
+    """Read and validate a scenario file, applying ``--set key=value`` overrides first."""
+    path = Path(path)
+    if path.is_dir():
+        raise QcontrolInputError(f"{path}: is a folder, not a scenario file; pass a .toml scenario")
+    if not path.is_file():
+        raise QcontrolInputError(f"{path}: scenario file not found; pass the path of a .toml scenario")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise QcontrolInputError(f"{path}: cannot read the scenario ({exc}); check the file") from None
+    return parse_scenario(text, source=str(path), base_dir=path.parent, overrides=overrides,
+                          default_name=path.stem)
+
+
+def parse_scenario(
+    text: str,
+    source: str = "<string>",
+    base_dir: Path | None = None,
+    overrides: Sequence[str] = (),
+    default_name: str = "scenario",
+) -> Scenario:
+    """Validate scenario TOML ``text``; ``source`` names it in messages."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise QcontrolInputError(f"{source}: malformed TOML ({exc}); fix the syntax") from None
+    for item in overrides:
+        apply_override(data, item)
+    return _build(data, source, base_dir or Path("."), text, tuple(overrides), default_name)
+
+
+def apply_override(data: dict, item: str) -> None:
+    """Apply one ``key.path=value`` override; the value is read as TOML, else as a string."""
+    key, sep, raw = item.partition("=")
+    key = key.strip()
+    if not sep or not key:
+        raise QcontrolInputError(
+            f"--set {item!r}: expected KEY=VALUE; write e.g. --set controller.kappa_margin=0.1"
+        )
+    parts = key.split(".")
+    if any(not p for p in parts):
+        raise QcontrolInputError(f"--set {item!r}: key {key!r} has an empty part; write a.b.c=value")
+    raw = raw.strip()
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw
+    node = data
+    for part in parts[:-1]:
+        child = node.setdefault(part, {})
+        if not isinstance(child, dict):
+            raise QcontrolInputError(
+                f"--set {item!r}: {part!r} is a value, not a table; set {'.'.join(parts[:-1])} directly"
+            )
+        node = child
+    node[parts[-1]] = value
+
+
+def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[str, ...],
+           default_name: str) -> Scenario:
+    root = Table(data, source, "", TOP)
+    for key in REQUIRED_TABLES:
+        if key not in data:
+            raise QcontrolInputError(f"{source}: [{key}]: missing table; add a [{key}] section")
+    meta = read_keys(Table(data.get("scenario", {}), source, "scenario", ("name", "description")),
+                     scenario_section(default_name).keys, {})
+    plant = root.table("plant", (*PLANT.names, *BACKENDS))
+    terms, x0 = _plant(plant)
+    controller = _controller(root.table("controller"), terms)
+    signal = _reference(root.table("reference"), terms.order)
+    simulation = _simulation(root.table("simulation"))
+    backends = _backends(plant, terms, base_dir, simulation)
+    scenario = Scenario(
+        name=meta["name"], description=meta["description"], source=source, text=text, overrides=overrides,
+        order=terms.order, psi=None if terms.psi is None else terms.psi.source,
+        phi=tuple(p.source for p in terms.phi), theta=terms.theta, x0=x0, controller=controller,
+        reference=signal, simulation=simulation, backends=backends, psi_expr=terms.psi, phi_expr=terms.phi,
+    )
+    _check_terms_at_x0(scenario)
+    return scenario
+
+
+def _plant(plant: Table) -> tuple[PlantTerms, tuple[float, ...]]:
+    """The terms of eq. (1), compiled, and the initial state."""
+    order = plant.integer("order", minimum=2)
+    phi_text = plant.strings("phi", [])
+    v = read_keys(plant, PLANT.keys, {"n": order, "l": len(phi_text)})
+    x_names = [f"x{i + 1}" for i in range(order)]
+    where = f"{plant.source}: {plant.name}"
+    psi = None if v["psi"] is None else compile_expression(v["psi"], x_names, f"{where}.psi")
+    phi = tuple(compile_expression(p, x_names, f"{where}.phi[{i}]") for i, p in enumerate(v["phi"]))
+    return PlantTerms(order, psi, phi, v["theta"]), v["x0"]
+
+
+def _chosen(table: Table, section: Section) -> tuple[dict[str, Any], Table]:
+    """The common keys of a kinded table and the merged table of the chosen kind's keys."""
+    common = read_keys(table, section.keys, {})
+    return common, kind_table(table, section.names, section.kinds, common["kind"])
+
+
+def _controller(table: Table, terms: PlantTerms) -> ControllerConfig:
+    section = controller_section()
+    kind = read_keys(table, section.keys[:1], {})["kind"]
+    v = read_keys(table, section.keys, {"n": terms.order})
+    merged = kind_table(table, section.names, {k: law_kind(k).keys for k in section.kinds}, kind)
+    ctx = LawContext(table.source, terms.order, v["delta"], v["c"], terms.psi, terms.phi, terms.theta)
+    return ControllerConfig(kind, v["delta"], v["c"], law_kind(kind).parse(merged, ctx))
+
+
+def _reference(table: Table, order: int) -> ReferenceConfig:
+    common, merged = _chosen(table, reference_section())
+    return ReferenceConfig(common["kind"], REFERENCE_KINDS[common["kind"]].parse(merged, order))
+
+
+def _simulation(table: Table) -> SimulationConfig:
+    section = simulation_section()
+    table = Table(table.data, table.source, table.name, section.names)
+    v = read_keys(table, section.keys, {})
+    ratio = v["duration"] / v["dt"]
+    if ratio > MAX_STEPS:
+        raise table.error("duration", f"{v['duration']:g} s at dt = {v['dt']:g} s is {ratio:.3g} steps, more "
+                          f"than the limit of {MAX_STEPS:,} (a full record keeps every step in memory)",
+                          "shorten the run or use a larger dt")
+    try:
+        TimeGrid.of(v["duration"], v["dt"], v["control_period"])
+    except QcontrolInputError as exc:
+        raise QcontrolInputError(f"{table.source}: {exc}") from None
+    return SimulationConfig(**v)
+
+
+def _backends(plant: Table, terms: PlantTerms, base_dir: Path, simulation: SimulationConfig) -> dict[str,
+                                                                                                     Any]:
+    """Each backend's ``[plant.<name>]`` section, parsed by the backend; the chosen backend must
+    have the section it needs."""
+    ctx = PlantContext(terms, base_dir, simulation.dt)
+    parsed = {}
+    for name, backend in BACKENDS.items():
+        if name in plant.data and backend.parse is not None:
+            parsed[name] = backend.parse(plant.table(name), ctx)
+        elif name in plant.data:
+            raise plant.error(name, f"backend {name!r} takes no settings", f"remove [plant.{name}]")
+    chosen = BACKENDS[simulation.backend]
+    if chosen.section is not None and simulation.backend not in parsed:
+        raise QcontrolInputError(
+            f"{plant.source}: simulation.backend: is {simulation.backend!r} but the plant has no "
+            f"[plant.{simulation.backend}] table; add [plant.{simulation.backend}] "
+            f"({chosen.section.meaning}), or use backend = \"ode\""
+        )
+    return parsed
+
+
+def _check_terms_at_x0(sc: Scenario) -> None:
+    """The plant's terms must be finite at the initial state."""
+    x0 = np.asarray(sc.x0)[None, :]
+    for label, expr in [("plant.psi", sc.psi_expr)] + [(f"plant.phi[{i}]", e) for i,
+                                                       e in enumerate(sc.phi_expr)]:
+        if expr is None:
+            continue
+        with np.errstate(all="ignore"):
+            value = expr(x0)
+        if not np.all(np.isfinite(value)):
+            raise QcontrolInputError(
+                f"{sc.source}: {label}: {expr.source!r} is not finite at x0 = {list(sc.x0)}; "
+                "fix the formula or the initial state"
+            )

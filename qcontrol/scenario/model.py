@@ -1,0 +1,78 @@
+"""A validated scenario: the plant, the controller, the reference and the simulation settings."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from ..controller.law import LawContext
+from ..expr import Expression
+from ..plants.base import PlantTerms
+from ..reference import Reference
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """``[controller]``: the kind, the quantizer step ``delta`` and the gains ``c`` every kind
+    takes, and the kind's own validated ``settings`` (e.g. kappa, gamma, sigma, r)."""
+
+    kind: str
+    delta: float
+    c: tuple[float, ...]
+    settings: Any
+
+
+@dataclass(frozen=True)
+class ReferenceConfig:
+    """``[reference]``: the kind and the reference it describes (with its derivatives)."""
+
+    kind: str
+    signal: Reference
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    duration: float
+    dt: float
+    control_period: float | None
+    backend: str
+    state_bound: float
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A validated scenario. Expressions are compiled once (``psi_expr``, ``phi_expr``); each
+    ``[plant.<backend>]`` section is parsed into ``backends[name]`` by its backend."""
+
+    name: str
+    description: str
+    source: str  # where it came from (file path or "<string>")
+    text: str  # the TOML text as read
+    overrides: tuple[str, ...]
+    order: int
+    psi: str | None
+    phi: tuple[str, ...]
+    theta: tuple[float, ...]
+    x0: tuple[float, ...]
+    controller: ControllerConfig
+    reference: ReferenceConfig
+    simulation: SimulationConfig
+    backends: dict[str, Any] = field(default_factory=dict)
+    psi_expr: Expression | None = field(default=None, repr=False)
+    phi_expr: tuple[Expression, ...] = field(default=(), repr=False)
+
+    @property
+    def terms(self) -> PlantTerms:
+        """The right-hand side of eq. (1) as the plants are built from it."""
+        return PlantTerms(self.order, self.psi_expr, self.phi_expr, self.theta)
+
+    @property
+    def law_context(self) -> LawContext:
+        """What the controller kind reads of the scenario (see :class:`LawContext`)."""
+        c = self.controller
+        return LawContext(self.source, self.order, c.delta, c.c, self.psi_expr, self.phi_expr, self.theta)
+
+    @property
+    def uncertain_terms(self) -> int:
+        """Entries of eps, eqs. (37)-(43): one per phi_i, plus one for psi."""
+        return len(self.phi) + (self.psi is not None)
