@@ -1,8 +1,12 @@
 """Safe math expressions for scenario files.
 
-Nonlinearities such as ``"x2**2 * cos(x1)"`` are parsed with :mod:`ast`, checked node by node
-against a whitelist, and turned into a tree of small numpy closures. User text is never passed to
-``eval`` or ``exec``; anything outside the whitelist is rejected with a message that names it.
+Nonlinearities such as ``"x2**2 * cos(x1)"`` are parsed with :mod:`ast` once, checked node by node
+against a whitelist and turned into a small validated tree (numbers, variables, operations); user
+text is never passed to ``eval`` or ``exec``, and anything outside the whitelist is rejected with a
+message that names it. Two generators turn that tree into closures: numpy calls on columns
+(:meth:`Expression.__call__`, :meth:`Expression.on_columns`) and ``math`` calls on plain floats
+(:func:`scalar_function`, :meth:`Expression.on_floats`). Both read one table, :data:`OPERATIONS`:
+a row per operator, function and constant, with its numpy and its plain-float implementation.
 
 Allowed: numbers, the declared variables (``x1..xn``, ``q1..qn``), ``pi``, ``+ - * / **``, unary
 ``-``/``+``, and calls to ``abs sqrt exp log sin cos tan tanh sign min max``.
@@ -14,8 +18,9 @@ import ast
 import math
 import operator
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -27,32 +32,72 @@ MAX_NODES = 500
 MAX_DEPTH = 200  # nesting depth; evaluation recurses once per level, so this bounds the stack it needs
 SHOWN_SOURCE = 100  # messages quote at most this many characters of an expression
 
-_UNARY_FUNCTIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
-    "abs": np.abs,
-    "sqrt": np.sqrt,
-    "exp": np.exp,
-    "log": np.log,
-    "sin": np.sin,
-    "cos": np.cos,
-    "tan": np.tan,
-    "tanh": np.tanh,
-    "sign": np.sign,
-}
-_VARIADIC_FUNCTIONS: dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]] = {
-    "min": np.minimum,
-    "max": np.maximum,
-}
-_CONSTANTS = {"pi": math.pi}
-_BINARY = {
-    ast.Add: np.add,
-    ast.Sub: np.subtract,
-    ast.Mult: np.multiply,
-    ast.Div: np.divide,
-    ast.Pow: np.power,
-}
-_BINARY_SYMBOL = {ast.Add: "+", ast.Sub: "-", ast.Mult: "*", ast.Div: "/", ast.Pow: "**"}
+ScalarFn = Callable[[Sequence[float]], float]
+_ColumnsFn = Callable[[Sequence[np.ndarray]], "np.ndarray | float"]
 
-_Node = Callable[[Sequence[np.ndarray]], "np.ndarray | float"]
+
+# --------------------------------------------------------------------------------------------
+# The language: one row per operator, function and constant, for both generators
+
+
+@dataclass(frozen=True)
+class Operation:
+    """One row of :data:`OPERATIONS`: what the user writes and what each generator computes."""
+
+    name: str  # the operator's symbol ("**") or the function's or constant's name ("sin", "pi")
+    arity: int | None  # operands; None: two or more (``on_arrays`` then takes two, left to right)
+    on_arrays: Callable[..., Any]  # numpy, on columns; also folds constant parts at compile time
+    on_floats: Callable[..., Any]  # plain floats: ``math``, :mod:`operator`, builtins
+    syntax: type[ast.AST] | None = None  # an operator's ast class; None for a function or a constant
+    # Python's own operator written out on the operands' closures, which saves the call of
+    # ``on_floats`` per evaluation (only where no operand can be read directly)
+    inline: Callable[..., ScalarFn] | None = None
+
+    @property
+    def is_operator(self) -> bool:
+        return self.syntax is not None
+
+
+def _sign_of_float(a: float) -> float:
+    """numpy's ``sign`` on a plain float: -1.0, 0.0 or 1.0, and NaN stays NaN."""
+    return a if a != a else (1.0 if a > 0 else -1.0 if a < 0 else 0.0)
+
+
+def _nan_or(pick: Callable[[tuple[float, ...]], float]) -> Callable[..., float]:
+    """``pick`` (``min`` or ``max``) of plain floats, but NaN if any is NaN, as numpy's."""
+
+    def pick_or_nan(*values: float) -> float:
+        for value in values:
+            if value != value:
+                return math.nan
+        return pick(values)
+
+    return pick_or_nan
+
+
+OPERATIONS: tuple[Operation, ...] = (
+    Operation("+", 2, np.add, operator.add, ast.Add, lambda a, b: lambda xs: a(xs) + b(xs)),
+    Operation("-", 2, np.subtract, operator.sub, ast.Sub, lambda a, b: lambda xs: a(xs) - b(xs)),
+    Operation("*", 2, np.multiply, operator.mul, ast.Mult, lambda a, b: lambda xs: a(xs) * b(xs)),
+    Operation("/", 2, np.divide, operator.truediv, ast.Div, lambda a, b: lambda xs: a(xs) / b(xs)),
+    Operation("**", 2, np.power, math.pow, ast.Pow),  # x**2 is a product in both generators
+    Operation("-", 1, np.negative, operator.neg, ast.USub, lambda a: lambda xs: -a(xs)),
+    Operation("pi", 0, lambda: np.pi, lambda: math.pi),
+    Operation("abs", 1, np.abs, abs),
+    Operation("sqrt", 1, np.sqrt, math.sqrt),
+    Operation("exp", 1, np.exp, math.exp),
+    Operation("log", 1, np.log, math.log),
+    Operation("sin", 1, np.sin, math.sin),
+    Operation("cos", 1, np.cos, math.cos),
+    Operation("tan", 1, np.tan, math.tan),
+    Operation("tanh", 1, np.tanh, math.tanh),
+    Operation("sign", 1, np.sign, _sign_of_float),
+    Operation("min", None, np.minimum, _nan_or(min)),
+    Operation("max", None, np.maximum, _nan_or(max)),
+)
+_OPERATORS = {row.syntax: row for row in OPERATIONS if row.is_operator}
+_NAMED = {row.name: row for row in OPERATIONS if not row.is_operator}  # in the order messages list them
+_POWER = _OPERATORS[ast.Pow]
 
 _FORBIDDEN_DESCRIPTIONS = {
     ast.Attribute: "attribute access ('.')",
@@ -78,6 +123,38 @@ _FORBIDDEN_DESCRIPTIONS = {
 }
 
 
+# --------------------------------------------------------------------------------------------
+# The validated tree: built once by the whitelist check, kept in the Expression, read by both
+# generators. ``constant`` is numpy's value of a constant part (folded at compile time).
+
+
+@dataclass(frozen=True)
+class _Number:
+    """A literal number."""
+
+    constant: float
+
+
+@dataclass(frozen=True)
+class _Variable:
+    """A declared variable: ``index`` is its position in ``Expression.variables``."""
+
+    index: int
+    constant: None = None
+
+
+@dataclass(frozen=True)
+class _Apply:
+    """An operator, a function call or a named constant (no operands), with its table row."""
+
+    operation: Operation
+    operands: tuple[_Tree, ...]
+    constant: float | None  # when every operand is constant (never for min and max), else None
+
+
+_Tree = _Number | _Variable | _Apply
+
+
 def _cut(text: str) -> str:
     """``text`` cut to :data:`SHOWN_SOURCE` characters, for a message."""
     if len(text) > SHOWN_SOURCE:
@@ -97,7 +174,8 @@ class Expression:
     source: str
     variables: tuple[str, ...]
     used: frozenset[str]
-    _fn: _Node
+    _fn: _ColumnsFn
+    _tree: _Tree = field(repr=False)
 
     def __call__(self, values: np.ndarray) -> np.ndarray:
         values = np.asarray(values, dtype=float)
@@ -116,7 +194,8 @@ class Expression:
         """Evaluate on plain floats, ``values[i]`` = ``variables[i]``: the same expression through
         ``math`` (:func:`scalar_function`), a few tens of nanoseconds per operation instead of a
         microsecond. Where ``math`` refuses (a domain error, an overflow), numpy's value (NaN,
-        Inf) is returned, so both evaluations agree everywhere up to the last bit."""
+        Inf) is returned, so both evaluations agree up to the last bit, except that
+        ``(-inf)**0.5`` is inf here (C's ``pow``) and NaN through numpy (a square root)."""
         try:
             return self._scalar_fn(values)
         except (ValueError, ZeroDivisionError, OverflowError):
@@ -126,10 +205,6 @@ class Expression:
     @cached_property
     def _scalar_fn(self) -> ScalarFn:
         return scalar_function(self)
-
-    @property
-    def is_constant(self) -> bool:
-        return not self.used
 
 
 def compile_expression(source: object, variables: Sequence[str], where: str = "expression") -> Expression:
@@ -151,8 +226,22 @@ def compile_expression(source: object, variables: Sequence[str], where: str = "e
         )
     if not text.strip():
         raise QcontrolInputError(f"{where}: empty expression; write a formula such as \"0\" or \"x2\"")
+    body = _parse(text, variables, where)
+    validator = _Validator(text, variables, where)
     try:
-        tree = ast.parse(text.strip(), mode="eval")
+        tree = validator.visit(body)
+        on_columns = _columns_closure(tree)
+    except RecursionError:
+        raise QcontrolInputError(
+            f"{where}: expression {_show(text)} is too deeply nested; simplify it"
+        ) from None
+    return Expression(text, variables, frozenset(validator.used), on_columns, tree)
+
+
+def _parse(text: str, variables: tuple[str, ...], where: str) -> ast.expr:
+    """The syntax tree of ``text``, within :data:`MAX_NODES` nodes and :data:`MAX_DEPTH` levels."""
+    try:
+        body = ast.parse(text.strip(), mode="eval").body
     except SyntaxError as exc:
         raise QcontrolInputError(
             f"{where}: cannot parse {_show(text)} ({exc.msg}); use numbers, {', '.join(variables)}, "
@@ -164,7 +253,7 @@ def compile_expression(source: object, variables: Sequence[str], where: str = "e
         raise QcontrolInputError(
             f"{where}: expression {_show(text)} is too deeply nested; simplify it"
         ) from None
-    nodes, depth = _size(tree.body)
+    nodes, depth = _size(body)
     if nodes > MAX_NODES:
         raise QcontrolInputError(
             f"{where}: too many terms ({nodes} syntax nodes) in {_show(text)}; keep expressions under "
@@ -175,14 +264,7 @@ def compile_expression(source: object, variables: Sequence[str], where: str = "e
             f"{where}: expression {_show(text)} is nested {depth} levels deep; keep it under {MAX_DEPTH} "
             "levels (e.g. factor repeated terms)"
         )
-    compiler = _Compiler(text, variables, where)
-    try:
-        fn, _ = compiler.visit(tree.body)
-    except RecursionError:
-        raise QcontrolInputError(
-            f"{where}: expression {_show(text)} is too deeply nested; simplify it"
-        ) from None
-    return Expression(text, variables, frozenset(compiler.used), fn)
+    return body
 
 
 def _size(root: ast.AST) -> tuple[int, int]:
@@ -197,7 +279,13 @@ def _size(root: ast.AST) -> tuple[int, int]:
     return nodes, deepest
 
 
-class _Compiler:
+# --------------------------------------------------------------------------------------------
+# Whitelist check: syntax tree -> validated tree, constant parts folded with numpy
+
+
+class _Validator:
+    """Turns a syntax tree into a validated tree, or raises with a message that names the problem."""
+
     def __init__(self, source: str, variables: tuple[str, ...], where: str) -> None:
         self.source = source
         self.variables = variables
@@ -210,42 +298,20 @@ class _Compiler:
         return QcontrolInputError(f"{self.where}: {problem} in {_show(self.source)}; {fix}")
 
     def allowed_names(self) -> str:
-        names = list(self.variables) + list(_CONSTANTS) + list(_UNARY_FUNCTIONS) + list(
-            _VARIADIC_FUNCTIONS
-        )
-        return ", ".join(names)
+        return ", ".join([*self.variables, *_NAMED])
 
-    def visit(self, node: ast.AST) -> tuple[_Node, float | None]:
-        """Return (closure, constant value or None)."""
+    def visit(self, node: ast.AST) -> _Tree:
         self.nodes += 1
         if self.nodes > MAX_NODES:
             raise self.fail("too many terms", f"keep expressions under {MAX_NODES} nodes")
         if isinstance(node, ast.Constant):
-            value = node.value
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise self.fail(f"literal {_cut(repr(value))} is not a real number", "use plain numbers")
-            try:
-                as_float = float(value)
-            except OverflowError:
-                raise self.fail(f"number {_cut(str(value))} is too large", "use a finite number") from None
-            if not math.isfinite(as_float):
-                raise self.fail(f"number {value!r} is not finite", "use a finite number")
-            return self._constant(as_float)
+            return _Number(self._number(node.value))
         if isinstance(node, ast.Name):
             return self._name(node.id)
         if isinstance(node, ast.UnaryOp):
-            if not isinstance(node.op, (ast.USub, ast.UAdd)):
-                raise self.fail(
-                    f"operator {type(node.op).__name__} is not allowed", "use only unary + or -"
-                )
-            inner, value = self.visit(node.operand)
-            if isinstance(node.op, ast.UAdd):
-                return inner, value
-            if value is not None:
-                return self._constant(-value)
-            return (lambda cols: np.negative(inner(cols))), None
+            return self._unary(node)
         if isinstance(node, ast.BinOp):
-            return self._binop(node)
+            return self._binary(node)
         if isinstance(node, ast.Call):
             return self._call(node)
         description = _FORBIDDEN_DESCRIPTIONS.get(type(node), f"'{type(node).__name__}' syntax")
@@ -254,56 +320,52 @@ class _Compiler:
             "use numbers, variables, + - * / ** and the allowed functions",
         )
 
-    def _constant(self, value: float) -> tuple[_Node, float]:
-        return (lambda cols: value), value
+    def _number(self, value: object) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.fail(f"literal {_cut(repr(value))} is not a real number", "use plain numbers")
+        try:
+            as_float = float(value)
+        except OverflowError:
+            raise self.fail(f"number {_cut(str(value))} is too large", "use a finite number") from None
+        if not math.isfinite(as_float):
+            raise self.fail(f"number {value!r} is not finite", "use a finite number")
+        return as_float
 
-    def _name(self, name: str) -> tuple[_Node, float | None]:
+    def _name(self, name: str) -> _Tree:
         if name in self.index:
-            i = self.index[name]
             self.used.add(name)
-            return (lambda cols: cols[i]), None
-        if name in _CONSTANTS:
-            return self._constant(_CONSTANTS[name])
-        if name in _UNARY_FUNCTIONS or name in _VARIADIC_FUNCTIONS:
+            return _Variable(self.index[name])
+        row = _NAMED.get(name)
+        if row is not None and row.arity == 0:
+            return self._apply(row, [])
+        if row is not None:
             raise self.fail(f"function {_show(name)} used without a call", f"write {name}(...)")
         raise self.fail(f"unknown name {_show(name)}", f"allowed names are {self.allowed_names()}")
 
-    def _binop(self, node: ast.BinOp) -> tuple[_Node, float | None]:
-        op_type = type(node.op)
-        if op_type not in _BINARY:
+    def _unary(self, node: ast.UnaryOp) -> _Tree:
+        if isinstance(node.op, ast.UAdd):
+            return self.visit(node.operand)
+        row = _OPERATORS.get(type(node.op))
+        if row is None:
+            raise self.fail(f"operator {type(node.op).__name__} is not allowed", "use only unary + or -")
+        return self._apply(row, [self.visit(node.operand)])
+
+    def _binary(self, node: ast.BinOp) -> _Tree:
+        row = _OPERATORS.get(type(node.op))
+        if row is None:
+            raise self.fail(f"operator {type(node.op).__name__} is not allowed", "use only + - * / **")
+        left, right = self.visit(node.left), self.visit(node.right)
+        exponent = right.constant
+        if row is _POWER and exponent is not None and abs(exponent) > MAX_CONSTANT_EXPONENT:
             raise self.fail(
-                f"operator {type(node.op).__name__} is not allowed", "use only + - * / **"
-            )
-        left, lval = self.visit(node.left)
-        right, rval = self.visit(node.right)
-        symbol = _BINARY_SYMBOL[op_type]
-        if op_type is ast.Pow and rval is not None and abs(rval) > MAX_CONSTANT_EXPONENT:
-            raise self.fail(
-                f"exponent {rval:g} is too large",
+                f"exponent {exponent:g} is too large",
                 f"keep constant exponents within +-{MAX_CONSTANT_EXPONENT:g}",
             )
-        if op_type is ast.Div and rval == 0.0:
+        if row.syntax is ast.Div and right.constant == 0.0:
             raise self.fail("division by zero", "divide by a non-zero number")
-        fn = _BINARY[op_type]
-        if lval is not None and rval is not None:
-            with np.errstate(all="raise"):
-                try:
-                    value = float(fn(np.float64(lval), np.float64(rval)))
-                except (FloatingPointError, OverflowError, ZeroDivisionError):
-                    raise self.fail(
-                        f"constant part {lval:g} {symbol} {rval:g} is not a finite real number",
-                        "fix the constant",
-                    ) from None
-            if not math.isfinite(value):
-                raise self.fail(
-                    f"constant part {lval:g} {symbol} {rval:g} is not finite", "fix the constant"
-                )
-            return self._constant(value)
-        if op_type is ast.Pow and rval == 2.0:
-            return (lambda cols: np.square(left(cols))), None
-        return (lambda cols: fn(left(cols), right(cols))), None
+        return self._apply(row, [left, right])
 
-    def _call(self, node: ast.Call) -> tuple[_Node, float | None]:
+    def _call(self, node: ast.Call) -> _Tree:
         if not isinstance(node.func, ast.Name):
             raise self.fail("only calls of plain function names are allowed", "e.g. sin(x1)")
         name = node.func.id
@@ -311,47 +373,82 @@ class _Compiler:
             raise self.fail(f"keyword arguments to {name}() are not allowed", "pass values only")
         if any(isinstance(arg, ast.Starred) for arg in node.args):
             raise self.fail(f"'*' unpacking in {name}() is not allowed", "pass values only")
-        if name in _UNARY_FUNCTIONS:
-            if len(node.args) != 1:
-                raise self.fail(
-                    f"{name}() takes exactly 1 argument, got {len(node.args)}", f"write {name}(x1)"
-                )
-            fn = _UNARY_FUNCTIONS[name]
-            inner, value = self.visit(node.args[0])
-            if value is not None:
-                with np.errstate(all="ignore"):
-                    folded = float(fn(np.float64(value)))
-                if not math.isfinite(folded):
-                    raise self.fail(f"{name}({value:g}) is not finite", "fix the constant")
-                return self._constant(folded)
-            return (lambda cols: fn(inner(cols))), None
-        if name in _VARIADIC_FUNCTIONS:
-            if len(node.args) < 2:
-                raise self.fail(f"{name}() needs at least 2 arguments", f"write {name}(a, b)")
-            fn2 = _VARIADIC_FUNCTIONS[name]
-            parts = [self.visit(arg)[0] for arg in node.args]
+        row = _NAMED.get(name)
+        if row is None or row.arity == 0:
+            known = row is not None or name in self.index  # a constant or a variable
+            problem = f"{_show(name)} is not a function" if known else f"unknown function {_show(name)}"
+            raise self.fail(problem, f"allowed names are {self.allowed_names()}")
+        if row.arity == 1 and len(node.args) != 1:
+            raise self.fail(f"{name}() takes exactly 1 argument, got {len(node.args)}", f"write {name}(x1)")
+        if row.arity is None and len(node.args) < 2:
+            raise self.fail(f"{name}() needs at least 2 arguments", f"write {name}(a, b)")
+        return self._apply(row, [self.visit(arg) for arg in node.args])
 
-            def reduce(cols: Sequence[np.ndarray]) -> np.ndarray:
-                result = parts[0](cols)
-                for part in parts[1:]:
-                    result = fn2(result, part(cols))
-                return result
+    def _apply(self, row: Operation, operands: list[_Tree]) -> _Apply:
+        """``row`` on ``operands``, folded with numpy when they are all constant (not min/max)."""
+        values = [operand.constant for operand in operands]
+        if row.arity is None or any(value is None for value in values):
+            return _Apply(row, tuple(operands), None)
+        if row.arity == 0:
+            return _Apply(row, (), float(row.on_arrays()))
+        if row.arity == 1:
+            return _Apply(row, tuple(operands), self._fold_unary(row, *values))
+        return _Apply(row, tuple(operands), self._fold_binary(row, *values))
 
-            return reduce, None
-        if name in self.index or name in _CONSTANTS:
-            raise self.fail(f"{_show(name)} is not a function", f"allowed names are {self.allowed_names()}")
-        raise self.fail(f"unknown function {_show(name)}", f"allowed names are {self.allowed_names()}")
+    def _fold_unary(self, row: Operation, value: float) -> float:
+        with np.errstate(all="ignore"):
+            folded = float(row.on_arrays(np.float64(value)))
+        if not math.isfinite(folded):
+            raise self.fail(f"{row.name}({value:g}) is not finite", "fix the constant")
+        return folded
+
+    def _fold_binary(self, row: Operation, left: float, right: float) -> float:
+        constant_part = f"constant part {left:g} {row.name} {right:g}"
+        with np.errstate(all="raise"):
+            try:
+                value = float(row.on_arrays(np.float64(left), np.float64(right)))
+            except (FloatingPointError, OverflowError, ZeroDivisionError):
+                raise self.fail(f"{constant_part} is not a finite real number", "fix the constant") from None
+        if not math.isfinite(value):
+            raise self.fail(f"{constant_part} is not finite", "fix the constant")
+        return value
 
 
 # --------------------------------------------------------------------------------------------
-# The same expressions on plain floats (hot loops of a batch of one, MuJoCo's passive callback)
+# numpy generator: validated tree -> closure over columns
 
-_SCALAR_FUNCTIONS: dict[str, Callable[[float], float]] = {
-    "abs": abs, "sqrt": math.sqrt, "exp": math.exp, "log": math.log, "sin": math.sin,
-    "cos": math.cos, "tan": math.tan, "tanh": math.tanh,
-    "sign": lambda a: a if a != a else (1.0 if a > 0 else -1.0 if a < 0 else 0.0),  # NaN stays NaN
-}
-ScalarFn = Callable[[Sequence[float]], float]
+
+def _columns_closure(node: _Tree) -> _ColumnsFn:
+    """``f(columns)`` of numpy calls; a constant part returns numpy's folded value (a float)."""
+    if node.constant is not None:
+        value = node.constant
+        return lambda cols: value
+    if isinstance(node, _Variable):
+        i = node.index
+        return lambda cols: cols[i]
+    row, parts = node.operation, [_columns_closure(operand) for operand in node.operands]
+    fn = row.on_arrays
+    if row.arity is None:
+
+        def reduce(cols: Sequence[np.ndarray]) -> np.ndarray:
+            result = parts[0](cols)
+            for part in parts[1:]:
+                result = fn(result, part(cols))
+            return result
+
+        return reduce
+    if row.arity == 1:
+        inner = parts[0]
+        return lambda cols: fn(inner(cols))
+    left, right = parts
+    if row is _POWER and node.operands[1].constant == 2.0:
+        return lambda cols: np.square(left(cols))
+    return lambda cols: fn(left(cols), right(cols))
+
+
+# --------------------------------------------------------------------------------------------
+# Float generator: validated tree -> closure over plain floats (hot loops of a batch of one,
+# MuJoCo's passive callback)
 
 
 def scalar_function(expression: Expression) -> ScalarFn:
@@ -362,95 +459,102 @@ def scalar_function(expression: Expression) -> ScalarFn:
     instead. Domain errors raise (the caller decides; :meth:`Expression.on_floats` falls back to
     numpy's answer). ``sin``, ``exp``, ... may differ from numpy's in the last bit.
     """
-    index = {name: i for i, name in enumerate(expression.variables)}
-    fn, _ = _scalar(ast.parse(expression.source.strip(), mode="eval").body, index)
-    return fn
+    return _float_part(expression._tree).fn
 
 
-def _scalar(node: ast.AST, index: dict[str, int]) -> tuple[ScalarFn, float | None]:
-    if isinstance(node, ast.Constant):
-        value = float(node.value)
-        return (lambda xs: value), value
-    if isinstance(node, ast.Name):
-        if node.id in index:
-            i = index[node.id]
-            return (lambda xs: xs[i]), None
-        value = math.pi  # the only constant the expression language knows
-        return (lambda xs: value), value
-    if isinstance(node, ast.UnaryOp):
-        inner, value = _scalar(node.operand, index)
-        if isinstance(node.op, ast.UAdd):
-            return inner, value
-        if value is not None:
-            return (lambda xs: -value), -value
-        return (lambda xs: -inner(xs)), None
-    if isinstance(node, ast.BinOp):
-        left, lv = _scalar(node.left, index)
-        right, rv = _scalar(node.right, index)
-        op = type(node.op)
-        li, ri = _variable(node.left, index), _variable(node.right, index)
-        if (op in _ARITHMETIC and (lv is None) != (rv is None)) or (li is not None and ri is not None):
-            # a constant or a variable on either side: read it directly (one call per node)
-            return _leaf_arithmetic(_ARITHMETIC[op] if op in _ARITHMETIC else None, node, left, lv, li,
-                                    right, rv, ri), None
-        if op is ast.Pow and rv == 2.0 and li is not None:
-            return (lambda xs: xs[li] * xs[li]), None  # like np.square, exactly
-        if op is ast.Add:
-            fn: ScalarFn = lambda xs: left(xs) + right(xs)  # noqa: E731
-        elif op is ast.Sub:
-            fn = lambda xs: left(xs) - right(xs)  # noqa: E731
-        elif op is ast.Mult:
-            fn = lambda xs: left(xs) * right(xs)  # noqa: E731
-        elif op is ast.Div:
-            fn = lambda xs: left(xs) / right(xs)  # noqa: E731
-        elif rv == 2.0:
-            def fn(xs: Sequence[float]) -> float:
-                a = left(xs)
-                return a * a  # like np.square, exactly
-        else:
-            fn = lambda xs: math.pow(left(xs), right(xs))  # noqa: E731
-        if lv is not None and rv is not None:
-            value = fn(())
-            return (lambda xs: value), value
-        return fn, None
-    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name):
-        parts = [_scalar(arg, index)[0] for arg in node.args]
-        name = node.func.id
-        if name in ("min", "max"):
-            pick = min if name == "min" else max
+class _FloatPart(NamedTuple):
+    """A subtree on plain floats: its closure, and what lets the operation above read it directly."""
 
-            def reduce(xs: Sequence[float]) -> float:
-                values = [p(xs) for p in parts]
-                return math.nan if any(v != v for v in values) else pick(values)
-
-            return reduce, None
-        f, arg = _SCALAR_FUNCTIONS[name], parts[0]
-        i = _variable(node.args[0], index)
-        if i is not None:
-            return (lambda xs: f(xs[i])), None
-        return (lambda xs: f(arg(xs))), None
-    raise ValueError(f"unexpected syntax in a validated expression: {ast.dump(node)}")
+    fn: ScalarFn
+    value: float | None = None  # a constant: operators on constants are folded on floats
+    index: int | None = None  # a variable: ``xs[index]``
 
 
-_ARITHMETIC = {
-    ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv,
-}
+def _float_constant(value: float) -> _FloatPart:
+    return _FloatPart(lambda xs: value, value=value)
 
 
-def _variable(node: ast.AST, index: dict[str, int]) -> int | None:
-    """The position of a variable node in ``xs``, or None."""
-    return index.get(node.id) if isinstance(node, ast.Name) else None
+def _float_part(node: _Tree) -> _FloatPart:
+    """The float closure of ``node``. Operators on constants are folded (with the float
+    implementation); functions are not, a function of a constant is evaluated at each call."""
+    if isinstance(node, _Number):
+        return _float_constant(node.constant)
+    if isinstance(node, _Variable):
+        i = node.index
+        return _FloatPart(lambda xs: xs[i], index=i)
+    row, parts = node.operation, [_float_part(operand) for operand in node.operands]
+    if row.arity == 0:
+        return _float_constant(row.on_floats())
+    if row.arity == 1:
+        return _float_unary(row, parts[0])
+    if row.arity == 2:
+        return _float_binary(row, *parts)
+    return _FloatPart(_float_variadic(row.on_floats, [part.fn for part in parts]))
 
 
-def _leaf_arithmetic(op: Callable[[float, float], float] | None, node: ast.BinOp, left: ScalarFn,
-                     lv: float | None, li: int | None, right: ScalarFn, rv: float | None,
-                     ri: int | None) -> ScalarFn:
-    """``left op right`` where one side is a constant or both are variables, without a call per
-    leaf. ``op`` is None for ``**`` (then both sides are variables: ``math.pow``)."""
-    if op is None:
-        return lambda xs: math.pow(xs[li], xs[ri])
+def _float_unary(row: Operation, operand: _FloatPart) -> _FloatPart:
+    f = row.on_floats
+    inner, value, i = operand
+    if value is not None:
+        if row.is_operator:
+            return _float_constant(f(value))
+        return _FloatPart(lambda xs: f(value))
+    if i is not None:
+        return _FloatPart(lambda xs: f(xs[i]))
+    if row.inline is not None:
+        return _FloatPart(row.inline(inner))
+    return _FloatPart(lambda xs: f(inner(xs)))
+
+
+def _float_binary(row: Operation, left: _FloatPart, right: _FloatPart) -> _FloatPart:
+    if row is _POWER and right.value == 2.0:
+        return _float_square(left)
+    f = row.on_floats
+    if left.value is not None and right.value is not None:
+        return _float_constant(f(left.value, right.value))
+    direct = _read_directly(f, left, right)
+    if direct is not None:
+        return _FloatPart(direct)
+    if row.inline is not None:
+        return _FloatPart(row.inline(left.fn, right.fn))
+    lf, rf = left.fn, right.fn
+    return _FloatPart(lambda xs: f(lf(xs), rf(xs)))
+
+
+def _float_square(base: _FloatPart) -> _FloatPart:
+    """``base**2`` as a product, like ``np.square`` (exactly, and inf rather than OverflowError)."""
+    inner, value, i = base
+    if value is not None:
+        return _float_constant(value * value)
+    if i is not None:
+        return _FloatPart(lambda xs: xs[i] * xs[i])
+
+    def square(xs: Sequence[float]) -> float:
+        a = inner(xs)
+        return a * a
+
+    return _FloatPart(square)
+
+
+def _read_directly(
+    f: Callable[[float, float], float], left: _FloatPart, right: _FloatPart
+) -> ScalarFn | None:
+    """``f(left, right)`` reading a constant on either side, or variables on both sides, directly:
+    no call per leaf. None otherwise: then both operands' closures are called (with Python's own
+    operator written out where the row has one)."""
+    lv, li, lf = left.value, left.index, left.fn
+    rv, ri, rf = right.value, right.index, right.fn
     if lv is not None:
-        return (lambda xs: op(lv, xs[ri])) if ri is not None else (lambda xs: op(lv, right(xs)))
+        return (lambda xs: f(lv, xs[ri])) if ri is not None else (lambda xs: f(lv, rf(xs)))
     if rv is not None:
-        return (lambda xs: op(xs[li], rv)) if li is not None else (lambda xs: op(left(xs), rv))
-    return lambda xs: op(xs[li], xs[ri])
+        return (lambda xs: f(xs[li], rv)) if li is not None else (lambda xs: f(lf(xs), rv))
+    if li is not None and ri is not None:
+        return lambda xs: f(xs[li], xs[ri])
+    return None
+
+
+def _float_variadic(f: Callable[..., float], parts: list[ScalarFn]) -> ScalarFn:
+    if len(parts) == 2:
+        first, second = parts
+        return lambda xs: f(first(xs), second(xs))
+    return lambda xs: f(*[part(xs) for part in parts])

@@ -40,7 +40,14 @@ from hypothesis import strategies as st
 from hypothesis.control import currently_in_test_context
 
 from qcontrol.errors import QcontrolInputError
-from qcontrol.expr import MAX_CONSTANT_EXPONENT, Expression, compile_expression
+from qcontrol.expr import (
+    MAX_CONSTANT_EXPONENT,
+    OPERATIONS,
+    Expression,
+    Operation,
+    compile_expression,
+    scalar_function,
+)
 
 VARIABLES = ("x1", "x2", "x3")
 WHERE = "fuzz.toml: plant.psi"
@@ -550,3 +557,75 @@ def test_examples_that_must_compile() -> None:
         "1e-3*x1",
     ]:
         assert check(source) is not None, source
+
+
+# --------------------------------------------------------------------------------------------
+# the one table: every row means the same on arrays (numpy) and on plain floats (math)
+
+_SPECIAL = [0.0, -0.0, 1.0, -1.0, 2.0, 0.5, -2.5, math.pi, 5e-324, 1e-300, 1e154, 1e300, -1e300, 709.8, 710.0,
+            math.inf, -math.inf, math.nan]
+_TABLE_STATES = np.array(  # every pair of special values for (x1, x2), and 200 ordinary states
+    [
+        (a, b, _SPECIAL[(j + 2 * k) % len(_SPECIAL)])
+        for j, a in enumerate(_SPECIAL)
+        for k, b in enumerate(_SPECIAL)
+    ]
+    + np.random.default_rng(7).normal(0.0, 3.0, (200, 3)).tolist()
+)
+
+
+def _uses(operation_name: str, arity: int | None) -> list[str]:
+    """Expressions that exercise one row of the table (and both ways of writing a square)."""
+    if arity == 0:
+        return [operation_name]
+    if arity == 1:
+        return [f"{operation_name}x1"] if not operation_name.isalpha() else [f"{operation_name}(x1)"]
+    if arity == 2:
+        forms = [f"x1 {operation_name} x2", f"2.5 {operation_name} x2", f"x1 {operation_name} 0.5",
+                 f"sin(x1) {operation_name} cos(x2)"]
+        return forms + (["x1**2", "sin(x1)**2", "x1**2.0"] if operation_name == "**" else [])
+    return [f"{operation_name}(x1, x2)", f"{operation_name}(x1, x2, x3)", f"{operation_name}(sin(x1), 0.5)"]
+
+
+def _same_up_to_rounding(on_floats: float, on_arrays: float) -> bool:
+    if math.isnan(on_arrays):
+        return math.isnan(on_floats)
+    return on_floats == pytest.approx(on_arrays, rel=1e-14, abs=0.0)
+
+
+def _known_difference(source: str, state: list[float]) -> bool:
+    """The one place where the two disagree: ``(-inf)**0.5`` is inf through ``math.pow`` (C's
+    ``pow``) but NaN through numpy, which computes a power of 0.5 as a square root."""
+    return source == "x1 ** 0.5" and state[0] == -math.inf
+
+
+@pytest.mark.parametrize("operation", OPERATIONS, ids=lambda row: f"{row.name}/{row.arity}")
+def test_every_row_of_the_table_agrees_on_arrays_and_floats(operation: Operation) -> None:
+    """numpy's evaluation (``__call__``) and the float generator's (``on_floats``) agree on every
+    state, NaN and Inf included; the float closure itself either gives that value or raises one of
+    the errors ``on_floats`` answers with numpy's value."""
+    for source in _uses(operation.name, operation.arity):
+        expr = compile_expression(source, VARIABLES, WHERE)
+        on_floats = scalar_function(expr)
+        with np.errstate(all="ignore"):
+            expected = expr(_TABLE_STATES)
+        for state, value in zip(_TABLE_STATES.tolist(), expected.tolist(), strict=True):
+            got = expr.on_floats(state)
+            assert type(got) is float, source
+            assert _same_up_to_rounding(got, value) or _known_difference(source, state), (source, state)
+            try:
+                direct = on_floats(state)
+            except (ValueError, ZeroDivisionError, OverflowError):
+                continue
+            assert direct == got or (math.isnan(direct) and math.isnan(got)), (source, state)
+
+
+def test_the_table_is_the_language() -> None:
+    """Each allowed operator, function and constant has exactly one row, and nothing else does."""
+    named = [row.name for row in OPERATIONS if not row.is_operator]
+    assert named == ["pi", *ALLOWED_FUNCTIONS]
+    assert sorted((row.name, row.arity) for row in OPERATIONS if row.is_operator) == sorted(
+        [("+", 2), ("-", 2), ("*", 2), ("/", 2), ("**", 2), ("-", 1)]
+    )
+    for row in OPERATIONS:
+        assert (row.arity == 0) == (row.name == "pi")
