@@ -1,4 +1,4 @@
-"""A catalogue of bad inputs (issue 7, item 1): each one through the real command line.
+"""A catalogue of bad inputs: each one through the real command line.
 
 Every case must give exit status 2 and exactly one line on stderr, ``qcontrol: error: ...``, that
 names where the problem is (the scenario file and key, or the option), what is wrong (usually the

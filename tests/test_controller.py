@@ -1,4 +1,5 @@
-"""Backstepping coefficients (SPEC 3), Lemma 2 (SPEC 5), laws (44)-(46) against independent math."""
+"""Backstepping coefficients (recursion after eq. (27)), Lemma 2 (Appendix A) and laws (44)-(46)
+against independent math."""
 
 import numpy as np
 import pytest

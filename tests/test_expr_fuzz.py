@@ -1,4 +1,4 @@
-"""Fuzzing the expression compiler (issue 7, item 2).
+"""Fuzzing the expression compiler.
 
 The property, for any source text: :func:`qcontrol.expr.compile_expression` either
 

@@ -1,4 +1,4 @@
-"""The MuJoCo plant (issue 3): MJCF models vs the ODE of eq. (1), callbacks, readings, input errors."""
+"""The MuJoCo plant: MJCF models vs the ODE of eq. (1), callbacks, readings, input errors."""
 
 from __future__ import annotations
 

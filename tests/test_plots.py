@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from matplotlib.figure import Figure
 from matplotlib.image import imread
 
 from qcontrol import plots as P
@@ -16,6 +17,7 @@ from qcontrol.controller import BaselineController, ProposedController
 from qcontrol.engine import Trajectory, simulate
 from qcontrol.expr import compile_expression as C
 from qcontrol.plants.ode import ChainPlant
+from qcontrol.plots.common import adaptive_labels
 from qcontrol.quantizer import UniformQuantizer
 from qcontrol.reference import Sine
 
@@ -183,7 +185,7 @@ def test_save_failure_cleans_up(runs, tmp_path, monkeypatch):
     def boom(*args, **kwargs):
         raise RuntimeError("disk full")
 
-    monkeypatch.setattr(P.Figure, "savefig", boom)
+    monkeypatch.setattr(Figure, "savefig", boom)
     with pytest.raises(RuntimeError, match="disk full"):
         P.fig_output(proposed, tmp_path / "f.png", P.PAPER_TITLES[1], P.EXAMPLE1_UNITS)
     assert list(tmp_path.iterdir()) == []
@@ -200,8 +202,8 @@ def test_sensitivity_with_categories(tmp_path):
 
 def test_adaptive_labels_follow_the_state_name(runs):
     proposed, base = runs
-    assert P._adaptive_labels(proposed, 3) == [rf"$\hat{{\varepsilon}}_{{{i}}}$" for i in (1, 2, 3)]
-    assert P._adaptive_labels(base, 1) == [r"$\hat{\theta}$"]
+    assert adaptive_labels(proposed, 3) == [rf"$\hat{{\varepsilon}}_{{{i}}}$" for i in (1, 2, 3)]
+    assert adaptive_labels(base, 1) == [r"$\hat{\theta}$"]
 
 
 def test_no_pyplot_state_is_touched(runs, tmp_path):

@@ -1,4 +1,4 @@
-"""Reliability (issue 7): determinism, seeded sensor noise, atomic outputs, Ctrl-C, and the theorem's
+"""Reliability: determinism, seeded sensor noise, atomic outputs, Ctrl-C, and the theorem's
 "global" claim put to the test on random initial states.
 
 The global claim, measured (tools/global_claim.py, ODE backend, dt = 1 ms, 10 s): the sampled

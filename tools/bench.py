@@ -1,6 +1,7 @@
-"""qcontrol's performance figures, as ratios measured in one process (DESIGN "Performance targets").
+"""qcontrol's performance figures, as ratios measured in one process (the targets: the README's
+Performance section).
 
-    /work/venv/bin/python tools/bench.py [--quick] [--json FILE] [--repeat N] [--sweep1000]
+    python tools/bench.py [--quick] [--json FILE] [--repeat N] [--sweep1000]
 
 * MuJoCo closed loop: us per step, and the ratio to a bare ``mj_step`` loop on the same model,
   integrator and passive callback (target <= 2).

@@ -1,6 +1,6 @@
 """Cost of writing a rerun recording: Example 2, 10 s at dt = 1 ms, with and without a .rrd file.
 
-    /work/venv/bin/python tools/bench_recording.py [--repeat 3] [--duration 10] [--keep FILE]
+    python tools/bench_recording.py [--repeat 3] [--duration 10] [--keep FILE]
 
 Prints the median wall time of the bare run and of the recorded run (the recorder streams every
 5000 rows, draws a hinge pendulum posed from x1 and a target marker at y_d), the overhead fraction

@@ -1,6 +1,6 @@
-"""How "global" is the proposed law in practice? (issue 7, item 7)
+"""How "global" is the proposed law in practice?
 
-    /work/venv/bin/python tools/global_claim.py [--dt 0.001] [--duration 10] [--examples example1 example2]
+    python tools/global_claim.py [--dt 0.001] [--duration 10] [--examples example1 example2]
                                                  [--max-scale 1000] [--bisect 8]
 
 For each example and each of eight directions d (the axes and the diagonals) the initial state

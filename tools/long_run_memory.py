@@ -1,6 +1,6 @@
-"""Peak memory of a long run (issue 7, item 8): 120 s of Example 2 at dt = 1e-4 s (10 kHz), ODE backend.
+"""Peak memory of a long run: 120 s of Example 2 at dt = 1e-4 s (10 kHz), ODE backend.
 
-    /work/venv/bin/python tools/long_run_memory.py [--duration 120] [--dt 1e-4] [--no-rrd]
+    python tools/long_run_memory.py [--duration 120] [--dt 1e-4] [--no-rrd]
 
 Each case runs ``qcontrol run`` in its own process and reads that process's peak resident set
 size (``ru_maxrss`` from ``os.wait4``): a short run (0.1 s: interpreter, numpy, MuJoCo and, with a

@@ -1,0 +1,152 @@
+"""The two code generators: a validated tree -> numpy calls on columns, and -> ``math`` calls on
+plain floats (the hot loops of a batch of one and MuJoCo's passive callback). Both read the rows of
+:data:`~qcontrol.expr.operations.OPERATIONS`."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import NamedTuple
+
+import numpy as np
+
+from .operations import POWER, ColumnsFn, Operation, ScalarFn
+from .tree import Number, Tree, Variable
+
+# --------------------------------------------------------------------------------------------
+# numpy generator: validated tree -> closure over columns
+
+
+def columns_closure(node: Tree) -> ColumnsFn:
+    """``f(columns)`` of numpy calls; a constant part returns numpy's folded value (a float)."""
+    if node.constant is not None:
+        value = node.constant
+        return lambda cols: value
+    if isinstance(node, Variable):
+        i = node.index
+        return lambda cols: cols[i]
+    row, parts = node.operation, [columns_closure(operand) for operand in node.operands]
+    fn = row.on_arrays
+    if row.arity is None:
+
+        def reduce(cols: Sequence[np.ndarray]) -> np.ndarray:
+            result = parts[0](cols)
+            for part in parts[1:]:
+                result = fn(result, part(cols))
+            return result
+
+        return reduce
+    if row.arity == 1:
+        inner = parts[0]
+        return lambda cols: fn(inner(cols))
+    left, right = parts
+    if row is POWER and node.operands[1].constant == 2.0:
+        return lambda cols: np.square(left(cols))
+    return lambda cols: fn(left(cols), right(cols))
+
+
+# --------------------------------------------------------------------------------------------
+# Float generator: validated tree -> closure over plain floats (hot loops of a batch of one,
+# MuJoCo's passive callback)
+
+
+def float_closure(tree: Tree) -> ScalarFn:
+    """The plain-float closure of a validated tree (see :func:`qcontrol.expr.scalar_function`)."""
+    return float_part(tree).fn
+
+
+class _FloatPart(NamedTuple):
+    """A subtree on plain floats: its closure, and what lets the operation above read it directly."""
+
+    fn: ScalarFn
+    value: float | None = None  # a constant: operators on constants are folded on floats
+    index: int | None = None  # a variable: ``xs[index]``
+
+
+def _float_constant(value: float) -> _FloatPart:
+    return _FloatPart(lambda xs: value, value=value)
+
+
+def float_part(node: Tree) -> _FloatPart:
+    """The float closure of ``node``. Operators on constants are folded (with the float
+    implementation); functions are not, a function of a constant is evaluated at each call."""
+    if isinstance(node, Number):
+        return _float_constant(node.constant)
+    if isinstance(node, Variable):
+        i = node.index
+        return _FloatPart(lambda xs: xs[i], index=i)
+    row, parts = node.operation, [float_part(operand) for operand in node.operands]
+    if row.arity == 0:
+        return _float_constant(row.on_floats())
+    if row.arity == 1:
+        return _float_unary(row, parts[0])
+    if row.arity == 2:
+        return _float_binary(row, *parts)
+    return _FloatPart(_float_variadic(row.on_floats, [part.fn for part in parts]))
+
+
+def _float_unary(row: Operation, operand: _FloatPart) -> _FloatPart:
+    f = row.on_floats
+    inner, value, i = operand
+    if value is not None:
+        if row.is_operator:
+            return _float_constant(f(value))
+        return _FloatPart(lambda xs: f(value))
+    if i is not None:
+        return _FloatPart(lambda xs: f(xs[i]))
+    if row.inline is not None:
+        return _FloatPart(row.inline(inner))
+    return _FloatPart(lambda xs: f(inner(xs)))
+
+
+def _float_binary(row: Operation, left: _FloatPart, right: _FloatPart) -> _FloatPart:
+    if row is POWER and right.value == 2.0:
+        return _float_square(left)
+    f = row.on_floats
+    if left.value is not None and right.value is not None:
+        return _float_constant(f(left.value, right.value))
+    direct = _read_directly(f, left, right)
+    if direct is not None:
+        return _FloatPart(direct)
+    if row.inline is not None:
+        return _FloatPart(row.inline(left.fn, right.fn))
+    lf, rf = left.fn, right.fn
+    return _FloatPart(lambda xs: f(lf(xs), rf(xs)))
+
+
+def _float_square(base: _FloatPart) -> _FloatPart:
+    """``base**2`` as a product, like ``np.square`` (exactly, and inf rather than OverflowError)."""
+    inner, value, i = base
+    if value is not None:
+        return _float_constant(value * value)
+    if i is not None:
+        return _FloatPart(lambda xs: xs[i] * xs[i])
+
+    def square(xs: Sequence[float]) -> float:
+        a = inner(xs)
+        return a * a
+
+    return _FloatPart(square)
+
+
+def _read_directly(
+    f: Callable[[float, float], float], left: _FloatPart, right: _FloatPart
+) -> ScalarFn | None:
+    """``f(left, right)`` reading a constant on either side, or variables on both sides, directly:
+    no call per leaf. None otherwise: then both operands' closures are called (with Python's own
+    operator written out where the row has one)."""
+    lv, li, lf = left.value, left.index, left.fn
+    rv, ri, rf = right.value, right.index, right.fn
+    if lv is not None:
+        return (lambda xs: f(lv, xs[ri])) if ri is not None else (lambda xs: f(lv, rf(xs)))
+    if rv is not None:
+        return (lambda xs: f(xs[li], rv)) if li is not None else (lambda xs: f(lf(xs), rv))
+    if li is not None and ri is not None:
+        return lambda xs: f(xs[li], xs[ri])
+    return None
+
+
+def _float_variadic(f: Callable[..., float], parts: list[ScalarFn]) -> ScalarFn:
+    if len(parts) == 2:
+        first, second = parts
+        return lambda xs: f(first(xs), second(xs))
+    return lambda xs: f(*[part(xs) for part in parts])

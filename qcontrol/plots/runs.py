@@ -1,0 +1,226 @@
+"""Figures of runs: the paper's Figs. 1-8 and a MuJoCo run beside its ODE twin."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..engine import Trajectory
+from .common import (
+    COLORS,
+    LOG_FLOOR,
+    REF_STYLE,
+    Units,
+    adaptive_labels,
+    column,
+    finish,
+    finite_or_note,
+    legend,
+    mark_divergence,
+    new_figure,
+    omega_band,
+    reference,
+    save,
+    time_axis,
+    unit,
+)
+
+# --------------------------------------------------------------------------------------------
+# Single-run figures (paper Figs. 1-4, 7, 8)
+# --------------------------------------------------------------------------------------------
+
+
+def fig_output(traj: Trajectory, path: str | os.PathLike, title: str, units: Units) -> Path:
+    """Fig. 1: output ``y = x_1`` and the reference ``y_d`` against time."""
+    fig, axes = new_figure()
+    ax = axes[0, 0]
+    t_ref, yd = reference(traj)
+    ax.plot(t_ref, yd, label="$y_d$ (reference)", **REF_STYLE)
+    ax.plot(traj.t, traj.y, color=COLORS[0], linewidth=1.5, label="y (output)")
+    mark_divergence(ax, traj)
+    finite_or_note(ax, traj.y, yd)
+    ax.set_ylabel(f"y, $y_d${unit(units.y)}")
+    return finish(fig, ax, [traj], units, title, path)
+
+
+def fig_tracking_error(
+    traj: Trajectory, path: str | os.PathLike, title: str, units: Units, omega: float | None = None
+) -> Path:
+    """Fig. 2: tracking error ``z_1 = y - y_d``; ``omega`` optionally shades ``|z_1| <= omega``."""
+    fig, axes = new_figure()
+    ax = axes[0, 0]
+    omega_band(ax, omega)
+    ax.axhline(0.0, color="black", linewidth=0.6)
+    ax.plot(traj.t, column(traj.z, 0), color=COLORS[0], linewidth=1.5, label="$z_1 = y - y_d$")
+    mark_divergence(ax, traj)
+    finite_or_note(ax, column(traj.z, 0))
+    ax.set_ylabel(f"$y - y_d${unit(units.y)}")
+    return finish(fig, ax, [traj], units, title, path)
+
+
+def fig_adaptive(
+    traj: Trajectory,
+    path: str | os.PathLike,
+    title: str,
+    units: Units,
+    labels: Sequence[str] | None = None,
+) -> Path:
+    """Fig. 3 / Fig. 7: the adaptive estimates, one line per component.
+
+    ``labels`` name the components (mathtext allowed, e.g. ``[r"$\\hat{\\xi}$"]`` for Fig. 3);
+    by default they follow ``traj.adaptive_name`` (``eps_hat`` -> epsilon-hat_i, ``theta_hat`` ->
+    theta-hat_i).
+    """
+    fig, axes = new_figure()
+    ax = axes[0, 0]
+    adaptive = np.asarray(traj.adaptive, dtype=float)
+    if adaptive.ndim == 1:
+        adaptive = adaptive[:, None]
+    count = adaptive.shape[1]
+    names = list(labels) if labels is not None else adaptive_labels(traj, count)
+    if len(names) != count:
+        raise ValueError(f"fig_adaptive: {len(names)} label(s) for {count} adaptive component(s)")
+    for i in range(count):
+        ax.plot(traj.t, adaptive[:, i], color=COLORS[i % len(COLORS)], linewidth=1.5, label=names[i])
+    mark_divergence(ax, traj)
+    finite_or_note(ax, adaptive)
+    what = "estimate" if count == 1 else "estimates"
+    ax.set_ylabel(f"adaptive {what}{unit(units.adaptive)}")
+    return finish(fig, ax, [traj], units, title, path)
+
+
+def fig_input(traj: Trajectory, path: str | os.PathLike, title: str, units: Units) -> Path:
+    """Fig. 4 / Fig. 8: the control input ``u`` (held over each step) against time."""
+    fig, axes = new_figure()
+    ax = axes[0, 0]
+    ax.plot(traj.t, np.asarray(traj.u, dtype=float), color=COLORS[0], linewidth=1.2, label="u")
+    mark_divergence(ax, traj)
+    finite_or_note(ax, traj.u)
+    ax.set_ylabel(f"u{unit(units.u)}")
+    return finish(fig, ax, [traj], units, title, path)
+
+
+# --------------------------------------------------------------------------------------------
+# Comparison figures (paper Figs. 5, 6)
+# --------------------------------------------------------------------------------------------
+
+DEFAULT_METHOD_LABELS = ("proposed", "method of [20]")
+
+
+def fig_compare_output(
+    proposed: Trajectory,
+    comparison: Trajectory,
+    path: str | os.PathLike,
+    title: str,
+    units: Units,
+    labels: tuple[str, str] = DEFAULT_METHOD_LABELS,
+) -> Path:
+    """Fig. 5: output ``y`` of the proposed and the comparison method, with ``y_d``."""
+    fig, axes = new_figure()
+    ax = axes[0, 0]
+    t_ref, yd = reference(proposed, comparison)
+    ax.plot(t_ref, yd, label="$y_d$ (reference)", **REF_STYLE)
+    for traj, label, color in zip((proposed, comparison), labels, COLORS, strict=False):
+        ax.plot(traj.t, traj.y, color=color, linewidth=1.5, label=f"y, {label}")
+        mark_divergence(ax, traj, label, color=color)
+    finite_or_note(ax, proposed.y, comparison.y, yd)
+    ax.set_ylabel(f"y, $y_d${unit(units.y)}")
+    return finish(fig, ax, [proposed, comparison], units, title, path)
+
+
+def fig_compare_error(
+    proposed: Trajectory,
+    comparison: Trajectory,
+    path: str | os.PathLike,
+    title: str,
+    units: Units,
+    labels: tuple[str, str] = DEFAULT_METHOD_LABELS,
+    omega: float | None = None,
+) -> Path:
+    """Fig. 6: tracking errors ``y - y_d`` of both methods; ``omega`` optionally shades ``|z_1| <= omega``."""
+    fig, axes = new_figure()
+    ax = axes[0, 0]
+    omega_band(ax, omega)
+    ax.axhline(0.0, color="black", linewidth=0.6)
+    for traj, label, color in zip((proposed, comparison), labels, COLORS, strict=False):
+        ax.plot(traj.t, column(traj.z, 0), color=color, linewidth=1.5, label=f"$y - y_d$, {label}")
+        mark_divergence(ax, traj, label, color=color)
+    finite_or_note(ax, column(proposed.z, 0), column(comparison.z, 0))
+    ax.set_ylabel(f"$y - y_d${unit(units.y)}")
+    return finish(fig, ax, [proposed, comparison], units, title, path)
+
+
+# --------------------------------------------------------------------------------------------
+# Backend overlay (MuJoCo vs its ODE twin)
+# --------------------------------------------------------------------------------------------
+
+
+def output_difference(first: Trajectory, second: Trajectory) -> tuple[np.ndarray, np.ndarray]:
+    """``(t, |y_first - y_second|)`` over the instants both runs cover.
+
+    On a common time grid the rows are compared directly; otherwise ``second`` is linearly
+    interpolated onto ``first``'s instants (finite samples only). NaN where either is undefined.
+    """
+    t1, y1 = np.asarray(first.t, dtype=float), np.asarray(first.y, dtype=float)
+    t2, y2 = np.asarray(second.t, dtype=float), np.asarray(second.y, dtype=float)
+    common = min(len(t1), len(t2))
+    if common and np.allclose(t1[:common], t2[:common], rtol=0.0, atol=1e-9 * max(1.0, abs(t1[-1]))):
+        return t1[:common], np.abs(y1[:common] - y2[:common])
+    ok = np.isfinite(t2) & np.isfinite(y2)
+    other = np.full_like(t1, np.nan)
+    if ok.sum() >= 2:
+        inside = (t1 >= t2[ok][0]) & (t1 <= t2[ok][-1])
+        other[inside] = np.interp(t1[inside], t2[ok], y2[ok])
+    return t1, np.abs(y1 - other)
+
+
+def fig_backend_overlay(
+    mujoco: Trajectory,
+    ode: Trajectory,
+    path: str | os.PathLike,
+    title: str,
+    units: Units,
+    labels: tuple[str, str] = ("MuJoCo", "ODE"),
+    floor: float = LOG_FLOOR,
+) -> Path:
+    """A MuJoCo run and its ODE twin: ``y`` of both (and ``y_d``) on top, ``|y_1 - y_2|`` below.
+
+    The difference is drawn on a log axis; values below ``floor`` (in particular exact zeros of
+    bit-identical runs) are clipped to ``floor``, which the axis label and legend state.
+    """
+    if not (np.isfinite(floor) and floor > 0):
+        raise ValueError(f"fig_backend_overlay: floor must be a finite number > 0, got {floor!r}")
+    fig, axes = new_figure(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 2]})
+    top, bottom = axes[0, 0], axes[1, 0]
+    t_ref, yd = reference(mujoco, ode)
+    top.plot(t_ref, yd, label="$y_d$", color="gray", linestyle="--", linewidth=1.0)
+    top.plot(mujoco.t, mujoco.y, color=COLORS[0], linewidth=2.2, label=f"y, {labels[0]}")
+    top.plot(ode.t, ode.y, color=COLORS[1], linewidth=1.1, linestyle="-", label=f"y, {labels[1]}")
+    for traj, label, color in zip((mujoco, ode), labels, COLORS, strict=False):
+        mark_divergence(top, traj, label, color=color)
+    finite_or_note(top, mujoco.y, ode.y)
+    top.set_ylabel(f"y{unit(units.y)}")
+    top.grid(True, alpha=0.3)
+    top.set_title(title)
+    legend(top)
+
+    t_diff, diff = output_difference(mujoco, ode)
+    finite = np.isfinite(diff)
+    below = int(np.count_nonzero(diff[finite] < floor))
+    clipped = np.where(finite, np.maximum(diff, floor), np.nan)
+    note = f"{below} of {int(finite.sum())} samples below floor" if below else "none below floor"
+    bottom.semilogy(t_diff, clipped, color=COLORS[2], linewidth=1.2, label=f"|difference| ({note})")
+    bottom.axhline(floor, color="gray", linestyle=":", linewidth=1.0, label=f"floor {floor:.0e}")
+    if not finite.any():
+        finite_or_note(bottom, diff)
+        bottom.set_ylim(floor, 1.0)
+    else:
+        top_value = float(np.nanmax(clipped))
+        bottom.set_ylim(floor / 10.0, max(top_value * 10.0, floor * 100.0))
+    bottom.set_ylabel(f"|y({labels[0]}) - y({labels[1]})|{unit(units.y)}\nlog scale, clipped at {floor:.0e}")
+    time_axis(bottom, [mujoco, ode], units)
+    legend(bottom, fontsize=8)
+    return save(fig, path)
