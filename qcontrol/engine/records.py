@@ -19,7 +19,7 @@ from .reductions import Chunk
 from .reference_rows import ReferenceRows
 from .results import RunMetrics, Trajectory
 from .rows import NEVER, RowBuffer
-from .signals import DERIVED, REDUCTIONS, SIGNALS, SignalContext, derive
+from .signals import DERIVED, REDUCTIONS, SIGNALS, SignalContext, derive, needed
 
 # observer(start_row, stop_row, runs): rows [start_row, stop_row) of every run are final and may
 # be streamed out (e.g. to a rerun recording); ``runs`` are views truncated at stop_row.
@@ -50,11 +50,12 @@ class _Record:
         self.context = SignalContext(law.coordinates)
         self.started = 0.0  # the run's start (time.perf_counter), set by the loop
 
-    def signals(self, first: int, stop: int) -> dict[str, np.ndarray]:
-        """Every signal of run rows ``[first, stop)`` (views of the buffer, derived signals new)."""
+    def signals(self, first: int, stop: int, derived: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
+        """The signals of run rows ``[first, stop)``: views of the buffer, the reference, and the
+        derived signals (all, or those named in ``derived``)."""
         block = self.buffer.rows(first, stop)
         block["yd"] = self.reference.block(first, stop)[:, None, :]
-        return derive(block, self.context)
+        return derive(block, self.context, derived)
 
     def trajectories(self, first: int, lengths: np.ndarray, signals: dict[str, np.ndarray],
                      now: float) -> list[Trajectory]:
@@ -127,7 +128,8 @@ class MetricsRecord(_Record):
         super().__init__(grid, law, reference, divergence, min(grid.rows, self.chunk + self.chunk // 2),
                          batch, n, observer)
         widths = {s.name: s.size(n, law.state_size) for s in SIGNALS}
-        self.reductions = [(name, fold(batch, widths[name], grid.duration)) for name, fold in REDUCTIONS]
+        self.reductions = [fold(batch, widths[fold.signal], grid.duration) for fold in REDUCTIONS]
+        self.derived = needed(tuple(name for fold in REDUCTIONS for name in fold.needs()))
 
     def next_event(self, k: int) -> int:
         return chunk_end(self.buffer.base, self.chunk, self.grid.rows)
@@ -145,19 +147,19 @@ class MetricsRecord(_Record):
     def _reduce(self, base: int, stop: int) -> None:
         """Fold rows ``[base, stop)`` into the reductions, a cache-sized block at a time."""
         diverged = self.divergence.kept < self.grid.rows
-        block = max(1, REDUCE_ELEMENTS // self.batch)
-        for first in range(base, stop, block):
-            last = min(stop, first + block)
+        rows = max(1, REDUCE_ELEMENTS // self.batch)
+        for first in range(base, stop, rows):
+            last = min(stop, first + rows)
             chunk = Chunk(first, self.grid.instants(first, last), self.divergence.kept, diverged)
-            signals = self.signals(first, last)
-            for name, fold in self.reductions:
-                fold.add(chunk, signals[name])
+            block = self.signals(first, last, self.derived)
+            for fold in self.reductions:
+                fold.add(chunk, fold.values(block))
 
     def results(self, now: float) -> list[RunMetrics]:
         d = self.divergence
         return [
             RunMetrics(
-                steps=int(d.kept[b]) - 1, values={fold.name: fold.value(b) for _, fold in self.reductions},
+                steps=int(d.kept[b]) - 1, values={fold.name: fold.value(b) for fold in self.reductions},
                 adaptive_name=self.law.state_name, L_z=self.law.coordinates.L_z.copy(), dt=self.grid.dt,
                 duration=self.grid.duration, diverged=d.times[b] is not None, diverged_time=d.times[b],
                 divergence_reason=d.reasons[b], wall_time_s=now - self.started,

@@ -8,6 +8,7 @@ the same numbers. Rows at or after the row that stopped a copy do not count.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any, ClassVar
@@ -40,12 +41,25 @@ class Chunk:
 
 
 class Reduction:
-    """Folds one signal, ``(rows, batch[, width])`` per chunk, into a value per copy."""
+    """Folds one signal, ``(rows, batch[, width])`` per chunk, into a value per copy.
+
+    ``reads`` names the signals :meth:`values` needs from a block of rows (by default the reduced
+    signal itself); a metrics-only run derives only the signals its reductions read."""
 
     name: ClassVar[str]  # its key in RunMetrics and in the summary
+    signal: ClassVar[str]  # the signal it reduces
+    reads: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, batch: int, width: int, duration: float) -> None:
         self.batch = batch
+
+    @classmethod
+    def needs(cls) -> tuple[str, ...]:
+        return cls.reads or (cls.signal,)
+
+    def values(self, block: Mapping[str, np.ndarray]) -> np.ndarray:
+        """The reduced signal's values in a block of rows."""
+        return block[self.signal]
 
     def add(self, chunk: Chunk, values: np.ndarray) -> None:
         raise NotImplementedError
@@ -61,7 +75,7 @@ def _finite_or_nan(value: float) -> float:
 class LargestAbs(Reduction):
     """The largest finite ``|u|`` (NaN when there is none)."""
 
-    name = "max_abs_u"
+    name, signal = "max_abs_u", "u"
 
     def __init__(self, batch: int, width: int, duration: float) -> None:
         super().__init__(batch, width, duration)
@@ -76,10 +90,17 @@ class LargestAbs(Reduction):
         return _finite_or_nan(float(self.largest[b]))
 
 
+def tracking_error(block: Mapping[str, np.ndarray]) -> np.ndarray:
+    """``z_1 = x_1 - y_d`` (eq. (7)), shape ``(rows, batch, 1)``: the same floats as ``z[..., :1]``,
+    without deriving the other errors."""
+    return block["x"][..., :1] - block["yd"][..., :1]
+
+
 class ErrorRate(Reduction):
     """Table 1's error rate E(omega) of ``z_1`` (see :mod:`qcontrol.error_rate`)."""
 
-    name = "error_rate"
+    name, signal, reads = "error_rate", "z", ("x", "yd")
+    values = staticmethod(tracking_error)
 
     def __init__(self, batch: int, width: int, duration: float) -> None:
         super().__init__(batch, width, duration)
@@ -96,7 +117,8 @@ class ErrorRate(Reduction):
 class LastHalfLargestAbs(Reduction):
     """The largest finite ``|z_1|`` over the last half of the run (NaN when there is none)."""
 
-    name = "max_abs_z1_last_half"
+    name, signal, reads = "max_abs_z1_last_half", "z", ("x", "yd")
+    values = staticmethod(tracking_error)
 
     def __init__(self, batch: int, width: int, duration: float) -> None:
         super().__init__(batch, width, duration)
@@ -117,7 +139,7 @@ class Lemma2Largest(Reduction):
     row that stopped a diverged copy holds an out-of-range state, where quantization error is
     meaningless)."""
 
-    name = "e_z_max"
+    name, signal = "e_z_max", "e_z"
 
     def __init__(self, batch: int, width: int, duration: float) -> None:
         super().__init__(batch, width, duration)
@@ -138,7 +160,7 @@ class Lemma2Largest(Reduction):
 class FinalValue(Reduction):
     """The adaptive state at the last row each copy keeps."""
 
-    name = "final_adaptive"
+    name, signal = "final_adaptive", "adaptive"
 
     def __init__(self, batch: int, width: int, duration: float) -> None:
         super().__init__(batch, width, duration)

@@ -61,11 +61,12 @@ class Trajectory(RunRecord):
         """The metrics of the run, by the same reductions as a metrics-only run (one chunk)."""
         rows = len(self.t)
         chunk = Chunk(0, self.t, np.array([rows]), np.array([self.diverged]))
+        block = {name: array[:, None] for name, array in self.signals.items()}  # a batch of one
         values = {}
-        for signal, reduction in REDUCTIONS:
-            array = self.signals[signal]
+        for reduction in REDUCTIONS:
+            array = self.signals[reduction.signal]
             fold = reduction(1, array.shape[-1] if array.ndim > 1 else 1, self.duration)
-            fold.add(chunk, array[:, None])
+            fold.add(chunk, fold.values(block))
             values[reduction.name] = fold.value(0)
         return values
 
@@ -88,6 +89,6 @@ class RunMetrics(RunRecord):
         return self.values
 
 
-for _, _reduction in REDUCTIONS:
+for _reduction in REDUCTIONS:
     setattr(RunMetrics, _reduction.name, property(lambda run, key=_reduction.name: run.values[key]))
 del _signal, _reduction

@@ -93,6 +93,7 @@ class Signal:
     shared: bool = False
     reductions: tuple[type[Reduction], ...] = ()
     plots: tuple[Plot, ...] = ()
+    reads: tuple[str, ...] = ()  # a derived signal: the signals its derivation reads
 
     @property
     def recorded(self) -> bool:
@@ -116,25 +117,38 @@ SIGNALS: tuple[Signal, ...] = (
     Signal("yd", "n+1", "y", False, "reference y_d and its derivatives y_d', ..., y_d^(n)", shared=True,
            plots=(Plot("signals/tracking/y_d", "y_d", (0,), color="reference"),)),
     Signal("z", "n", "state", False, "errors z_i of eqs. (7)-(8), from the true state", _z,
-           reductions=(ErrorRate, LastHalfLargestAbs),
+           reads=("x", "yd"), reductions=(ErrorRate, LastHalfLargestAbs),
            plots=(Plot("signals/error/z1", "z1", (0,), twin=True),)),
-    Signal("zbar", "n", "state", False, "quantized errors zbar_i of eqs. (31)-(33)", _zbar),
+    Signal("zbar", "n", "state", False, "quantized errors zbar_i of eqs. (31)-(33)", _zbar,
+           reads=("x_q", "yd")),
     Signal("e_z", "n", "state", False, "Lemma 2 errors |z_i(x_meas) - zbar_i| (bound L_zi)", _e_z,
+           reads=("x_meas", "yd", "zbar"),
            reductions=(Lemma2Largest,),
            plots=(Plot("theory/lemma2/z{i}", "|e_z{i}| / L_z{i}", per_bound=True, color="palette"),)),
 )
 RECORDED = tuple(s for s in SIGNALS if s.recorded)
 DERIVED = tuple(s for s in SIGNALS if s.derive is not None)
-REDUCTIONS: tuple[tuple[str, type[Reduction]], ...] = tuple(
-    (s.name, r) for s in SIGNALS for r in s.reductions)
+REDUCTIONS: tuple[type[Reduction], ...] = tuple(r for s in SIGNALS for r in s.reductions)
 assert tuple(s.name for s in RECORDED) == ("x", "x_meas", "x_q", "u", "adaptive"), (
     "the loop records exactly these, in this order (see qcontrol.engine.rows)")
 
 
-def derive(block: dict[str, np.ndarray], ctx: SignalContext) -> dict[str, np.ndarray]:
-    """Add the derived signals, in table order, to ``block`` (which holds the recorded signals of
-    some rows and ``yd`` shaped ``(rows, 1, n+1)``) and return it."""
+def needed(names: tuple[str, ...]) -> tuple[str, ...]:
+    """The derived signals that ``names`` need, directly or through what they read, in table order."""
+    wanted = set(names)
+    for signal in reversed(DERIVED):
+        if signal.name in wanted:
+            wanted.update(signal.reads)
+    return tuple(s.name for s in DERIVED if s.name in wanted)
+
+
+def derive(block: dict[str, np.ndarray], ctx: SignalContext, names: tuple[str, ...] | None = None
+           ) -> dict[str, np.ndarray]:
+    """Add derived signals, in table order, to ``block`` (which holds the recorded signals of some
+    rows and ``yd`` shaped ``(rows, 1, n+1)``) and return it: all of them, or those of ``names``
+    (see :func:`needed`)."""
     with np.errstate(all="ignore"):  # rows of a diverged copy may hold NaN/Inf
         for signal in DERIVED:
-            block[signal.name] = signal.derive(block, ctx)
+            if names is None or signal.name in names:
+                block[signal.name] = signal.derive(block, ctx)
     return block
