@@ -5,4 +5,6 @@ Non-Lipschitz Condition with Quantized States", Electronics 2022, 11, 3160. The 
 quantizer -> controller -> plant (ODE or MuJoCo) -> closed-loop engine -> recording/plots/metrics.
 """
 
-__version__ = "0.1.0"
+from ._version import __version__
+
+__all__ = ["__version__"]

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 
-from . import __version__
+from ._version import __version__
 from .assembly import build_plant, controller_constants, run_scenario, scene
 from .controller import lemma2_L
 from .engine import Observer

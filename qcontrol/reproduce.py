@@ -174,7 +174,7 @@ def _example2_figures(o: Path, run: Run, twin: Run | None, base: Run) -> None:
 
 def _record(path: Path, main: Run, ghosts: dict[str, Run | None]) -> None:
     """A rerun recording of the main run with its ghosts (ODE twin, comparison method)."""
-    from . import __version__
+    from ._version import __version__
     from .recording import Recording
 
     sc = main.scenario
