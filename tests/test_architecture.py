@@ -22,7 +22,8 @@ EX2 = ROOT / "scenarios" / "example2.toml"
 
 # Each layer may import only from the layers before it (docs/architecture.md, "Modules").
 LAYERS = [
-    {"_version", "errors", "schema", "timegrid", "expr", "progress", "outputs", "error_rate"},
+    {"_version", "errors", "schema", "timegrid", "expr", "progress", "outputs", "error_rate", "resources",
+     "provenance"},
     {"quantizer", "reference"},
     {"controller"},
     {"plants"},
@@ -30,7 +31,7 @@ LAYERS = [
     {"metrics", "scenario"},
     {"assembly"},
     {"recording", "plots", "report"},
-    {"sweep"},
+    {"sweep", "api"},
     {"reproduce"},
     {"cli", "_entry"},
 ]
@@ -94,9 +95,10 @@ def test_every_signal_is_an_attribute_of_a_trajectory_with_its_width() -> None:
     traj = run_scenario(sc, "ode")
     n, m, rows = sc.order, traj.adaptive.shape[1], len(traj.t)
     assert set(traj.signals) == {s.name for s in SIGNALS}
+    assert traj.bound_names == ("phi1", "phi2", "phi3")  # the separation (37)-(43) of each phi_i
     for signal in SIGNALS:
         array = getattr(traj, signal.name)
-        expected = (rows,) if signal.width == "1" else (rows, signal.size(n, m))
+        expected = (rows,) if signal.width == "1" else (rows, signal.size(n, m, len(traj.bound_names)))
         assert array.shape == expected, signal.name
     np.testing.assert_array_equal(traj.y, traj.x[:, 0])
 
@@ -108,7 +110,7 @@ def test_recorded_derived_and_reduced_signals() -> None:
         assert set(signal.reads) <= set(above), signal.name
     assert needed(("e_z",)) == ("zbar", "e_z")
     assert {r.name for r in REDUCTIONS} == {"error_rate", "max_abs_z1_last_half", "max_abs_u", "e_z_max",
-                                             "final_adaptive"}
+                                             "final_adaptive", "bound_constants"}
 
 
 def test_a_metrics_run_keeps_the_reductions_of_the_full_record() -> None:

@@ -25,10 +25,12 @@ from ..quantizer import Quantizer
 from ..reference import Reference
 from ..timegrid import TimeGrid
 from .divergence import Divergence
-from .records import OBSERVE_EVERY, FullRecord, MetricsRecord, Observer
+from .records import OBSERVE_EVERY, FullRecord, MetricsRecord, Observer, RunParts
+from .reductions import MetricSettings
 from .reference_rows import ReferenceRows
 from .results import RunMetrics, Trajectory
 from .rows import NEVER, ArrayRows, FloatRows
+from .signals import Separation, SignalContext
 
 ProgressCallback = Callable[[int, int], None]  # (row reached, last row)
 RECORD_MODES = ("full", "metrics")
@@ -54,14 +56,16 @@ class ClosedLoop:
 
     def __init__(self, plant: Plant, law: BatchLaw, quantizer: Quantizer, reference: Reference,
                  grid: TimeGrid, state_bound: float, progress: ProgressCallback | None,
-                 observer: Observer | None, observe_every: int, record: str) -> None:
+                 observer: Observer | None, observe_every: int, record: str, metrics: MetricSettings,
+                 separation: Separation | None) -> None:
         n, batch = plant.n, plant.batch
         self.plant, self.law, self.grid = plant, law, grid
         self.divergence = Divergence(batch, grid.rows, grid.dt, state_bound)
         self.reference = ReferenceRows(reference, n, grid, whole=record == "full")
-        parts = (grid, law, self.reference, self.divergence)
-        self.record = (FullRecord(*parts, batch, n, observer, observe_every) if record == "full"
-                       else MetricsRecord(*parts, batch, n, observer))
+        context = SignalContext(law.coordinates, separation)
+        parts = RunParts(grid, law, self.reference, self.divergence, context, metrics, batch, n)
+        self.record = (FullRecord(parts, observer, observe_every) if record == "full"
+                       else MetricsRecord(parts, observer))
         self.rows = FloatRows(self.record.buffer) if batch == 1 else ArrayRows(self.record.buffer,
                                                                                state_bound)
         self.quantize = self.rows.quantizer(quantizer)
@@ -125,6 +129,8 @@ def simulate(
     observer: Observer | None = None,
     observe_every: int = OBSERVE_EVERY,
     record: str = "full",
+    metrics: MetricSettings | None = None,
+    separation: Separation | None = None,
 ) -> list[Trajectory] | list[RunMetrics]:
     """Run the closed loop for every copy in ``plant``'s batch; one :class:`Trajectory` each.
 
@@ -135,6 +141,9 @@ def simulate(
     while the run goes on. ``record="metrics"`` (sweeps, long runs) keeps only
     :class:`RunMetrics`, in memory that does not grow with the run; an observer then receives each
     buffered chunk as short trajectories (``t`` starting at the chunk's first instant).
+    ``metrics`` sets the error rate's thresholds and samples (default: the paper's Table 1);
+    ``separation`` names the terms of eq. (1) and their bounding functions r to check along the
+    run (eqs. (37)-(43); default: not checked).
     """
     if record not in RECORD_MODES:
         raise ValueError(f"record must be one of {RECORD_MODES}, got {record!r}")
@@ -143,5 +152,5 @@ def simulate(
                          f"the plant {plant.batch}")
     grid = TimeGrid.of(duration, dt, control_period)
     loop = ClosedLoop(plant, law, quantizer, reference, grid, state_bound, progress, observer, observe_every,
-                      record)
+                      record, metrics or MetricSettings(), separation)
     return loop.run(x0)

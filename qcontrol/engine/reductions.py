@@ -15,7 +15,15 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..error_rate import ErrorRateStream
+from ..error_rate import TABLE1_OMEGAS, TABLE1_SAMPLES, ErrorRateStream
+
+
+@dataclass(frozen=True)
+class MetricSettings:
+    """The error rate's thresholds omega and samples M (default: the paper's Table 1)."""
+
+    omegas: tuple[float, ...] = TABLE1_OMEGAS
+    samples: int = TABLE1_SAMPLES
 
 
 @dataclass(frozen=True)
@@ -50,7 +58,7 @@ class Reduction:
     signal: ClassVar[str]  # the signal it reduces
     reads: ClassVar[tuple[str, ...]] = ()
 
-    def __init__(self, batch: int, width: int, duration: float) -> None:
+    def __init__(self, batch: int, width: int, duration: float, settings: MetricSettings) -> None:
         self.batch = batch
 
     @classmethod
@@ -77,8 +85,8 @@ class LargestAbs(Reduction):
 
     name, signal = "max_abs_u", "u"
 
-    def __init__(self, batch: int, width: int, duration: float) -> None:
-        super().__init__(batch, width, duration)
+    def __init__(self, batch: int, width: int, duration: float, settings: MetricSettings) -> None:
+        super().__init__(batch, width, duration, settings)
         self.largest = np.full(batch, -np.inf)
 
     def add(self, chunk: Chunk, values: np.ndarray) -> None:
@@ -102,16 +110,17 @@ class ErrorRate(Reduction):
     name, signal, reads = "error_rate", "z", ("x", "yd")
     values = staticmethod(tracking_error)
 
-    def __init__(self, batch: int, width: int, duration: float) -> None:
-        super().__init__(batch, width, duration)
-        self.stream = ErrorRateStream(duration, batch=batch)
+    def __init__(self, batch: int, width: int, duration: float, settings: MetricSettings) -> None:
+        super().__init__(batch, width, duration, settings)
+        self.stream = ErrorRateStream(duration, settings.samples, batch)
+        self.omegas = settings.omegas
 
     def add(self, chunk: Chunk, values: np.ndarray) -> None:
         z1 = values[..., 0]
         self.stream.add(chunk.t, z1 if chunk.everyone else np.where(chunk.valid, z1, np.nan))
 
     def value(self, b: int) -> dict[str, float]:
-        return self.stream.rates(run=b)
+        return self.stream.rates(self.omegas, run=b)
 
 
 class LastHalfLargestAbs(Reduction):
@@ -120,8 +129,8 @@ class LastHalfLargestAbs(Reduction):
     name, signal, reads = "max_abs_z1_last_half", "z", ("x", "yd")
     values = staticmethod(tracking_error)
 
-    def __init__(self, batch: int, width: int, duration: float) -> None:
-        super().__init__(batch, width, duration)
+    def __init__(self, batch: int, width: int, duration: float, settings: MetricSettings) -> None:
+        super().__init__(batch, width, duration, settings)
         self.half = duration / 2.0
         self.largest = np.full(batch, -np.inf)
 
@@ -141,8 +150,8 @@ class Lemma2Largest(Reduction):
 
     name, signal = "e_z_max", "e_z"
 
-    def __init__(self, batch: int, width: int, duration: float) -> None:
-        super().__init__(batch, width, duration)
+    def __init__(self, batch: int, width: int, duration: float, settings: MetricSettings) -> None:
+        super().__init__(batch, width, duration, settings)
         self.largest = np.full((batch, width), -np.inf)
 
     def add(self, chunk: Chunk, values: np.ndarray) -> None:
@@ -162,8 +171,8 @@ class FinalValue(Reduction):
 
     name, signal = "final_adaptive", "adaptive"
 
-    def __init__(self, batch: int, width: int, duration: float) -> None:
-        super().__init__(batch, width, duration)
+    def __init__(self, batch: int, width: int, duration: float, settings: MetricSettings) -> None:
+        super().__init__(batch, width, duration, settings)
         self.final = np.full((batch, width), np.nan)
 
     def add(self, chunk: Chunk, values: np.ndarray) -> None:
@@ -173,3 +182,26 @@ class FinalValue(Reduction):
 
     def value(self, b: int) -> np.ndarray:
         return self.final[b].copy()
+
+
+class BoundConstants(Reduction):
+    """The empirical constants of the separation (37)-(43): the largest ``|term_i| / r_i(x_q)`` per
+    term over every row before a divergence; Inf where the ratio was ever infinite or undefined
+    (the term is not bounded by its r on the run)."""
+
+    name, signal = "bound_constants", "bound_ratio"
+
+    def __init__(self, batch: int, width: int, duration: float, settings: MetricSettings) -> None:
+        super().__init__(batch, width, duration, settings)
+        self.largest = np.full((batch, width), -np.inf)
+
+    def add(self, chunk: Chunk, values: np.ndarray) -> None:
+        values = np.where(np.isfinite(values), values, np.inf)
+        if not chunk.everyone:
+            last = np.where(chunk.diverged, chunk.kept - 1, chunk.kept)
+            rows = chunk.first + np.arange(len(chunk.t))
+            values = np.where((rows[:, None] < last[None, :])[..., None], values, -np.inf)
+        np.maximum(self.largest, values.max(axis=0, initial=-np.inf), out=self.largest)
+
+    def value(self, b: int) -> np.ndarray:
+        return self.largest[b].copy()

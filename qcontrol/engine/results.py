@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from .reductions import Chunk
+from .reductions import Chunk, MetricSettings
 from .signals import REDUCTIONS, SIGNALS
 
 
@@ -26,6 +26,8 @@ class RunRecord:
     diverged_time: float | None = None
     divergence_reason: str = ""
     wall_time_s: float = 0.0
+    metrics: MetricSettings = field(default_factory=MetricSettings)  # the error rate's omegas and samples
+    bound_names: tuple[str, ...] = ()  # the terms whose separation (37)-(43) was checked
 
 
 @dataclass(kw_only=True)
@@ -65,7 +67,7 @@ class Trajectory(RunRecord):
         values = {}
         for reduction in REDUCTIONS:
             array = self.signals[reduction.signal]
-            fold = reduction(1, array.shape[-1] if array.ndim > 1 else 1, self.duration)
+            fold = reduction(1, array.shape[-1] if array.ndim > 1 else 1, self.duration, self.metrics)
             fold.add(chunk, fold.values(block))
             values[reduction.name] = fold.value(0)
         return values

@@ -19,7 +19,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..controller.backstepping import Backstepping
+from ..expr import Expression
 from .reductions import (
+    BoundConstants,
     ErrorRate,
     FinalValue,
     LargestAbs,
@@ -32,10 +34,26 @@ Block = Mapping[str, np.ndarray]  # signals of rows [first, stop): (rows, batch,
 
 
 @dataclass(frozen=True)
+class Separation:
+    """The separation of eqs. (37)-(43) to check along a run: each uncertain term (``phi_1 ..
+    phi_l``, then ``psi``) and its bounding function r_i (over ``q1..qn``), named ``names``."""
+
+    names: tuple[str, ...]
+    terms: tuple[Expression, ...]
+    r: tuple[Expression, ...]
+
+
+@dataclass(frozen=True)
 class SignalContext:
-    """What derivations may read besides the block: the coordinates of the recorded errors."""
+    """What derivations may read besides the block: the coordinates of the recorded errors, and
+    the separation to check (None: not checked; its signal then has no columns)."""
 
     coordinates: Backstepping
+    separation: Separation | None = None
+
+    @property
+    def terms(self) -> int:
+        return 0 if self.separation is None else len(self.separation.terms)
 
 
 Derive = Callable[[Block, SignalContext], np.ndarray]
@@ -54,6 +72,20 @@ def _zbar(block: Block, ctx: SignalContext) -> np.ndarray:
 def _e_z(block: Block, ctx: SignalContext) -> np.ndarray:
     """Lemma 2's errors ``|z(x_meas) - zbar|``: the errors of the very reading the quantizer saw."""
     return np.abs(ctx.coordinates.errors(block["x_meas"], block["yd"]) - block["zbar"])
+
+
+def _bound_ratio(block: Block, ctx: SignalContext) -> np.ndarray:
+    """``|term_i| / r_i(x_q)`` with the term at the true state and at x_q (the centre of the
+    quantization cell (37)-(43) must bound), whichever is larger; NaN or Inf where either is."""
+    x, x_q = block["x"], block["x_q"]
+    out = np.empty(x.shape[:-1] + (ctx.terms,))
+    if ctx.separation is None:
+        return out
+    at_x, at_q = tuple(np.moveaxis(x, -1, 0)), tuple(np.moveaxis(x_q, -1, 0))
+    for i, (term, r) in enumerate(zip(ctx.separation.terms, ctx.separation.r, strict=True)):
+        size = np.maximum(np.abs(term.on_columns(at_x)), np.abs(term.on_columns(at_q)))
+        out[..., i] = size / r.on_columns(at_q)
+    return out
 
 
 @dataclass(frozen=True)
@@ -77,7 +109,8 @@ class Signal:
     """One recorded signal.
 
     ``width``: ``"n"`` (one per state), ``"n+1"`` (y_d and its n derivatives), ``"m"`` (one per
-    adaptive state) or ``"1"`` (a scalar: its arrays have no last axis). ``derive`` is None for
+    adaptive state), ``"terms"`` (one per uncertain term of eq. (1) whose bound is checked) or
+    ``"1"`` (a scalar: its arrays have no last axis). ``derive`` is None for
     the signals the loop records every row; a derivation may read the signals above it.
     ``shared``: one value for every copy of a batch (the reference, computed from the grid).
     ``reductions``: what a metrics-only run keeps of it (the summary reads them); ``plots``:
@@ -100,8 +133,8 @@ class Signal:
         """Recorded by the loop every row (not derived, not the reference)."""
         return self.derive is None and not self.shared
 
-    def size(self, n: int, m: int) -> int:
-        return {"n": n, "n+1": n + 1, "m": m, "1": 1}[self.width]
+    def size(self, n: int, m: int, terms: int = 0) -> int:
+        return {"n": n, "n+1": n + 1, "m": m, "1": 1, "terms": terms}[self.width]
 
 
 SIGNALS: tuple[Signal, ...] = (
@@ -125,6 +158,9 @@ SIGNALS: tuple[Signal, ...] = (
            reads=("x_meas", "yd", "zbar"),
            reductions=(Lemma2Largest,),
            plots=(Plot("theory/lemma2/z{i}", "|e_z{i}| / L_z{i}", per_bound=True, color="palette"),)),
+    Signal("bound_ratio", "terms", "ratio", False,
+           "|term_i| / r_i(x_q) of the separation (37)-(43) (phi_1..phi_l, then psi), at x and at x_q",
+           _bound_ratio, reads=("x", "x_q"), reductions=(BoundConstants,)),
 )
 RECORDED = tuple(s for s in SIGNALS if s.recorded)
 DERIVED = tuple(s for s in SIGNALS if s.derive is not None)

@@ -33,6 +33,7 @@ from .runs import (
     fig_compare_output,
     fig_input,
     fig_output,
+    fig_run,
     fig_tracking_error,
     output_difference,
 )
@@ -54,6 +55,7 @@ __all__ = [
     "fig_compare_output",
     "fig_input",
     "fig_output",
+    "fig_run",
     "fig_sensitivity",
     "fig_table1",
     "fig_tracking_error",
