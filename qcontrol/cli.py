@@ -258,7 +258,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         raise QcontrolInputError(f"--duration must be > 0, got {args.duration!r}")
     scenarios = args.scenarios or SCENARIO_DIR
     log = (lambda line: None) if args.quiet else (lambda line: print(line, flush=True))
-    reproduce(args.out, args.backend, args.duration, scenarios, log)
+    reproduce(args.out, args.backend, args.duration, scenarios, log, command=command_line())
     return EXIT_OK
 
 
