@@ -172,7 +172,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     record = "full" if args.save is not None or args.plot is not None else "metrics"
     progress = _progress(sc, backend, args)
     result = api.run(sc, backend, rrd=args.rrd, spawn=args.spawn, record=record, progress=progress,
-                     command=command_line())
+                     command=args.command_line)
     progress.finish()
     s = result.summary
     print(format_summary(s))
@@ -217,7 +217,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         progress[backend] = _progress(sc, backend, args)
         return progress[backend]
 
-    cmp = api.compare(sc, rrd=args.rrd, spawn=args.spawn, progress=progress_of, command=command_line())
+    cmp = api.compare(sc, rrd=args.rrd, spawn=args.spawn, progress=progress_of, command=args.command_line)
     for line in progress.values():
         line.finish()
     result = cmp.summary
@@ -258,7 +258,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         raise QcontrolInputError(f"--duration must be > 0, got {args.duration!r}")
     scenarios = args.scenarios or SCENARIO_DIR
     log = (lambda line: None) if args.quiet else (lambda line: print(line, flush=True))
-    reproduce(args.out, args.backend, args.duration, scenarios, log, command=command_line())
+    reproduce(args.out, args.backend, args.duration, scenarios, log, command=args.command_line)
     return EXIT_OK
 
 
@@ -268,6 +268,7 @@ COMMANDS = {"run": cmd_run, "compare": cmd_compare, "reproduce": cmd_reproduce, 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.command_line = command_line(argv)  # what the outputs' provenance names as the command
     started = time.perf_counter()
     try:
         return COMMANDS[args.command](args)

@@ -7,6 +7,7 @@ import hashlib
 import platform
 import shlex
 import sys
+from collections.abc import Sequence
 from importlib import metadata
 from typing import Any
 
@@ -28,10 +29,10 @@ def versions() -> dict[str, str]:
     return dict(sorted(found.items()))
 
 
-def command_line() -> str:
-    """The command that is running, as a user would type it."""
-    program = "qcontrol" if sys.argv and sys.argv[0].endswith("qcontrol") else sys.argv[0] if sys.argv else ""
-    return shlex.join([program, *sys.argv[1:]])
+def command_line(argv: Sequence[str] | None = None) -> str:
+    """The command as a user would type it: ``qcontrol`` and its arguments (``argv``, or this
+    process's)."""
+    return shlex.join(["qcontrol", *(sys.argv[1:] if argv is None else argv)])
 
 
 def sha256(text: str) -> str:

@@ -52,6 +52,7 @@ def add_sweep_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, default=Path("sweep"), metavar="DIR",
                    help="output folder (default: ./sweep)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    p.set_defaults(command_line=None)  # the command line's main() names the command it runs
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
@@ -87,7 +88,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     metrics = metric_columns(finished)
     write_text(out / "sweep.csv", csv_text(rows, keys, metrics))
     record = sweep_record(rows, len(points), grid, settings, time.perf_counter() - started,
-                          scenario_provenance(base, command_line()))
+                          scenario_provenance(base, args.command_line or command_line()))
     write_json(out / "sweep.json", record)
     if rows:
         fig_sweep(rows, [k for k, _ in grid], [m for m in metrics if m.startswith("error_rate_")],
