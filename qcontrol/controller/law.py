@@ -86,7 +86,8 @@ class LawKind:
     checks its own table); ``parse`` reads and checks them from the merged controller table into
     the kind's settings; ``build`` makes one law for a batch of variants that share
     ``structure(settings, context)`` (the settings that may differ within a batch become
-    per-copy parameters); the first variant's context is passed.
+    per-copy parameters); the first variant's context is passed. ``divergence_hint`` says what
+    usually makes this law diverge, for the message of a diverged run.
     """
 
     name: str
@@ -94,6 +95,7 @@ class LawKind:
     parse: Callable[[Table, LawContext], Any]
     build: Callable[[Sequence[Any], LawContext], BatchLaw]
     structure: Callable[[Any, LawContext], Hashable]
+    divergence_hint: str = ""
 
 
 LAW_KINDS: dict[str, LawKind] = {}

@@ -4,14 +4,15 @@ A scenario is data: the plant (order, psi, phi, theta, x0, and a model per backe
 controller (kind, delta, gains and the kind's own settings), the reference, and the simulation
 settings. Every key is declared once (:mod:`.keys`, and the kinds' own modules); every problem is
 reported as one line naming the file, the key, what is wrong and the fix. Unknown keys, and keys
-that do not apply to the chosen kind, are errors. ``--set key=value`` overrides are applied
-before validation.
+that do not apply to the chosen kind, are errors. ``--unset key`` removals, then ``--set key=value``
+overrides, are applied to the file's data before validation (docs/scenarios.md).
 """
 
 from __future__ import annotations
 
 import tomllib
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +24,7 @@ from ..expr import compile_expression
 from ..plants.backends import BACKENDS, PlantContext
 from ..plants.base import PlantTerms
 from ..reference import REFERENCE_KINDS
-from ..schema import Section, Table, kind_table, read_keys
+from ..schema import Section, Table, kind_table, read_keys, show_key
 from ..timegrid import TimeGrid
 from .keys import (
     MAX_STEPS,
@@ -38,8 +39,9 @@ from .keys import (
 from .model import ControllerConfig, ReferenceConfig, Scenario, SimulationConfig
 
 
-def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
-    """Read and validate a scenario file, applying ``--set key=value`` overrides first."""
+def load_scenario(path: str | Path, overrides: Sequence[str] = (), unset: Sequence[str] = ()) -> Scenario:
+    """Read and validate a scenario file, removing the ``unset`` keys and applying the
+    ``--set key=value`` overrides first."""
     path = Path(path)
     if path.is_dir():
         raise QcontrolInputError(f"{path}: is a folder, not a scenario file; pass a .toml scenario")
@@ -50,7 +52,7 @@ def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
     except (OSError, UnicodeDecodeError) as exc:
         raise QcontrolInputError(f"{path}: cannot read the scenario ({exc}); check the file") from None
     return parse_scenario(text, source=str(path), base_dir=path.parent, overrides=overrides,
-                          default_name=path.stem)
+                          default_name=path.stem, unset=unset)
 
 
 def parse_scenario(
@@ -59,15 +61,56 @@ def parse_scenario(
     base_dir: Path | None = None,
     overrides: Sequence[str] = (),
     default_name: str = "scenario",
+    unset: Sequence[str] = (),
 ) -> Scenario:
-    """Validate scenario TOML ``text``; ``source`` names it in messages."""
+    """Validate scenario TOML ``text``; ``source`` names it in messages. The ``unset`` keys are
+    removed first, then the ``overrides`` applied."""
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise QcontrolInputError(f"{source}: malformed TOML ({exc}); fix the syntax") from None
+    for key in unset:
+        remove_key(data, key, source)
     for item in overrides:
         apply_override(data, item)
-    return _build(data, source, base_dir or Path("."), text, tuple(overrides), default_name)
+    scenario = _build(data, source, base_dir or Path("."), text, tuple(overrides), default_name)
+    return replace(scenario, unset=tuple(unset)) if unset else scenario
+
+
+def remove_key(data: dict, key: str, source: str) -> None:
+    """Remove one ``--unset`` key (a dotted path) from the file's data; a key that is not there is
+    one line naming where it would be and what is there instead."""
+    parts = key.strip().split(".")
+    if not key.strip() or any(not p for p in parts):
+        raise QcontrolInputError(f"--unset {key!r}: not a key path; write e.g. --unset reference.amplitude")
+    node, where = data, "the top level"
+    for depth, part in enumerate(parts[:-1]):
+        child = node.get(part)
+        if not isinstance(child, dict):
+            path = ".".join(parts[: depth + 1])
+            problem = (f"{path} is a value, not a table" if part in node
+                       else f"{source} has no table [{path}]")
+            raise QcontrolInputError(f"--unset {key}: {problem}; " + _present(node, where))
+        node, where = child, f"[{'.'.join(parts[: depth + 1])}]"
+    last = parts[-1]
+    if last not in node:
+        raise QcontrolInputError(f"--unset {key}: {source} has no key {last} in {where}; "
+                                 + _moved(node, parts) + _present(node, where))
+    del node[last]
+
+
+def _moved(node: dict, parts: Sequence[str]) -> str:
+    """A hint when the key sits in a sub-table of the table named (e.g. a kind's settings)."""
+    holders = [name for name, value in node.items() if isinstance(value, dict) and parts[-1] in value]
+    if not holders:
+        return ""
+    inner = ".".join([*parts[:-1], holders[0], parts[-1]])
+    return f"it is in a sub-table: --unset {inner}; "
+
+
+def _present(node: dict, where: str) -> str:
+    names = ", ".join(show_key(k) for k in node) or "none"
+    return f"the keys in {where} are {names}"
 
 
 def apply_override(data: dict, item: str) -> None:
@@ -80,7 +123,8 @@ def apply_override(data: dict, item: str) -> None:
         )
     parts = key.split(".")
     if any(not p for p in parts):
-        raise QcontrolInputError(f"--set {item!r}: key {key!r} has an empty part; write a.b.c=value")
+        raise QcontrolInputError(f"--set {item!r}: key {key!r} has an empty part; write e.g. "
+                                 "--set controller.kappa_margin=0.1")
     raw = raw.strip()
     try:
         value = tomllib.loads(f"v = {raw}")["v"]
@@ -103,9 +147,9 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
     for key in REQUIRED_TABLES:
         if key not in data:
             raise QcontrolInputError(f"{source}: [{key}]: missing table; add a [{key}] section")
-    meta = read_keys(Table(data.get("scenario", {}), source, "scenario", ("name", "description")),
-                     scenario_section(default_name).keys, {})
-    plant = root.table("plant", (*PLANT.names, *BACKENDS))
+    about = scenario_section(default_name)
+    meta = read_keys(Table(data.get("scenario", {}), source, "scenario", about.names), about.keys, {})
+    plant = _plant_table(root)
     terms, x0 = _plant(plant)
     controller = _controller(root.table("controller"), terms)
     signal = _reference(root.table("reference"), terms.order)
@@ -116,9 +160,23 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
         order=terms.order, psi=None if terms.psi is None else terms.psi.source,
         phi=tuple(p.source for p in terms.phi), theta=terms.theta, x0=x0, controller=controller,
         reference=signal, simulation=simulation, backends=backends, psi_expr=terms.psi, phi_expr=terms.phi,
+        paper_example=meta["paper_example"],
     )
     _check_terms_at_x0(scenario)
     return scenario
+
+
+def _plant_table(root: Table) -> Table:
+    """``[plant]``: the keys of eq. (1) and one sub-table per backend; a backend's key written
+    directly in [plant] is refused with the sub-table it belongs in."""
+    plant = root.table("plant")
+    for key in plant.data:
+        owners = [name for name, backend in BACKENDS.items()
+                  if backend.section is not None and key in backend.section.names]
+        if key not in PLANT.names and key not in BACKENDS and owners:
+            raise plant.error(key, f"does not apply to [plant] (it is a setting of backend {owners[0]!r})",
+                              f"write it in [plant.{owners[0]}]")
+    return Table(plant.data, plant.source, plant.name, (*PLANT.names, *BACKENDS))
 
 
 def _plant(plant: Table) -> tuple[PlantTerms, tuple[float, ...]]:
@@ -143,7 +201,7 @@ def _controller(table: Table, terms: PlantTerms) -> ControllerConfig:
     section = controller_section()
     kind = read_keys(table, section.keys[:1], {})["kind"]
     v = read_keys(table, section.keys, {"n": terms.order})
-    merged = kind_table(table, section.names, {k: law_kind(k).keys for k in section.kinds}, kind)
+    merged = kind_table(table, section.names, section.kinds, kind)
     ctx = LawContext(table.source, terms.order, v["delta"], v["c"], terms.psi, terms.phi, terms.theta)
     return ControllerConfig(kind, v["delta"], v["c"], law_kind(kind).parse(merged, ctx))
 
@@ -160,8 +218,9 @@ def _simulation(table: Table) -> SimulationConfig:
     ratio = v["duration"] / v["dt"]
     if ratio > MAX_STEPS:
         raise table.error("duration", f"{v['duration']:g} s at dt = {v['dt']:g} s is {ratio:.3g} steps, more "
-                          f"than the limit of {MAX_STEPS:,} (a full record keeps every step in memory)",
-                          "shorten the run or use a larger dt")
+                          f"than the limit of {MAX_STEPS:,} steps per run (qcontrol run keeps only its "
+                          "metrics, but compare and reproduce keep every step in memory: several GB at "
+                          "the limit)", "shorten the run or use a larger dt")
     try:
         TimeGrid.of(v["duration"], v["dt"], v["control_period"])
     except QcontrolInputError as exc:

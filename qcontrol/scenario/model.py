@@ -60,6 +60,8 @@ class Scenario:
     backends: dict[str, Any] = field(default_factory=dict)
     psi_expr: Expression | None = field(default=None, repr=False)
     phi_expr: tuple[Expression, ...] = field(default=(), repr=False)
+    unset: tuple[str, ...] = ()  # keys removed from the file (--unset) before the overrides
+    paper_example: int | None = None  # the paper's example this scenario reproduces, if any
 
     @property
     def terms(self) -> PlantTerms:
