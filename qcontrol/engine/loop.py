@@ -57,7 +57,7 @@ class ClosedLoop:
                  observer: Observer | None, observe_every: int, record: str) -> None:
         n, batch = plant.n, plant.batch
         self.plant, self.law, self.grid = plant, law, grid
-        self.divergence = Divergence(batch, grid.rows, grid.dt, state_bound)
+        self.divergence = Divergence(batch, grid.rows, grid.dt, state_bound, law.state_name)
         self.reference = ReferenceRows(reference, n, grid, whole=record == "full")
         parts = (grid, law, self.reference, self.divergence)
         self.record = (FullRecord(*parts, batch, n, observer, observe_every) if record == "full"
