@@ -1,7 +1,8 @@
-"""The ``qcontrol`` command line: run, compare, reproduce.
+"""The ``qcontrol`` command line: run, compare, reproduce, sweep, check.
 
 Exit status: 0 success; 1 the run diverged or a theory check failed; 2 bad input; 130 interrupted.
-Bad input is reported as one line on stderr, never as a traceback.
+Bad input is reported as one line on stderr, never as a traceback, and every input is checked
+before any folder or file is made.
 """
 
 from __future__ import annotations
@@ -9,17 +10,20 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+import warnings
 from collections.abc import Sequence
 from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 
 from . import __version__
 from .assembly import build_plant, controller_constants, run_scenario, scene
+from .check import add_check_parser, cmd_check
 from .controller import lemma2_L
 from .engine import Observer
 from .errors import QcontrolInputError
+from .explain import divergence_lines, paper_line
 from .metrics import backend_deviation, summary
-from .outputs import check_output_file, prepare_output_dir, write_json
+from .outputs import check_output_dir, check_output_file, prepare_output_dir, write_json
 from .plants import BACKENDS, Plant
 from .progress import ProgressLine
 from .scenario import Scenario, load_scenario
@@ -47,9 +51,17 @@ def _add_scenario_options(p: argparse.ArgumentParser) -> None:
         help="override a scenario key, e.g. --set controller.kappa_margin=0.1 (repeatable; the value is "
         "read as TOML, otherwise as a string)",
     )
+    add_unset_option(p)
     p.add_argument("--duration", type=float, metavar="S", help="simulated time in seconds")
     p.add_argument("--dt", type=float, metavar="S", help="integration step in seconds")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+
+
+def add_unset_option(p: argparse.ArgumentParser) -> None:
+    """``--unset KEY`` (repeatable): remove a key of the file before the ``--set`` overrides."""
+    p.add_argument("--unset", dest="unset", action="append", default=[], metavar="KEY",
+                   help="remove a key of the scenario file, e.g. --unset reference.amplitude (repeatable; "
+                   "applied before --set)")
 
 
 def _add_recording_options(p: argparse.ArgumentParser) -> None:
@@ -111,6 +123,7 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("-q", "--quiet", action="store_true", help="no progress output")
 
     add_sweep_parser(sub)
+    add_check_parser(sub, _add_scenario_options, _scenario_from_args)
     return parser
 
 
@@ -120,7 +133,20 @@ def _scenario_from_args(args: argparse.Namespace) -> Scenario:
         overrides.append(f"simulation.duration={args.duration!r}")
     if args.dt is not None:
         overrides.append(f"simulation.dt={args.dt!r}")
-    return load_scenario(args.scenario, overrides)
+    return load_scenario(args.scenario, overrides, args.unset)
+
+
+def _check_outputs(args: argparse.Namespace) -> None:
+    """Check --out and --rrd without creating anything; with --spawn, make sure a viewer runs
+    (one line and exit status 2 when there is no display: before the run starts)."""
+    if args.out is not None:
+        check_output_dir(args.out)
+    if args.rrd is not None:
+        check_output_file(args.rrd, "--rrd")
+    if args.spawn:
+        from .recording.viewer import start_viewer
+
+        start_viewer()
 
 
 def _recording(args: argparse.Namespace) -> AbstractContextManager:
@@ -153,30 +179,44 @@ def _print_warnings(plant: Plant) -> None:
         print(f"  ... and {len(plant.warnings) - 3} more MuJoCo warnings")
 
 
-def format_summary(s: dict) -> str:
+def format_summary(s: dict, sc: Scenario | None = None) -> str:
+    """The printed summary of a run; with its scenario, a diverged run says what usually helps
+    (:mod:`qcontrol.explain`)."""
     rates = "  ".join(f"E({k})={v:.4f}" for k, v in s["error_rate"].items())
+    if s["diverged"]:
+        simulated = (f"stopped after {s['steps']} of {round(s['duration'] / s['dt'])} steps of {s['dt']:g} s "
+                     f"({s['steps'] * s['dt']:g} s of {s['duration']:g} s simulated)")
+    else:
+        simulated = f"{s['steps']} steps of {s['dt']:g} s ({s['duration']:g} s simulated)"
     lines = [
-        f"scenario {s['scenario']} on {s['backend']}: {s['steps']} steps of {s['dt']:g} s "
-        f"({s['duration']:g} s simulated) in {s['wall_time_s']:.2f} s",
+        f"scenario {s['scenario']} on {s['backend']}: {simulated} in {s['wall_time_s']:.2f} s",
         f"  error rate: {rates}",
         f"  max |z1| over the last half: {s['max_abs_z1_last_half']:.4g}    max |u|: {s['max_abs_u']:.4g}",
         f"  final {s['adaptive_state']}: [{', '.join(f'{v:.4g}' for v in s['final_eps_hat'])}]",
         f"  Lemma 2: max |e_zi|/L_zi = {s['lemma2_max_ratio']:.6f} (<= 1 holds: "
         f"{'yes' if s['lemma2_max_ratio'] <= 1 + LEMMA2_TOLERANCE else 'NO'})",
     ]
-    if s["diverged"]:
-        lines.append(f"  DIVERGED at t = {s['diverged_time']:g} s: {s['divergence_reason']}")
+    if s["diverged"] and sc is not None:
+        lines += divergence_lines(s, sc)
+    elif s["diverged"]:
+        lines.append(f"  DIVERGED: stopped at t = {s['diverged_time']:g} s of {s['duration']:g} s: "
+                     f"{s['divergence_reason']}")
     return "\n".join(lines)
+
+
+def _print_paper_line(s: dict, sc: Scenario) -> None:
+    """For a scenario of the paper, what the paper reports and where the difference is explained."""
+    told = paper_line(s, sc)
+    if told is not None:
+        print(told)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
     sc = _scenario_from_args(args)
     backend = args.backend or sc.simulation.backend
     BACKENDS[backend].require(sc.backends.get(backend), sc.source)
-    out = prepare_output_dir(args.out) if args.out else None
-    if args.rrd is not None:
-        check_output_file(args.rrd, "--rrd")
     plant = build_plant(sc, backend)
+    _check_outputs(args)
     progress = _progress(sc, backend, args)
     with _recording(args) as rec:
         if rec is not None:
@@ -187,9 +227,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     progress.finish()
     s = summary(run, sc.name, backend)
     s["L"] = lemma2_L(sc.controller.c, sc.controller.delta)
-    print(format_summary(s))
+    print(format_summary(s, sc))
+    _print_paper_line(s, sc)
     _print_warnings(plant)
-    if out is not None:
+    if args.out is not None:
+        out = prepare_output_dir(args.out)
         write_json(out / "summary.json", s)
         print(f"  wrote {out / 'summary.json'}")
     if args.rrd is not None:
@@ -203,10 +245,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
         raise QcontrolInputError(
             f"{sc.source}: compare needs a [plant.mujoco] table (the MuJoCo twin of the ODE); add one"
         )
-    out = prepare_output_dir(args.out) if args.out else None
-    if args.rrd is not None:
-        check_output_file(args.rrd, "--rrd")
     plant = build_plant(sc, "mujoco")
+    _check_outputs(args)
     report = plant.consistency_report
     if report.get("realism"):
         print(f"realism options on ({', '.join(report['realism'])}): MuJoCo differs from the ODE model "
@@ -233,7 +273,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
         "ode": runs["ode"][1],
     }
     for backend in ("mujoco", "ode"):
-        print(format_summary(runs[backend][1]))
+        print(format_summary(runs[backend][1], sc))
+    _print_paper_line(runs["mujoco"][1], sc)
     _print_warnings(plant)
     print(
         f"MuJoCo vs ODE over {deviation['rows_compared']} instants: "
@@ -241,7 +282,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
         f"max |dx| = [{', '.join(f'{v:.3g}' for v in deviation['max_abs_dx'])}], "
         f"max |du| = {deviation['max_abs_du']:.3g}"
     )
-    if out is not None:
+    if args.out is not None:
+        out = prepare_output_dir(args.out)
         write_json(out / "compare.json", result)
         print(f"  wrote {out / 'compare.json'}")
     if args.rrd is not None:
@@ -269,12 +311,20 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-COMMANDS = {"run": cmd_run, "compare": cmd_compare, "reproduce": cmd_reproduce, "sweep": cmd_sweep}
+COMMANDS = {"run": cmd_run, "compare": cmd_compare, "reproduce": cmd_reproduce, "sweep": cmd_sweep,
+            "check": cmd_check}
+
+
+def _one_line_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                      line: str | None = None) -> str:
+    """A warning as the command line prints it: one line, no source location."""
+    return f"qcontrol: warning: {message}\n"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    warnings.formatwarning = _one_line_warning
     started = time.perf_counter()
     try:
         return COMMANDS[args.command](args)

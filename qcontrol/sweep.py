@@ -20,7 +20,8 @@ processes. ``mujoco.batch`` threads are not used: they refuse Python physics cal
 holding the term in ``qfrc_applied`` over a step would cost accuracy (see the bench report).
 
 Exit status of ``qcontrol sweep``: 0 when every run finished (diverged runs are results, reported
-in the table, not failures); 2 for bad input (nothing is run or written).
+in the table, not failures); 2 for bad input (every variant is validated before anything runs, and
+the output folder is made only when the results are written: bad input creates nothing).
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ from .assembly import batch_structure, run_variants
 from .controller import lemma2_L
 from .errors import QcontrolInputError
 from .metrics import TABLE1_OMEGAS, omega_key, summary
-from .outputs import atomic_path, prepare_output_dir, write_text
+from .outputs import atomic_path, check_output_dir, prepare_output_dir, write_text
 from .plants import BACKENDS
 from .progress import ProgressLine
 from .scenario import Scenario, load_scenario
@@ -72,16 +73,18 @@ def run_batch(scs: Sequence[Scenario], backend: str) -> list[dict]:
     return out
 
 
-def _run_chunk(scenario_path: str, override_sets: list[list[str]], backend: str) -> list[dict]:
+def _run_chunk(scenario_path: str, override_sets: list[list[str]], backend: str,
+               unset: Sequence[str] = ()) -> list[dict]:
     """Worker entry point (picklable arguments only): load the variants and run them as a batch."""
-    return run_batch([load_scenario(scenario_path, o) for o in override_sets], backend)
+    return run_batch([load_scenario(scenario_path, o, unset) for o in override_sets], backend)
 
 
-def plan(scenario_path: str | Path, override_sets: Sequence[Sequence[str]], backend: str) -> list[list[int]]:
+def plan(scenario_path: str | Path, override_sets: Sequence[Sequence[str]], backend: str,
+         unset: Sequence[str] = ()) -> list[list[int]]:
     """Load (and so validate) every variant; return chunks of indices, each one batch."""
     groups: dict[tuple, list[int]] = {}
     for i, overrides in enumerate(override_sets):
-        sc = load_scenario(scenario_path, list(overrides))
+        sc = load_scenario(scenario_path, list(overrides), unset)
         BACKENDS[backend].require(sc.backends.get(backend), sc.source)
         groups.setdefault(batch_structure(sc, backend), []).append(i)
     return [ids[k : k + CHUNK] for ids in groups.values() for k in range(0, len(ids), CHUNK)]
@@ -94,6 +97,7 @@ def sweep_summaries(
     workers: int = 1,
     scheduler: str | None = None,
     progress: Progress | None = None,
+    unset: Sequence[str] = (),
 ) -> list[dict]:
     """One :func:`qcontrol.metrics.summary` dict (plus ``L``) per override set, in input order.
 
@@ -101,6 +105,7 @@ def sweep_summaries(
     local processes, ``scheduler`` (a Dask ``distributed`` address) over a cluster. Every
     executor runs the same batches, so the numbers are identical; ``wall_time_s`` is the batch's
     wall time divided by its size. Bad input raises :class:`QcontrolInputError` before any run.
+    ``unset`` keys are removed from the file of every variant before its overrides.
     """
     if backend not in BACKENDS:
         raise QcontrolInputError(f"--backend {backend!r}: use one of {', '.join(BACKENDS)}")
@@ -108,7 +113,8 @@ def sweep_summaries(
         raise QcontrolInputError(f"--workers {workers}: must be >= 1")
     path = str(scenario_path)
     sets = [list(o) for o in override_sets]
-    chunks = plan(path, sets, backend)
+    unset = list(unset)
+    chunks = plan(path, sets, backend, unset)
     results: list[dict | None] = [None] * len(sets)
     done = 0
 
@@ -120,7 +126,7 @@ def sweep_summaries(
         if progress is not None:
             progress(done, len(sets))
 
-    tasks = [(path, [sets[i] for i in ids], backend) for ids in chunks]
+    tasks = [(path, [sets[i] for i in ids], backend, unset) for ids in chunks]
     if scheduler is not None:
         for ids, summaries in zip(chunks, _on_dask(scheduler, tasks), strict=True):
             store(ids, summaries)
@@ -276,6 +282,9 @@ def add_sweep_parser(subparsers: argparse._SubParsersAction) -> None:
                    "(repeatable: the product of all grids is run)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="a fixed override for every run, e.g. simulation.duration=2.0")
+    p.add_argument("--unset", dest="unset", action="append", default=[], metavar="KEY",
+                   help="remove a key of the scenario file for every run, e.g. --unset reference.amplitude "
+                   "(repeatable; applied before --set and --grid)")
     p.add_argument("--random-initial", type=int, default=0, metavar="N",
                    help="N random initial states x0 ~ U[-1, 1]^n per grid point")
     p.add_argument("--seed", type=int, default=0, metavar="S", help="seed of --random-initial (default 0)")
@@ -294,17 +303,18 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     if args.random_initial < 0:
         raise QcontrolInputError(f"--random-initial {args.random_initial}: must be >= 0")
     grid = parse_grid(args.grid)
-    base = load_scenario(args.scenario, args.overrides)
+    check_output_dir(args.out)
+    base = load_scenario(args.scenario, args.overrides, args.unset)
     if args.random_initial and any(k == "plant.x0" for k, _ in grid):
         raise QcontrolInputError("--random-initial and --grid plant.x0=...: give one of them")
     points = grid_points(grid, args.random_initial, args.seed, order=base.order)
     keys = list(points[0]) if points else []
     sets = [list(args.overrides) + [f"{k}={v}" for k, v in p.items()] for p in points]
-    out = prepare_output_dir(args.out)
     started = time.perf_counter()
     summaries = sweep_summaries(args.scenario, sets, args.backend, args.workers, args.scheduler,
-                                ProgressLine("sweep", not args.quiet, "runs", piped_every=10))
+                                ProgressLine("sweep", not args.quiet, "runs", piped_every=10), args.unset)
     wall = time.perf_counter() - started
+    out = prepare_output_dir(args.out)
     rows = sweep_rows(points, summaries)
     write_text(out / "sweep.csv", csv_text(rows, keys))
     sweep_figure(rows, keys, out / "sweep.png", f"{base.name}: {len(rows)} runs on {args.backend}")
