@@ -96,7 +96,8 @@ def test_every_document_a_text_points_to_exists() -> None:
 
 
 def test_nothing_cites_a_document_outside_the_repository() -> None:
-    outside = re.compile(r"\bSPEC\b|\bDESIGN\b|/work/|\.\./shared|\b[Ii]ssue [0-9]+")
+    # the bracketed letters keep this line from matching itself
+    outside = re.compile(r"\bS[P]EC\b|\bD[E]SIGN\b|/w[o]rk/|\.\./sh[a]red|\b[Ii]ssue [0-9]+")
     for path in _tracked():
         for number, line in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
             assert not outside.search(line), f"{path.relative_to(ROOT)}:{number}: {line.strip()}"
