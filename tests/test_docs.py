@@ -101,3 +101,10 @@ def test_nothing_cites_a_document_outside_the_repository() -> None:
     for path in _tracked():
         for number, line in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
             assert not outside.search(line), f"{path.relative_to(ROOT)}:{number}: {line.strip()}"
+
+
+def test_the_readmes_scenario_example_is_valid() -> None:
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    block = re.search(r"### Writing a scenario\n\n```toml\n(.*?)```", readme, flags=re.S).group(1)
+    sc = parse_scenario(block, source="README.md")
+    assert (sc.name, sc.order, sc.controller.kind, sc.reference.kind) == ("my-plant", 2, "proposed", "sine")
