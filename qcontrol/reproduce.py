@@ -4,7 +4,8 @@ Runs Example 1 and Example 2 (proposed law and the comparison method of referenc
 chosen backend, with the ideal ODE twin beside MuJoCo, then the sensitivity studies (kappa - L,
 a constant scale of r, plant variants) on the ODE backend. Writes PNG figures, ``table1.md``,
 ``table1.json``, ``studies.json``, ``REPORT.md`` and one rerun recording per example into the
-output folder. Parameters come from the paper's text (Section 4); nothing is fitted to Table 1.
+output folder. Parameters come from the paper's Section 4 (docs/math.md, 'The paper's examples');
+nothing is fitted to Table 1.
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ from .assembly import controller_constants, run_scenario, scene
 from .controller import lemma2_L
 from .engine import Trajectory
 from .metrics import backend_deviation, summary
-from .outputs import prepare_output_dir, write_json, write_text
+from .outputs import check_output_dir, prepare_output_dir, write_json, write_text
+from .plants import BACKENDS
 from .report import PAPER_TABLE1, ReportFacts, report_markdown, table1, table1_markdown
 from .resources import shipped_dir
 from .scenario import Scenario, load_scenario
@@ -111,11 +113,13 @@ def reproduce(
     command: str | None = None,
 ) -> dict:
     """Run the whole reproduction into ``out``; returns Table 1 as written to ``table1.json``.
-    ``command`` is what the outputs' provenance names as the command (default: this call)."""
+    ``command`` is what the outputs' provenance names as the command (default: this call). Every
+    scenario it uses is validated before the folder is made: bad input creates nothing."""
     command = command or (f"qcontrol.reproduce.reproduce({str(out)!r}, backend={backend!r}, "
                           f"duration={duration!r})")
-    rep = Reproduction(prepare_output_dir(out), backend, duration, Path(scenarios), log, command=command)
-    o = rep.out
+    rep = Reproduction(check_output_dir(out), backend, duration, Path(scenarios), log, command=command)
+    _validate(rep)
+    o = prepare_output_dir(out)
     log(f"Example 1 on {backend}")
     ex1, ex1_twin = rep.twins("example 1", rep.scenario("example1"))
     _example1_figures(o, ex1, ex1_twin)
@@ -155,6 +159,17 @@ def reproduce(
     log(f"wrote {o}: REPORT.md, table1.md, table1.json, studies.json, figures, recordings "
         f"({len(rep.lemma2_ratios)} runs, {time.perf_counter() - rep.started:.1f} s)")
     return table
+
+
+def _validate(rep: Reproduction) -> None:
+    """Load every scenario variant the reproduction runs; the examples must have the backend's
+    section (e.g. [plant.mujoco])."""
+    for name in ("example1", "example2"):
+        sc = rep.scenario(name)
+        BACKENDS[rep.backend].require(sc.backends.get(rep.backend), sc.source)
+    for _, name, overrides in PLANT_VARIANTS:
+        rep.scenario(name, overrides)
+        rep.scenario(name, (*overrides, *BASELINE))
 
 
 def _example1_figures(o: Path, run: Run, twin: Run | None) -> None:

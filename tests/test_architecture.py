@@ -30,8 +30,8 @@ LAYERS = [
     {"engine"},
     {"metrics", "scenario"},
     {"assembly"},
-    {"recording", "plots", "report"},
-    {"sweep", "api"},
+    {"recording", "plots", "report", "check"},
+    {"sweep", "api", "explain"},
     {"reproduce"},
     {"cli", "_entry"},
 ]

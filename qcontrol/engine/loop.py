@@ -60,7 +60,7 @@ class ClosedLoop:
                  separation: Separation | None) -> None:
         n, batch = plant.n, plant.batch
         self.plant, self.law, self.grid = plant, law, grid
-        self.divergence = Divergence(batch, grid.rows, grid.dt, state_bound)
+        self.divergence = Divergence(batch, grid.rows, grid.dt, state_bound, law.state_name)
         self.reference = ReferenceRows(reference, n, grid, whole=record == "full")
         context = SignalContext(law.coordinates, separation)
         parts = RunParts(grid, law, self.reference, self.divergence, context, metrics, batch, n)
