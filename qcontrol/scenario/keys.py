@@ -120,9 +120,10 @@ METRICS = Section(
     "metrics",
     (
         Key("omega", numbers(positive=True), list(TABLE1_OMEGAS), "y",
-            "thresholds omega of the error rate E(omega) = #{i: |z_1(t_i)| > omega} / M (Table 1)"),
+            "thresholds omega of the error rate E(omega) = #{i: |z_1(t_i)| > omega} / M (Table 1)",
+            example="[0.05, 0.1, 0.2]"),
         Key("samples", integer(2), TABLE1_SAMPLES,
-            meaning="samples M of the error rate, at t_i = i T / (M - 1)"),
+            meaning="samples M of the error rate, at t_i = i T / (M - 1)", example="1302"),
     ),
     "what a run reports: the error rate's thresholds and samples (default: the paper's Table 1)",
 )
