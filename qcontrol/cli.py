@@ -16,7 +16,7 @@ from pathlib import Path
 from . import __version__
 from .assembly import build_plant, controller_constants, run_scenario, scene
 from .controller import lemma2_L
-from .engine import Observer
+from .engine import Observer, Trajectory
 from .errors import QcontrolInputError
 from .metrics import backend_deviation, summary
 from .outputs import check_output_file, prepare_output_dir, write_json
@@ -136,14 +136,16 @@ def _progress(sc: Scenario, backend: str, args: argparse.Namespace) -> ProgressL
     return ProgressLine(f"{sc.name} [{backend}]", not args.quiet)
 
 
-def _observer(rec: object, sc: Scenario, backend: str, ghost: bool = False) -> Observer | None:
-    """The recording's observer of a run on ``backend`` (None without a recording)."""
+def _observer(rec: object, sc: Scenario, backend: str, twin_of: Trajectory | None = None) -> Observer | None:
+    """The recording's observer of a run on ``backend`` (None without a recording); with
+    ``twin_of`` the run is drawn as that main run's twin."""
     if rec is None:
         return None
     drawn = scene(sc)
+    ghost = twin_of is not None
     if drawn is None:
-        return rec.observer(backend, ghost=ghost)
-    return rec.observer(backend, drawn.model, drawn.joint, ghost=ghost)
+        return rec.observer(backend, ghost=ghost, twin_of=twin_of)
+    return rec.observer(backend, drawn.model, drawn.joint, ghost=ghost, twin_of=twin_of)
 
 
 def _print_warnings(plant: Plant) -> None:
@@ -215,11 +217,11 @@ def cmd_compare(args: argparse.Namespace) -> int:
     with _recording(args) as rec:
         if rec is not None:
             rec.log_static(sc.text, controller_constants(sc), __version__)
-        for backend in ("mujoco", "ode"):  # the ODE twin is drawn as a translucent ghost
+        for backend in ("mujoco", "ode"):  # the ODE run is drawn as the MuJoCo run's twin
             progress = _progress(sc, backend, args)
+            twin_of = runs["mujoco"][0] if backend == "ode" else None
             traj = run_scenario(sc, backend, plant=plant if backend == "mujoco" else None,
-                                observer=_observer(rec, sc, backend, ghost=backend == "ode"),
-                                progress=progress)
+                                observer=_observer(rec, sc, backend, twin_of), progress=progress)
             progress.finish()
             runs[backend] = (traj, summary(traj, sc.name, backend))
     deviation = backend_deviation(runs["mujoco"][0], runs["ode"][0])

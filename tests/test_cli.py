@@ -174,6 +174,8 @@ def test_compare_rrd_holds_both_runs(tmp_path, capsys):
     _, y_ode = temporal(entities["signals/tracking/y_ode"], "Scalars:scalars")
     c = json.loads((out / "compare.json").read_text())
     assert np.max(np.abs(y - y_ode)) == c["max_abs_dy"] <= 1e-9  # the recording holds the same two runs
+    _, dy = temporal(entities["signals/difference/y/ode"], "Scalars:scalars")  # the ODE run is the twin
+    np.testing.assert_array_equal(dy, np.abs(y - y_ode))
 
 
 def test_run_without_rrd_does_not_import_rerun():

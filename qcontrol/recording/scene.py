@@ -7,7 +7,9 @@ Entity layout (``{L}`` a twin run's label, e.g. ``ode``)::
     world/fixed/{geom}             geoms of MuJoCo's world body, static
     world/bodies/{body}            Transform3D per row: the body pose from the replayed joint position
     world/bodies/{body}/{geom}     the geom's shape and its pose in the body, static
-    world/{L}_ghost/{body}[/{geom}]  the same for a twin run, translucent
+    world/{L}_ghost/{body}[/{geom}]  the same for a ghost run: a twin as an outline (a wireframe 15 %
+                                   larger than the body, so it shows around the body where the two
+                                   coincide), another run as a tinted translucent body
     world/target                   Transform3D per row: where the tip geom would be at y_d
 """
 
@@ -34,45 +36,59 @@ def entity_name(name: str, fallback: str) -> str:
     return cleaned or fallback
 
 
+RGBA = tuple[int, int, int, int]
+OUTLINE_SCALE = 1.15  # a twin's outline is this much larger than the body it may coincide with
+
+
 @dataclass(frozen=True)
 class Geom:
     """One drawable MuJoCo geom: its entity name, the rerun shape, its pose in its body."""
 
     name: str
     body: int
-    shape: Callable[[tuple[int, int, int, int]], Any]  # colour -> rerun archetype
-    rgba: tuple[int, int, int, int]
+    shape: Callable[[RGBA, bool], Any]  # (colour, outline) -> rerun archetype
+    rgba: RGBA
     pos: np.ndarray
     quat_xyzw: np.ndarray
 
 
-def _geom_shape(model: mujoco.MjModel, g: int) -> Callable[[tuple[int, int, int, int]], Any] | None:
-    """A factory for the rerun archetype drawing geom ``g`` centred at its frame, or None."""
+def _geom_shape(model: mujoco.MjModel, g: int) -> Callable[[RGBA, bool], Any] | None:
+    """A factory ``(colour, outline) -> rerun archetype`` drawing geom ``g`` centred at its frame
+    (solid, or with ``outline`` a wireframe ``OUTLINE_SCALE`` times larger), or None."""
     import rerun as rr
 
     kind, size = int(model.geom_type[g]), model.geom_size[g].astype(float)
-    solid = rr.components.FillMode.Solid
+
+    def fill(outline: bool) -> rr.components.FillMode:
+        mode = rr.components.FillMode
+        return mode.TransparentFillMajorWireframe if outline else mode.Solid
+
+    def grown(outline: bool) -> float:
+        return OUTLINE_SCALE if outline else 1.0
+
     if kind == _SPHERE:
-        return lambda c: rr.Ellipsoids3D(half_sizes=[[size[0]] * 3], colors=[c], fill_mode=solid)
+        return lambda c, o: rr.Ellipsoids3D(half_sizes=[[size[0] * grown(o)] * 3], colors=[c],
+                                            fill_mode=fill(o))
     if kind == _ELLIPSOID:
-        return lambda c: rr.Ellipsoids3D(half_sizes=[size], colors=[c], fill_mode=solid)
+        return lambda c, o: rr.Ellipsoids3D(half_sizes=[size * grown(o)], colors=[c], fill_mode=fill(o))
     if kind == _CAPSULE:  # MuJoCo: centred, half-length size[1]; rerun: from z=0 to z=length
-        return lambda c: rr.Capsules3D(
-            lengths=[2 * size[1]], radii=[size[0]], translations=[[0, 0, -size[1]]], colors=[c]
-        )
+        return lambda c, o: rr.Capsules3D(lengths=[2 * size[1]], radii=[size[0] * grown(o)],
+                                          translations=[[0, 0, -size[1]]], colors=[c], fill_mode=fill(o))
     if kind == _CYLINDER:
-        return lambda c: rr.Cylinders3D(lengths=[2 * size[1]], radii=[size[0]], colors=[c], fill_mode=solid)
+        return lambda c, o: rr.Cylinders3D(lengths=[2 * size[1] * grown(o)], radii=[size[0] * grown(o)],
+                                           colors=[c], fill_mode=fill(o))
     if kind == _BOX:
-        return lambda c: rr.Boxes3D(half_sizes=[size], colors=[c], fill_mode=solid)
+        return lambda c, o: rr.Boxes3D(half_sizes=[size * grown(o)], colors=[c], fill_mode=fill(o))
     if kind == _PLANE and size[0] > 0 and size[1] > 0:  # a finite plane; infinite ones are left out
-        return lambda c: rr.Boxes3D(half_sizes=[[size[0], size[1], 1e-3]], colors=[c], fill_mode=solid)
-    if kind == _MESH and model.geom_dataid[g] >= 0:
+        return lambda c, o: rr.Boxes3D(half_sizes=[[size[0], size[1], 1e-3]], colors=[c], fill_mode=fill(o))
+    if kind == _MESH and model.geom_dataid[g] >= 0:  # no wireframe for meshes: translucent instead
         mesh = int(model.geom_dataid[g])
         v0, nv = int(model.mesh_vertadr[mesh]), int(model.mesh_vertnum[mesh])
         f0, nf = int(model.mesh_faceadr[mesh]), int(model.mesh_facenum[mesh])
         vertices = model.mesh_vert[v0 : v0 + nv].copy()
         faces = model.mesh_face[f0 : f0 + nf].copy()
-        return lambda c: rr.Mesh3D(vertex_positions=vertices, triangle_indices=faces, albedo_factor=c)
+        return lambda c, o: rr.Mesh3D(vertex_positions=vertices * grown(o), triangle_indices=faces,
+                                      albedo_factor=(*c[:3], min(c[3], 110)) if o else c)
     return None
 
 
@@ -197,6 +213,19 @@ class Scene:
         xpos[bad], xquat[bad], tip[bad] = np.nan, np.nan, np.nan
         return xpos, xquat[..., [1, 2, 3, 0]], tip
 
+    def tip_positions(self, position: np.ndarray) -> np.ndarray:
+        """The tip geom's position (rows, 3) with the joint at each of ``position`` (what
+        :meth:`replay` gives as its third value, without the bodies' poses): Rodrigues' rotation
+        of the tip about the hinge, or its translation along the slide; NaN where not finite."""
+        q = np.asarray(position, dtype=float)[:, None] - self.q0
+        if not self.tip_moves:
+            return np.broadcast_to(self.tip0, (len(q), 3)) + 0.0 * q
+        if not self.hinge:
+            return self.tip0 + q * self.axis
+        arm, axis = self.tip0 - self.anchor, self.axis
+        return (self.anchor + arm * np.cos(q) + np.cross(axis, arm) * np.sin(q)
+                + axis * float(axis @ arm) * (1.0 - np.cos(q)))
+
     def _reference_pose(self, jid: int) -> None:
         """Poses at ``qpos0`` and the joint's world axis and anchor, for :meth:`replay`."""
         import mujoco
@@ -214,6 +243,9 @@ class Scene:
         joint_body = int(model.jnt_bodyid[jid])
         self.moving = np.array([self._descends(b, joint_body) for b in self.bodies], dtype=bool)
         self.tip_moves = self._descends(int(model.geom_bodyid[self.tip_geom]), joint_body)
+        drawn = [g for g in range(model.ngeom) if self._descends(int(model.geom_bodyid[g]), joint_body)]
+        self.moving_centres = data.geom_xpos[drawn].copy()  # at qpos0, for framing the motion
+        self.moving_radii = model.geom_rbound[drawn].astype(float)
 
 
 def _quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
