@@ -167,7 +167,7 @@ def test_compare_rrd_holds_both_runs(tmp_path, capsys):
     entities = read_entities(rrd)
     for path in ("world/bodies/arm", "world/ode_ghost/arm", "world/target", "signals/tracking/y",
                  "signals/tracking/y_d", "signals/tracking/y_ode", "signals/input/u",
-                 "theory/lemma2/z1", "info/scenario"):
+                 "theory/lemma2/ratios", "info/scenario"):
         assert path in entities, path
     times, y = temporal(entities["signals/tracking/y"], "Scalars:scalars")
     assert len(times) == 1001 and times[-1] == 1_000_000_000

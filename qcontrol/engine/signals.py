@@ -63,23 +63,25 @@ def _quantization_error(block: Block, ctx: SignalContext) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Guide:
-    """Constant lines a recording draws in a plot's panel: the bound the plotted signal respects.
-    ``lines``: (entity name, legend label, level) with the level a function of the run's Lemma 2
-    bounds ``L_z`` (``L_z[0] = delta/2``, the quantizer's largest error)."""
+    """Constant lines a recording draws in a plot's panel, the bound the plotted signal respects:
+    one entity ``name`` in the panel, one line per legend label, at ``levels``, a function of the
+    run's Lemma 2 bounds ``L_z`` (``L_z[0] = delta/2``, the quantizer's largest error)."""
 
-    lines: tuple[tuple[str, str, Callable[[np.ndarray], float]], ...]
+    name: str
+    labels: tuple[str, ...]
+    levels: Callable[[np.ndarray], tuple[float, ...]]
 
 
-LEMMA2_BOUND = Guide((("bound", "bound 1", lambda L_z: 1.0),))
-HALF_STEP = Guide((("band_upper", "+delta/2", lambda L_z: float(L_z[0])),
-                   ("band_lower", "-delta/2", lambda L_z: -float(L_z[0]))))
+LEMMA2_BOUND = Guide("bound", ("bound 1",), lambda L_z: (1.0,))
+HALF_STEP = Guide("band", ("+delta/2", "-delta/2"), lambda L_z: (float(L_z[0]), -float(L_z[0])))
 
 
 @dataclass(frozen=True)
 class Plot:
     """Where recordings draw a signal: one series per shown component, at ``path`` with the legend
-    ``label`` (``{i}`` is the component's number from 1, ``{a}`` the adaptive state's name). The
-    path's parent is the series' panel (one plot of the layout: ``signals/input`` holds ``u`` and
+    ``label`` (``{i}`` is the component's number from 1, ``{a}`` the adaptive state's name; a path
+    without ``{i}`` holds all components as instances of one entity). The path's parent is the
+    series' panel (one plot of the layout: ``signals/input`` holds ``u`` and
     whatever else is drawn there); a panel the layout does not know becomes a tab of its own.
     ``components``: the ones shown (None: all); ``per_bound``: divided by the Lemma 2 bound L_zi;
     ``twin``: also drawn for a twin run (the ODE beside MuJoCo: MuJoCo wide, the twin thin on
@@ -139,7 +141,7 @@ SIGNALS: tuple[Signal, ...] = (
            reductions=(LargestAbs,),
            plots=(Plot("signals/input/u", "u", twin=True, difference="signals/difference/u"),)),
     Signal("adaptive", "m", "adaptive", False, "adaptive estimates (eps_hat of (45), theta_hat of (46), ...)",
-           reductions=(FinalValue,), plots=(Plot("signals/adaptive/{a}_{i}", "{a}_{i}", color="palette"),)),
+           reductions=(FinalValue,), plots=(Plot("signals/adaptive/{a}", "{a}_{i}", color="palette"),)),
     Signal("yd", "n+1", "y", False, "reference y_d and its derivatives y_d', ..., y_d^(n)", shared=True,
            plots=(Plot("signals/tracking/y_d", "y_d", (0,), color="reference"),)),
     Signal("z", "n", "state", False, "errors z_i of eqs. (7)-(8), from the true state", _z,
@@ -148,7 +150,7 @@ SIGNALS: tuple[Signal, ...] = (
     Signal("zbar", "n", "state", False, "quantized errors zbar_i of eqs. (31)-(33)", _zbar),
     Signal("e_z", "n", "state", False, "Lemma 2 errors |z_i(x_meas) - zbar_i| (bound L_zi)", _e_z,
            reductions=(Lemma2Largest,),
-           plots=(Plot("theory/lemma2/z{i}", "|e_z{i}| / L_z{i}", per_bound=True, guide=LEMMA2_BOUND,
+           plots=(Plot("theory/lemma2/ratios", "|e_z{i}| / L_z{i}", per_bound=True, guide=LEMMA2_BOUND,
                        color="palette"),)),
     Signal("quantization_error", "n", "state", False,
            "quantization error x_meas - q(x_meas) of the reading the quantizer saw (|.| <= delta/2)",

@@ -180,51 +180,53 @@ class Scene:
             body = int(self.model.body_parentid[body])
         return body == ancestor
 
-    def replay(self, position: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Body positions (rows, bodies, 3), quaternions xyzw (rows, bodies, 4) and the tip geom's
-        position (rows, 3) with the joint at each of ``position``; NaN where it is not finite.
+    def replay(self, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Body positions (rows, bodies, 3) and quaternions xyzw (rows, bodies, 4) with the joint
+        at each of ``position``; NaN where it is not finite.
 
         One joint moves, so every pose is the reference pose (``qpos0``, from ``mj_kinematics``)
         carried by one rigid motion: a rotation by ``q - q0`` about the hinge's world axis through
         its anchor, or a translation by ``q - q0`` along the slide's axis. Bodies that do not
-        descend from the joint's body stay put. Evaluated for all rows at once.
+        descend from the joint's body stay put. Evaluated for all rows at once, from terms
+        prepared once (:meth:`_turn_terms`): per row only a cosine and a sine are new.
         """
         q = np.asarray(position, dtype=float) - self.q0
         ids, moving = self.bodies, self.moving
         rows = len(q)
         xpos = np.broadcast_to(self.xpos0[ids], (rows, len(ids), 3)).copy()
-        xquat = np.broadcast_to(self.xquat0[ids], (rows, len(ids), 4)).copy()
-        tip = np.broadcast_to(self.tip0, (rows, 3)).copy()
-        axis, anchor = self.axis, self.anchor
+        xquat = np.broadcast_to(self.xquat0[ids][:, [1, 2, 3, 0]], (rows, len(ids), 4)).copy()
         if self.hinge:
-            half = 0.5 * q
-            turn = np.concatenate([np.cos(half)[:, None], np.sin(half)[:, None] * axis], axis=1)  # wxyz
-            rotate = _rotation_matrices(turn)
-            moved = self.xpos0[ids][moving] - anchor
-            xpos[:, moving] = anchor + np.einsum("rij,bj->rbi", rotate, moved)
-            xquat[:, moving] = _quat_multiply(turn[:, None, :], self.xquat0[ids][moving][None])
-            if self.tip_moves:
-                tip = anchor + np.einsum("rij,j->ri", rotate, self.tip0 - anchor)
+            xpos[:, moving] = self._turned(self.body_turn, q[:, None, None])
+            half = 0.5 * q[:, None, None]
+            fixed, turning = self.quat_turn
+            xquat[:, moving] = np.cos(half) * fixed + np.sin(half) * turning
         else:
-            xpos[:, moving] += q[:, None, None] * axis
-            if self.tip_moves:
-                tip = tip + q[:, None] * axis
+            xpos[:, moving] += q[:, None, None] * self.axis
         bad = ~np.isfinite(q)
-        xpos[bad], xquat[bad], tip[bad] = np.nan, np.nan, np.nan
-        return xpos, xquat[..., [1, 2, 3, 0]], tip
+        xpos[bad], xquat[bad] = np.nan, np.nan
+        return xpos, xquat
 
     def tip_positions(self, position: np.ndarray) -> np.ndarray:
-        """The tip geom's position (rows, 3) with the joint at each of ``position`` (what
-        :meth:`replay` gives as its third value, without the bodies' poses): Rodrigues' rotation
-        of the tip about the hinge, or its translation along the slide; NaN where not finite."""
+        """The tip geom's position (rows, 3) with the joint at each of ``position`` (the rigid
+        motion of :meth:`replay` applied to the tip); NaN where it is not finite."""
         q = np.asarray(position, dtype=float)[:, None] - self.q0
         if not self.tip_moves:
-            return np.broadcast_to(self.tip0, (len(q), 3)) + 0.0 * q
+            return self.tip0 + 0.0 * q
         if not self.hinge:
             return self.tip0 + q * self.axis
-        arm, axis = self.tip0 - self.anchor, self.axis
-        return (self.anchor + arm * np.cos(q) + np.cross(axis, arm) * np.sin(q)
-                + axis * float(axis @ arm) * (1.0 - np.cos(q)))
+        return self._turned(self.tip_turn, q)
+
+    def _turn_terms(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Rodrigues' formula for ``points`` (..., 3) turned by an angle about the hinge's axis
+        through its anchor, ``still + across cos + normal sin``: its three constant terms."""
+        arm, axis = points - self.anchor, self.axis
+        along = (arm @ axis)[..., None] * axis
+        return self.anchor + along, arm - along, np.cross(axis, arm)
+
+    @staticmethod
+    def _turned(terms: tuple[np.ndarray, np.ndarray, np.ndarray], angle: np.ndarray) -> np.ndarray:
+        still, across, normal = terms
+        return still + across * np.cos(angle) + normal * np.sin(angle)
 
     def _reference_pose(self, jid: int) -> None:
         """Poses at ``qpos0`` and the joint's world axis and anchor, for :meth:`replay`."""
@@ -246,6 +248,12 @@ class Scene:
         drawn = [g for g in range(model.ngeom) if self._descends(int(model.geom_bodyid[g]), joint_body)]
         self.moving_centres = data.geom_xpos[drawn].copy()  # at qpos0, for framing the motion
         self.moving_radii = model.geom_rbound[drawn].astype(float)
+        self.body_turn = self._turn_terms(self.xpos0[self.bodies][self.moving])
+        self.tip_turn = self._turn_terms(self.tip0)
+        # a turn by angle a is the quaternion cos(a/2) + sin(a/2) (0, axis): linear in both
+        reference = self.xquat0[self.bodies][self.moving]
+        about_axis = _quat_multiply(np.concatenate([[0.0], self.axis])[None], reference)
+        self.quat_turn = (reference[:, [1, 2, 3, 0]], about_axis[:, [1, 2, 3, 0]])
 
 
 def _quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -256,13 +264,3 @@ def _quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
                      aw * bx + ax * bw + ay * bz - az * by,
                      aw * by - ax * bz + ay * bw + az * bx,
                      aw * bz + ax * by - ay * bx + az * bw], axis=-1)
-
-
-def _rotation_matrices(quat: np.ndarray) -> np.ndarray:
-    """Rotation matrices (rows, 3, 3) of unit wxyz quaternions (rows, 4)."""
-    w, x, y, z = quat.T
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
-    ], axis=-2)

@@ -4,14 +4,17 @@
 Series layout (``{L}`` a ghost run's label, ``{a}`` the adaptive state's name, ``i`` from 1)::
 
     signals/tracking/y, y_d, y_{L}        signals/error/z1, z1_{L}       signals/input/u, u_{L}
-    signals/adaptive/{a}_i                signals/state/x{i}/x, signals/state/x{i}/q
-    signals/quantization/x{i}/error       (x_meas - q(x_meas)) with band_upper, band_lower (+-delta/2)
-    theory/lemma2/z{i}  (|e_zi| / L_zi)   theory/lemma2/bound  (the constant 1)
+    signals/adaptive/{a}  (one instance per estimate)
+    signals/state/x{i}/x, signals/state/x{i}/q
+    signals/quantization/x{i}/error       (x_meas - q(x_meas)) and band (+delta/2, -delta/2)
+    theory/lemma2/ratios  (|e_zi| / L_zi, one instance per i)   theory/lemma2/bound  (the constant 1)
     signals/difference/y/{L}, signals/difference/u/{L}   |main - twin|, for a twin run
 
 Each series belongs to a panel, its path's parent (``signals/input``, ``signals/state/x2``): the
 layout (:mod:`.layout`) makes one plot per panel, so a series added to the table under an existing
-panel shows there, and one under a new panel gets a tab of its own.
+panel shows there, and one under a new panel gets a tab of its own. A plot whose path has no
+``{i}`` draws its components as instances of one entity (one legend entry each): one send per
+batch of rows for all of them.
 
 Three roles of a run: the *main* run (its colours); a *twin* (the same closed loop on another
 backend: its series thin and light on top of the main run's, which are then drawn wide, so both
@@ -50,12 +53,13 @@ class Panel:
 
 @dataclass(frozen=True)
 class Series:
-    """One scalar time series: where it goes, how it is drawn, which column of a run it is."""
+    """One entity of scalar time series (one per component it shows): where it goes, how it is
+    drawn, which columns of a run it holds (``values``: ``(rows,)``, or ``(rows, k)`` for k)."""
 
     path: str
-    label: str
+    labels: tuple[str, ...]
     tag: str  # the run it belongs to, in the legend: "y (mujoco)"
-    color: tuple[int, int, int]
+    colors: tuple[tuple[int, int, int], ...]
     step: bool
     values: Callable[[Trajectory], np.ndarray]
     panel: Panel
@@ -63,8 +67,8 @@ class Series:
     width: float | None = None
 
     @property
-    def name(self) -> str:
-        return f"{self.label} ({self.tag})" if self.tag else self.label
+    def names(self) -> list[str]:
+        return [f"{label} ({self.tag})" if self.tag else label for label in self.labels]
 
     def beside_twin(self) -> Series:
         """The main run's series once a twin is drawn on top of it: wide, and labelled so."""
@@ -73,11 +77,11 @@ class Series:
 
 @dataclass(frozen=True)
 class GuideLine:
-    """A constant line of a panel (a bound): its path, legend name and level."""
+    """Constant lines of a panel (a bound): their path, legend names and levels."""
 
     path: str
-    name: str
-    level: float
+    names: tuple[str, ...]
+    levels: tuple[float, ...]
 
 
 @dataclass(frozen=True)
@@ -91,19 +95,28 @@ class Difference:
     panel: Panel
 
 
-def _column(signal: Signal, i: int, per_bound: bool) -> Callable[[Trajectory], np.ndarray]:
+def _columns(signal: Signal, shown: tuple[int, ...], per_bound: bool) -> Callable[[Trajectory], np.ndarray]:
     if signal.width == "1":
         return lambda run: run.signals[signal.name]
+    if len(shown) == 1:
+        (i,) = shown
+        if per_bound:
+            return lambda run: run.signals[signal.name][:, i] / run.L_z[i]
+        return lambda run: run.signals[signal.name][:, i]
+    index = list(shown)
     if per_bound:
-        return lambda run: run.signals[signal.name][:, i] / run.L_z[i]
-    return lambda run: run.signals[signal.name][:, i]
+        return lambda run: run.signals[signal.name][:, index] / run.L_z[index]
+    return lambda run: run.signals[signal.name][:, index]
 
 
-def _components(signal: Signal, plot: Plot, run: Trajectory) -> range | tuple[int, ...]:
+def _groups(signal: Signal, plot: Plot, run: Trajectory) -> list[tuple[int, ...]]:
+    """The components of each entity a plot draws: one each if its path has ``{i}``, else all."""
     if plot.components is not None:
-        return plot.components
-    array = run.signals[signal.name]
-    return range(1 if array.ndim == 1 else array.shape[1])
+        shown = tuple(plot.components)
+    else:
+        array = run.signals[signal.name]
+        shown = tuple(range(1 if array.ndim == 1 else array.shape[1]))
+    return [(i,) for i in shown] if "{i}" in plot.path else [shown]
 
 
 def _panel(template: str, i: int, adaptive: str) -> Panel:
@@ -112,13 +125,13 @@ def _panel(template: str, i: int, adaptive: str) -> Panel:
 
 
 def _plots(run: Trajectory, twin_drawn_only: bool):
-    """(signal, plot, component) of every series the table draws for a run."""
+    """(signal, plot, components) of every entity the table draws for a run."""
     for signal in SIGNALS:
         for plot in signal.plots:
             if twin_drawn_only and not plot.twin:
                 continue
-            for i in _components(signal, plot, run):
-                yield signal, plot, i
+            for shown in _groups(signal, plot, run):
+                yield signal, plot, shown
 
 
 def run_series(run: Trajectory, label: str, role: str = "main", suffix: str = "") -> list[Series]:
@@ -126,20 +139,23 @@ def run_series(run: Trajectory, label: str, role: str = "main", suffix: str = ""
     tagged with ``label``); for a ghost run (``role`` "twin" or "comparison", entity ``suffix``),
     the twin-drawn plots at ``<path>_<suffix>``, thin and light for a twin, green otherwise."""
     series = []
-    for signal, plot, i in _plots(run, role != "main"):
-        path = plot.path.format(i=i + 1, a=run.adaptive_name)
-        text = plot.label.format(i=i + 1, a=run.adaptive_name)
-        panel = _panel(plot.path, i, run.adaptive_name)
-        values = _column(signal, i, plot.per_bound)
+    for signal, plot, shown in _plots(run, role != "main"):
+        first, name = shown[0], run.adaptive_name
+        path = plot.path.format(i=first + 1, a=name)
+        labels = tuple(plot.label.format(i=i + 1, a=name) for i in shown)
+        panel = _panel(plot.path, first, name)
+        values = _columns(signal, shown, plot.per_bound)
         if role == "main":
-            color = PALETTE[i % len(PALETTE)] if plot.color == "palette" else ROLE_COLORS[plot.color]
-            series.append(Series(path, text, label if plot.twin else "", color, signal.held, values, panel,
+            colors = tuple(PALETTE[i % len(PALETTE)] if plot.color == "palette" else ROLE_COLORS[plot.color]
+                           for i in shown)
+            series.append(Series(path, labels, label if plot.twin else "", colors, signal.held, values, panel,
                                  plot.twin))
         elif role == "twin":
-            series.append(Series(f"{path}_{suffix}", text, f"{label}, thin", LIGHT, signal.held, values,
-                                 panel, True, THIN))
+            series.append(Series(f"{path}_{suffix}", labels, f"{label}, thin", (LIGHT,) * len(shown),
+                                 signal.held, values, panel, True, THIN))
         else:
-            series.append(Series(f"{path}_{suffix}", text, label, GREEN, signal.held, values, panel, True))
+            series.append(Series(f"{path}_{suffix}", labels, label, (GREEN,) * len(shown), signal.held,
+                                 values, panel, True))
     return series
 
 
@@ -147,27 +163,29 @@ def guide_lines(run: Trajectory) -> list[GuideLine]:
     """The constant lines of the table's guides (Lemma 2's bound 1, the band +-delta/2), once per
     panel, at the levels of this run's bounds ``L_z``."""
     lines, seen = [], set()
-    for _, plot, i in _plots(run, False):
+    for _, plot, shown in _plots(run, False):
         if plot.guide is None:
             continue
-        panel = _panel(plot.path, i, run.adaptive_name)
-        if panel.origin in seen:
-            continue
-        seen.add(panel.origin)
-        for name, legend, level in plot.guide.lines:
-            lines.append(GuideLine(f"{panel.origin}/{name}", legend, float(level(run.L_z))))
+        panel = _panel(plot.path, shown[0], run.adaptive_name)
+        if panel.origin not in seen:
+            seen.add(panel.origin)
+            guide = plot.guide
+            lines.append(GuideLine(f"{panel.origin}/{guide.name}", guide.labels,
+                                   tuple(float(v) for v in guide.levels(run.L_z))))
     return lines
 
 
 def differences(run: Trajectory, main_label: str, twin_label: str, suffix: str) -> list[Difference]:
-    """``|main - twin|`` of every plot that names a difference panel, for a twin run."""
+    """``|main - twin|`` of every plot that names a difference panel (one component each), for a
+    twin run."""
     found = []
-    for signal, plot, i in _plots(run, True):
+    for signal, plot, shown in _plots(run, True):
         if plot.difference is None:
             continue
+        (i,) = shown
         text = plot.label.format(i=i + 1, a=run.adaptive_name)
-        values = _column(signal, i, plot.per_bound)
         name = f"|{text} ({main_label}) - {text} ({twin_label})|"
+        values = _columns(signal, shown, plot.per_bound)
         found.append(Difference(f"{plot.difference}/{suffix}", name, signal.held, values,
                                 Panel(plot.difference, plot.difference)))
     return found

@@ -41,8 +41,8 @@ def log_style(stream: rr.RecordingStream, series: Series) -> None:
     import rerun as rr
 
     mode = "StepAfter" if series.step else "Linear"
-    widths = None if series.width is None else [series.width]
-    stream.log(series.path, rr.SeriesLines(names=series.name, colors=[series.color], widths=widths,
+    widths = None if series.width is None else [series.width] * len(series.labels)
+    stream.log(series.path, rr.SeriesLines(names=series.names, colors=list(series.colors), widths=widths,
                                            interpolation_mode=mode, aggregation_policy="MinMax"),
                static=True)
 
@@ -90,7 +90,7 @@ class RunStreamer:
         if first and self.guides:  # constant over the run: its two ends, once
             ends = _time_column(np.array([run.t[start], max(run.duration, run.t[stop - 1])]))
             for g in self.guides:
-                stream.send_columns(g.path, indexes=[ends], columns=scalars(scalars=[g.level, g.level]))
+                stream.send_columns(g.path, indexes=[ends], columns=scalars(scalars=np.array([g.levels] * 2)))
         if self.differences:
             self._send_differences(run, rows, times)
         if self.scene is not None:
@@ -110,14 +110,15 @@ class RunStreamer:
             recording.main_series, recording.main_label = self.series, self.label
             self.guides = guide_lines(run)
             for g in self.guides:
-                stream.log(g.path, rr.SeriesLines(names=g.name, colors=[RED]), static=True)
+                lines = rr.SeriesLines(names=list(g.names), colors=[RED] * len(g.names))
+                stream.log(g.path, lines, static=True)
         if self.role == "twin":
             for s in recording.main_series:
                 if s.drawn_for_twin:
                     log_style(stream, s.beside_twin())
             self.differences = differences(run, recording.main_label, self.label, self.suffix)
             for d in self.differences:
-                log_style(stream, Series(d.path, d.name, "", BLUE, d.step, d.values, d.panel))
+                log_style(stream, Series(d.path, (d.name,), "", (BLUE,), d.step, d.values, d.panel))
         recording.add_panels([s.panel for s in self.series] + [d.panel for d in self.differences])
 
     def _send_differences(self, run: Trajectory, rows: slice, times: rr.TimeColumn) -> None:
@@ -141,7 +142,7 @@ class RunStreamer:
         import rerun as rr
 
         stream, scene = self.recording._stream, self.scene
-        pos, quat, _ = scene.replay(run.x[rows, 0])
+        pos, quat = scene.replay(run.x[rows, 0])
         for j, body in enumerate(scene.bodies):
             stream.send_columns(
                 f"{self.world}/{scene.body_names[body]}",
