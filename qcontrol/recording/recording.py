@@ -291,7 +291,8 @@ class Recording:
             return None
         low, high = self._travel
         framed = self._framed
-        if self._camera is None or (framed is not None and not framed[0] <= low <= high <= framed[1]):
+        outside = framed is None or not framed[0] <= low <= high <= framed[1]
+        if self._camera is None or (np.isfinite(low) and outside):
             self._camera = fixed_camera(self._scene, low, high)
             margin = TRAVEL_MARGIN * (high - low)
             self._framed = (low - margin, high + margin) if np.isfinite(low) else None

@@ -38,7 +38,6 @@ PURPLE, BROWN, LIGHT = (148, 103, 189), (140, 86, 75), (245, 245, 245)
 PALETTE = (BLUE, ORANGE, GREEN, RED, PURPLE, BROWN)
 ROLE_COLORS = {"main": BLUE, "reference": ORANGE, "quantized": RED}
 WIDE, THIN = 5.0, 1.5  # line widths (points) of a main run beside its twin, and of the twin
-GHOST_ROLES = ("twin", "comparison")
 
 
 @dataclass(frozen=True)
