@@ -17,7 +17,7 @@ from test_record import PENDULUM, RERUN_CLI, SLIDER, example2, read_entities, te
 
 from qcontrol.engine.signals import SIGNALS, Plot
 from qcontrol.recording import Recording, series
-from qcontrol.recording.camera import FIELD_OF_VIEW_Y, FRAME_MARGIN, TRAVEL_MARGIN, VIEW_ASPECT
+from qcontrol.recording.camera import FIELD_OF_VIEW_Y, FRAME_MARGIN, TRAVEL_MARGIN, VIEW_WIDTH_PER_HEIGHT
 
 ROOT = Path(__file__).resolve().parents[1]
 COLLAPSED = 2  # rerun.blueprint.components.PanelState
@@ -145,7 +145,7 @@ def test_slide_camera_frames_the_travelled_interval_not_the_rail(tmp_path):
     cart_half_length = 0.1
     reach = (high - low) * (0.5 + TRAVEL_MARGIN) + cart_half_length  # the whole cart at either end
     assert target[0] == pytest.approx((low + high) / 2)
-    half_width = np.linalg.norm(position - target) * np.tan(FIELD_OF_VIEW_Y / 2) * VIEW_ASPECT
+    half_width = np.linalg.norm(position - target) * np.tan(FIELD_OF_VIEW_Y / 2) * VIEW_WIDTH_PER_HEIGHT
     assert reach < half_width < 2.0  # the interval fits; the rail's half-length (2 m) does not
     entities = read_entities(path)
     _, cart = temporal(entities["world/bodies/cart"], "Transform3D:translation")

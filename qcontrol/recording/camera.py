@@ -24,7 +24,7 @@ import numpy as np
 from .scene import Scene
 
 FIELD_OF_VIEW_Y = np.radians(55.0)  # the rerun viewer's vertical field of view
-VIEW_ASPECT = 1.6  # width / height of the 3-D view in the default layout (at 1600 x 1000)
+VIEW_WIDTH_PER_HEIGHT = 1.6  # width / height of the 3-D view in the default layout (at 1600 x 1000)
 MAX_TILT = np.radians(20.0)  # how far the model's view direction may be off the plane of motion
 FRAME_MARGIN = 1.1  # the framed shape fills 1 / FRAME_MARGIN of the view
 TRAVEL_MARGIN = 0.1  # a slide's travelled interval is widened by this fraction of its length per side
@@ -93,7 +93,8 @@ def frame(points: np.ndarray, forward: np.ndarray) -> Camera:
     half_height = np.max(np.abs(relative @ up))
     nearest_depth = np.max(-(relative @ forward))  # how far points stand out towards the eye
     tangent = np.tan(FIELD_OF_VIEW_Y / 2)
-    distance = FRAME_MARGIN * max(half_height / tangent, half_width / (tangent * VIEW_ASPECT)) + nearest_depth
+    fit = max(half_height / tangent, half_width / (tangent * VIEW_WIDTH_PER_HEIGHT))
+    distance = FRAME_MARGIN * fit + nearest_depth
     position = target - distance * forward
     return Camera(tuple(map(float, position)), tuple(map(float, target)))
 
