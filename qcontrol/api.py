@@ -188,8 +188,9 @@ def compare(scenario: Scenario, *, rrd: str | Path | None = None, spawn: bool = 
     plant = build_plant(scenario, "mujoco")
     runs: dict[str, Result] = {}
     with _recording(rrd, spawn, scenario, command) as rec:
-        for backend in ("mujoco", "ode"):  # the ODE twin is drawn as a translucent ghost
-            observer = None if rec is None else _observer(rec, scenario, backend, ghost=backend == "ode")
+        for backend in ("mujoco", "ode"):  # the ODE run is drawn as the MuJoCo run's twin
+            twin_of = runs["mujoco"].record if backend == "ode" else None
+            observer = None if rec is None else _observer(rec, scenario, backend, twin_of)
             traj = run_scenario(scenario, backend, plant=plant if backend == "mujoco" else None,
                                 observer=observer, progress=progress(backend) if progress else None)
             runs[backend] = Result(summary(traj, scenario.name, backend), scenario, backend, traj)
@@ -218,11 +219,14 @@ def _recording(rrd: str | Path | None, spawn: bool, sc: Scenario, command: str) 
     return rec
 
 
-def _observer(rec: Any, sc: Scenario, backend: str, ghost: bool = False) -> Any:
+def _observer(rec: Any, sc: Scenario, backend: str, twin_of: Trajectory | None = None) -> Any:
+    """The recording's observer of a run on ``backend``; with ``twin_of`` the run is drawn as that
+    main run's twin (thin lines on its wide ones, an outline body, the differences)."""
     drawn = scene(sc)
+    ghost = twin_of is not None
     if drawn is None:
-        return rec.observer(backend, ghost=ghost)
-    return rec.observer(backend, drawn.model, drawn.joint, ghost=ghost)
+        return rec.observer(backend, ghost=ghost, twin_of=twin_of)
+    return rec.observer(backend, drawn.model, drawn.joint, ghost=ghost, twin_of=twin_of)
 
 
 # --------------------------------------------------------------------------------------------

@@ -123,13 +123,13 @@ def reproduce(
     log(f"Example 1 on {backend}")
     ex1, ex1_twin = rep.twins("example 1", rep.scenario("example1"))
     _example1_figures(o, ex1, ex1_twin)
-    _record(o / "example1.rrd", ex1, {"ode": ex1_twin}, command)
+    _record(o / "example1.rrd", ex1, {"ode": ex1_twin}, command, twins=("ode",))
 
     log(f"Example 2 on {backend}: proposed and comparison method [20]")
     ex2, ex2_twin = rep.twins("example 2 proposed", rep.scenario("example2"))
     base, base_twin = rep.twins("example 2 comparison", rep.scenario("example2", BASELINE))
     _example2_figures(o, ex2, ex2_twin, base)
-    _record(o / "example2.rrd", ex2, {"ode": ex2_twin, "baseline": base}, command)
+    _record(o / "example2.rrd", ex2, {"ode": ex2_twin, "baseline": base}, command, twins=("ode",))
 
     ours = {backend: {"proposed": ex2.summary["error_rate"], "comparison": base.summary["error_rate"]}}
     if ex2_twin is not None and base_twin is not None:
@@ -196,8 +196,10 @@ def _example2_figures(o: Path, run: Run, twin: Run | None, base: Run) -> None:
                                   "Example 2: MuJoCo pendulum vs ideal ODE, same controller", u)
 
 
-def _record(path: Path, main: Run, ghosts: dict[str, Run | None], command: str) -> None:
-    """A rerun recording of the main run with its ghosts (ODE twin, comparison method)."""
+def _record(path: Path, main: Run, ghosts: dict[str, Run | None], command: str,
+            twins: tuple[str, ...]) -> None:
+    """A rerun recording of the main run with its ghosts: the ``twins`` (the same closed loop on
+    the ODE) and the others (the comparison method)."""
     from ._version import __version__
     from .recording import Recording
 
@@ -210,7 +212,9 @@ def _record(path: Path, main: Run, ghosts: dict[str, Run | None], command: str) 
         rec.observer(main.backend, model, joint)(0, len(main.traj.t), [main.traj])
         for label, ghost in ghosts.items():
             if ghost is not None:
-                rec.observer(label, model, joint, ghost=True)(0, len(ghost.traj.t), [ghost.traj])
+                observer = rec.observer(label, model, joint, ghost=True,
+                                        twin_of=main.traj if label in twins else None)
+                observer(0, len(ghost.traj.t), [ghost.traj])
 
 
 def _rates(summaries: Sequence[dict]) -> dict[str, list[float]]:

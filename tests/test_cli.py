@@ -167,13 +167,15 @@ def test_compare_rrd_holds_both_runs(tmp_path, capsys):
     entities = read_entities(rrd)
     for path in ("world/bodies/arm", "world/ode_ghost/arm", "world/target", "signals/tracking/y",
                  "signals/tracking/y_d", "signals/tracking/y_ode", "signals/input/u",
-                 "theory/lemma2/z1", "info/scenario"):
+                 "theory/lemma2/ratios", "info/scenario"):
         assert path in entities, path
     times, y = temporal(entities["signals/tracking/y"], "Scalars:scalars")
     assert len(times) == 1001 and times[-1] == 1_000_000_000
     _, y_ode = temporal(entities["signals/tracking/y_ode"], "Scalars:scalars")
     c = json.loads((out / "compare.json").read_text())
     assert np.max(np.abs(y - y_ode)) == c["max_abs_dy"] <= 1e-9  # the recording holds the same two runs
+    _, dy = temporal(entities["signals/difference/y/ode"], "Scalars:scalars")  # the ODE run is the twin
+    np.testing.assert_array_equal(dy, np.abs(y - y_ode))
 
 
 def test_run_without_rrd_does_not_import_rerun():

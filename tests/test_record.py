@@ -108,11 +108,17 @@ def temporal(batches: list[pa.RecordBatch], component: str) -> tuple[np.ndarray,
     return t[order], np.concatenate(values)[order]
 
 
+def static_values(batches: list[pa.RecordBatch], component: str) -> list[list]:
+    """Every static value logged for ``component``, in the order of the file."""
+    return [batch.column(component).to_pylist()[0] for batch in batches
+            if "sim_time" not in batch.column_names and component in batch.column_names]
+
+
 def static_value(batches: list[pa.RecordBatch], component: str) -> list:
-    for batch in batches:
-        if "sim_time" not in batch.column_names and component in batch.column_names:
-            return batch.column(component).to_pylist()[0]
-    raise AssertionError(f"no static {component}")
+    values = static_values(batches, component)
+    if not values:
+        raise AssertionError(f"no static {component}")
+    return values[0]
 
 
 def bits(a: np.ndarray) -> np.ndarray:
@@ -128,9 +134,11 @@ def sim_time_ns(t: np.ndarray) -> np.ndarray:
 
 
 def assert_scalars_exact(entities, path: str, expected: np.ndarray, t: np.ndarray) -> None:
+    """The entity's scalars are exactly ``expected``: ``(rows,)``, or ``(rows, k)`` for k instances."""
     times, values = temporal(entities[path], "Scalars:scalars")
     np.testing.assert_array_equal(times, sim_time_ns(t), err_msg=path)
-    np.testing.assert_array_equal(bits(values[:, 0]), bits(expected), err_msg=path)
+    want = np.asarray(expected).reshape(len(t), -1)
+    np.testing.assert_array_equal(bits(values), bits(want), err_msg=path)
 
 
 def rrd_verify(path: Path) -> None:
@@ -144,13 +152,14 @@ def rrd_verify(path: Path) -> None:
 
 @pytest.fixture(scope="module")
 def compare_recording(tmp_path_factory) -> tuple[Path, Trajectory, Trajectory, mujoco.MjModel]:
-    """A 2 s Example 2 run with the pendulum drawn, plus a ghost twin, streamed in 500-row chunks."""
+    """A 2 s Example 2 run with the pendulum drawn, plus its twin (a slightly different plant, so
+    that the two differ), streamed in 500-row chunks."""
     path = tmp_path_factory.mktemp("rrd") / "compare.rrd"
     model = mujoco.MjModel.from_xml_string(PENDULUM)
     with Recording(path) as rec:
         rec.log_static("[plant]\norder = 2\n", {"kappa": 1.125, "c": [4.0, 3.0]}, qcontrol.__version__)
         main = example2(2.0, rec.observer("mujoco", model, "hinge"))
-        ghost = example2(2.0, rec.observer("ode", model, "hinge", ghost=True), psi="0.01*x2")
+        ghost = example2(2.0, rec.observer("ode", model, "hinge", ghost=True, twin_of=main), psi="0.01*x2")
     return path, main, ghost, model
 
 
@@ -175,15 +184,54 @@ def test_signals_equal_the_run_bitwise(compare_recording):
     assert_scalars_exact(entities, "signals/tracking/y_d", main.yd[:, 0], main.t)
     assert_scalars_exact(entities, "signals/error/z1", main.z[:, 0], main.t)
     assert_scalars_exact(entities, "signals/input/u", main.u, main.t)
-    for j in range(main.adaptive.shape[1]):
-        assert_scalars_exact(entities, f"signals/adaptive/eps_hat_{j + 1}", main.adaptive[:, j], main.t)
+    assert main.adaptive.shape[1] == 3  # one entity, one instance per estimate
+    assert_scalars_exact(entities, "signals/adaptive/eps_hat", main.adaptive, main.t)
     for i in range(2):
         assert_scalars_exact(entities, f"signals/state/x{i + 1}/x", main.x[:, i], main.t)
         assert_scalars_exact(entities, f"signals/state/x{i + 1}/q", main.x_q[:, i], main.t)
-        assert_scalars_exact(entities, f"theory/lemma2/z{i + 1}", main.e_z[:, i] / main.L_z[i], main.t)
+    ratios = np.stack([main.e_z[:, i] / main.L_z[i] for i in range(2)], axis=1)
+    assert_scalars_exact(entities, "theory/lemma2/ratios", ratios, main.t)
+    legend = static_value(entities["theory/lemma2/ratios"], "SeriesLines:names")
+    assert legend == ["|e_z1| / L_z1", "|e_z2| / L_z2"]
     assert_scalars_exact(entities, "signals/tracking/y_ode", ghost.y, ghost.t)
     assert_scalars_exact(entities, "signals/input/u_ode", ghost.u, ghost.t)
     assert not np.array_equal(main.u, ghost.u)  # the two runs really are different data
+
+
+def test_quantization_error_and_its_band(compare_recording):
+    """x_meas - q(x_meas) per state, inside the band +-delta/2 drawn beside it (delta = 0.01)."""
+    path, main, _, _ = compare_recording
+    entities = read_entities(path)
+    for i in range(2):
+        error = main.x_meas[:, i] - main.x_q[:, i]
+        assert_scalars_exact(entities, f"signals/quantization/x{i + 1}/error", error, main.t)
+        assert np.max(np.abs(error)) <= 0.005 and np.max(np.abs(error)) > 0.004  # the band, nearly reached
+        times, band = temporal(entities[f"signals/quantization/x{i + 1}/band"], "Scalars:scalars")
+        np.testing.assert_array_equal(band, [[0.005, -0.005]] * 2)  # +-delta/2 ...
+        assert times[0] == 0 and times[-1] == sim_time_ns(main.t)[-1]  # ... across the whole run
+
+
+def test_twin_differences_equal_the_runs(compare_recording):
+    """|y_main - y_twin| and |u_main - u_twin| at every row, as series of their own."""
+    path, main, ghost, _ = compare_recording
+    entities = read_entities(path)
+    assert_scalars_exact(entities, "signals/difference/y/ode", np.abs(main.y - ghost.y), main.t)
+    assert_scalars_exact(entities, "signals/difference/u/ode", np.abs(main.u - ghost.u), main.t)
+    assert np.max(np.abs(main.y - ghost.y)) > 0
+
+
+def test_main_series_drawn_wide_under_the_thin_twin(compare_recording):
+    """Where MuJoCo and its twin coincide, both show: the main run wide, the twin thin on top, and
+    the legend says which is which."""
+    entities = read_entities(compare_recording[0])
+    for signal in ("tracking/y", "error/z1", "input/u"):
+        main, twin = entities[f"signals/{signal}"], entities[f"signals/{signal}_ode"]
+        name = signal.split("/")[1]
+        # the main run's style was logged twice (before and after the twin joined): the last holds
+        assert static_values(main, "SeriesLines:names")[-1] == [f"{name} (mujoco, wide)"]
+        assert static_value(twin, "SeriesLines:names") == [f"{name} (ode, thin)"]
+        wide = static_values(main, "SeriesLines:widths")[-1][0]
+        assert wide >= 3 * static_value(twin, "SeriesLines:widths")[0]
 
 
 def test_expected_entities_and_static_content(compare_recording):
@@ -199,6 +247,11 @@ def test_expected_entities_and_static_content(compare_recording):
         "world/ode_ghost/arm/rod",
         "world/ode_ghost/arm/bob",
         "world/target",
+        "signals/quantization/x1/error",
+        "signals/quantization/x1/band",
+        "signals/quantization/x2/band",
+        "signals/difference/y/ode",
+        "signals/difference/u/ode",
         "signals/tracking/y",
         "signals/tracking/y_d",
         "signals/tracking/y_ode",
@@ -206,15 +259,12 @@ def test_expected_entities_and_static_content(compare_recording):
         "signals/error/z1_ode",
         "signals/input/u",
         "signals/input/u_ode",
-        "signals/adaptive/eps_hat_1",
-        "signals/adaptive/eps_hat_2",
-        "signals/adaptive/eps_hat_3",
+        "signals/adaptive/eps_hat",
         "signals/state/x1/x",
         "signals/state/x1/q",
         "signals/state/x2/x",
         "signals/state/x2/q",
-        "theory/lemma2/z1",
-        "theory/lemma2/z2",
+        "theory/lemma2/ratios",
         "theory/lemma2/bound",
         "info/scenario",
         "info/constants",
@@ -263,19 +313,19 @@ def test_bodies_follow_the_joint_and_target_follows_the_reference(compare_record
         np.testing.assert_allclose(target[k], data.geom_xpos[bob], atol=1e-6)
 
 
-def test_blueprint_is_present(compare_recording):
-    reader = RrdReader(compare_recording[0])
-    (blueprint,) = reader.blueprints()
-    views = {}
-    for chunk in reader.stream(store=blueprint):
-        batch = chunk.to_record_batch()
-        if "ViewBlueprint:display_name" in batch.column_names:
-            name = batch.column("ViewBlueprint:display_name").to_pylist()[0][0]
-            views[name] = batch.column("ViewBlueprint:space_origin").to_pylist()[0][0]
-    assert views["motion"] == "world"
-    assert views["tracking error z1 = y - y_d"] == "signals/error"
-    assert views["output y and reference y_d"] == "signals/tracking"
-    assert views["x2 and q(x2)"] == "signals/state/x2"
+def test_twin_body_is_an_outline_around_the_main_body(compare_recording):
+    """The twin's bodies are wireframes 15 % larger than the main run's, so they show where the
+    two coincide."""
+    entities = read_entities(compare_recording[0])
+    transparent_fill_wireframe = 4  # rerun.components.FillMode
+    assert rr.components.FillMode.TransparentFillMajorWireframe.value == transparent_fill_wireframe
+    body = static_value(entities["world/bodies/arm/bob"], "Ellipsoids3D:half_sizes")
+    ghost = static_value(entities["world/ode_ghost/arm/bob"], "Ellipsoids3D:half_sizes")
+    np.testing.assert_allclose(ghost, 1.15 * np.asarray(body), rtol=1e-6)
+    assert static_value(entities["world/ode_ghost/arm/bob"], "Ellipsoids3D:fill_mode") == [
+        transparent_fill_wireframe]
+    assert static_value(entities["world/bodies/arm/bob"], "Ellipsoids3D:fill_mode") == [
+        rr.components.FillMode.Solid.value]
 
 
 def test_rerun_cli_accepts_the_file(compare_recording):

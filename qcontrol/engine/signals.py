@@ -88,19 +88,46 @@ def _bound_ratio(block: Block, ctx: SignalContext) -> np.ndarray:
     return out
 
 
+def _quantization_error(block: Block, ctx: SignalContext) -> np.ndarray:
+    """What quantization took from the reading, ``x_meas - q(x_meas)``: within +-delta/2, eq. (4)."""
+    return block["x_meas"] - block["x_q"]
+
+
+@dataclass(frozen=True)
+class Guide:
+    """Constant lines a recording draws in a plot's panel, the bound the plotted signal respects:
+    one entity ``name`` in the panel, one line per legend label, at ``levels``, a function of the
+    run's Lemma 2 bounds ``L_z`` (``L_z[0] = delta/2``, the quantizer's largest error)."""
+
+    name: str
+    labels: tuple[str, ...]
+    levels: Callable[[np.ndarray], tuple[float, ...]]
+
+
+LEMMA2_BOUND = Guide("bound", ("bound 1",), lambda L_z: (1.0,))
+HALF_STEP = Guide("band", ("+delta/2", "-delta/2"), lambda L_z: (float(L_z[0]), -float(L_z[0])))
+
+
 @dataclass(frozen=True)
 class Plot:
     """Where recordings draw a signal: one series per shown component, at ``path`` with the legend
-    ``label`` (``{i}`` is the component's number from 1, ``{a}`` the adaptive state's name).
+    ``label`` (``{i}`` is the component's number from 1, ``{a}`` the adaptive state's name; a path
+    without ``{i}`` holds all components as instances of one entity). The path's parent is the
+    series' panel (one plot of the layout: ``signals/input`` holds ``u`` and
+    whatever else is drawn there); a panel the layout does not know becomes a tab of its own.
     ``components``: the ones shown (None: all); ``per_bound``: divided by the Lemma 2 bound L_zi;
-    ``twin``: also drawn for a twin run (the ODE beside MuJoCo); ``color``: "main", "reference",
-    "quantized" or "palette" (one colour per component)."""
+    ``twin``: also drawn for a twin run (the ODE beside MuJoCo: MuJoCo wide, the twin thin on
+    top); ``difference``: the panel where a twin's ``|main - twin|`` of it is drawn; ``guide``: the
+    bound drawn as constant lines in the panel; ``color``: "main", "reference", "quantized" or
+    "palette" (one colour per component)."""
 
     path: str
     label: str
     components: tuple[int, ...] | None = None
     per_bound: bool = False
     twin: bool = False
+    difference: str | None = None
+    guide: Guide | None = None
     color: str = "main"
 
 
@@ -139,14 +166,16 @@ class Signal:
 
 SIGNALS: tuple[Signal, ...] = (
     Signal("x", "n", "state", False, "true state x_1..x_n of eq. (1) (never shown to the controller)",
-           plots=(Plot("signals/tracking/y", "y", (0,), twin=True), Plot("signals/state/x{i}/x", "x{i}"))),
+           plots=(Plot("signals/tracking/y", "y", (0,), twin=True, difference="signals/difference/y"),
+                   Plot("signals/state/x{i}/x", "x{i}"))),
     Signal("x_meas", "n", "state", False, "sensor reading of x, before quantization"),
     Signal("x_q", "n", "state", True, "quantized reading q(x_meas), eq. (3): all the controller sees",
            plots=(Plot("signals/state/x{i}/q", "q(x{i})", color="quantized"),)),
     Signal("u", "1", "input", True, "input held over [t_k, t_k + dt): law (44), (46) or a user law",
-           reductions=(LargestAbs,), plots=(Plot("signals/input/u", "u", twin=True),)),
+           reductions=(LargestAbs,),
+           plots=(Plot("signals/input/u", "u", twin=True, difference="signals/difference/u"),)),
     Signal("adaptive", "m", "adaptive", False, "adaptive estimates (eps_hat of (45), theta_hat of (46), ...)",
-           reductions=(FinalValue,), plots=(Plot("signals/adaptive/{a}_{i}", "{a}_{i}", color="palette"),)),
+           reductions=(FinalValue,), plots=(Plot("signals/adaptive/{a}", "{a}_{i}", color="palette"),)),
     Signal("yd", "n+1", "y", False, "reference y_d and its derivatives y_d', ..., y_d^(n)", shared=True,
            plots=(Plot("signals/tracking/y_d", "y_d", (0,), color="reference"),)),
     Signal("z", "n", "state", False, "errors z_i of eqs. (7)-(8), from the true state", _z,
@@ -157,10 +186,15 @@ SIGNALS: tuple[Signal, ...] = (
     Signal("e_z", "n", "state", False, "Lemma 2 errors |z_i(x_meas) - zbar_i| (bound L_zi)", _e_z,
            reads=("x_meas", "yd", "zbar"),
            reductions=(Lemma2Largest,),
-           plots=(Plot("theory/lemma2/z{i}", "|e_z{i}| / L_z{i}", per_bound=True, color="palette"),)),
+           plots=(Plot("theory/lemma2/ratios", "|e_z{i}| / L_z{i}", per_bound=True, guide=LEMMA2_BOUND,
+                       color="palette"),)),
     Signal("bound_ratio", "terms", "ratio", False,
            "|term_i| / r_i(x_q) of the separation (37)-(43) (phi_1..phi_l, then psi), at x and at x_q",
            _bound_ratio, reads=("x", "x_q"), reductions=(BoundConstants,)),
+    Signal("quantization_error", "n", "state", False,
+           "quantization error x_meas - q(x_meas) of the reading the quantizer saw (|.| <= delta/2)",
+           _quantization_error, reads=("x_meas", "x_q"),
+           plots=(Plot("signals/quantization/x{i}/error", "x{i} - q(x{i})", guide=HALF_STEP),)),
 )
 RECORDED = tuple(s for s in SIGNALS if s.recorded)
 DERIVED = tuple(s for s in SIGNALS if s.derive is not None)

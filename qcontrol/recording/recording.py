@@ -1,13 +1,19 @@
 """Rerun recordings of closed-loop runs: 3-D motion, every signal, Lemma 2 margins, a default layout.
 
 A :class:`Recording` writes one ``.rrd`` file while runs go on. Each run streams into it through an
-engine observer (:meth:`Recording.observer`, see :func:`qcontrol.engine.simulate`): every call sends
-the rows that became final as columns (``send_columns``) on the duration timeline ``sim_time`` and
-flushes them to disk, so an interrupted or diverged run leaves a readable recording up to its last
-chunk. The series come from the signal table (:mod:`.series`), the 3-D bodies from the MuJoCo
-model (:mod:`.scene`); the static entities are ``info/scenario``, ``info/constants`` and
-``info/version``. Times are integer nanoseconds ``round(t * 1e9)``. Only ``runs[0]`` of a batch
-is streamed.
+engine observer (:meth:`Recording.observer`, see :func:`qcontrol.engine.simulate`; the streamer is
+in :mod:`.streamer`): every call sends the rows that became final as columns (``send_columns``) on
+the duration timeline ``sim_time`` and flushes them to disk, so an interrupted or diverged run
+leaves a readable recording up to its last chunk. The series come from the signal table
+(:mod:`.series`), the 3-D bodies from the MuJoCo model (:mod:`.scene`); the static entities are
+``info/scenario``, ``info/constants`` and ``info/version``. Times are integer nanoseconds
+``round(t * 1e9)``. Only ``runs[0]`` of a batch is streamed.
+
+The layout (:mod:`.layout`, with the fixed camera of :mod:`.camera`) is sent active and default,
+so every viewer (native, ``--web-viewer``, one already open) shows it. It is sent when the first
+run starts and again only when it changes: a twin run adds its difference panels, and a slide
+that travels beyond what its camera framed gets a camera that frames the whole run when the
+recording is closed.
 
 File handling: data goes to ``<path>.part`` while the recording is open. On *any* exit of the
 ``with`` block (clean, exception, ``KeyboardInterrupt``) the stream is flushed and closed and the
@@ -30,26 +36,24 @@ import numpy as np
 from ..engine import Observer, Trajectory
 from ..errors import QcontrolInputError
 from ..outputs import AtomicFile, clean
+from .camera import TRAVEL_MARGIN, Camera, fixed_camera
+from .layout import default_blueprint
 from .scene import Scene
-from .series import RED, TIMELINE, Series, default_blueprint, run_series
+from .series import GREEN, LIGHT, RED, Panel, Series
+from .streamer import RunStreamer
 from .viewer import start_viewer, viewer_url
 
 if TYPE_CHECKING:
     import mujoco
     import rerun as rr
 
-_GHOST_ALPHA = 70
+_COMPARISON_ALPHA = 90
 _MAIN_RUN_TAKEN = "a main (non-ghost) run is already being recorded into this file"
 
 
 def temporary_path(path: Path) -> Path:
     """The name a recording is written under until it is closed: ``<path>.part``."""
     return path.with_name(path.name + ".part")
-
-
-def time_nanoseconds(t: np.ndarray) -> np.ndarray:
-    """The ``sim_time`` values logged for times ``t`` (seconds): ``round(t * 1e9)`` as int64 ns."""
-    return np.round(np.asarray(t, dtype=float) * 1e9).astype(np.int64)
 
 
 def _label_suffix(label: str) -> str:
@@ -81,8 +85,15 @@ class Recording:
         self._stream: rr.RecordingStream | None = None
         self._main_taken = False
         self._ghosts: set[str] = set()
-        self._blueprint_sent = False
         self._fixed_logged = False
+        self._panels: set[Panel] = set()
+        self._scene: Scene | None = None  # the first run's scene: the camera's model
+        self._travel = (np.inf, -np.inf)  # joint positions (and reference) seen so far
+        self._framed: tuple[float, float] | None = None  # what the camera sent frames
+        self._camera: Camera | None = None
+        self._layout_sent: tuple[frozenset[Panel], Camera | None] | None = None
+        self.main_series: list[Series] = []  # the main run's, restyled once a twin is drawn on them
+        self.main_label = "main"
         self._flush_failed = False
         self._open()
 
@@ -132,6 +143,7 @@ class Recording:
         if self._stream is None:
             return
         try:
+            self.update_layout(final=True)
             self.flush()
             self._stream.disconnect()  # closes the file: writes rerun's footer
         finally:
@@ -193,6 +205,7 @@ class Recording:
         model: mujoco.MjModel | None = None,
         joint: str | None = None,
         ghost: bool = False,
+        twin_of: Trajectory | None = None,
     ) -> Observer:
         """An engine observer streaming ``runs[0]`` of a :func:`~qcontrol.engine.simulate` call.
 
@@ -200,8 +213,13 @@ class Recording:
         ghost, its entity paths (``world/{label}_ghost``, ``signals/tracking/y_{label}``, ...).
         With ``model`` the bodies are drawn and posed by replaying x1 into ``joint`` (a hinge or
         slide; may be omitted when the model has one joint). One main run per recording; a ghost
-        run adds the translucent twin and its y, z1, u.
+        run adds its body and its y, z1, u. A ghost with ``twin_of`` (the main run's trajectory,
+        the same closed loop on another backend) is the main run's twin: drawn thin on top of the
+        main run's wide series, as an outline around its body, with ``|main - twin|`` recorded;
+        any other ghost (another controller) is drawn in its own colour.
         """
+        if twin_of is not None and not ghost:
+            raise ValueError("twin_of names the main run a ghost run is the twin of: pass ghost=True")
         if self._stream is None:
             return _ignore
         if ghost:
@@ -209,18 +227,19 @@ class Recording:
             if suffix in self._ghosts:
                 raise ValueError(f"a ghost run labelled {label!r} is already being recorded")
             self._ghosts.add(suffix)
-            world = f"world/{suffix}_ghost"
+            world, role = f"world/{suffix}_ghost", "twin" if twin_of is not None else "comparison"
         else:
             if self._main_taken:
                 raise ValueError(_MAIN_RUN_TAKEN)
             self._main_taken = True
-            suffix, world = "", "world/bodies"
+            suffix, world, role = "", "world/bodies", "main"
         scene = None if model is None else Scene(model, joint)
         if scene is not None:
-            self._log_scene(scene, world, ghost)
-        return _RunStreamer(self, label, suffix, ghost, scene, world)
+            self._log_scene(scene, world, role)
+            self._scene = self._scene or scene
+        return RunStreamer(self, label, suffix, role, scene, world, twin_of)
 
-    def _log_scene(self, scene: Scene, world: str, ghost: bool) -> None:
+    def _log_scene(self, scene: Scene, world: str, role: str) -> None:
         """The static geometry: shapes in their bodies, world-body geoms, the target marker."""
         import rerun as rr
 
@@ -229,15 +248,17 @@ class Recording:
             if geom.body == 0 and self._fixed_logged:
                 continue
             parent = "world/fixed" if geom.body == 0 else f"{world}/{scene.body_names[geom.body]}"
-            rgba = (*geom.rgba[:3], _GHOST_ALPHA) if ghost else geom.rgba
+            moving = geom.body != 0  # a ghost's look is for its bodies; the world's geoms are shared
+            rgba = {"main": geom.rgba, "twin": (*LIGHT, 255), "comparison": (*GREEN, _COMPARISON_ALPHA)}[
+                role if moving else "main"]
             stream.log(
                 f"{parent}/{geom.name}",
                 rr.Transform3D(translation=geom.pos, quaternion=rr.Quaternion(xyzw=geom.quat_xyzw)),
-                geom.shape(rgba),
+                geom.shape(rgba, role == "twin" and moving),
                 static=True,
             )
         self._fixed_logged = True
-        if not ghost:
+        if role == "main":
             radius = 1.3 * max(scene.tip_radius, 0.01)
             stream.log(
                 "world/target",
@@ -249,93 +270,47 @@ class Recording:
                 static=True,
             )
 
-    def _send_blueprint(self, n: int) -> None:
-        if not self._blueprint_sent:
-            self._stream.send_blueprint(default_blueprint(n), make_active=False, make_default=True)
-            self._blueprint_sent = True
+    # -- layout ----------------------------------------------------------------------------
+
+    def add_panels(self, panels: list[Panel]) -> None:
+        """Panels a run's series fill; the layout shows them from its next update."""
+        self._panels.update(panels)
+
+    def see_motion(self, positions: np.ndarray) -> None:
+        """Joint positions (and reference positions) drawn in 3-D: the camera frames them."""
+        finite = positions[np.isfinite(positions)]
+        if finite.size:
+            low, high = self._travel
+            self._travel = (min(low, float(finite.min())), max(high, float(finite.max())))
+
+    def _current_camera(self) -> Camera | None:
+        """The camera for what was seen so far; kept while the travel stays inside what it framed."""
+        if self._scene is None:
+            return None
+        low, high = self._travel
+        framed = self._framed
+        outside = framed is None or not framed[0] <= low <= high <= framed[1]
+        if self._camera is None or (np.isfinite(low) and outside):
+            self._camera = fixed_camera(self._scene, low, high)
+            margin = TRAVEL_MARGIN * (high - low)
+            self._framed = (low - margin, high + margin) if np.isfinite(low) else None
+        return self._camera
+
+    def update_layout(self, final: bool = False) -> None:
+        """Send the layout (active and default) if it differs from the one sent last. The camera
+        is re-made only for the closing update (``final``) or the first one, so that a live viewer
+        does not jump while a run goes on."""
+        if self._stream is None or not self._panels:
+            return
+        camera = self._current_camera() if final or self._layout_sent is None else self._camera
+        layout = (frozenset(self._panels), camera)
+        if layout != self._layout_sent:
+            self._stream.send_blueprint(default_blueprint(list(self._panels), camera),
+                                        make_active=True, make_default=True)
+            self._layout_sent = layout
 
 
 def _format_constant(value: float | Sequence[float]) -> str:
     values = np.atleast_1d(np.asarray(value, dtype=float))
     text = ", ".join(f"{v:.6g}" for v in values)
     return text if np.ndim(value) == 0 else f"[{text}]"
-
-
-class _RunStreamer:
-    """The observer of one run: sends each batch of final rows as columns and flushes them."""
-
-    def __init__(
-        self, recording: Recording, label: str, suffix: str, ghost: bool, scene: Scene | None, world: str
-    ) -> None:
-        self.recording = recording
-        self.label = label
-        self.suffix = suffix
-        self.ghost = ghost
-        self.scene = scene
-        self.world = world
-        self.series: list[Series] | None = None
-
-    def __call__(self, start: int, stop: int, runs: list[Trajectory]) -> None:
-        stream = self.recording._stream
-        if stream is None or not runs:
-            return
-        run = runs[0]
-        stop = min(stop, len(run.t))
-        if start >= stop:
-            return
-        if self.series is None:
-            self._start(run)
-        rows = slice(start, stop)
-        times = self._time_column(run.t[rows])
-        import rerun as rr
-
-        for s in self.series:
-            stream.send_columns(
-                s.path, indexes=[times], columns=rr.Scalars.columns(scalars=s.values(run)[rows])
-            )
-        if not self.ghost:
-            ends = self._time_column(run.t[[start, stop - 1]])
-            stream.send_columns(
-                "theory/lemma2/bound", indexes=[ends], columns=rr.Scalars.columns(scalars=[1.0, 1.0])
-            )
-        if self.scene is not None:
-            self._send_poses(run, rows, times)
-        self.recording.flush()
-
-    @staticmethod
-    def _time_column(t: np.ndarray) -> rr.TimeColumn:
-        import rerun as rr
-
-        return rr.TimeColumn(TIMELINE, duration=time_nanoseconds(t).view("timedelta64[ns]"))
-
-    def _start(self, run: Trajectory) -> None:
-        """On the first rows: the series styles (static) and, once per file, the blueprint."""
-        import rerun as rr
-
-        stream = self.recording._stream
-        self.series = run_series(run, self.label, self.suffix if self.ghost else None)
-        for s in self.series:
-            mode = "StepAfter" if s.step else "Linear"
-            stream.log(
-                s.path, rr.SeriesLines(names=s.name, colors=[s.color], interpolation_mode=mode), static=True
-            )
-        if not self.ghost:
-            stream.log("theory/lemma2/bound", rr.SeriesLines(names="bound 1", colors=[RED]), static=True)
-        self.recording._send_blueprint(run.x.shape[1])
-
-    def _send_poses(self, run: Trajectory, rows: slice, times: rr.TimeColumn) -> None:
-        import rerun as rr
-
-        stream, scene = self.recording._stream, self.scene
-        pos, quat, _ = scene.replay(run.x[rows, 0])
-        for j, body in enumerate(scene.bodies):
-            stream.send_columns(
-                f"{self.world}/{scene.body_names[body]}",
-                indexes=[times],
-                columns=rr.Transform3D.columns(translation=pos[:, j], quaternion=quat[:, j]),
-            )
-        if not self.ghost:
-            _, _, target = scene.replay(run.yd[rows, 0])
-            stream.send_columns(
-                "world/target", indexes=[times], columns=rr.Transform3D.columns(translation=target)
-            )

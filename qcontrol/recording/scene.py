@@ -7,7 +7,9 @@ Entity layout (``{L}`` a twin run's label, e.g. ``ode``)::
     world/fixed/{geom}             geoms of MuJoCo's world body, static
     world/bodies/{body}            Transform3D per row: the body pose from the replayed joint position
     world/bodies/{body}/{geom}     the geom's shape and its pose in the body, static
-    world/{L}_ghost/{body}[/{geom}]  the same for a twin run, translucent
+    world/{L}_ghost/{body}[/{geom}]  the same for a ghost run: a twin as an outline (a wireframe 15 %
+                                   larger than the body, so it shows around the body where the two
+                                   coincide), another run as a tinted translucent body
     world/target                   Transform3D per row: where the tip geom would be at y_d
 """
 
@@ -34,45 +36,59 @@ def entity_name(name: str, fallback: str) -> str:
     return cleaned or fallback
 
 
+RGBA = tuple[int, int, int, int]
+OUTLINE_SCALE = 1.15  # a twin's outline is this much larger than the body it may coincide with
+
+
 @dataclass(frozen=True)
 class Geom:
     """One drawable MuJoCo geom: its entity name, the rerun shape, its pose in its body."""
 
     name: str
     body: int
-    shape: Callable[[tuple[int, int, int, int]], Any]  # colour -> rerun archetype
-    rgba: tuple[int, int, int, int]
+    shape: Callable[[RGBA, bool], Any]  # (colour, outline) -> rerun archetype
+    rgba: RGBA
     pos: np.ndarray
     quat_xyzw: np.ndarray
 
 
-def _geom_shape(model: mujoco.MjModel, g: int) -> Callable[[tuple[int, int, int, int]], Any] | None:
-    """A factory for the rerun archetype drawing geom ``g`` centred at its frame, or None."""
+def _geom_shape(model: mujoco.MjModel, g: int) -> Callable[[RGBA, bool], Any] | None:
+    """A factory ``(colour, outline) -> rerun archetype`` drawing geom ``g`` centred at its frame
+    (solid, or with ``outline`` a wireframe ``OUTLINE_SCALE`` times larger), or None."""
     import rerun as rr
 
     kind, size = int(model.geom_type[g]), model.geom_size[g].astype(float)
-    solid = rr.components.FillMode.Solid
+
+    def fill(outline: bool) -> rr.components.FillMode:
+        mode = rr.components.FillMode
+        return mode.TransparentFillMajorWireframe if outline else mode.Solid
+
+    def grown(outline: bool) -> float:
+        return OUTLINE_SCALE if outline else 1.0
+
     if kind == _SPHERE:
-        return lambda c: rr.Ellipsoids3D(half_sizes=[[size[0]] * 3], colors=[c], fill_mode=solid)
+        return lambda c, o: rr.Ellipsoids3D(half_sizes=[[size[0] * grown(o)] * 3], colors=[c],
+                                            fill_mode=fill(o))
     if kind == _ELLIPSOID:
-        return lambda c: rr.Ellipsoids3D(half_sizes=[size], colors=[c], fill_mode=solid)
+        return lambda c, o: rr.Ellipsoids3D(half_sizes=[size * grown(o)], colors=[c], fill_mode=fill(o))
     if kind == _CAPSULE:  # MuJoCo: centred, half-length size[1]; rerun: from z=0 to z=length
-        return lambda c: rr.Capsules3D(
-            lengths=[2 * size[1]], radii=[size[0]], translations=[[0, 0, -size[1]]], colors=[c]
-        )
+        return lambda c, o: rr.Capsules3D(lengths=[2 * size[1]], radii=[size[0] * grown(o)],
+                                          translations=[[0, 0, -size[1]]], colors=[c], fill_mode=fill(o))
     if kind == _CYLINDER:
-        return lambda c: rr.Cylinders3D(lengths=[2 * size[1]], radii=[size[0]], colors=[c], fill_mode=solid)
+        return lambda c, o: rr.Cylinders3D(lengths=[2 * size[1] * grown(o)], radii=[size[0] * grown(o)],
+                                           colors=[c], fill_mode=fill(o))
     if kind == _BOX:
-        return lambda c: rr.Boxes3D(half_sizes=[size], colors=[c], fill_mode=solid)
+        return lambda c, o: rr.Boxes3D(half_sizes=[size * grown(o)], colors=[c], fill_mode=fill(o))
     if kind == _PLANE and size[0] > 0 and size[1] > 0:  # a finite plane; infinite ones are left out
-        return lambda c: rr.Boxes3D(half_sizes=[[size[0], size[1], 1e-3]], colors=[c], fill_mode=solid)
-    if kind == _MESH and model.geom_dataid[g] >= 0:
+        return lambda c, o: rr.Boxes3D(half_sizes=[[size[0], size[1], 1e-3]], colors=[c], fill_mode=fill(o))
+    if kind == _MESH and model.geom_dataid[g] >= 0:  # no wireframe for meshes: translucent instead
         mesh = int(model.geom_dataid[g])
         v0, nv = int(model.mesh_vertadr[mesh]), int(model.mesh_vertnum[mesh])
         f0, nf = int(model.mesh_faceadr[mesh]), int(model.mesh_facenum[mesh])
         vertices = model.mesh_vert[v0 : v0 + nv].copy()
         faces = model.mesh_face[f0 : f0 + nf].copy()
-        return lambda c: rr.Mesh3D(vertex_positions=vertices, triangle_indices=faces, albedo_factor=c)
+        return lambda c, o: rr.Mesh3D(vertex_positions=vertices * grown(o), triangle_indices=faces,
+                                      albedo_factor=(*c[:3], min(c[3], 110)) if o else c)
     return None
 
 
@@ -164,38 +180,53 @@ class Scene:
             body = int(self.model.body_parentid[body])
         return body == ancestor
 
-    def replay(self, position: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Body positions (rows, bodies, 3), quaternions xyzw (rows, bodies, 4) and the tip geom's
-        position (rows, 3) with the joint at each of ``position``; NaN where it is not finite.
+    def replay(self, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Body positions (rows, bodies, 3) and quaternions xyzw (rows, bodies, 4) with the joint
+        at each of ``position``; NaN where it is not finite.
 
         One joint moves, so every pose is the reference pose (``qpos0``, from ``mj_kinematics``)
         carried by one rigid motion: a rotation by ``q - q0`` about the hinge's world axis through
         its anchor, or a translation by ``q - q0`` along the slide's axis. Bodies that do not
-        descend from the joint's body stay put. Evaluated for all rows at once.
+        descend from the joint's body stay put. Evaluated for all rows at once, from terms
+        prepared once (:meth:`_turn_terms`): per row only a cosine and a sine are new.
         """
         q = np.asarray(position, dtype=float) - self.q0
         ids, moving = self.bodies, self.moving
         rows = len(q)
         xpos = np.broadcast_to(self.xpos0[ids], (rows, len(ids), 3)).copy()
-        xquat = np.broadcast_to(self.xquat0[ids], (rows, len(ids), 4)).copy()
-        tip = np.broadcast_to(self.tip0, (rows, 3)).copy()
-        axis, anchor = self.axis, self.anchor
+        xquat = np.broadcast_to(self.xquat0[ids][:, [1, 2, 3, 0]], (rows, len(ids), 4)).copy()
         if self.hinge:
-            half = 0.5 * q
-            turn = np.concatenate([np.cos(half)[:, None], np.sin(half)[:, None] * axis], axis=1)  # wxyz
-            rotate = _rotation_matrices(turn)
-            moved = self.xpos0[ids][moving] - anchor
-            xpos[:, moving] = anchor + np.einsum("rij,bj->rbi", rotate, moved)
-            xquat[:, moving] = _quat_multiply(turn[:, None, :], self.xquat0[ids][moving][None])
-            if self.tip_moves:
-                tip = anchor + np.einsum("rij,j->ri", rotate, self.tip0 - anchor)
+            xpos[:, moving] = self._turned(self.body_turn, q[:, None, None])
+            half = 0.5 * q[:, None, None]
+            fixed, turning = self.quat_turn
+            xquat[:, moving] = np.cos(half) * fixed + np.sin(half) * turning
         else:
-            xpos[:, moving] += q[:, None, None] * axis
-            if self.tip_moves:
-                tip = tip + q[:, None] * axis
+            xpos[:, moving] += q[:, None, None] * self.axis
         bad = ~np.isfinite(q)
-        xpos[bad], xquat[bad], tip[bad] = np.nan, np.nan, np.nan
-        return xpos, xquat[..., [1, 2, 3, 0]], tip
+        xpos[bad], xquat[bad] = np.nan, np.nan
+        return xpos, xquat
+
+    def tip_positions(self, position: np.ndarray) -> np.ndarray:
+        """The tip geom's position (rows, 3) with the joint at each of ``position`` (the rigid
+        motion of :meth:`replay` applied to the tip); NaN where it is not finite."""
+        q = np.asarray(position, dtype=float)[:, None] - self.q0
+        if not self.tip_moves:
+            return self.tip0 + 0.0 * q
+        if not self.hinge:
+            return self.tip0 + q * self.axis
+        return self._turned(self.tip_turn, q)
+
+    def _turn_terms(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Rodrigues' formula for ``points`` (..., 3) turned by an angle about the hinge's axis
+        through its anchor, ``still + across cos + normal sin``: its three constant terms."""
+        arm, axis = points - self.anchor, self.axis
+        along = (arm @ axis)[..., None] * axis
+        return self.anchor + along, arm - along, np.cross(axis, arm)
+
+    @staticmethod
+    def _turned(terms: tuple[np.ndarray, np.ndarray, np.ndarray], angle: np.ndarray) -> np.ndarray:
+        still, across, normal = terms
+        return still + across * np.cos(angle) + normal * np.sin(angle)
 
     def _reference_pose(self, jid: int) -> None:
         """Poses at ``qpos0`` and the joint's world axis and anchor, for :meth:`replay`."""
@@ -214,6 +245,15 @@ class Scene:
         joint_body = int(model.jnt_bodyid[jid])
         self.moving = np.array([self._descends(b, joint_body) for b in self.bodies], dtype=bool)
         self.tip_moves = self._descends(int(model.geom_bodyid[self.tip_geom]), joint_body)
+        drawn = [g for g in range(model.ngeom) if self._descends(int(model.geom_bodyid[g]), joint_body)]
+        self.moving_centres = data.geom_xpos[drawn].copy()  # at qpos0, for framing the motion
+        self.moving_radii = model.geom_rbound[drawn].astype(float)
+        self.body_turn = self._turn_terms(self.xpos0[self.bodies][self.moving])
+        self.tip_turn = self._turn_terms(self.tip0)
+        # a turn by angle a is the quaternion cos(a/2) + sin(a/2) (0, axis): linear in both
+        reference = self.xquat0[self.bodies][self.moving]
+        about_axis = _quat_multiply(np.concatenate([[0.0], self.axis])[None], reference)
+        self.quat_turn = (reference[:, [1, 2, 3, 0]], about_axis[:, [1, 2, 3, 0]])
 
 
 def _quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -224,13 +264,3 @@ def _quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
                      aw * bx + ax * bw + ay * bz - az * by,
                      aw * by - ax * bz + ay * bw + az * bx,
                      aw * bz + ax * by - ay * bx + az * bw], axis=-1)
-
-
-def _rotation_matrices(quat: np.ndarray) -> np.ndarray:
-    """Rotation matrices (rows, 3, 3) of unit wxyz quaternions (rows, 4)."""
-    w, x, y, z = quat.T
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
-    ], axis=-2)

@@ -1,117 +1,190 @@
 """The time series of a recording, made from the signal table's plots
-(:data:`qcontrol.engine.signals.SIGNALS`), and the layout a recording opens with.
+(:data:`qcontrol.engine.signals.SIGNALS`).
 
-Series layout (``{L}`` a twin run's label, ``{a}`` the adaptive state's name, ``i`` from 1)::
+Series layout (``{L}`` a ghost run's label, ``{a}`` the adaptive state's name, ``i`` from 1)::
 
     signals/tracking/y, y_d, y_{L}        signals/error/z1, z1_{L}       signals/input/u, u_{L}
-    signals/adaptive/{a}_i                signals/state/x{i}/x, signals/state/x{i}/q
-    theory/lemma2/z{i}  (|e_zi| / L_zi)   theory/lemma2/bound  (the constant 1)
+    signals/adaptive/{a}  (one instance per estimate)
+    signals/state/x{i}/x, signals/state/x{i}/q
+    signals/quantization/x{i}/error       (x_meas - q(x_meas)) and band (+delta/2, -delta/2)
+    theory/lemma2/ratios  (|e_zi| / L_zi, one instance per i)   theory/lemma2/bound  (the constant 1)
+    signals/difference/y/{L}, signals/difference/u/{L}   |main - twin|, for a twin run
+
+Each series belongs to a panel, its path's parent (``signals/input``, ``signals/state/x2``): the
+layout (:mod:`.layout`) makes one plot per panel, so a series added to the table under an existing
+panel shows there, and one under a new panel gets a tab of its own. A plot whose path has no
+``{i}`` draws its components as instances of one entity (one legend entry each): one send per
+batch of rows for all of them.
+
+Three roles of a run: the *main* run (its colours); a *twin* (the same closed loop on another
+backend: its series thin and light on top of the main run's, which are then drawn wide, so both
+show where they coincide, and ``|main - twin|`` as series of their own); a *comparison* run
+(another controller: its series in their own colour).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..engine import SIGNALS, Trajectory
 from ..engine.signals import Plot, Signal
 
-if TYPE_CHECKING:
-    import rerun.blueprint as rrb
-
 TIMELINE = "sim_time"
-BLUE, ORANGE, GREY, GREEN, RED = (31, 119, 180), (255, 127, 14), (150, 150, 150), (44, 160, 44), (214, 39, 40)
-PALETTE = (BLUE, ORANGE, GREEN, RED, (148, 103, 189), (140, 86, 75))
+BLUE, ORANGE, GREEN, RED = (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40)
+PURPLE, BROWN, LIGHT = (148, 103, 189), (140, 86, 75), (245, 245, 245)
+PALETTE = (BLUE, ORANGE, GREEN, RED, PURPLE, BROWN)
 ROLE_COLORS = {"main": BLUE, "reference": ORANGE, "quantized": RED}
+WIDE, THIN = 5.0, 1.5  # line widths (points) of a main run beside its twin, and of the twin
+
+
+@dataclass(frozen=True)
+class Panel:
+    """One plot of the layout: its entity ``origin``, the ``key`` it is styled by (the origin
+    before ``{i}`` is filled in) and the component ``index`` it shows (from 1; 0 for all)."""
+
+    origin: str
+    key: str
+    index: int = 0
 
 
 @dataclass(frozen=True)
 class Series:
-    """One scalar time series: where it goes, how it is drawn, which column of a run it is."""
+    """One entity of scalar time series (one per component it shows): where it goes, how it is
+    drawn, which columns of a run it holds (``values``: ``(rows,)``, or ``(rows, k)`` for k)."""
+
+    path: str
+    labels: tuple[str, ...]
+    tag: str  # the run it belongs to, in the legend: "y (mujoco)"
+    colors: tuple[tuple[int, int, int], ...]
+    step: bool
+    values: Callable[[Trajectory], np.ndarray]
+    panel: Panel
+    drawn_for_twin: bool = False
+    width: float | None = None
+
+    @property
+    def names(self) -> list[str]:
+        return [f"{label} ({self.tag})" if self.tag else label for label in self.labels]
+
+    def beside_twin(self) -> Series:
+        """The main run's series once a twin is drawn on top of it: wide, and labelled so."""
+        return replace(self, tag=f"{self.tag}, wide" if self.tag else "wide", width=WIDE)
+
+
+@dataclass(frozen=True)
+class GuideLine:
+    """Constant lines of a panel (a bound): their path, legend names and levels."""
+
+    path: str
+    names: tuple[str, ...]
+    levels: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class Difference:
+    """``|main - twin|`` of one twin-drawn series (``values`` is its column of either run)."""
 
     path: str
     name: str
-    color: tuple[int, int, int]
     step: bool
     values: Callable[[Trajectory], np.ndarray]
+    panel: Panel
 
 
-def _column(signal: Signal, i: int, per_bound: bool) -> Callable[[Trajectory], np.ndarray]:
+def _columns(signal: Signal, shown: tuple[int, ...], per_bound: bool) -> Callable[[Trajectory], np.ndarray]:
     if signal.width == "1":
         return lambda run: run.signals[signal.name]
+    if len(shown) == 1:
+        (i,) = shown
+        if per_bound:
+            return lambda run: run.signals[signal.name][:, i] / run.L_z[i]
+        return lambda run: run.signals[signal.name][:, i]
+    index = list(shown)
     if per_bound:
-        return lambda run: run.signals[signal.name][:, i] / run.L_z[i]
-    return lambda run: run.signals[signal.name][:, i]
+        return lambda run: run.signals[signal.name][:, index] / run.L_z[index]
+    return lambda run: run.signals[signal.name][:, index]
 
 
-def _components(signal: Signal, plot: Plot, run: Trajectory) -> range | tuple[int, ...]:
+def _groups(signal: Signal, plot: Plot, run: Trajectory) -> list[tuple[int, ...]]:
+    """The components of each entity a plot draws: one each if its path has ``{i}``, else all."""
     if plot.components is not None:
-        return plot.components
-    array = run.signals[signal.name]
-    return range(1 if array.ndim == 1 else array.shape[1])
+        shown = tuple(plot.components)
+    else:
+        array = run.signals[signal.name]
+        shown = tuple(range(1 if array.ndim == 1 else array.shape[1]))
+    return [(i,) for i in shown] if "{i}" in plot.path else [shown]
 
 
-def run_series(run: Trajectory, label: str, twin: str | None = None) -> list[Series]:
-    """The series of a run: every plot of the table for the main run (its twin-drawn series'
-    names tagged with ``label``), or, for a twin run labelled ``twin``, the twin-drawn plots at
-    ``<path>_<twin>`` in grey."""
-    tag = f" ({label})" if label else ""
-    series = []
+def _panel(template: str, i: int, adaptive: str) -> Panel:
+    key = template.rsplit("/", 1)[0]
+    return Panel(key.format(i=i + 1, a=adaptive), key, i + 1 if "{i}" in key else 0)
+
+
+def _plots(run: Trajectory, twin_drawn_only: bool):
+    """(signal, plot, components) of every entity the table draws for a run."""
     for signal in SIGNALS:
         for plot in signal.plots:
-            if twin is not None and not plot.twin:
+            if twin_drawn_only and not plot.twin:
                 continue
-            for i in _components(signal, plot, run):
-                path = plot.path.format(i=i + 1, a=run.adaptive_name)
-                name = plot.label.format(i=i + 1, a=run.adaptive_name)
-                if twin is not None:
-                    path, name, color = f"{path}_{twin}", f"{name} ({twin})", GREY
-                else:
-                    name += tag if plot.twin else ""
-                    color = PALETTE[i % len(PALETTE)] if plot.color == "palette" else ROLE_COLORS[plot.color]
-                series.append(Series(path, name, color, signal.held, _column(signal, i, plot.per_bound)))
+            for shown in _groups(signal, plot, run):
+                yield signal, plot, shown
+
+
+def run_series(run: Trajectory, label: str, role: str = "main", suffix: str = "") -> list[Series]:
+    """The series of a run: every plot of the table for the main run (its twin-drawn series
+    tagged with ``label``); for a ghost run (``role`` "twin" or "comparison", entity ``suffix``),
+    the twin-drawn plots at ``<path>_<suffix>``, thin and light for a twin, green otherwise."""
+    series = []
+    for signal, plot, shown in _plots(run, role != "main"):
+        first, name = shown[0], run.adaptive_name
+        path = plot.path.format(i=first + 1, a=name)
+        labels = tuple(plot.label.format(i=i + 1, a=name) for i in shown)
+        panel = _panel(plot.path, first, name)
+        values = _columns(signal, shown, plot.per_bound)
+        if role == "main":
+            colors = tuple(PALETTE[i % len(PALETTE)] if plot.color == "palette" else ROLE_COLORS[plot.color]
+                           for i in shown)
+            series.append(Series(path, labels, label if plot.twin else "", colors, signal.held, values, panel,
+                                 plot.twin))
+        elif role == "twin":
+            series.append(Series(f"{path}_{suffix}", labels, f"{label}, thin", (LIGHT,) * len(shown),
+                                 signal.held, values, panel, True, THIN))
+        else:
+            series.append(Series(f"{path}_{suffix}", labels, label, (GREEN,) * len(shown), signal.held,
+                                 values, panel, True))
     return series
 
 
-def default_blueprint(n: int) -> rrb.Blueprint:
-    """The layout a recording opens with: motion on the left, tracking and error on the right.
+def guide_lines(run: Trajectory) -> list[GuideLine]:
+    """The constant lines of the table's guides (Lemma 2's bound 1, the band +-delta/2), once per
+    panel, at the levels of this run's bounds ``L_z``."""
+    lines, seen = [], set()
+    for _, plot, shown in _plots(run, False):
+        if plot.guide is None:
+            continue
+        panel = _panel(plot.path, shown[0], run.adaptive_name)
+        if panel.origin not in seen:
+            seen.add(panel.origin)
+            guide = plot.guide
+            lines.append(GuideLine(f"{panel.origin}/{guide.name}", guide.labels,
+                                   tuple(float(v) for v in guide.levels(run.L_z))))
+    return lines
 
-    Left column: the 3-D view (``world``) over tabs with the scenario text, the constants and the
-    version. Right column, top to bottom: y with y_d (and the twin's y), the tracking error z1, the
-    input u, and tabs for each x_i beside q(x_i), the adaptive estimates and the Lemma 2 ratios.
-    """
-    import rerun.blueprint as rrb
 
-    detail = [
-        rrb.TimeSeriesView(origin=f"signals/state/x{i + 1}", name=f"x{i + 1} and q(x{i + 1})")
-        for i in range(n)
-    ]
-    detail += [
-        rrb.TimeSeriesView(origin="signals/adaptive", name="adaptive estimates"),
-        rrb.TimeSeriesView(origin="theory/lemma2", name="Lemma 2: |e_zi| / L_zi <= 1"),
-    ]
-    left = rrb.Vertical(
-        rrb.Spatial3DView(origin="world", name="motion"),
-        rrb.Tabs(
-            rrb.TextDocumentView(origin="info/scenario", name="scenario"),
-            rrb.TextDocumentView(origin="info/constants", name="constants"),
-            rrb.TextDocumentView(origin="info/version", name="version"),
-        ),
-        row_shares=[3, 1],
-    )
-    right = rrb.Vertical(
-        rrb.TimeSeriesView(origin="signals/tracking", name="output y and reference y_d"),
-        rrb.TimeSeriesView(origin="signals/error", name="tracking error z1 = y - y_d"),
-        rrb.TimeSeriesView(origin="signals/input", name="input u"),
-        rrb.Tabs(*detail),
-        row_shares=[1, 1, 1, 1.3],
-    )
-    return rrb.Blueprint(
-        rrb.Horizontal(left, right, column_shares=[1, 1]),
-        rrb.TimePanel(timeline=TIMELINE, expanded=True),
-        rrb.BlueprintPanel(expanded=False),
-        rrb.SelectionPanel(expanded=False),
-    )
+def differences(run: Trajectory, main_label: str, twin_label: str, suffix: str) -> list[Difference]:
+    """``|main - twin|`` of every plot that names a difference panel (one component each), for a
+    twin run."""
+    found = []
+    for signal, plot, shown in _plots(run, True):
+        if plot.difference is None:
+            continue
+        (i,) = shown
+        text = plot.label.format(i=i + 1, a=run.adaptive_name)
+        name = f"|{text} ({main_label}) - {text} ({twin_label})|"
+        values = _columns(signal, shown, plot.per_bound)
+        found.append(Difference(f"{plot.difference}/{suffix}", name, signal.held, values,
+                                Panel(plot.difference, plot.difference)))
+    return found

@@ -1,0 +1,155 @@
+"""The observer of one run in a recording: it sends each batch of final rows as columns.
+
+What it sends per batch of rows: every series of the run (:func:`.series.run_series`); for the
+main run, with its first rows, the guides' constant lines (the Lemma 2 bound, the quantization
+band) from the first instant to the run's horizon; for a twin, ``|main - twin|`` of its
+twin-drawn series, against the main run's rows at the same instants; and, with a scene, the pose
+of every body (and, for the main run, of the target marker).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..engine import Trajectory
+from .scene import Scene
+from .series import BLUE, RED, TIMELINE, Difference, GuideLine, Series, differences, guide_lines, run_series
+
+if TYPE_CHECKING:
+    import rerun as rr
+
+    from .recording import Recording
+
+
+def time_nanoseconds(t: np.ndarray) -> np.ndarray:
+    """The ``sim_time`` values logged for times ``t`` (seconds): ``round(t * 1e9)`` as int64 ns."""
+    return np.round(np.asarray(t, dtype=float) * 1e9).astype(np.int64)
+
+
+def _time_column(t: np.ndarray) -> rr.TimeColumn:
+    import rerun as rr
+
+    return rr.TimeColumn(TIMELINE, duration=time_nanoseconds(t).view("timedelta64[ns]"))
+
+
+def log_style(stream: rr.RecordingStream, series: Series) -> None:
+    """A series' static look: its legend name, colour, width, steps for held signals. Zoomed out
+    (more rows than pixels) the viewer draws each pixel column's minimum and maximum, not their
+    average: a quantization error's sawtooth, u's chattering and Lemma 2's peaks keep their size."""
+    import rerun as rr
+
+    mode = "StepAfter" if series.step else "Linear"
+    widths = None if series.width is None else [series.width] * len(series.labels)
+    stream.log(series.path, rr.SeriesLines(names=series.names, colors=list(series.colors), widths=widths,
+                                           interpolation_mode=mode, aggregation_policy="MinMax"),
+               static=True)
+
+
+class RunStreamer:
+    """The observer of one run (``role``: "main", "twin" or "comparison"); see the module docstring."""
+
+    def __init__(self, recording: Recording, label: str, suffix: str, role: str, scene: Scene | None,
+                 world: str, twin_of: Trajectory | None) -> None:
+        self.recording = recording
+        self.label = label
+        self.suffix = suffix
+        self.role = role
+        self.scene = scene
+        self.world = world
+        self.twin_of = twin_of
+        self.series: list[Series] | None = None
+        self.guides: list[GuideLine] = []
+        self.differences: list[Difference] = []
+
+    def __call__(self, start: int, stop: int, runs: list[Trajectory]) -> None:
+        stream = self.recording._stream
+        if stream is None or not runs:
+            return
+        run = runs[0]
+        stop = min(stop, len(run.t))
+        if start >= stop:
+            return
+        rows = slice(start, stop)
+        first = self.series is None
+        if first:
+            self._start(run)
+        if self.scene is not None:
+            self.recording.see_motion(run.x[rows, 0])
+            if self.role == "main":
+                self.recording.see_motion(run.yd[rows, 0])
+        if first:
+            self.recording.update_layout()
+        times = _time_column(run.t[rows])
+        import rerun as rr
+
+        scalars = rr.Scalars.columns
+        for s in self.series:
+            stream.send_columns(s.path, indexes=[times], columns=scalars(scalars=s.values(run)[rows]))
+        if first and self.guides:  # constant over the run: its two ends, once
+            ends = _time_column(np.array([run.t[start], max(run.duration, run.t[stop - 1])]))
+            for g in self.guides:
+                stream.send_columns(g.path, indexes=[ends], columns=scalars(scalars=np.array([g.levels] * 2)))
+        if self.differences:
+            self._send_differences(run, rows, times)
+        if self.scene is not None:
+            self._send_poses(run, rows, times)
+        self.recording.flush()
+
+    def _start(self, run: Trajectory) -> None:
+        """On the first rows: the series styles (static), the panels they fill; a twin restyles
+        the main run's series it is drawn on (wide) and adds its differences."""
+        import rerun as rr
+
+        stream, recording = self.recording._stream, self.recording
+        self.series = run_series(run, self.label, self.role, self.suffix)
+        for s in self.series:
+            log_style(stream, s)
+        if self.role == "main":
+            recording.main_series, recording.main_label = self.series, self.label
+            self.guides = guide_lines(run)
+            for g in self.guides:
+                lines = rr.SeriesLines(names=list(g.names), colors=[RED] * len(g.names))
+                stream.log(g.path, lines, static=True)
+        if self.role == "twin":
+            for s in recording.main_series:
+                if s.drawn_for_twin:
+                    log_style(stream, s.beside_twin())
+            self.differences = differences(run, recording.main_label, self.label, self.suffix)
+            for d in self.differences:
+                log_style(stream, Series(d.path, (d.name,), "", (BLUE,), d.step, d.values, d.panel))
+        recording.add_panels([s.panel for s in self.series] + [d.panel for d in self.differences])
+
+    def _send_differences(self, run: Trajectory, rows: slice, times: rr.TimeColumn) -> None:
+        """``|main - twin|`` at the twin's rows: the main run's row at the same instant, NaN where
+        the main run has none (it stopped earlier, or its step differs)."""
+        import rerun as rr
+
+        main = self.twin_of
+        index = np.rint(run.t[rows] / main.dt).astype(np.int64)
+        same = (index < len(main.t)) & np.isclose(main.t[np.minimum(index, len(main.t) - 1)], run.t[rows],
+                                                 rtol=0.0, atol=1e-9)
+        for d in self.differences:
+            against = np.full(len(index), np.nan)
+            against[same] = d.values(main)[index[same]]
+            with np.errstate(invalid="ignore"):
+                gap = np.abs(against - d.values(run)[rows])
+            self.recording._stream.send_columns(d.path, indexes=[times],
+                                                columns=rr.Scalars.columns(scalars=gap))
+
+    def _send_poses(self, run: Trajectory, rows: slice, times: rr.TimeColumn) -> None:
+        import rerun as rr
+
+        stream, scene = self.recording._stream, self.scene
+        pos, quat = scene.replay(run.x[rows, 0])
+        for j, body in enumerate(scene.bodies):
+            stream.send_columns(
+                f"{self.world}/{scene.body_names[body]}",
+                indexes=[times],
+                columns=rr.Transform3D.columns(translation=pos[:, j], quaternion=quat[:, j]),
+            )
+        if self.role == "main":
+            target = scene.tip_positions(run.yd[rows, 0])
+            stream.send_columns("world/target", indexes=[times],
+                                columns=rr.Transform3D.columns(translation=target))
