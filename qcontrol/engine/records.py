@@ -43,11 +43,12 @@ class _Record:
     """What both records share: the run's parts, and how rows become trajectories."""
 
     def __init__(self, grid: TimeGrid, law: BatchLaw, reference: ReferenceRows, divergence: Divergence,
-                 capacity: int, batch: int, n: int, observer: Observer | None) -> None:
+                 context: SignalContext, capacity: int, batch: int, n: int,
+                 observer: Observer | None) -> None:
         self.grid, self.law, self.reference, self.divergence = grid, law, reference, divergence
         self.batch, self.observer = batch, observer
         self.buffer = RowBuffer(capacity, batch, n, law.state_size)
-        self.context = SignalContext(law.coordinates)
+        self.context = context
         self.started = 0.0  # the run's start (time.perf_counter), set by the loop
 
     def signals(self, first: int, stop: int) -> dict[str, np.ndarray]:
@@ -59,17 +60,22 @@ class _Record:
     def trajectories(self, first: int, lengths: np.ndarray, signals: dict[str, np.ndarray],
                      now: float) -> list[Trajectory]:
         """Trajectories over run rows ``first + [0, lengths[b])`` of ``signals`` (views)."""
-        d = self.divergence
         return [
             Trajectory(
                 t=self.grid.instants(first, first + lengths[b]),
                 signals={s.name: signals[s.name][: lengths[b], 0 if s.shared else b] for s in SIGNALS},
-                adaptive_name=self.law.state_name, L_z=self.law.coordinates.L_z.copy(), dt=self.grid.dt,
-                duration=self.grid.duration, diverged=d.times[b] is not None, diverged_time=d.times[b],
-                divergence_reason=d.reasons[b], wall_time_s=now - self.started,
+                **self.facts(b, now),
             )
             for b in range(self.batch)
         ]
+
+    def facts(self, b: int, now: float) -> dict:
+        """What every record of copy ``b`` carries (:class:`~qcontrol.engine.results.RunRecord`)."""
+        d = self.divergence
+        return dict(adaptive_name=self.law.state_name, L_z=self.law.coordinates.L_z.copy(), dt=self.grid.dt,
+                    duration=self.grid.duration, hold=self.grid.hold,
+                    velocity_source=self.context.velocity_source, diverged=d.times[b] is not None,
+                    diverged_time=d.times[b], divergence_reason=d.reasons[b], wall_time_s=now - self.started)
 
 
 class FullRecord(_Record):
@@ -78,14 +84,16 @@ class FullRecord(_Record):
     half as many more) and at the end."""
 
     def __init__(self, grid: TimeGrid, law: BatchLaw, reference: ReferenceRows, divergence: Divergence,
-                 batch: int, n: int, observer: Observer | None, observe_every: int) -> None:
-        super().__init__(grid, law, reference, divergence, grid.rows, batch, n, observer)
+                 context: SignalContext, batch: int, n: int, observer: Observer | None,
+                 observe_every: int) -> None:
+        super().__init__(grid, law, reference, divergence, context, grid.rows, batch, n, observer)
         self.observe_every = observe_every
         self.observed = 0  # rows [0, observed) went to the observer
         self.derived = 0  # rows [0, derived) have their derived signals
         self.arrays = self.buffer.arrays | {"yd": reference.table[:, None, :]}
         for s in DERIVED:
-            self.arrays[s.name] = np.full((grid.rows, batch, s.size(n, law.state_size)), np.nan)
+            width = () if s.width == "1" else (s.size(n, law.state_size),)
+            self.arrays[s.name] = np.full((grid.rows, batch, *width), np.nan)
 
     def next_event(self, k: int) -> int:
         return NEVER if self.observer is None else chunk_end(self.observed, self.observe_every,
@@ -122,10 +130,10 @@ class MetricsRecord(_Record):
     run. An observer receives each chunk as short trajectories (rows ``[0, len)`` new)."""
 
     def __init__(self, grid: TimeGrid, law: BatchLaw, reference: ReferenceRows, divergence: Divergence,
-                 batch: int, n: int, observer: Observer | None) -> None:
+                 context: SignalContext, batch: int, n: int, observer: Observer | None) -> None:
         self.chunk = max(METRICS_CHUNK, METRICS_BUFFER_ELEMENTS // batch)
-        super().__init__(grid, law, reference, divergence, min(grid.rows, self.chunk + self.chunk // 2),
-                         batch, n, observer)
+        super().__init__(grid, law, reference, divergence, context,
+                         min(grid.rows, self.chunk + self.chunk // 2), batch, n, observer)
         widths = {s.name: s.size(n, law.state_size) for s in SIGNALS}
         self.reductions = [(name, fold(batch, widths[name], grid.duration)) for name, fold in REDUCTIONS]
 
@@ -148,7 +156,8 @@ class MetricsRecord(_Record):
         block = max(1, REDUCE_ELEMENTS // self.batch)
         for first in range(base, stop, block):
             last = min(stop, first + block)
-            chunk = Chunk(first, self.grid.instants(first, last), self.divergence.kept, diverged)
+            chunk = Chunk(first, self.grid.instants(first, last), self.divergence.kept, diverged,
+                          self.grid.hold)
             signals = self.signals(first, last)
             for name, fold in self.reductions:
                 fold.add(chunk, signals[name])
@@ -158,9 +167,7 @@ class MetricsRecord(_Record):
         return [
             RunMetrics(
                 steps=int(d.kept[b]) - 1, values={fold.name: fold.value(b) for _, fold in self.reductions},
-                adaptive_name=self.law.state_name, L_z=self.law.coordinates.L_z.copy(), dt=self.grid.dt,
-                duration=self.grid.duration, diverged=d.times[b] is not None, diverged_time=d.times[b],
-                divergence_reason=d.reasons[b], wall_time_s=now - self.started,
+                **self.facts(b, now),
             )
             for b in range(self.batch)
         ]

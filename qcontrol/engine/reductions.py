@@ -27,6 +27,7 @@ class Chunk:
     t: np.ndarray
     kept: np.ndarray
     diverged: np.ndarray
+    hold: int = 1  # rows per control period: the control samples are the rows k with k % hold == 0
 
     @cached_property
     def everyone(self) -> bool:
@@ -74,6 +75,33 @@ class LargestAbs(Reduction):
 
     def value(self, b: int) -> float:
         return _finite_or_nan(float(self.largest[b]))
+
+
+class LargestAbsApplied(LargestAbs):
+    """The largest finite ``|u|`` the actuator applied."""
+
+    name = "max_abs_u_applied"
+
+
+class SaturatedFraction(Reduction):
+    """The fraction of control samples (rows ``k`` with ``k % hold == 0`` and a finite u) at which
+    the actuator clipped the command (NaN when there is none)."""
+
+    name = "saturated_fraction"
+
+    def __init__(self, batch: int, width: int, duration: float) -> None:
+        super().__init__(batch, width, duration)
+        self.clipped = np.zeros(batch)
+        self.samples = np.zeros(batch)
+
+    def add(self, chunk: Chunk, values: np.ndarray) -> None:
+        rows = chunk.first + np.arange(len(chunk.t))
+        counted = chunk.valid & ((rows % chunk.hold) == 0)[:, None] & np.isfinite(values)
+        self.samples += counted.sum(axis=0)
+        self.clipped += np.where(counted, values, 0.0).sum(axis=0)
+
+    def value(self, b: int) -> float:
+        return float(self.clipped[b] / self.samples[b]) if self.samples[b] else math.nan
 
 
 class ErrorRate(Reduction):

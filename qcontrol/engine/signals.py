@@ -23,19 +23,30 @@ from .reductions import (
     ErrorRate,
     FinalValue,
     LargestAbs,
+    LargestAbsApplied,
     LastHalfLargestAbs,
     Lemma2Largest,
     Reduction,
+    SaturatedFraction,
 )
 
 Block = Mapping[str, np.ndarray]  # signals of rows [first, stop): (rows, batch, width); y_d (rows, 1, n+1)
 
 
+def _as_commanded(u: np.ndarray) -> np.ndarray:
+    return u
+
+
 @dataclass(frozen=True)
 class SignalContext:
-    """What derivations may read besides the block: the coordinates of the recorded errors."""
+    """What derivations may read besides the block: the coordinates of the recorded errors, the
+    plant's actuator (commanded u -> applied u, :meth:`~qcontrol.plants.base.Plant.actuator`) and
+    where the controller's x2 came from (``"sensor"`` or ``"difference"``, see
+    :mod:`qcontrol.engine.velocity`)."""
 
     coordinates: Backstepping
+    actuator: Callable[[np.ndarray], np.ndarray] = _as_commanded
+    velocity_source: str = "sensor"
 
 
 Derive = Callable[[Block, SignalContext], np.ndarray]
@@ -51,6 +62,17 @@ def _zbar(block: Block, ctx: SignalContext) -> np.ndarray:
     return ctx.coordinates.quantized_errors(block["x_q"], block["yd"])[0]
 
 
+def _u_applied(block: Block, ctx: SignalContext) -> np.ndarray:
+    """What the actuator applied for the commanded u (clipped at its limit)."""
+    return ctx.actuator(block["u"])
+
+
+def _saturated(block: Block, ctx: SignalContext) -> np.ndarray:
+    """1 where the actuator clipped the command, 0 where it applied it (NaN where u is not finite)."""
+    u = block["u"]
+    return np.where(np.isfinite(u), (block["u_applied"] != u).astype(float), np.nan)
+
+
 def _e_z(block: Block, ctx: SignalContext) -> np.ndarray:
     """Lemma 2's errors ``|z(x_meas) - zbar|``: the errors of the very reading the quantizer saw."""
     return np.abs(ctx.coordinates.errors(block["x_meas"], block["yd"]) - block["zbar"])
@@ -62,7 +84,7 @@ class Plot:
     ``label`` (``{i}`` is the component's number from 1, ``{a}`` the adaptive state's name).
     ``components``: the ones shown (None: all); ``per_bound``: divided by the Lemma 2 bound L_zi;
     ``twin``: also drawn for a twin run (the ODE beside MuJoCo); ``color``: "main", "reference",
-    "quantized" or "palette" (one colour per component)."""
+    "quantized", "applied" or "palette" (one colour per component)."""
 
     path: str
     label: str
@@ -111,6 +133,11 @@ SIGNALS: tuple[Signal, ...] = (
            plots=(Plot("signals/state/x{i}/q", "q(x{i})", color="quantized"),)),
     Signal("u", "1", "input", True, "input held over [t_k, t_k + dt): law (44), (46) or a user law",
            reductions=(LargestAbs,), plots=(Plot("signals/input/u", "u", twin=True),)),
+    Signal("u_applied", "1", "input", True, "input the actuator applied: u, clipped where the actuator "
+           "saturates (the plant's actuator)", _u_applied, reductions=(LargestAbsApplied,),
+           plots=(Plot("signals/input/u_applied", "u applied", color="applied"),)),
+    Signal("saturated", "1", "-", True, "1 where the actuator clipped the command u over the step, else 0",
+           _saturated, reductions=(SaturatedFraction,)),
     Signal("adaptive", "m", "adaptive", False, "adaptive estimates (eps_hat of (45), theta_hat of (46), ...)",
            reductions=(FinalValue,), plots=(Plot("signals/adaptive/{a}_{i}", "{a}_{i}", color="palette"),)),
     Signal("yd", "n+1", "y", False, "reference y_d and its derivatives y_d', ..., y_d^(n)", shared=True,

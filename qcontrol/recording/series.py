@@ -3,7 +3,7 @@
 
 Series layout (``{L}`` a twin run's label, ``{a}`` the adaptive state's name, ``i`` from 1)::
 
-    signals/tracking/y, y_d, y_{L}        signals/error/z1, z1_{L}       signals/input/u, u_{L}
+    signals/tracking/y, y_d, y_{L}        signals/error/z1, z1_{L}       signals/input/u, u_{L}, u_applied
     signals/adaptive/{a}_i                signals/state/x{i}/x, signals/state/x{i}/q
     theory/lemma2/z{i}  (|e_zi| / L_zi)   theory/lemma2/bound  (the constant 1)
 """
@@ -25,7 +25,7 @@ if TYPE_CHECKING:
 TIMELINE = "sim_time"
 BLUE, ORANGE, GREY, GREEN, RED = (31, 119, 180), (255, 127, 14), (150, 150, 150), (44, 160, 44), (214, 39, 40)
 PALETTE = (BLUE, ORANGE, GREEN, RED, (148, 103, 189), (140, 86, 75))
-ROLE_COLORS = {"main": BLUE, "reference": ORANGE, "quantized": RED}
+ROLE_COLORS = {"main": BLUE, "reference": ORANGE, "quantized": RED, "applied": GREEN}
 
 
 @dataclass(frozen=True)

@@ -8,6 +8,7 @@ or backend registered later takes part in validation (and in the documentation) 
 from __future__ import annotations
 
 from ..controller.law import LAW_KINDS
+from ..engine.velocity import VELOCITY_SOURCES
 from ..plants.backends import BACKENDS
 from ..reference import REFERENCE_KINDS
 from ..schema import (
@@ -23,7 +24,7 @@ from ..schema import (
     string,
 )
 
-TOP = ("scenario", "plant", "controller", "reference", "simulation")
+TOP = ("scenario", "plant", "controller", "reference", "simulation", "disturbance")
 REQUIRED_TABLES = ("plant", "controller", "reference", "simulation")
 # The engine keeps what a run needs in memory that does not grow with the run, but a full record
 # (compare, reproduce, --save) keeps every row: 20 million steps is a few GB. Longer runs are
@@ -89,6 +90,10 @@ def simulation_section() -> Section:
                 "table holds its model)"),
             Key("state_bound", number(positive=True), 1e6, "state",
                 "|x_i| beyond this stops the run as diverged"),
+            Key("velocity_source", string(VELOCITY_SOURCES), "sensor",
+                meaning="the controller's x2: the velocity sensor's reading, quantized (the paper), or the "
+                "quantized position differenced over the control period (an encoder only; outside the "
+                "paper's assumptions)"),
         ),
         "how the closed loop is run",
     )

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from ..controller.law import LawContext, law_kind
+from ..disturbance import parse_disturbances
 from ..errors import QcontrolInputError
 from ..expr import compile_expression
 from ..plants.backends import BACKENDS, PlantContext
@@ -111,11 +112,13 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
     signal = _reference(root.table("reference"), terms.order)
     simulation = _simulation(root.table("simulation"))
     backends = _backends(plant, terms, base_dir, simulation)
+    disturbances = parse_disturbances(data.get("disturbance"), source)
     scenario = Scenario(
         name=meta["name"], description=meta["description"], source=source, text=text, overrides=overrides,
         order=terms.order, psi=None if terms.psi is None else terms.psi.source,
         phi=tuple(p.source for p in terms.phi), theta=terms.theta, x0=x0, controller=controller,
-        reference=signal, simulation=simulation, backends=backends, psi_expr=terms.psi, phi_expr=terms.phi,
+        reference=signal, simulation=simulation, backends=backends, disturbances=disturbances,
+        psi_expr=terms.psi, phi_expr=terms.phi,
     )
     _check_terms_at_x0(scenario)
     return scenario

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..controller.law import LawContext
+from ..disturbance import Disturbance
 from ..expr import Expression
 from ..plants.base import PlantTerms
 from ..reference import Reference
@@ -37,12 +38,14 @@ class SimulationConfig:
     control_period: float | None
     backend: str
     state_bound: float
+    velocity_source: str = "sensor"
 
 
 @dataclass(frozen=True)
 class Scenario:
     """A validated scenario. Expressions are compiled once (``psi_expr``, ``phi_expr``); each
-    ``[plant.<backend>]`` section is parsed into ``backends[name]`` by its backend."""
+    ``[plant.<backend>]`` section is parsed into ``backends[name]`` by its backend; the
+    ``[[disturbance]]`` list into ``disturbances``."""
 
     name: str
     description: str
@@ -58,6 +61,7 @@ class Scenario:
     reference: ReferenceConfig
     simulation: SimulationConfig
     backends: dict[str, Any] = field(default_factory=dict)
+    disturbances: tuple[Disturbance, ...] = ()
     psi_expr: Expression | None = field(default=None, repr=False)
     phi_expr: tuple[Expression, ...] = field(default=(), repr=False)
 
