@@ -107,7 +107,10 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--duration", type=float, metavar="S",
                      help="shorter horizon for a quick look (default: the paper's 10 s)")
     rep.add_argument("--scenarios", type=Path, default=None, metavar="DIR",
-                     help="folder holding example1.toml, example2.toml, example2-rigid.toml")
+                     help="folder holding example1.toml, example2.toml, example2-rigid.toml, "
+                     "example2-arm.toml, example1-cart.toml")
+    rep.add_argument("--workers", type=int, default=None, metavar="N",
+                     help="worker processes for the robustness study (default: the cores, at most 4)")
     rep.add_argument("-q", "--quiet", action="store_true", help="no progress output")
 
     add_sweep_parser(sub)
@@ -272,9 +275,11 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
     if args.duration is not None and not (args.duration > 0):
         raise QcontrolInputError(f"--duration must be > 0, got {args.duration!r}")
+    if args.workers is not None and args.workers < 1:
+        raise QcontrolInputError(f"--workers must be >= 1, got {args.workers}")
     scenarios = args.scenarios or SCENARIO_DIR
     log = (lambda line: None) if args.quiet else (lambda line: print(line, flush=True))
-    reproduce(args.out, args.backend, args.duration, scenarios, log)
+    reproduce(args.out, args.backend, args.duration, scenarios, log, args.workers)
     return EXIT_OK
 
 

@@ -2,9 +2,11 @@
 
 Runs Example 1 and Example 2 (proposed law and the comparison method of reference [20]) on the
 chosen backend, with the ideal ODE twin beside MuJoCo, then the sensitivity studies (kappa - L,
-a constant scale of r, plant variants) on the ODE backend. Writes PNG figures, ``table1.md``,
-``table1.json``, ``studies.json``, ``REPORT.md`` and one rerun recording per example into the
-output folder. Parameters come from the paper's text (Section 4); nothing is fitted to Table 1.
+a constant scale of r, plant variants) on the ODE backend, then the robustness study on realistic
+hardware (:mod:`qcontrol.robustness`, MuJoCo, in worker processes). Writes PNG figures,
+``table1.md``, ``table1.json``, ``studies.json``, ``robustness.json``, ``REPORT.md`` and one rerun
+recording per example into the output folder. Parameters come from the paper's text (Section 4);
+nothing is fitted to Table 1.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from .engine import Trajectory
 from .metrics import backend_deviation, summary
 from .outputs import prepare_output_dir, write_json, write_text
 from .report import PAPER_TABLE1, ReportFacts, report_markdown, table1, table1_markdown
+from .robustness import default_workers, robustness_study
 from .scenario import Scenario, load_scenario
 from .sweep import sweep_summaries
 
@@ -105,8 +108,10 @@ def reproduce(
     duration: float | None = None,
     scenarios: str | Path = SCENARIO_DIR,
     log: Callable[[str], None] = print,
+    workers: int | None = None,
 ) -> dict:
-    """Run the whole reproduction into ``out``; returns Table 1 as written to ``table1.json``."""
+    """Run the whole reproduction into ``out``; returns Table 1 as written to ``table1.json``.
+    ``workers``: processes for the robustness study (default: the machine's cores, at most 4)."""
     rep = Reproduction(prepare_output_dir(out), backend, duration, Path(scenarios), log)
     o = rep.out
     log(f"Example 1 on {backend}")
@@ -142,8 +147,12 @@ def reproduce(
         if b is not None
     }
     write_json(o / "studies.json", studies)
-    write_text(o / "REPORT.md", _report(rep, table, studies, deviations, ex1, ex2))
-    log(f"wrote {o}: REPORT.md, table1.md, table1.json, studies.json, figures, recordings "
+    robustness = robustness_study(rep.scenarios, duration, workers or default_workers(), log)
+    write_json(o / "robustness.json", robustness)
+    plots.fig_robustness(robustness, o / "study_robustness.png")
+    plots.fig_margins(robustness, o / "study_margins.png")
+    write_text(o / "REPORT.md", _report(rep, table, studies, deviations, ex1, ex2, robustness))
+    log(f"wrote {o}: REPORT.md, table1.md, table1.json, studies.json, robustness.json, figures, recordings "
         f"({len(rep.lemma2_ratios)} runs, {time.perf_counter() - rep.started:.1f} s)")
     return table
 
@@ -226,7 +235,8 @@ def _studies(rep: Reproduction) -> dict:
     }
 
 
-def _report(rep: Reproduction, table: dict, studies: dict, deviations: dict, ex1: Run, ex2: Run) -> str:
+def _report(rep: Reproduction, table: dict, studies: dict, deviations: dict, ex1: Run, ex2: Run,
+            robustness: dict) -> str:
     """REPORT.md from the runs' facts (see :func:`qcontrol.report.report_markdown`)."""
     traj, c = ex2.traj, ex2.scenario.controller
     facts = ReportFacts(
@@ -234,6 +244,6 @@ def _report(rep: Reproduction, table: dict, studies: dict, deviations: dict, ex1
         seconds=time.perf_counter() - rep.started, lemma2_ratios=rep.lemma2_ratios, diverged=rep.diverged,
         table=table, studies=studies, deviations=deviations, example1=ex1.summary, example2=ex2.summary,
         z2_last_half=float(np.nanmax(np.abs(traj.z[traj.t >= traj.duration / 2, -1]))),
-        kappa_plus_L=c.settings.kappa + lemma2_L(c.c, c.delta),
+        kappa_plus_L=c.settings.kappa + lemma2_L(c.c, c.delta), robustness=robustness,
     )
     return report_markdown(facts)
