@@ -15,6 +15,7 @@ from pathlib import Path
 
 from . import __version__
 from .assembly import build_plant, controller_constants, run_scenario, scene
+from .attribution import attribution_lines, realism_attribution
 from .controller import lemma2_L
 from .engine import Observer
 from .errors import QcontrolInputError
@@ -235,12 +236,14 @@ def cmd_compare(args: argparse.Namespace) -> int:
             progress.finish()
             runs[backend] = (traj, summary(traj, sc.name, backend))
     deviation = backend_deviation(runs["mujoco"][0], runs["ode"][0])
+    parts = realism_attribution(sc, runs["ode"][0]) if report.get("realism") else {}
     result = {
         "scenario": sc.name,
         "integrator": sc.backends["mujoco"].integrator,
         "dt": sc.simulation.dt,
         **deviation,
         "consistency": report,
+        "realism_alone": parts,
         "mujoco": runs["mujoco"][1],
         "ode": runs["ode"][1],
     }
@@ -253,6 +256,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
         f"max |dx| = [{', '.join(f'{v:.3g}' for v in deviation['max_abs_dx'])}], "
         f"max |du| = {deviation['max_abs_du']:.3g}"
     )
+    if parts:
+        print("\n".join(attribution_lines(parts, deviation)))
     if out is not None:
         write_json(out / "compare.json", result)
         print(f"  wrote {out / 'compare.json'}")
