@@ -136,6 +136,13 @@ def _recording(args: argparse.Namespace) -> AbstractContextManager:
     return Recording(args.rrd, spawn=args.spawn)
 
 
+def _log_disturbances(rec: object, sc: Scenario) -> None:
+    """Arrows and time markers of the scenario's disturbances (see qcontrol.recording.disturbances)."""
+    from .recording.disturbances import log_disturbances
+
+    log_disturbances(rec, sc)
+
+
 def _progress(sc: Scenario, backend: str, args: argparse.Namespace) -> ProgressLine:
     return ProgressLine(f"{sc.name} [{backend}]", not args.quiet)
 
@@ -194,6 +201,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     with _recording(args) as rec:
         if rec is not None:
             rec.log_static(sc.text, controller_constants(sc), __version__)
+            _log_disturbances(rec, sc)
         # metrics record: memory stays bounded however long the run; the recording streams
         run = run_scenario(sc, backend, plant=plant, observer=_observer(rec, sc, backend), record="metrics",
                            progress=progress)
@@ -228,6 +236,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     with _recording(args) as rec:
         if rec is not None:
             rec.log_static(sc.text, controller_constants(sc), __version__)
+            _log_disturbances(rec, sc)
         for backend in ("mujoco", "ode"):  # the ODE twin is drawn as a translucent ghost
             progress = _progress(sc, backend, args)
             traj = run_scenario(sc, backend, plant=plant if backend == "mujoco" else None,
