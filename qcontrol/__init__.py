@@ -3,6 +3,35 @@
 Implements Sun et al., "Global Adaptive Control for Uncertain Nonlinear Systems under
 Non-Lipschitz Condition with Quantized States", Electronics 2022, 11, 3160. The data flow is
 quantizer -> controller -> plant (ODE or MuJoCo) -> closed-loop engine -> recording/plots/metrics.
+
+The Python API (see the README's "Python API"):
+
+* :func:`load_scenario` -> :class:`Scenario` (immutable; ``sc.with_overrides({...})``)
+* :func:`run` -> :class:`Result` (``summary``, the signals ``t, x, x_q, u, y, yd, z, adaptive``,
+  ``save``); :func:`compare` -> :class:`Comparison` (``summary``, ``mujoco``, ``ode``)
+* :class:`Law` and :func:`register_law`: a control law of your own, selected by
+  ``controller.kind``; :func:`check_keys`, :func:`quantized_backstepping` and
+  :func:`lemma2_bounds` help write one.
 """
 
-__version__ = "0.1.0"
+from ._version import __version__
+from .api import Comparison, Result, compare, lemma2_bounds, quantized_backstepping, run
+from .controller.user import Law, check_keys, register_law
+from .errors import QcontrolInputError
+from .scenario import Scenario, load_scenario
+
+__all__ = [
+    "Comparison",
+    "Law",
+    "QcontrolInputError",
+    "Result",
+    "Scenario",
+    "__version__",
+    "check_keys",
+    "compare",
+    "lemma2_bounds",
+    "load_scenario",
+    "quantized_backstepping",
+    "register_law",
+    "run",
+]

@@ -12,7 +12,7 @@ from typing import Any
 
 from .controller import BatchLaw, law_kind
 from .disturbance import Schedule, scaled_changes
-from .engine import Observer, ProgressCallback, RunMetrics, Trajectory, simulate
+from .engine import Observer, ProgressCallback, RunMetrics, Separation, Trajectory, simulate
 from .plants import BACKENDS, Plant, Scene
 from .quantizer import UniformQuantizer
 from .reference import Reference
@@ -40,6 +40,19 @@ def build_law(variants: Sequence[Scenario]) -> BatchLaw:
 def build_controller(sc: Scenario) -> BatchLaw:
     """The scenario's law for a single run."""
     return build_law([sc])
+
+
+def build_separation(sc: Scenario) -> Separation | None:
+    """The terms of eq. (1) and the law's bounding functions r to check along a run (eqs. (37)-(43):
+    phi_1..phi_l, then psi), or None when the law has no r."""
+    kind = law_kind(sc.controller.kind)
+    r = kind.bounds(sc.controller.settings) if kind.bounds is not None else None
+    if r is None:
+        return None
+    names = tuple(f"phi{i + 1}" for i in range(len(sc.phi_expr))) + (("psi",
+                                                                      ) if sc.psi_expr is not None else ())
+    terms = tuple(sc.phi_expr) + ((sc.psi_expr,) if sc.psi_expr is not None else ())
+    return Separation(names, terms, tuple(r))
 
 
 def backend_of(sc: Scenario, backend: str | None = None) -> str:
@@ -125,10 +138,13 @@ def run_variants(
     sim = first.simulation
     plant = plant if plant is not None else build_plants(variants, backend)
     x0 = [v.x0 for v in variants]
+    # the separation (37)-(43) is checked along single runs (a sweep's batch skips it: it would
+    # cost about a quarter of the plant's own evaluations)
+    separation = build_separation(first) if len(variants) == 1 else None
     return simulate(plant, build_law(variants), build_quantizer(first), build_reference(first), x0,
                     sim.duration, sim.dt, control_period=sim.control_period, state_bound=sim.state_bound,
-                    progress=progress, observer=observer, record=record, loads=loads(first),
-                    velocity_source=sim.velocity_source)
+                    progress=progress, observer=observer, record=record, metrics=first.metrics,
+                    separation=separation, loads=loads(first), velocity_source=sim.velocity_source)
 
 
 def run_scenario(

@@ -10,19 +10,16 @@ import argparse
 import sys
 import time
 from collections.abc import Sequence
-from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 
-from . import __version__
-from .assembly import build_plant, controller_constants, run_scenario, scene
-from .attribution import attribution_lines, realism_attribution
-from .controller import lemma2_L
-from .engine import Observer
+from . import api
+from ._version import __version__
+from .attribution import attribution_lines
 from .errors import QcontrolInputError
-from .metrics import backend_deviation, summary
 from .outputs import check_output_file, prepare_output_dir, write_json
-from .plants import BACKENDS, Plant
+from .plants import BACKENDS
 from .progress import ProgressLine
+from .provenance import command_line
 from .scenario import Scenario, load_scenario
 from .sweep import add_sweep_parser, cmd_sweep
 
@@ -82,6 +79,12 @@ def build_parser() -> argparse.ArgumentParser:
     _add_scenario_options(run)
     run.add_argument("--backend", choices=tuple(BACKENDS), help="plant backend (default: the scenario's)")
     run.add_argument("--out", type=Path, metavar="DIR", help="write DIR/summary.json")
+    run.add_argument("--save", type=Path, metavar="FILE",
+                     help="write the run's signals to FILE.npz (an array per signal) or FILE.csv (a column "
+                     "per component); keeps every row in memory, unlike a plain run")
+    run.add_argument("--plot", type=Path, metavar="FILE",
+                     help="draw the run (y and y_d, z1, u, the adaptive estimates, the Lemma 2 ratio) to "
+                     "FILE.png; keeps every row in memory, unlike a plain run")
     _add_recording_options(run)
 
     compare = sub.add_parser(
@@ -127,41 +130,18 @@ def _scenario_from_args(args: argparse.Namespace) -> Scenario:
     return load_scenario(args.scenario, overrides)
 
 
-def _recording(args: argparse.Namespace) -> AbstractContextManager:
-    """A rerun Recording when --rrd or --spawn is given; otherwise nothing is imported or logged."""
-    if args.rrd is None and not args.spawn:
-        return nullcontext(None)
-    from .recording import Recording  # imports rerun (~0.5 s) when it opens: only when asked for
-
-    return Recording(args.rrd, spawn=args.spawn)
-
-
-def _log_disturbances(rec: object, sc: Scenario) -> None:
-    """Arrows and time markers of the scenario's disturbances (see qcontrol.recording.disturbances)."""
-    from .recording.disturbances import log_disturbances
-
-    log_disturbances(rec, sc)
-
-
 def _progress(sc: Scenario, backend: str, args: argparse.Namespace) -> ProgressLine:
     return ProgressLine(f"{sc.name} [{backend}]", not args.quiet)
 
 
-def _observer(rec: object, sc: Scenario, backend: str, ghost: bool = False) -> Observer | None:
-    """The recording's observer of a run on ``backend`` (None without a recording)."""
-    if rec is None:
-        return None
-    drawn = scene(sc)
-    if drawn is None:
-        return rec.observer(backend, ghost=ghost)
-    return rec.observer(backend, drawn.model, drawn.joint, ghost=ghost)
-
-
-def _print_warnings(plant: Plant) -> None:
-    for message in plant.warnings[:3]:
+def _print_warnings(s: dict) -> None:
+    for warning in s.get("warnings", []):
+        print(f"  warning: {warning}")
+    physics = s.get("physics_warnings", [])
+    for message in physics[:3]:
         print(f"  MuJoCo warned: {message}")
-    if len(plant.warnings) > 3:
-        print(f"  ... and {len(plant.warnings) - 3} more MuJoCo warnings")
+    if len(physics) > 3:
+        print(f"  ... and {len(physics) - 3} more MuJoCo warnings")
 
 
 def format_summary(s: dict) -> str:
@@ -194,28 +174,45 @@ def cmd_run(args: argparse.Namespace) -> int:
     backend = args.backend or sc.simulation.backend
     BACKENDS[backend].require(sc.backends.get(backend), sc.source)
     out = prepare_output_dir(args.out) if args.out else None
-    if args.rrd is not None:
-        check_output_file(args.rrd, "--rrd")
-    plant = build_plant(sc, backend)
+    for option, path in (("--rrd", args.rrd), ("--save", args.save), ("--plot", args.plot)):
+        if path is not None:
+            check_output_file(path, option)
+    if args.save is not None and args.save.suffix not in api.SAVE_FORMATS:
+        raise QcontrolInputError(f"--save {args.save}: unknown format {args.save.suffix!r}; "
+                                 "give a .npz or .csv file")
+    # a plain run keeps only its metrics (memory stays flat however long the run); --save and
+    # --plot need every row
+    record = "full" if args.save is not None or args.plot is not None else "metrics"
     progress = _progress(sc, backend, args)
-    with _recording(args) as rec:
-        if rec is not None:
-            rec.log_static(sc.text, controller_constants(sc), __version__)
-            _log_disturbances(rec, sc)
-        # metrics record: memory stays bounded however long the run; the recording streams
-        run = run_scenario(sc, backend, plant=plant, observer=_observer(rec, sc, backend), record="metrics",
-                           progress=progress)
+    result = api.run(sc, backend, rrd=args.rrd, spawn=args.spawn, record=record, progress=progress,
+                     command=args.command_line)
     progress.finish()
-    s = summary(run, sc.name, backend)
-    s["L"] = lemma2_L(sc.controller.c, sc.controller.delta)
+    s = result.summary
     print(format_summary(s))
-    _print_warnings(plant)
+    _print_warnings(s)
     if out is not None:
         write_json(out / "summary.json", s)
         print(f"  wrote {out / 'summary.json'}")
+    if args.save is not None:
+        print(f"  wrote {result.save(args.save)}")
+    if args.plot is not None:
+        print(f"  wrote {_plot_run(result, args.plot)}")
     if args.rrd is not None:
         print(f"  wrote {args.rrd} (open it with: rerun {args.rrd})")
     return _status(s)
+
+
+def _plot_run(result: api.Result, path: Path) -> Path:
+    from .plots import fig_run
+
+    s = result.summary
+    notes = [f"{s['scenario']} on {s['backend']}, {s['duration']:g} s, dt = {s['dt']:g} s"]
+    notes += [f"E({k}) = {v:.4f}" for k, v in s["error_rate"].items()]
+    notes += [f"max |z1|, last half = {s['max_abs_z1_last_half']:.4g}", f"max |u| = {s['max_abs_u']:.4g}",
+              f"Lemma 2 ratio = {s['lemma2_max_ratio']:.6f}"]
+    if s["diverged"]:
+        notes.append(f"diverged at t = {s['diverged_time']:g} s")
+    return fig_run(result.trajectory, path, f"{s['scenario']} ({s['backend']})", notes=notes)
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
@@ -227,52 +224,37 @@ def cmd_compare(args: argparse.Namespace) -> int:
     out = prepare_output_dir(args.out) if args.out else None
     if args.rrd is not None:
         check_output_file(args.rrd, "--rrd")
-    plant = build_plant(sc, "mujoco")
-    report = plant.consistency_report
+    progress: dict[str, ProgressLine] = {}
+
+    def progress_of(backend: str) -> ProgressLine:
+        progress[backend] = _progress(sc, backend, args)
+        return progress[backend]
+
+    cmp = api.compare(sc, rrd=args.rrd, spawn=args.spawn, progress=progress_of, command=args.command_line)
+    for line in progress.values():
+        line.finish()
+    result = cmp.summary
+    report = result["consistency"]
     if report.get("realism"):
         print(f"realism options on ({', '.join(report['realism'])}): MuJoCo differs from the ODE model "
               f"by up to {report['max_abs_mismatch']:.3g} in acceleration at sampled states")
-    runs = {}
-    with _recording(args) as rec:
-        if rec is not None:
-            rec.log_static(sc.text, controller_constants(sc), __version__)
-            _log_disturbances(rec, sc)
-        for backend in ("mujoco", "ode"):  # the ODE twin is drawn as a translucent ghost
-            progress = _progress(sc, backend, args)
-            traj = run_scenario(sc, backend, plant=plant if backend == "mujoco" else None,
-                                observer=_observer(rec, sc, backend, ghost=backend == "ode"),
-                                progress=progress)
-            progress.finish()
-            runs[backend] = (traj, summary(traj, sc.name, backend))
-    deviation = backend_deviation(runs["mujoco"][0], runs["ode"][0])
-    parts = realism_attribution(sc, runs["ode"][0]) if report.get("realism") else {}
-    result = {
-        "scenario": sc.name,
-        "integrator": sc.backends["mujoco"].integrator,
-        "dt": sc.simulation.dt,
-        **deviation,
-        "consistency": report,
-        "realism_alone": parts,
-        "mujoco": runs["mujoco"][1],
-        "ode": runs["ode"][1],
-    }
     for backend in ("mujoco", "ode"):
-        print(format_summary(runs[backend][1]))
-    _print_warnings(plant)
+        print(format_summary(result[backend]))
+    _print_warnings(result)
     print(
-        f"MuJoCo vs ODE over {deviation['rows_compared']} instants: "
-        f"max |dy| = {deviation['max_abs_dy']:.3g}, "
-        f"max |dx| = [{', '.join(f'{v:.3g}' for v in deviation['max_abs_dx'])}], "
-        f"max |du| = {deviation['max_abs_du']:.3g}"
+        f"MuJoCo vs ODE over {result['rows_compared']} instants: "
+        f"max |dy| = {result['max_abs_dy']:.3g}, "
+        f"max |dx| = [{', '.join(f'{v:.3g}' for v in result['max_abs_dx'])}], "
+        f"max |du| = {result['max_abs_du']:.3g}"
     )
-    if parts:
-        print("\n".join(attribution_lines(parts, deviation)))
+    if result["realism_alone"]:
+        print("\n".join(attribution_lines(result["realism_alone"], result)))
     if out is not None:
         write_json(out / "compare.json", result)
         print(f"  wrote {out / 'compare.json'}")
     if args.rrd is not None:
         print(f"  wrote {args.rrd} (open it with: rerun {args.rrd})")
-    return max(_status(runs["mujoco"][1]), _status(runs["ode"][1]))
+    return max(_status(result["mujoco"]), _status(result["ode"]))
 
 
 def _status(s: dict) -> int:
@@ -293,7 +275,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         raise QcontrolInputError(f"--workers must be >= 1, got {args.workers}")
     scenarios = args.scenarios or SCENARIO_DIR
     log = (lambda line: None) if args.quiet else (lambda line: print(line, flush=True))
-    reproduce(args.out, args.backend, args.duration, scenarios, log, args.workers)
+    reproduce(args.out, args.backend, args.duration, scenarios, log, command=args.command_line,
+              workers=args.workers)
     return EXIT_OK
 
 
@@ -303,6 +286,7 @@ COMMANDS = {"run": cmd_run, "compare": cmd_compare, "reproduce": cmd_reproduce, 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.command_line = command_line(argv)  # what the outputs' provenance names as the command
     started = time.perf_counter()
     try:
         return COMMANDS[args.command](args)

@@ -24,8 +24,10 @@ END_TOLERANCE = 1e-12  # an instant this close after the last row takes the last
 
 
 def omega_key(omega: float) -> str:
-    """Key of an error-rate entry in JSON outputs: ``0.1 -> "0.100"``."""
-    return f"{omega:.3f}"
+    """Key of an error-rate entry in JSON outputs: ``0.1 -> "0.100"`` (three decimals when they
+    hold the value exactly, otherwise the shortest form: ``0.0005 -> "0.0005"``)."""
+    fixed = f"{omega:.3f}"
+    return fixed if float(fixed) == omega else repr(float(omega))
 
 
 class ErrorRateStream:

@@ -59,7 +59,23 @@ def summary(run: Trajectory | RunMetrics, scenario: str, backend: str) -> dict:
         "velocity_source": run.velocity_source,
         "lemma2_applies": lemma2_applies(run.velocity_source),
         "L_z": [float(v) for v in run.L_z],
+        "L": float(run.L_z[-1]),
+        **bound_constants(run.bound_names, values["bound_constants"]),
     }
+
+
+def bound_constants(names: tuple[str, ...], largest: np.ndarray) -> dict:
+    """The separation (37)-(43) as the run measured it: ``bound_constants`` maps each term to the
+    largest ``|term| / r(x_q)`` seen (None where it was infinite or undefined: the term is not
+    bounded by its r on the run), and ``warnings`` says so in words. Both None/empty when the
+    separation was not checked (a law without r, or a sweep's batch)."""
+    if not names:
+        return {"bound_constants": None, "warnings": []}
+    constants = {name: float(v) if np.isfinite(v) else None for name, v in zip(names, largest, strict=True)}
+    warnings = [f"{name} is not bounded by its r on this run: |{name}| / r(x_q) was infinite or undefined "
+                "(eqs. (37)-(43) need |term(x)| <= constant * r(x_q) wherever |x - x_q| <= delta/2)"
+                for name, value in constants.items() if value is None]
+    return {"bound_constants": constants, "warnings": warnings}
 
 
 def backend_deviation(physics: Trajectory, ideal: Trajectory) -> dict:

@@ -111,7 +111,7 @@ def atomic_path(path: str | Path, *, keep_partial: bool = False,
         file.discard()
 
 
-def _clean(value: Any) -> Any:
+def clean(value: Any) -> Any:
     """JSON has no NaN/Inf: write them as null. numpy scalars and arrays become plain Python."""
     if isinstance(value, np.ndarray):
         value = value.tolist()
@@ -120,16 +120,16 @@ def _clean(value: Any) -> Any:
     if isinstance(value, float):
         return value if math.isfinite(value) else None
     if isinstance(value, dict):
-        return {k: _clean(v) for k, v in value.items()}
+        return {k: clean(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_clean(v) for v in value]
+        return [clean(v) for v in value]
     return value
 
 
 def write_json(path: str | Path, obj: Any) -> Path:
     """Write ``obj`` as indented JSON, atomically."""
     path = Path(path)
-    return write_text(path, json.dumps(_clean(obj), indent=2, allow_nan=False) + "\n")
+    return write_text(path, json.dumps(clean(obj), indent=2, allow_nan=False) + "\n")
 
 
 def write_text(path: str | Path, text: str) -> Path:

@@ -25,11 +25,13 @@ from .engine import Trajectory
 from .metrics import backend_deviation, summary
 from .outputs import prepare_output_dir, write_json, write_text
 from .report import PAPER_TABLE1, ReportFacts, report_markdown, table1, table1_markdown
-from .robustness import default_workers, robustness_study
+from .resources import shipped_dir
+from .robustness import EXAMPLES, default_workers, robustness_study
 from .scenario import Scenario, load_scenario
+from .scenario.resolve import resolved_toml, scenario_provenance, scenarios_provenance
 from .sweep import sweep_summaries
 
-SCENARIO_DIR = Path(__file__).resolve().parents[1] / "scenarios"
+SCENARIO_DIR = shipped_dir("scenarios")
 KAPPA_MARGINS = (0.05, 0.1, 0.2, 0.3, 0.5, 0.75, 1.1, 1.5, 2.0)
 R_SCALES = (1.0, 2.0, 5.0, 10.0, 20.0, 30.0, 50.0, 100.0)
 PLANT_VARIANTS = (
@@ -38,6 +40,7 @@ PLANT_VARIANTS = (
     ("rigid pendulum", "example2-rigid", ()),
 )
 BASELINE = ("controller.kind=baseline",)
+ROBUSTNESS_SCENARIOS = tuple(name for pair in EXAMPLES for name in pair)
 
 
 @dataclass
@@ -60,6 +63,7 @@ class Reproduction:
     duration: float | None = None
     scenarios: Path = SCENARIO_DIR
     log: Callable[[str], None] = print
+    command: str = ""
     runs: list[Run] = field(default_factory=list)
     started: float = field(default_factory=time.perf_counter)
     study_runs: int = 0
@@ -108,28 +112,33 @@ def reproduce(
     duration: float | None = None,
     scenarios: str | Path = SCENARIO_DIR,
     log: Callable[[str], None] = print,
+    command: str | None = None,
     workers: int | None = None,
 ) -> dict:
     """Run the whole reproduction into ``out``; returns Table 1 as written to ``table1.json``.
+    ``command`` is what the outputs' provenance names as the command (default: this call);
     ``workers``: processes for the robustness study (default: the machine's cores, at most 4)."""
-    rep = Reproduction(prepare_output_dir(out), backend, duration, Path(scenarios), log)
+    command = command or (f"qcontrol.reproduce.reproduce({str(out)!r}, backend={backend!r}, "
+                          f"duration={duration!r})")
+    rep = Reproduction(prepare_output_dir(out), backend, duration, Path(scenarios), log, command=command)
     o = rep.out
     log(f"Example 1 on {backend}")
     ex1, ex1_twin = rep.twins("example 1", rep.scenario("example1"))
     _example1_figures(o, ex1, ex1_twin)
-    _record(o / "example1.rrd", ex1, {"ode": ex1_twin})
+    _record(o / "example1.rrd", ex1, {"ode": ex1_twin}, command)
 
     log(f"Example 2 on {backend}: proposed and comparison method [20]")
     ex2, ex2_twin = rep.twins("example 2 proposed", rep.scenario("example2"))
     base, base_twin = rep.twins("example 2 comparison", rep.scenario("example2", BASELINE))
     _example2_figures(o, ex2, ex2_twin, base)
-    _record(o / "example2.rrd", ex2, {"ode": ex2_twin, "baseline": base})
+    _record(o / "example2.rrd", ex2, {"ode": ex2_twin, "baseline": base}, command)
 
     ours = {backend: {"proposed": ex2.summary["error_rate"], "comparison": base.summary["error_rate"]}}
     if ex2_twin is not None and base_twin is not None:
         ours["ode"] = {"proposed": ex2_twin.summary["error_rate"],
                        "comparison": base_twin.summary["error_rate"]}
-    table = table1(ours)
+    table = table1(ours) | {"provenance": scenarios_provenance(
+        {"proposed": ex2.scenario, "comparison": base.scenario}, command)}
     write_json(o / "table1.json", table)
     write_text(o / "table1.md", table1_markdown(table))
     plots.fig_table1(
@@ -146,9 +155,11 @@ def reproduce(
                            ("example2 comparison", base, base_twin))
         if b is not None
     }
-    write_json(o / "studies.json", studies)
+    studied = {name: rep.scenario(name) for name in ("example2", "example2-rigid")}
+    write_json(o / "studies.json", studies | {"provenance": scenarios_provenance(studied, command)})
     robustness = robustness_study(rep.scenarios, duration, workers or default_workers(), log)
-    write_json(o / "robustness.json", robustness)
+    hardware = {name: rep.scenario(name) for name in ROBUSTNESS_SCENARIOS}
+    write_json(o / "robustness.json", robustness | {"provenance": scenarios_provenance(hardware, command)})
     plots.fig_robustness(robustness, o / "study_robustness.png")
     plots.fig_margins(robustness, o / "study_margins.png")
     write_text(o / "REPORT.md", _report(rep, table, studies, deviations, ex1, ex2, robustness))
@@ -181,16 +192,17 @@ def _example2_figures(o: Path, run: Run, twin: Run | None, base: Run) -> None:
                                   "Example 2: MuJoCo pendulum vs ideal ODE, same controller", u)
 
 
-def _record(path: Path, main: Run, ghosts: dict[str, Run | None]) -> None:
+def _record(path: Path, main: Run, ghosts: dict[str, Run | None], command: str) -> None:
     """A rerun recording of the main run with its ghosts (ODE twin, comparison method)."""
-    from . import __version__
+    from ._version import __version__
     from .recording import Recording
 
     sc = main.scenario
     drawn = scene(sc)
     model, joint = (None, None) if drawn is None else (drawn.model, drawn.joint)
     with Recording(path) as rec:
-        rec.log_static(sc.text, controller_constants(sc), __version__)
+        rec.log_static(resolved_toml(sc), controller_constants(sc), __version__,
+                       provenance=scenario_provenance(sc, command))
         rec.observer(main.backend, model, joint)(0, len(main.traj.t), [main.traj])
         for label, ghost in ghosts.items():
             if ghost is not None:

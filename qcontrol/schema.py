@@ -148,6 +148,7 @@ class ValueType:
 
     text: str
     read: Reader
+    path: bool = False  # a file path, relative to the scenario file's folder
 
 
 def number(*, positive: bool = False, nonnegative: bool = False) -> ValueType:
@@ -182,9 +183,10 @@ def expression(variables: str) -> ValueType:
     return ValueType(f"expression over {variables}", lambda t, k, d, s: t.string(k, d))
 
 
-def custom(text: str, read: Reader) -> ValueType:
-    """A type read by its own function (tables, lists of tables, numbers or pairs ...)."""
-    return ValueType(text, read)
+def custom(text: str, read: Reader, path: bool = False) -> ValueType:
+    """A type read by its own function (tables, lists of tables, numbers or pairs ...); ``path``:
+    its value is a file path relative to the scenario file's folder."""
+    return ValueType(text, read, path)
 
 
 @dataclass(frozen=True)

@@ -48,8 +48,11 @@ def _leftovers(folder: Path) -> list[Path]:
 
 
 def _summary(folder: Path) -> dict:
+    """A summary.json without what may differ between identical runs: the wall time, and the
+    command line in the provenance (it names the output folder)."""
     s = json.loads((folder / "summary.json").read_text())
     s.pop("wall_time_s")
+    s["provenance"].pop("command")
     return s
 
 

@@ -70,6 +70,8 @@ def test_studies_cover_the_paper_values(reproduction):
     studies = json.loads((reproduction / "studies.json").read_text())
     assert 1.1 in studies["kappa_margin"]["values"] and 0.1 in studies["kappa_margin"]["values"]
     assert studies["r_scale"]["values"][0] == 1.0
+    provenance = studies.pop("provenance")
+    assert set(provenance["scenario_file"]) == {"example2", "example2-rigid"}
     for study in studies.values():
         assert len(study["values"]) == len(study["summaries"])
         for s in study["summaries"]:

@@ -2,13 +2,15 @@
 
 import argparse
 import csv
+import json
+import struct
 from pathlib import Path
 
 import pytest
 
-from qcontrol import sweep
 from qcontrol.errors import QcontrolInputError
 from qcontrol.sweep import CSV_METRICS, add_sweep_parser, cmd_sweep, sweep_summaries
+from qcontrol.sweep import runs as sweep
 
 EXAMPLE2 = Path(__file__).resolve().parent.parent / "scenarios" / "example2.toml"
 SHORT = "simulation.duration=1.0"
@@ -99,3 +101,61 @@ def test_unreachable_scheduler_is_an_input_error(monkeypatch):
     monkeypatch.setattr(sweep, "DASK_CONNECT_TIMEOUT", 1.0)
     with pytest.raises(QcontrolInputError, match="--scheduler"):
         sweep_summaries(EXAMPLE2, SETS[:1], scheduler="tcp://127.0.0.1:9")
+
+
+def test_sweep_json_records_the_sweep_with_provenance(tmp_path):
+    assert _sweep(str(EXAMPLE2), "--grid", "controller.gamma=1,2", "--set", SHORT, "--backend", "ode",
+                  "--out", str(tmp_path), "-q") == 0
+    record = json.loads((tmp_path / "sweep.json").read_text())
+    assert record["grid"] == {"controller.gamma": ["1", "2"]} and record["backend"] == "ode"
+    assert record["runs"] == record["runs_finished"] == 2 and not record["interrupted"]
+    assert record["provenance"]["overrides"] == [SHORT]
+    assert "[controller.proposed]" in record["provenance"]["resolved_scenario"]
+    rows = _table(tmp_path / "sweep.csv")
+    assert [r["diverged_time"] for r in rows] == ["", ""]
+
+
+def test_the_scenarios_backend_is_the_default(tmp_path, capsys):
+    assert _sweep(str(EXAMPLE2), "--grid", "controller.gamma=1,2", "--set", "simulation.duration=0.1",
+                  "--out", str(tmp_path)) == 0
+    assert json.loads((tmp_path / "sweep.json").read_text())["backend"] == "mujoco"
+    assert "--backend ode steps the runs together" in capsys.readouterr().out
+
+
+def test_ctrl_c_keeps_the_finished_rows(tmp_path, monkeypatch):
+    calls = []
+    original = sweep._run_chunk
+
+    def stop_on_the_second_chunk(*args):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return original(*args)
+
+    monkeypatch.setattr(sweep, "CHUNK", 1)
+    monkeypatch.setattr(sweep, "_run_chunk", stop_on_the_second_chunk)
+    with pytest.raises(KeyboardInterrupt):
+        _sweep(str(EXAMPLE2), "--grid", "controller.gamma=1,2,3", "--set", SHORT, "--backend", "ode",
+               "--out", str(tmp_path), "-q")
+    rows = _table(tmp_path / "sweep.csv")
+    assert [r["controller.gamma"] for r in rows] == ["1"]
+    record = json.loads((tmp_path / "sweep.json").read_text())
+    assert record["interrupted"] and record["runs"] == 3 and record["runs_finished"] == 1
+
+
+GRIDS = [["controller.gamma=1,2,3"], ["controller.gamma=1,2", "controller.sigma=1,2"],
+         ["controller.gamma=1,2", "controller.sigma=1,2", "controller.r_scale=1,2"]]
+
+
+@pytest.mark.parametrize("grids", GRIDS)
+def test_a_figure_for_each_grid_dimension(tmp_path, grids):
+    from qcontrol.plots import FIG_HEIGHT_PX, FIG_WIDTH_PX
+
+    argv = [str(EXAMPLE2), "--set", "simulation.duration=0.5", "--backend", "ode", "--out", str(tmp_path),
+            "-q"]
+    for grid in grids:
+        argv += ["--grid", grid]
+    assert _sweep(*argv) == 0
+    data = (tmp_path / "sweep.png").read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    assert struct.unpack(">II", data[16:24]) == (FIG_WIDTH_PX, FIG_HEIGHT_PX)

@@ -86,7 +86,9 @@ class LawKind:
     checks its own table); ``parse`` reads and checks them from the merged controller table into
     the kind's settings; ``build`` makes one law for a batch of variants that share
     ``structure(settings, context)`` (the settings that may differ within a batch become
-    per-copy parameters); the first variant's context is passed.
+    per-copy parameters); the first variant's context is passed. ``bounds(settings)``: the
+    bounding functions r of eqs. (37)-(43) the law uses (one per phi_i, then psi), whose
+    separation is checked along single runs.
     """
 
     name: str
@@ -94,6 +96,7 @@ class LawKind:
     parse: Callable[[Table, LawContext], Any]
     build: Callable[[Sequence[Any], LawContext], BatchLaw]
     structure: Callable[[Any, LawContext], Hashable]
+    bounds: Callable[[Any], tuple[Expression, ...]] | None = None  # its bounding functions r, if any
 
 
 LAW_KINDS: dict[str, LawKind] = {}

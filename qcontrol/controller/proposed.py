@@ -294,4 +294,4 @@ def structure(settings: ProposedSettings, ctx: LawContext) -> Hashable:
     return settings.r
 
 
-KIND = LawKind("proposed", KEYS, parse, build, structure)
+KIND = LawKind("proposed", KEYS, parse, build, structure, bounds=lambda settings: settings.r_expr)

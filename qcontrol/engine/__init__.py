@@ -5,17 +5,20 @@ parts of a run, each with one job: row buffers (:mod:`.rows`), divergence bookke
 
 from .loop import RECORD_MODES, ClosedLoop, ProgressCallback, simulate
 from .records import Observer
+from .reductions import MetricSettings
 from .results import RunMetrics, RunRecord, Trajectory
-from .signals import SIGNALS, Signal
+from .signals import SIGNALS, Separation, Signal
 
 __all__ = [
     "RECORD_MODES",
     "SIGNALS",
     "ClosedLoop",
+    "MetricSettings",
     "Observer",
     "ProgressCallback",
     "RunMetrics",
     "RunRecord",
+    "Separation",
     "Signal",
     "Trajectory",
     "simulate",

@@ -25,11 +25,12 @@ from ..quantizer import Quantizer
 from ..reference import Reference
 from ..timegrid import TimeGrid
 from .divergence import Divergence
-from .records import OBSERVE_EVERY, FullRecord, MetricsRecord, Observer
+from .records import OBSERVE_EVERY, FullRecord, MetricsRecord, Observer, RunParts
+from .reductions import MetricSettings
 from .reference_rows import ReferenceRows
 from .results import RunMetrics, Trajectory
 from .rows import NEVER, ArrayRows, FloatRows
-from .signals import SignalContext
+from .signals import Separation, SignalContext
 from .velocity import VELOCITY_SOURCES, differencing
 
 ProgressCallback = Callable[[int, int], None]  # (row reached, last row)
@@ -73,16 +74,17 @@ class ClosedLoop:
 
     def __init__(self, plant: Plant, law: BatchLaw, quantizer: Quantizer, reference: Reference,
                  grid: TimeGrid, state_bound: float, progress: ProgressCallback | None,
-                 observer: Observer | None, observe_every: int, record: str,
-                 loads: Sequence[tuple[int, float]] = (), velocity_source: str = "sensor") -> None:
+                 observer: Observer | None, observe_every: int, record: str, metrics: MetricSettings,
+                 separation: Separation | None, loads: Sequence[tuple[int, float]] = (),
+                 velocity_source: str = "sensor") -> None:
         n, batch = plant.n, plant.batch
         self.plant, self.law, self.grid = plant, law, grid
         self.divergence = Divergence(batch, grid.rows, grid.dt, state_bound)
         self.reference = ReferenceRows(reference, n, grid, whole=record == "full")
-        context = SignalContext(law.coordinates, plant.actuator, velocity_source)
-        parts = (grid, law, self.reference, self.divergence, context)
-        self.record = (FullRecord(*parts, batch, n, observer, observe_every) if record == "full"
-                       else MetricsRecord(*parts, batch, n, observer))
+        context = SignalContext(law.coordinates, separation, plant.actuator, velocity_source)
+        parts = RunParts(grid, law, self.reference, self.divergence, context, metrics, batch, n)
+        self.record = (FullRecord(parts, observer, observe_every) if record == "full"
+                       else MetricsRecord(parts, observer))
         self.rows = FloatRows(self.record.buffer) if batch == 1 else ArrayRows(self.record.buffer,
                                                                                state_bound)
         self.quantize = self.rows.quantizer(quantizer)
@@ -150,6 +152,8 @@ def simulate(
     observer: Observer | None = None,
     observe_every: int = OBSERVE_EVERY,
     record: str = "full",
+    metrics: MetricSettings | None = None,
+    separation: Separation | None = None,
     loads: Sequence[tuple[int, float]] = (),
     velocity_source: str = "sensor",
 ) -> list[Trajectory] | list[RunMetrics]:
@@ -162,9 +166,12 @@ def simulate(
     while the run goes on. ``record="metrics"`` (sweeps, long runs) keeps only
     :class:`RunMetrics`, in memory that does not grow with the run; an observer then receives each
     buffered chunk as short trajectories (``t`` starting at the chunk's first instant).
-    ``loads``: ``(row, d)`` where the external load changes (:meth:`Plant.disturb`, u's units; see
-    :mod:`qcontrol.disturbance`). ``velocity_source``: ``"sensor"``, or ``"difference"`` for an x2
-    differenced from the quantized position over the control period (:mod:`.velocity`).
+    ``metrics`` sets the error rate's thresholds and samples (default: the paper's Table 1);
+    ``separation`` names the terms of eq. (1) and their bounding functions r to check along the
+    run (eqs. (37)-(43); default: not checked). ``loads``: ``(row, d)`` where the external load
+    changes (:meth:`Plant.disturb`, u's units; see :mod:`qcontrol.disturbance`).
+    ``velocity_source``: ``"sensor"``, or ``"difference"`` for an x2 differenced from the
+    quantized position over the control period (:mod:`.velocity`).
     """
     if record not in RECORD_MODES:
         raise ValueError(f"record must be one of {RECORD_MODES}, got {record!r}")
@@ -175,5 +182,5 @@ def simulate(
                          f"the plant {plant.batch}")
     grid = TimeGrid.of(duration, dt, control_period)
     loop = ClosedLoop(plant, law, quantizer, reference, grid, state_bound, progress, observer, observe_every,
-                      record, loads, velocity_source)
+                      record, metrics or MetricSettings(), separation, loads, velocity_source)
     return loop.run(x0)

@@ -9,17 +9,19 @@ goes on), and tell the loop at which rows they need it to stop and call :meth:`a
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from ..controller.law import BatchLaw
 from ..timegrid import TimeGrid
 from .divergence import Divergence
-from .reductions import Chunk
+from .reductions import Chunk, MetricSettings
 from .reference_rows import ReferenceRows
 from .results import RunMetrics, Trajectory
 from .rows import NEVER, RowBuffer
-from .signals import DERIVED, REDUCTIONS, SIGNALS, SignalContext, derive
+from .signals import DERIVED, REDUCTIONS, SIGNALS, SignalContext, derive, needed
 
 # observer(start_row, stop_row, runs): rows [start_row, stop_row) of every run are final and may
 # be streamed out (e.g. to a rerun recording); ``runs`` are views truncated at stop_row.
@@ -29,6 +31,21 @@ OBSERVE_EVERY = 5000  # rows per observer call: streamed chunks, few enough to k
 METRICS_CHUNK = 1000  # rows buffered per reduction in a metrics-only run (at least; see below)
 METRICS_BUFFER_ELEMENTS = 5000  # rows x copies per chunk (so a single run reduces 5000 rows at a time)
 REDUCE_ELEMENTS = 100_000  # rows x copies per block when deriving z, e_z (cache-sized temporaries)
+
+
+@dataclass(frozen=True)
+class RunParts:
+    """The parts of a run a record reads: the grid, the law, the reference rows, the divergence
+    bookkeeping, what derivations read, the metrics' settings, the batch size and the order."""
+
+    grid: TimeGrid
+    law: BatchLaw
+    reference: ReferenceRows
+    divergence: Divergence
+    context: SignalContext
+    metrics: MetricSettings
+    batch: int
+    n: int
 
 
 def chunk_end(first: int, size: int, rows: int) -> int:
@@ -42,40 +59,40 @@ def chunk_end(first: int, size: int, rows: int) -> int:
 class _Record:
     """What both records share: the run's parts, and how rows become trajectories."""
 
-    def __init__(self, grid: TimeGrid, law: BatchLaw, reference: ReferenceRows, divergence: Divergence,
-                 context: SignalContext, capacity: int, batch: int, n: int,
-                 observer: Observer | None) -> None:
-        self.grid, self.law, self.reference, self.divergence = grid, law, reference, divergence
-        self.batch, self.observer = batch, observer
-        self.buffer = RowBuffer(capacity, batch, n, law.state_size)
-        self.context = context
+    def __init__(self, parts: RunParts, capacity: int, observer: Observer | None) -> None:
+        self.grid, self.law, self.reference = parts.grid, parts.law, parts.reference
+        self.divergence, self.context, self.metrics = parts.divergence, parts.context, parts.metrics
+        self.batch, self.observer = parts.batch, observer
+        self.buffer = RowBuffer(capacity, parts.batch, parts.n, parts.law.state_size)
+        self.widths = {s.name: s.size(parts.n, parts.law.state_size, self.context.terms) for s in SIGNALS}
         self.started = 0.0  # the run's start (time.perf_counter), set by the loop
 
-    def signals(self, first: int, stop: int) -> dict[str, np.ndarray]:
-        """Every signal of run rows ``[first, stop)`` (views of the buffer, derived signals new)."""
+    def meta(self, b: int, now: float) -> dict[str, Any]:
+        """What copy ``b``'s record carries besides its signals (:class:`RunRecord`'s fields)."""
+        d, separation = self.divergence, self.context.separation
+        return dict(adaptive_name=self.law.state_name, L_z=self.law.coordinates.L_z.copy(), dt=self.grid.dt,
+                    duration=self.grid.duration, hold=self.grid.hold,
+                    velocity_source=self.context.velocity_source,
+                    diverged=d.times[b] is not None, diverged_time=d.times[b],
+                    divergence_reason=d.reasons[b], wall_time_s=now - self.started, metrics=self.metrics,
+                    bound_names=() if separation is None else separation.names)
+
+    def signals(self, first: int, stop: int, derived: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
+        """The signals of run rows ``[first, stop)``: views of the buffer, the reference, and the
+        derived signals (all, or those named in ``derived``)."""
         block = self.buffer.rows(first, stop)
         block["yd"] = self.reference.block(first, stop)[:, None, :]
-        return derive(block, self.context)
+        return derive(block, self.context, derived)
 
     def trajectories(self, first: int, lengths: np.ndarray, signals: dict[str, np.ndarray],
                      now: float) -> list[Trajectory]:
         """Trajectories over run rows ``first + [0, lengths[b])`` of ``signals`` (views)."""
         return [
-            Trajectory(
-                t=self.grid.instants(first, first + lengths[b]),
-                signals={s.name: signals[s.name][: lengths[b], 0 if s.shared else b] for s in SIGNALS},
-                **self.facts(b, now),
-            )
+            Trajectory(t=self.grid.instants(first, first + lengths[b]),
+                       signals={s.name: signals[s.name][: lengths[b], 0 if s.shared else b] for s in SIGNALS},
+                       **self.meta(b, now))
             for b in range(self.batch)
         ]
-
-    def facts(self, b: int, now: float) -> dict:
-        """What every record of copy ``b`` carries (:class:`~qcontrol.engine.results.RunRecord`)."""
-        d = self.divergence
-        return dict(adaptive_name=self.law.state_name, L_z=self.law.coordinates.L_z.copy(), dt=self.grid.dt,
-                    duration=self.grid.duration, hold=self.grid.hold,
-                    velocity_source=self.context.velocity_source, diverged=d.times[b] is not None,
-                    diverged_time=d.times[b], divergence_reason=d.reasons[b], wall_time_s=now - self.started)
 
 
 class FullRecord(_Record):
@@ -83,17 +100,15 @@ class FullRecord(_Record):
     first asked for; calls the observer every ``observe_every`` rows (the last call takes up to
     half as many more) and at the end."""
 
-    def __init__(self, grid: TimeGrid, law: BatchLaw, reference: ReferenceRows, divergence: Divergence,
-                 context: SignalContext, batch: int, n: int, observer: Observer | None,
-                 observe_every: int) -> None:
-        super().__init__(grid, law, reference, divergence, context, grid.rows, batch, n, observer)
+    def __init__(self, parts: RunParts, observer: Observer | None, observe_every: int) -> None:
+        super().__init__(parts, parts.grid.rows, observer)
         self.observe_every = observe_every
         self.observed = 0  # rows [0, observed) went to the observer
         self.derived = 0  # rows [0, derived) have their derived signals
-        self.arrays = self.buffer.arrays | {"yd": reference.table[:, None, :]}
+        self.arrays = self.buffer.arrays | {"yd": parts.reference.table[:, None, :]}
         for s in DERIVED:
-            width = () if s.width == "1" else (s.size(n, law.state_size),)
-            self.arrays[s.name] = np.full((grid.rows, batch, *width), np.nan)
+            width = () if s.width == "1" else (self.widths[s.name],)
+            self.arrays[s.name] = np.full((self.grid.rows, self.batch, *width), np.nan)
 
     def next_event(self, k: int) -> int:
         return NEVER if self.observer is None else chunk_end(self.observed, self.observe_every,
@@ -129,13 +144,12 @@ class MetricsRecord(_Record):
     of a 10 s, 1 kHz run need about 80 MB instead of several GB and memory does not grow with the
     run. An observer receives each chunk as short trajectories (rows ``[0, len)`` new)."""
 
-    def __init__(self, grid: TimeGrid, law: BatchLaw, reference: ReferenceRows, divergence: Divergence,
-                 context: SignalContext, batch: int, n: int, observer: Observer | None) -> None:
-        self.chunk = max(METRICS_CHUNK, METRICS_BUFFER_ELEMENTS // batch)
-        super().__init__(grid, law, reference, divergence, context,
-                         min(grid.rows, self.chunk + self.chunk // 2), batch, n, observer)
-        widths = {s.name: s.size(n, law.state_size) for s in SIGNALS}
-        self.reductions = [(name, fold(batch, widths[name], grid.duration)) for name, fold in REDUCTIONS]
+    def __init__(self, parts: RunParts, observer: Observer | None) -> None:
+        self.chunk = max(METRICS_CHUNK, METRICS_BUFFER_ELEMENTS // parts.batch)
+        super().__init__(parts, min(parts.grid.rows, self.chunk + self.chunk // 2), observer)
+        self.reductions = [fold(self.batch, self.widths[fold.signal], self.grid.duration, self.metrics)
+                           for fold in REDUCTIONS]
+        self.derived = needed(tuple(name for fold in REDUCTIONS for name in fold.needs()))
 
     def next_event(self, k: int) -> int:
         return chunk_end(self.buffer.base, self.chunk, self.grid.rows)
@@ -153,21 +167,18 @@ class MetricsRecord(_Record):
     def _reduce(self, base: int, stop: int) -> None:
         """Fold rows ``[base, stop)`` into the reductions, a cache-sized block at a time."""
         diverged = self.divergence.kept < self.grid.rows
-        block = max(1, REDUCE_ELEMENTS // self.batch)
-        for first in range(base, stop, block):
-            last = min(stop, first + block)
+        rows = max(1, REDUCE_ELEMENTS // self.batch)
+        for first in range(base, stop, rows):
+            last = min(stop, first + rows)
             chunk = Chunk(first, self.grid.instants(first, last), self.divergence.kept, diverged,
                           self.grid.hold)
-            signals = self.signals(first, last)
-            for name, fold in self.reductions:
-                fold.add(chunk, signals[name])
+            block = self.signals(first, last, self.derived)
+            for fold in self.reductions:
+                fold.add(chunk, fold.values(block))
 
     def results(self, now: float) -> list[RunMetrics]:
-        d = self.divergence
         return [
-            RunMetrics(
-                steps=int(d.kept[b]) - 1, values={fold.name: fold.value(b) for _, fold in self.reductions},
-                **self.facts(b, now),
-            )
+            RunMetrics(steps=int(self.divergence.kept[b]) - 1,
+                       values={fold.name: fold.value(b) for fold in self.reductions}, **self.meta(b, now))
             for b in range(self.batch)
         ]

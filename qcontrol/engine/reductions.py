@@ -8,13 +8,22 @@ the same numbers. Rows at or after the row that stopped a copy do not count.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any, ClassVar
 
 import numpy as np
 
-from ..error_rate import ErrorRateStream
+from ..error_rate import TABLE1_OMEGAS, TABLE1_SAMPLES, ErrorRateStream
+
+
+@dataclass(frozen=True)
+class MetricSettings:
+    """The error rate's thresholds omega and samples M (default: the paper's Table 1)."""
+
+    omegas: tuple[float, ...] = TABLE1_OMEGAS
+    samples: int = TABLE1_SAMPLES
 
 
 @dataclass(frozen=True)
@@ -41,12 +50,25 @@ class Chunk:
 
 
 class Reduction:
-    """Folds one signal, ``(rows, batch[, width])`` per chunk, into a value per copy."""
+    """Folds one signal, ``(rows, batch[, width])`` per chunk, into a value per copy.
+
+    ``reads`` names the signals :meth:`values` needs from a block of rows (by default the reduced
+    signal itself); a metrics-only run derives only the signals its reductions read."""
 
     name: ClassVar[str]  # its key in RunMetrics and in the summary
+    signal: ClassVar[str]  # the signal it reduces
+    reads: ClassVar[tuple[str, ...]] = ()
 
-    def __init__(self, batch: int, width: int, duration: float) -> None:
+    def __init__(self, batch: int, width: int, duration: float, settings: MetricSettings) -> None:
         self.batch = batch
+
+    @classmethod
+    def needs(cls) -> tuple[str, ...]:
+        return cls.reads or (cls.signal,)
+
+    def values(self, block: Mapping[str, np.ndarray]) -> np.ndarray:
+        """The reduced signal's values in a block of rows."""
+        return block[self.signal]
 
     def add(self, chunk: Chunk, values: np.ndarray) -> None:
         raise NotImplementedError
@@ -62,10 +84,10 @@ def _finite_or_nan(value: float) -> float:
 class LargestAbs(Reduction):
     """The largest finite ``|u|`` (NaN when there is none)."""
 
-    name = "max_abs_u"
+    name, signal = "max_abs_u", "u"
 
-    def __init__(self, batch: int, width: int, duration: float) -> None:
-        super().__init__(batch, width, duration)
+    def __init__(self, batch: int, width: int, duration: float, settings: MetricSettings) -> None:
+        super().__init__(batch, width, duration, settings)
         self.largest = np.full(batch, -np.inf)
 
     def add(self, chunk: Chunk, values: np.ndarray) -> None:
@@ -77,20 +99,26 @@ class LargestAbs(Reduction):
         return _finite_or_nan(float(self.largest[b]))
 
 
+def tracking_error(block: Mapping[str, np.ndarray]) -> np.ndarray:
+    """``z_1 = x_1 - y_d`` (eq. (7)), shape ``(rows, batch, 1)``: the same floats as ``z[..., :1]``,
+    without deriving the other errors."""
+    return block["x"][..., :1] - block["yd"][..., :1]
+
+
 class LargestAbsApplied(LargestAbs):
     """The largest finite ``|u|`` the actuator applied."""
 
-    name = "max_abs_u_applied"
+    name, signal = "max_abs_u_applied", "u_applied"
 
 
 class SaturatedFraction(Reduction):
     """The fraction of control samples (rows ``k`` with ``k % hold == 0`` and a finite u) at which
     the actuator clipped the command (NaN when there is none)."""
 
-    name = "saturated_fraction"
+    name, signal = "saturated_fraction", "saturated"
 
-    def __init__(self, batch: int, width: int, duration: float) -> None:
-        super().__init__(batch, width, duration)
+    def __init__(self, batch: int, width: int, duration: float, settings: MetricSettings) -> None:
+        super().__init__(batch, width, duration, settings)
         self.clipped = np.zeros(batch)
         self.samples = np.zeros(batch)
 
@@ -107,27 +135,30 @@ class SaturatedFraction(Reduction):
 class ErrorRate(Reduction):
     """Table 1's error rate E(omega) of ``z_1`` (see :mod:`qcontrol.error_rate`)."""
 
-    name = "error_rate"
+    name, signal, reads = "error_rate", "z", ("x", "yd")
+    values = staticmethod(tracking_error)
 
-    def __init__(self, batch: int, width: int, duration: float) -> None:
-        super().__init__(batch, width, duration)
-        self.stream = ErrorRateStream(duration, batch=batch)
+    def __init__(self, batch: int, width: int, duration: float, settings: MetricSettings) -> None:
+        super().__init__(batch, width, duration, settings)
+        self.stream = ErrorRateStream(duration, settings.samples, batch)
+        self.omegas = settings.omegas
 
     def add(self, chunk: Chunk, values: np.ndarray) -> None:
         z1 = values[..., 0]
         self.stream.add(chunk.t, z1 if chunk.everyone else np.where(chunk.valid, z1, np.nan))
 
     def value(self, b: int) -> dict[str, float]:
-        return self.stream.rates(run=b)
+        return self.stream.rates(self.omegas, run=b)
 
 
 class LastHalfLargestAbs(Reduction):
     """The largest finite ``|z_1|`` over the last half of the run (NaN when there is none)."""
 
-    name = "max_abs_z1_last_half"
+    name, signal, reads = "max_abs_z1_last_half", "z", ("x", "yd")
+    values = staticmethod(tracking_error)
 
-    def __init__(self, batch: int, width: int, duration: float) -> None:
-        super().__init__(batch, width, duration)
+    def __init__(self, batch: int, width: int, duration: float, settings: MetricSettings) -> None:
+        super().__init__(batch, width, duration, settings)
         self.half = duration / 2.0
         self.largest = np.full(batch, -np.inf)
 
@@ -145,10 +176,10 @@ class Lemma2Largest(Reduction):
     row that stopped a diverged copy holds an out-of-range state, where quantization error is
     meaningless)."""
 
-    name = "e_z_max"
+    name, signal = "e_z_max", "e_z"
 
-    def __init__(self, batch: int, width: int, duration: float) -> None:
-        super().__init__(batch, width, duration)
+    def __init__(self, batch: int, width: int, duration: float, settings: MetricSettings) -> None:
+        super().__init__(batch, width, duration, settings)
         self.largest = np.full((batch, width), -np.inf)
 
     def add(self, chunk: Chunk, values: np.ndarray) -> None:
@@ -166,10 +197,10 @@ class Lemma2Largest(Reduction):
 class FinalValue(Reduction):
     """The adaptive state at the last row each copy keeps."""
 
-    name = "final_adaptive"
+    name, signal = "final_adaptive", "adaptive"
 
-    def __init__(self, batch: int, width: int, duration: float) -> None:
-        super().__init__(batch, width, duration)
+    def __init__(self, batch: int, width: int, duration: float, settings: MetricSettings) -> None:
+        super().__init__(batch, width, duration, settings)
         self.final = np.full((batch, width), np.nan)
 
     def add(self, chunk: Chunk, values: np.ndarray) -> None:
@@ -179,3 +210,26 @@ class FinalValue(Reduction):
 
     def value(self, b: int) -> np.ndarray:
         return self.final[b].copy()
+
+
+class BoundConstants(Reduction):
+    """The empirical constants of the separation (37)-(43): the largest ``|term_i| / r_i(x_q)`` per
+    term over every row before a divergence; Inf where the ratio was ever infinite or undefined
+    (the term is not bounded by its r on the run)."""
+
+    name, signal = "bound_constants", "bound_ratio"
+
+    def __init__(self, batch: int, width: int, duration: float, settings: MetricSettings) -> None:
+        super().__init__(batch, width, duration, settings)
+        self.largest = np.full((batch, width), -np.inf)
+
+    def add(self, chunk: Chunk, values: np.ndarray) -> None:
+        values = np.where(np.isfinite(values), values, np.inf)
+        if not chunk.everyone:
+            last = np.where(chunk.diverged, chunk.kept - 1, chunk.kept)
+            rows = chunk.first + np.arange(len(chunk.t))
+            values = np.where((rows[:, None] < last[None, :])[..., None], values, -np.inf)
+        np.maximum(self.largest, values.max(axis=0, initial=-np.inf), out=self.largest)
+
+    def value(self, b: int) -> np.ndarray:
+        return self.largest[b].copy()

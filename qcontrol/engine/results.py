@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from .reductions import Chunk
+from .reductions import Chunk, MetricSettings
 from .signals import REDUCTIONS, SIGNALS
 
 
@@ -29,6 +29,8 @@ class RunRecord:
     diverged_time: float | None = None
     divergence_reason: str = ""
     wall_time_s: float = 0.0
+    metrics: MetricSettings = field(default_factory=MetricSettings)  # the error rate's omegas and samples
+    bound_names: tuple[str, ...] = ()  # the terms whose separation (37)-(43) was checked
 
 
 @dataclass(kw_only=True)
@@ -64,11 +66,12 @@ class Trajectory(RunRecord):
         """The metrics of the run, by the same reductions as a metrics-only run (one chunk)."""
         rows = len(self.t)
         chunk = Chunk(0, self.t, np.array([rows]), np.array([self.diverged]), self.hold)
+        block = {name: array[:, None] for name, array in self.signals.items()}  # a batch of one
         values = {}
-        for signal, reduction in REDUCTIONS:
-            array = self.signals[signal]
-            fold = reduction(1, array.shape[-1] if array.ndim > 1 else 1, self.duration)
-            fold.add(chunk, array[:, None])
+        for reduction in REDUCTIONS:
+            array = self.signals[reduction.signal]
+            fold = reduction(1, array.shape[-1] if array.ndim > 1 else 1, self.duration, self.metrics)
+            fold.add(chunk, fold.values(block))
             values[reduction.name] = fold.value(0)
         return values
 
@@ -91,6 +94,6 @@ class RunMetrics(RunRecord):
         return self.values
 
 
-for _, _reduction in REDUCTIONS:
+for _reduction in REDUCTIONS:
     setattr(RunMetrics, _reduction.name, property(lambda run, key=_reduction.name: run.values[key]))
 del _signal, _reduction

@@ -19,7 +19,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..controller.backstepping import Backstepping
+from ..expr import Expression
 from .reductions import (
+    BoundConstants,
     ErrorRate,
     FinalValue,
     LargestAbs,
@@ -33,6 +35,16 @@ from .reductions import (
 Block = Mapping[str, np.ndarray]  # signals of rows [first, stop): (rows, batch, width); y_d (rows, 1, n+1)
 
 
+@dataclass(frozen=True)
+class Separation:
+    """The separation of eqs. (37)-(43) to check along a run: each uncertain term (``phi_1 ..
+    phi_l``, then ``psi``) and its bounding function r_i (over ``q1..qn``), named ``names``."""
+
+    names: tuple[str, ...]
+    terms: tuple[Expression, ...]
+    r: tuple[Expression, ...]
+
+
 def _as_commanded(u: np.ndarray) -> np.ndarray:
     return u
 
@@ -40,13 +52,18 @@ def _as_commanded(u: np.ndarray) -> np.ndarray:
 @dataclass(frozen=True)
 class SignalContext:
     """What derivations may read besides the block: the coordinates of the recorded errors, the
-    plant's actuator (commanded u -> applied u, :meth:`~qcontrol.plants.base.Plant.actuator`) and
-    where the controller's x2 came from (``"sensor"`` or ``"difference"``, see
-    :mod:`qcontrol.engine.velocity`)."""
+    separation to check (None: not checked; its signal then has no columns), the plant's actuator
+    (commanded u -> applied u, :meth:`~qcontrol.plants.base.Plant.actuator`) and where the
+    controller's x2 came from (``"sensor"`` or ``"difference"``, see :mod:`qcontrol.engine.velocity`)."""
 
     coordinates: Backstepping
+    separation: Separation | None = None
     actuator: Callable[[np.ndarray], np.ndarray] = _as_commanded
     velocity_source: str = "sensor"
+
+    @property
+    def terms(self) -> int:
+        return 0 if self.separation is None else len(self.separation.terms)
 
 
 Derive = Callable[[Block, SignalContext], np.ndarray]
@@ -78,6 +95,20 @@ def _e_z(block: Block, ctx: SignalContext) -> np.ndarray:
     return np.abs(ctx.coordinates.errors(block["x_meas"], block["yd"]) - block["zbar"])
 
 
+def _bound_ratio(block: Block, ctx: SignalContext) -> np.ndarray:
+    """``|term_i| / r_i(x_q)`` with the term at the true state and at x_q (the centre of the
+    quantization cell (37)-(43) must bound), whichever is larger; NaN or Inf where either is."""
+    x, x_q = block["x"], block["x_q"]
+    out = np.empty(x.shape[:-1] + (ctx.terms,))
+    if ctx.separation is None:
+        return out
+    at_x, at_q = tuple(np.moveaxis(x, -1, 0)), tuple(np.moveaxis(x_q, -1, 0))
+    for i, (term, r) in enumerate(zip(ctx.separation.terms, ctx.separation.r, strict=True)):
+        size = np.maximum(np.abs(term.on_columns(at_x)), np.abs(term.on_columns(at_q)))
+        out[..., i] = size / r.on_columns(at_q)
+    return out
+
+
 @dataclass(frozen=True)
 class Plot:
     """Where recordings draw a signal: one series per shown component, at ``path`` with the legend
@@ -99,7 +130,8 @@ class Signal:
     """One recorded signal.
 
     ``width``: ``"n"`` (one per state), ``"n+1"`` (y_d and its n derivatives), ``"m"`` (one per
-    adaptive state) or ``"1"`` (a scalar: its arrays have no last axis). ``derive`` is None for
+    adaptive state), ``"terms"`` (one per uncertain term of eq. (1) whose bound is checked) or
+    ``"1"`` (a scalar: its arrays have no last axis). ``derive`` is None for
     the signals the loop records every row; a derivation may read the signals above it.
     ``shared``: one value for every copy of a batch (the reference, computed from the grid).
     ``reductions``: what a metrics-only run keeps of it (the summary reads them); ``plots``:
@@ -115,14 +147,15 @@ class Signal:
     shared: bool = False
     reductions: tuple[type[Reduction], ...] = ()
     plots: tuple[Plot, ...] = ()
+    reads: tuple[str, ...] = ()  # a derived signal: the signals its derivation reads
 
     @property
     def recorded(self) -> bool:
         """Recorded by the loop every row (not derived, not the reference)."""
         return self.derive is None and not self.shared
 
-    def size(self, n: int, m: int) -> int:
-        return {"n": n, "n+1": n + 1, "m": m, "1": 1}[self.width]
+    def size(self, n: int, m: int, terms: int = 0) -> int:
+        return {"n": n, "n+1": n + 1, "m": m, "1": 1, "terms": terms}[self.width]
 
 
 SIGNALS: tuple[Signal, ...] = (
@@ -134,34 +167,50 @@ SIGNALS: tuple[Signal, ...] = (
     Signal("u", "1", "input", True, "input held over [t_k, t_k + dt): law (44), (46) or a user law",
            reductions=(LargestAbs,), plots=(Plot("signals/input/u", "u", twin=True),)),
     Signal("u_applied", "1", "input", True, "input the actuator applied: u, clipped where the actuator "
-           "saturates (the plant's actuator)", _u_applied, reductions=(LargestAbsApplied,),
+           "saturates (the plant's actuator)", _u_applied, reads=("u",), reductions=(LargestAbsApplied,),
            plots=(Plot("signals/input/u_applied", "u applied", color="applied"),)),
     Signal("saturated", "1", "-", True, "1 where the actuator clipped the command u over the step, else 0",
-           _saturated, reductions=(SaturatedFraction,)),
+           _saturated, reads=("u", "u_applied"), reductions=(SaturatedFraction,)),
     Signal("adaptive", "m", "adaptive", False, "adaptive estimates (eps_hat of (45), theta_hat of (46), ...)",
            reductions=(FinalValue,), plots=(Plot("signals/adaptive/{a}_{i}", "{a}_{i}", color="palette"),)),
     Signal("yd", "n+1", "y", False, "reference y_d and its derivatives y_d', ..., y_d^(n)", shared=True,
            plots=(Plot("signals/tracking/y_d", "y_d", (0,), color="reference"),)),
     Signal("z", "n", "state", False, "errors z_i of eqs. (7)-(8), from the true state", _z,
-           reductions=(ErrorRate, LastHalfLargestAbs),
+           reads=("x", "yd"), reductions=(ErrorRate, LastHalfLargestAbs),
            plots=(Plot("signals/error/z1", "z1", (0,), twin=True),)),
-    Signal("zbar", "n", "state", False, "quantized errors zbar_i of eqs. (31)-(33)", _zbar),
+    Signal("zbar", "n", "state", False, "quantized errors zbar_i of eqs. (31)-(33)", _zbar,
+           reads=("x_q", "yd")),
     Signal("e_z", "n", "state", False, "Lemma 2 errors |z_i(x_meas) - zbar_i| (bound L_zi)", _e_z,
+           reads=("x_meas", "yd", "zbar"),
            reductions=(Lemma2Largest,),
            plots=(Plot("theory/lemma2/z{i}", "|e_z{i}| / L_z{i}", per_bound=True, color="palette"),)),
+    Signal("bound_ratio", "terms", "ratio", False,
+           "|term_i| / r_i(x_q) of the separation (37)-(43) (phi_1..phi_l, then psi), at x and at x_q",
+           _bound_ratio, reads=("x", "x_q"), reductions=(BoundConstants,)),
 )
 RECORDED = tuple(s for s in SIGNALS if s.recorded)
 DERIVED = tuple(s for s in SIGNALS if s.derive is not None)
-REDUCTIONS: tuple[tuple[str, type[Reduction]], ...] = tuple(
-    (s.name, r) for s in SIGNALS for r in s.reductions)
+REDUCTIONS: tuple[type[Reduction], ...] = tuple(r for s in SIGNALS for r in s.reductions)
 assert tuple(s.name for s in RECORDED) == ("x", "x_meas", "x_q", "u", "adaptive"), (
     "the loop records exactly these, in this order (see qcontrol.engine.rows)")
 
 
-def derive(block: dict[str, np.ndarray], ctx: SignalContext) -> dict[str, np.ndarray]:
-    """Add the derived signals, in table order, to ``block`` (which holds the recorded signals of
-    some rows and ``yd`` shaped ``(rows, 1, n+1)``) and return it."""
+def needed(names: tuple[str, ...]) -> tuple[str, ...]:
+    """The derived signals that ``names`` need, directly or through what they read, in table order."""
+    wanted = set(names)
+    for signal in reversed(DERIVED):
+        if signal.name in wanted:
+            wanted.update(signal.reads)
+    return tuple(s.name for s in DERIVED if s.name in wanted)
+
+
+def derive(block: dict[str, np.ndarray], ctx: SignalContext, names: tuple[str, ...] | None = None
+           ) -> dict[str, np.ndarray]:
+    """Add derived signals, in table order, to ``block`` (which holds the recorded signals of some
+    rows and ``yd`` shaped ``(rows, 1, n+1)``) and return it: all of them, or those of ``names``
+    (see :func:`needed`)."""
     with np.errstate(all="ignore"):  # rows of a diverged copy may hold NaN/Inf
         for signal in DERIVED:
-            block[signal.name] = signal.derive(block, ctx)
+            if names is None or signal.name in names:
+                block[signal.name] = signal.derive(block, ctx)
     return block

@@ -35,6 +35,7 @@ from .runs import (
     fig_compare_output,
     fig_input,
     fig_output,
+    fig_run,
     fig_tracking_error,
     output_difference,
 )
@@ -58,6 +59,7 @@ __all__ = [
     "fig_margins",
     "fig_output",
     "fig_robustness",
+    "fig_run",
     "fig_sensitivity",
     "fig_table1",
     "fig_tracking_error",

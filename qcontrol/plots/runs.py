@@ -224,3 +224,60 @@ def fig_backend_overlay(
     time_axis(bottom, [mujoco, ode], units)
     legend(bottom, fontsize=8)
     return save(fig, path)
+
+
+# --------------------------------------------------------------------------------------------
+# The standard figure of one run (qcontrol run --plot)
+# --------------------------------------------------------------------------------------------
+
+GENERIC_UNITS = Units(y="", u="")
+
+
+def fig_run(traj: Trajectory, path: str | os.PathLike, title: str, units: Units = GENERIC_UNITS,
+            notes: Sequence[str] = ()) -> Path:
+    """One run on one page: y and y_d, the tracking error z_1, the input u (held: steps), the
+    adaptive estimates and the Lemma 2 ratio max_i |e_zi| / L_zi against its bound 1, plus
+    ``notes`` (e.g. the summary's figures) in the sixth panel."""
+    fig, axes = new_figure(3, 2)
+    t_ref, yd = reference(traj)
+    panels = axes.ravel()
+    panels[0].plot(t_ref, yd, label="$y_d$", **REF_STYLE)
+    panels[0].plot(traj.t, traj.y, color=COLORS[0], linewidth=1.3, label="y")
+    panels[0].set_ylabel(f"y, $y_d${unit(units.y)}")
+    panels[1].axhline(0.0, color="black", linewidth=0.6)
+    panels[1].plot(traj.t, column(traj.z, 0), color=COLORS[0], linewidth=1.3, label="$z_1 = y - y_d$")
+    panels[1].set_ylabel(f"$z_1${unit(units.y)}")
+    panels[2].step(traj.t, traj.u, where="post", color=COLORS[0], linewidth=1.0, label="u")
+    panels[2].set_ylabel(f"u{unit(units.u)}")
+    adaptive = np.asarray(traj.adaptive, dtype=float).reshape(len(traj.t), -1)
+    for i, name in enumerate(adaptive_labels(traj, adaptive.shape[1])):
+        panels[3].plot(traj.t, adaptive[:, i], color=COLORS[i % len(COLORS)], linewidth=1.3, label=name)
+    panels[3].set_ylabel("adaptive state")
+    t_env, envelope = _lemma2_envelope(traj)
+    panels[4].step(t_env, envelope, where="post", color=COLORS[1], linewidth=1.0,
+                   label=r"max$_i$ |$e_{zi}$| / $L_{zi}$ (max per window)")
+    panels[4].axhline(1.0, color="red", linestyle="--", linewidth=1.0, label="Lemma 2 bound")
+    panels[4].set_ylim(0.0, 1.25)
+    panels[4].set_ylabel("Lemma 2 ratio")
+    for ax in panels[:5]:
+        mark_divergence(ax, traj)
+        time_axis(ax, [traj], units)
+        legend(ax, fontsize=7, loc="best")
+    panels[5].axis("off")
+    panels[5].text(0.0, 1.0, "\n".join(notes), va="top", ha="left", family="monospace", fontsize=7,
+                   transform=panels[5].transAxes)
+    fig.suptitle(title)
+    return save(fig, path)
+
+
+def _lemma2_envelope(traj: Trajectory, windows: int = 400) -> tuple[np.ndarray, np.ndarray]:
+    """``max_i |e_zi| / L_zi`` as its maximum over ``windows`` equal windows of rows (the ratio
+    changes every step: drawn row by row it is a solid band)."""
+    with np.errstate(all="ignore"):
+        ratio = np.max(np.asarray(traj.e_z, dtype=float) / traj.L_z, axis=1) if len(traj.t) else np.array([])
+    size = max(1, -(-len(ratio) // windows))
+    starts = np.arange(0, len(ratio), size)
+    if not len(starts):
+        return starts.astype(float), ratio
+    with np.errstate(all="ignore"):
+        return traj.t[starts], np.fmax.reduceat(ratio, starts)

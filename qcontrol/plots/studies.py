@@ -40,21 +40,26 @@ def fig_sensitivity(
 
     ``rates`` maps an omega key (``"0.100"``, as :func:`qcontrol.metrics.omega_key`) to one rate
     per entry of ``x_values``; NaN or None are gaps. ``x_values`` are numbers (e.g. ``kappa - L``
-    or an ``r`` scale; use ``xscale="log"`` for a geometric sweep) or strings, which are placed as
-    categories (e.g. plant variants). ``paper_rates`` (omega key -> rate, the paper's proposed
-    row) are drawn as dashed horizontal lines in the colour of that omega; ``markers`` (label ->
-    x) as dotted vertical lines, e.g. ``{"paper: kappa - L = 1.1": 1.1}``.
+    or an ``r`` scale; use ``xscale="log"`` for a geometric sweep) or strings: categories (e.g.
+    plant variants), drawn as groups of bars, one bar per omega (no line joins unrelated cases).
+    ``paper_rates`` (omega key -> rate, the paper's proposed row) are drawn as dashed horizontal
+    lines in the colour of that omega; ``markers`` (label -> x) as dotted vertical lines, e.g.
+    ``{"paper: kappa - L = 1.1": 1.1}``.
     """
     categorical = any(isinstance(v, str) for v in x_values)
     xs = np.arange(len(x_values), dtype=float) if categorical else np.asarray(x_values, dtype=float)
     fig, axes = new_figure()
     ax = axes[0, 0]
+    width = 0.8 / max(1, len(rates))
     for i, (key, values) in enumerate(rates.items()):
         ys = np.array([np.nan if v is None else float(v) for v in values], dtype=float)
         if ys.shape != xs.shape:
             raise ValueError(f"fig_sensitivity: {len(ys)} rate(s) for omega {key} but {len(xs)} x value(s)")
         color = COLORS[i % len(COLORS)]
-        ax.plot(xs, ys, color=color, marker="o", markersize=5, linewidth=1.5, label=_omega_label(key))
+        if categorical:
+            ax.bar(xs - 0.4 + width * (i + 0.5), ys, width=width * 0.95, color=color, label=_omega_label(key))
+        else:
+            ax.plot(xs, ys, color=color, marker="o", markersize=5, linewidth=1.5, label=_omega_label(key))
         if paper_rates is not None and paper_rates.get(key) is not None:
             ax.axhline(float(paper_rates[key]), color=color, linestyle="--", linewidth=1.0, alpha=0.8)
     if paper_rates:

@@ -17,6 +17,7 @@ left behind. Only a killed process leaves the ``.part`` file (readable up to its
 
 from __future__ import annotations
 
+import json
 import re
 import shutil
 import sys
@@ -29,7 +30,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..engine import Observer, Trajectory
-from ..outputs import AtomicFile
+from ..outputs import AtomicFile, clean
 from .scene import Scene
 from .series import RED, TIMELINE, Series, default_blueprint, run_series
 
@@ -168,9 +169,11 @@ class Recording:
     # -- static content -------------------------------------------------------------------
 
     def log_static(
-        self, scenario_text: str, constants: Mapping[str, float | Sequence[float]], version: str
+        self, scenario_text: str, constants: Mapping[str, float | Sequence[float]], version: str,
+        provenance: Mapping[str, Any] | None = None,
     ) -> None:
-        """Log the scenario file's text, the controller constants and the package version."""
+        """Log the scenario's text, the controller constants, the package version and, when given,
+        the provenance (``info/provenance``: the versions, the command, the overrides)."""
         if self._stream is None:
             return
         import rerun as rr
@@ -192,6 +195,10 @@ class Recording:
         self._stream.log(
             "info/version", rr.TextDocument(f"qcontrol {version}"), rr.AnyValues(version=version), static=True
         )
+        if provenance is not None:
+            text = json.dumps(clean(provenance), indent=2)
+            self._stream.log("info/provenance", rr.TextDocument(f"```json\n{text}\n```", media_type=markdown),
+                             static=True)
 
     # -- runs ------------------------------------------------------------------------------
 

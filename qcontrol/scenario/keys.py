@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from ..controller.law import LAW_KINDS
 from ..engine.velocity import VELOCITY_SOURCES
+from ..error_rate import TABLE1_OMEGAS, TABLE1_SAMPLES
 from ..plants.backends import BACKENDS
 from ..reference import REFERENCE_KINDS
 from ..schema import (
@@ -24,7 +25,7 @@ from ..schema import (
     string,
 )
 
-TOP = ("scenario", "plant", "controller", "reference", "simulation", "disturbance")
+TOP = ("scenario", "plant", "controller", "reference", "simulation", "metrics", "disturbance")
 REQUIRED_TABLES = ("plant", "controller", "reference", "simulation")
 # The engine keeps what a run needs in memory that does not grow with the run, but a full record
 # (compare, reproduce, --save) keeps every row: 20 million steps is a few GB. Longer runs are
@@ -97,3 +98,15 @@ def simulation_section() -> Section:
         ),
         "how the closed loop is run",
     )
+
+
+METRICS = Section(
+    "metrics",
+    (
+        Key("omega", numbers(positive=True), list(TABLE1_OMEGAS), "y",
+            "thresholds omega of the error rate E(omega) = #{i: |z_1(t_i)| > omega} / M (Table 1)"),
+        Key("samples", integer(2), TABLE1_SAMPLES,
+            meaning="samples M of the error rate, at t_i = i T / (M - 1)"),
+    ),
+    "what a run reports: the error rate's thresholds and samples (default: the paper's Table 1)",
+)

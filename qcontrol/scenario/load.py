@@ -10,8 +10,9 @@ before validation.
 
 from __future__ import annotations
 
+import copy
 import tomllib
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -19,15 +20,18 @@ import numpy as np
 
 from ..controller.law import LawContext, law_kind
 from ..disturbance import parse_disturbances
+from ..engine import MetricSettings
 from ..errors import QcontrolInputError
 from ..expr import compile_expression
 from ..plants.backends import BACKENDS, PlantContext
 from ..plants.base import PlantTerms
 from ..reference import REFERENCE_KINDS
+from ..resources import scenario_path, shipped_scenarios
 from ..schema import Section, Table, kind_table, read_keys
 from ..timegrid import TimeGrid
 from .keys import (
     MAX_STEPS,
+    METRICS,
     PLANT,
     REQUIRED_TABLES,
     TOP,
@@ -38,14 +42,20 @@ from .keys import (
 )
 from .model import ControllerConfig, ReferenceConfig, Scenario, SimulationConfig
 
+Overrides = Sequence[str] | Mapping[str, Any]  # "key=value" strings (the value read as TOML), or a dict
 
-def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
-    """Read and validate a scenario file, applying ``--set key=value`` overrides first."""
-    path = Path(path)
+
+def load_scenario(path: str | Path, overrides: Overrides = ()) -> Scenario:
+    """Read and validate a scenario file (or a shipped scenario by name, e.g. ``"example2"``),
+    applying the overrides first: ``"key=value"`` strings as on the command line (``--set``), or a
+    dict ``{"controller.kappa_margin": 0.1}``."""
+    path = scenario_path(path)
     if path.is_dir():
         raise QcontrolInputError(f"{path}: is a folder, not a scenario file; pass a .toml scenario")
     if not path.is_file():
-        raise QcontrolInputError(f"{path}: scenario file not found; pass the path of a .toml scenario")
+        shipped = ", ".join(shipped_scenarios()) or "none"
+        raise QcontrolInputError(f"{path}: scenario file not found; pass the path of a .toml scenario or the "
+                                 f"name of a shipped one ({shipped})")
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
@@ -58,17 +68,33 @@ def parse_scenario(
     text: str,
     source: str = "<string>",
     base_dir: Path | None = None,
-    overrides: Sequence[str] = (),
+    overrides: Overrides = (),
     default_name: str = "scenario",
 ) -> Scenario:
-    """Validate scenario TOML ``text``; ``source`` names it in messages."""
+    """Validate scenario TOML ``text``; ``source`` names it in messages, ``base_dir`` is the folder
+    paths in it are relative to."""
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise QcontrolInputError(f"{source}: malformed TOML ({exc}); fix the syntax") from None
-    for item in overrides:
-        apply_override(data, item)
-    return _build(data, source, base_dir or Path("."), text, tuple(overrides), default_name)
+    given = _as_given(overrides)
+    for item in given:  # strings and (key, value) pairs: the latter come from dicts
+        if isinstance(item, str):
+            apply_override(data, item)
+        else:
+            set_key(data, *item, f"override {item[0]!r}")
+    return _build(data, source, base_dir or Path("."), text, given, default_name)
+
+
+def _as_given(overrides: Overrides) -> tuple[str | tuple[str, Any], ...]:
+    """The overrides as entries: ``"key=value"`` strings, or ``(key, value)`` pairs from a dict
+    (entries already in that form pass through)."""
+    if isinstance(overrides, Mapping):
+        return tuple((str(key), value) for key, value in overrides.items())
+    if isinstance(overrides, str):
+        raise QcontrolInputError(f"overrides {overrides!r}: give a list of \"key=value\" strings or a dict; "
+                                 f"e.g. [{overrides!r}]")
+    return tuple(item if isinstance(item, str) else (str(item[0]), item[1]) for item in overrides)
 
 
 def apply_override(data: dict, item: str) -> None:
@@ -79,26 +105,31 @@ def apply_override(data: dict, item: str) -> None:
         raise QcontrolInputError(
             f"--set {item!r}: expected KEY=VALUE; write e.g. --set controller.kappa_margin=0.1"
         )
-    parts = key.split(".")
-    if any(not p for p in parts):
-        raise QcontrolInputError(f"--set {item!r}: key {key!r} has an empty part; write a.b.c=value")
     raw = raw.strip()
     try:
         value = tomllib.loads(f"v = {raw}")["v"]
     except tomllib.TOMLDecodeError:
         value = raw
+    set_key(data, key, value, f"--set {item!r}")
+
+
+def set_key(data: dict, key: str, value: Any, label: str) -> None:
+    """Set the dotted ``key`` of the scenario's data to ``value`` (tables made as needed)."""
+    parts = key.split(".")
+    if not key or any(not p for p in parts):
+        raise QcontrolInputError(f"{label}: key {key!r} has an empty part; write a.b.c=value")
     node = data
     for part in parts[:-1]:
         child = node.setdefault(part, {})
         if not isinstance(child, dict):
             raise QcontrolInputError(
-                f"--set {item!r}: {part!r} is a value, not a table; set {'.'.join(parts[:-1])} directly"
+                f"{label}: {part!r} is a value, not a table; set {'.'.join(parts[:-1])} directly"
             )
         node = child
     node[parts[-1]] = value
 
 
-def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[str, ...],
+def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[str | tuple[str, Any], ...],
            default_name: str) -> Scenario:
     root = Table(data, source, "", TOP)
     for key in REQUIRED_TABLES:
@@ -111,14 +142,16 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
     controller = _controller(root.table("controller"), terms)
     signal = _reference(root.table("reference"), terms.order)
     simulation = _simulation(root.table("simulation"))
+    metrics = _metrics(root.table("metrics", default={}))
     backends = _backends(plant, terms, base_dir, simulation)
     disturbances = parse_disturbances(data.get("disturbance"), source)
     scenario = Scenario(
         name=meta["name"], description=meta["description"], source=source, text=text, overrides=overrides,
+        data=copy.deepcopy(data), base_dir=base_dir,
         order=terms.order, psi=None if terms.psi is None else terms.psi.source,
         phi=tuple(p.source for p in terms.phi), theta=terms.theta, x0=x0, controller=controller,
         reference=signal, simulation=simulation, backends=backends, disturbances=disturbances,
-        psi_expr=terms.psi, phi_expr=terms.phi,
+        psi_expr=terms.psi, phi_expr=terms.phi, metrics=metrics,
     )
     _check_terms_at_x0(scenario)
     return scenario
@@ -170,6 +203,14 @@ def _simulation(table: Table) -> SimulationConfig:
     except QcontrolInputError as exc:
         raise QcontrolInputError(f"{table.source}: {exc}") from None
     return SimulationConfig(**v)
+
+
+def _metrics(table: Table) -> MetricSettings:
+    table = Table(table.data, table.source, table.name, METRICS.names)
+    v = read_keys(table, METRICS.keys, {})
+    if len(set(v["omega"])) != len(v["omega"]):
+        raise table.error("omega", f"repeats a threshold in {list(v['omega'])}", "list each omega once")
+    return MetricSettings(tuple(v["omega"]), v["samples"])
 
 
 def _backends(plant: Table, terms: PlantTerms, base_dir: Path, simulation: SimulationConfig) -> dict[str,

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from ..controller.law import LawContext
 from ..disturbance import Disturbance
+from ..engine import MetricSettings
 from ..expr import Expression
 from ..plants.base import PlantTerms
 from ..reference import Reference
@@ -51,7 +54,7 @@ class Scenario:
     description: str
     source: str  # where it came from (file path or "<string>")
     text: str  # the TOML text as read
-    overrides: tuple[str, ...]
+    overrides: tuple[str | tuple[str, Any], ...]  # as given: "key=value" strings or (key, value) pairs
     order: int
     psi: str | None
     phi: tuple[str, ...]
@@ -62,8 +65,20 @@ class Scenario:
     simulation: SimulationConfig
     backends: dict[str, Any] = field(default_factory=dict)
     disturbances: tuple[Disturbance, ...] = ()
+    metrics: MetricSettings = field(default_factory=MetricSettings)
+    data: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)  # the TOML after overrides
+    base_dir: Path = field(default=Path("."), repr=False, compare=False)  # paths in it are relative to it
     psi_expr: Expression | None = field(default=None, repr=False)
     phi_expr: tuple[Expression, ...] = field(default=(), repr=False)
+
+    def with_overrides(self, overrides: Mapping[str, Any] | Sequence[str]) -> Scenario:
+        """A new scenario: this one's file with its overrides and then ``overrides`` (a dict
+        ``{"controller.kappa_margin": 0.1}`` or ``"key=value"`` strings) applied. Scenarios are
+        immutable: this one is unchanged."""
+        from .load import _as_given, parse_scenario
+
+        return parse_scenario(self.text, source=self.source, base_dir=self.base_dir,
+                              overrides=(*self.overrides, *_as_given(overrides)), default_name=self.name)
 
     @property
     def terms(self) -> PlantTerms:

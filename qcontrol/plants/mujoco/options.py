@@ -172,7 +172,7 @@ _NAME = custom("name of an MJCF element", _element_name)
 SECTION = Section(
     "plant.mujoco",
     (
-        Key("model", custom("path of an MJCF file", _element_name),
+        Key("model", custom("path of an MJCF file", _element_name, path=True),
             meaning="the MJCF file, relative to the scenario file's folder"),
         Key("joint", _NAME, meaning="the hinge or slide joint whose position is x1 and velocity x2"),
         Key("position_sensor", _NAME, meaning="<jointpos> sensor on the joint: the reading of x1"),

@@ -1,0 +1,256 @@
+"""The Python API: load a scenario, run it, compare MuJoCo with the ODE, save what a run recorded.
+
+    import qcontrol
+    sc = qcontrol.load_scenario("scenarios/example2.toml", overrides={"controller.kappa_margin": 0.1})
+    res = qcontrol.run(sc, backend="ode")      # a Result: res.summary is what summary.json holds
+    res.t, res.x, res.u                        # numpy arrays, a row per instant t_k = k dt
+    res.save("run.npz")
+
+The command line is built on these functions, so a run from Python and from ``qcontrol run`` give
+the same summary (apart from ``wall_time_s`` and the ``command`` of the provenance).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ._version import __version__
+from .assembly import build_plant, controller_constants, run_scenario, scene
+from .attribution import realism_attribution
+from .controller import Backstepping
+from .controller import lemma2_bounds as _lemma2_bounds
+from .engine import SIGNALS, ProgressCallback, RunMetrics, Trajectory
+from .errors import QcontrolInputError
+from .metrics import backend_deviation, summary
+from .outputs import atomic_path, check_output_file, clean, write_text
+from .plants import BACKENDS
+from .scenario import Scenario
+from .scenario.resolve import resolved_toml, scenario_provenance
+
+SAVE_FORMATS = (".npz", ".csv")
+
+
+@dataclass(frozen=True)
+class Result:
+    """One closed-loop run: its ``summary`` (exactly what ``summary.json`` holds) and, unless it
+    kept only its metrics, its signals as numpy arrays, a row per instant ``t[k] = k dt``.
+
+    Arrays (from the signal table, :data:`qcontrol.engine.signals.SIGNALS`): ``x`` the true state
+    ``(rows, n)``, ``x_meas`` the sensor reading, ``x_q`` its quantization (all the controller
+    saw), ``u`` the input held over ``[t_k, t_k + dt)`` ``(rows,)``, ``adaptive`` the law's state
+    ``(rows, m)``, ``yd`` the reference and its n derivatives ``(rows, n + 1)``, ``z`` and ``zbar``
+    the errors (7)-(8) and (31)-(33), ``e_z`` the Lemma 2 errors, ``bound_ratio`` the separation's
+    ratios; ``y = x[:, 0]`` and ``t``. A diverged run ends with the row that stopped it.
+    """
+
+    summary: dict[str, Any]
+    scenario: Scenario
+    backend: str
+    record: Trajectory | RunMetrics
+
+    @property
+    def trajectory(self) -> Trajectory:
+        if not isinstance(self.record, Trajectory):
+            raise ValueError("this run kept only its metrics; run it with record=\"full\" to get its signals")
+        return self.record
+
+    @property
+    def t(self) -> np.ndarray:
+        return self.trajectory.t
+
+    @property
+    def y(self) -> np.ndarray:
+        return self.trajectory.y
+
+    def save(self, path: str | Path) -> Path:
+        """Write the run's signals, by the file's suffix: ``.npz`` (one array per signal, by its
+        name, plus ``t`` and the summary as JSON) or ``.csv`` (one header row, a column per
+        component: ``t, x1, x2, x_meas1, ...``). Written atomically."""
+        path = check_output_file(path, "save")
+        if path.suffix not in SAVE_FORMATS:
+            raise QcontrolInputError(f"{path}: unknown format {path.suffix!r}; save as .npz or .csv")
+        traj = self.trajectory
+        if path.suffix == ".csv":
+            return write_text(path, _csv_text(traj))
+        with atomic_path(path) as tmp, open(tmp, "wb") as file:
+            np.savez(file, t=traj.t, summary=np.array(json.dumps(_jsonable(self.summary))), **traj.signals)
+        return path
+
+
+for _signal in SIGNALS:
+    setattr(Result, _signal.name, property(lambda res, key=_signal.name: res.trajectory.signals[key],
+                                           doc=_signal.meaning))
+del _signal
+
+
+def columns(traj: Trajectory) -> list[tuple[str, np.ndarray]]:
+    """The run's signals as named columns, in the order of the signal table: ``t``; ``x1 .. xn``;
+    ``x_meas1 ..``; ``x_q1 ..``; ``u``; ``<adaptive name>_1 ..``; ``yd_0 .. yd_n`` (y_d and its
+    derivatives); ``z1 ..``; ``zbar1 ..``; ``e_z1 ..``; ``bound_ratio_<term> ..``."""
+    out = [("t", traj.t)]
+    for signal in SIGNALS:
+        array = traj.signals[signal.name]
+        if array.ndim == 1:
+            out.append((signal.name, array))
+            continue
+        for i in range(array.shape[1]):
+            if signal.width == "m":
+                name = f"{traj.adaptive_name}_{i + 1}"
+            elif signal.width == "n+1":
+                name = f"{signal.name}_{i}"
+            elif signal.width == "terms":
+                name = f"{signal.name}_{traj.bound_names[i]}"
+            else:
+                name = f"{signal.name}{i + 1}"
+            out.append((name, array[:, i]))
+    return out
+
+
+def _csv_text(traj: Trajectory) -> str:
+    named = columns(traj)
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow([name for name, _ in named])
+    writer.writerows(zip(*[[repr(float(v)) for v in values] for _, values in named], strict=True))
+    return buffer.getvalue()
+
+
+def _jsonable(value: Any) -> Any:
+    """JSON has no NaN/Inf: None. numpy values become plain Python."""
+    return clean(value)
+
+
+# --------------------------------------------------------------------------------------------
+# runs
+
+
+def _call(name: str, sc: Scenario, **kw: Any) -> str:
+    """How an API call is named in the provenance of what it writes."""
+    arguments = ", ".join(f"{k}={v!r}" for k, v in kw.items() if v is not None)
+    return f"qcontrol.{name}(<scenario {sc.name!r} from {sc.source}>{', ' if arguments else ''}{arguments})"
+
+
+def run(scenario: Scenario, backend: str | None = None, *, rrd: str | Path | None = None,
+        spawn: bool = False, record: str = "full", progress: ProgressCallback | None = None,
+        command: str | None = None) -> Result:
+    """Run the scenario's closed loop on ``backend`` (None: the scenario's ``simulation.backend``).
+
+    ``record="full"`` keeps every row (the Result's arrays); ``"metrics"`` only the summary, in
+    memory that does not grow with the run. ``rrd`` writes a rerun recording while it runs,
+    ``spawn`` streams it to a rerun viewer. ``command`` is what the provenance names as the
+    command (default: this call).
+    """
+    backend = backend or scenario.simulation.backend
+    if backend not in BACKENDS:
+        raise QcontrolInputError(f"backend {backend!r}: use one of {', '.join(BACKENDS)}")
+    BACKENDS[backend].require(scenario.backends.get(backend), scenario.source)
+    command = command or _call("run", scenario, backend=backend, rrd=None if rrd is None else str(rrd))
+    plant = build_plant(scenario, backend)
+    with _recording(rrd, spawn, scenario, command) as rec:
+        observer = None if rec is None else _observer(rec, scenario, backend)
+        traj = run_scenario(scenario, backend, plant=plant, observer=observer, record=record,
+                            progress=progress)
+    result = summary(traj, scenario.name, backend) | {"provenance": scenario_provenance(scenario, command)}
+    result["physics_warnings"] = list(plant.warnings)
+    return Result(result, scenario, backend, traj)
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """The same controller on MuJoCo and on the ODE of eq. (1): ``summary`` is what
+    ``compare.json`` holds; ``mujoco`` and ``ode`` are the two runs' :class:`Result`\\ s."""
+
+    summary: dict[str, Any]
+    mujoco: Result
+    ode: Result
+
+
+def compare(scenario: Scenario, *, rrd: str | Path | None = None, spawn: bool = False,
+            progress: Callable[[str], ProgressCallback | None] | None = None,
+            command: str | None = None) -> Comparison:
+    """Run the scenario on its MuJoCo model and on the ODE with the same step and hold, and
+    measure how far they drift apart (``max_abs_dx``, ``max_abs_dy``, ``max_abs_du``, ...).
+    ``progress(backend)`` may give a progress callback per run."""
+    if "mujoco" not in scenario.backends:
+        raise QcontrolInputError(
+            f"{scenario.source}: compare needs a [plant.mujoco] table (the MuJoCo twin of the ODE); add one"
+        )
+    command = command or _call("compare", scenario, rrd=None if rrd is None else str(rrd))
+    plant = build_plant(scenario, "mujoco")
+    runs: dict[str, Result] = {}
+    with _recording(rrd, spawn, scenario, command) as rec:
+        for backend in ("mujoco", "ode"):  # the ODE twin is drawn as a translucent ghost
+            observer = None if rec is None else _observer(rec, scenario, backend, ghost=backend == "ode")
+            traj = run_scenario(scenario, backend, plant=plant if backend == "mujoco" else None,
+                                observer=observer, progress=progress(backend) if progress else None)
+            runs[backend] = Result(summary(traj, scenario.name, backend), scenario, backend, traj)
+    result = {
+        "scenario": scenario.name, "integrator": scenario.backends["mujoco"].integrator,
+        "dt": scenario.simulation.dt, **backend_deviation(runs["mujoco"].record, runs["ode"].record),
+        "consistency": plant.consistency_report,
+        "realism_alone": realism_attribution(scenario, runs["ode"].record) if plant.consistency_report.get(
+            "realism") else {},
+        "mujoco": runs["mujoco"].summary, "ode": runs["ode"].summary,
+        "physics_warnings": list(plant.warnings), "provenance": scenario_provenance(scenario, command),
+    }
+    return Comparison(result, runs["mujoco"], runs["ode"])
+
+
+def _recording(rrd: str | Path | None, spawn: bool, sc: Scenario, command: str) -> Any:
+    """A rerun Recording of the scenario (its resolved text, constants, provenance), or nothing."""
+    from contextlib import nullcontext
+
+    if rrd is None and not spawn:
+        return nullcontext(None)
+    if rrd is not None:
+        check_output_file(rrd, "--rrd")
+    from .recording import Recording  # imports rerun when it opens: only when asked for
+
+    rec = Recording(None if rrd is None else Path(rrd), spawn=spawn)
+    rec.log_static(resolved_toml(sc), controller_constants(sc), __version__,
+                   provenance=scenario_provenance(sc, command))
+    from .recording.disturbances import log_disturbances
+
+    log_disturbances(rec, sc)  # arrows and time markers of the scenario's [[disturbance]]s, if any
+    return rec
+
+
+def _observer(rec: Any, sc: Scenario, backend: str, ghost: bool = False) -> Any:
+    drawn = scene(sc)
+    if drawn is None:
+        return rec.observer(backend, ghost=ghost)
+    return rec.observer(backend, drawn.model, drawn.joint, ghost=ghost)
+
+
+# --------------------------------------------------------------------------------------------
+# helpers for user-defined laws
+
+
+@lru_cache(maxsize=64)
+def _coordinates(c: tuple[float, ...]) -> Backstepping:
+    return Backstepping(c, 1.0)  # the quantizer bound matters only for Lemma 2's bounds
+
+
+def quantized_backstepping(c: Sequence[float], x_q: np.ndarray, yd: np.ndarray) -> tuple[np.ndarray,
+                                                                                         np.ndarray]:
+    """The quantized backstepping signals for gains ``c`` (eqs. (31)-(34)): ``zbar`` and
+    ``alphabar``, each of shape ``(n,)``, from the quantized reading ``x_q`` ``(n,)`` and
+    ``yd = [y_d, y_d', ..., y_d^(n)]``. ``alphabar[-1]`` is the backstepping input without any
+    robust or adaptive term."""
+    coordinates = _coordinates(tuple(float(v) for v in c))
+    return coordinates.quantized_errors(np.asarray(x_q, dtype=float), np.asarray(yd, dtype=float))
+
+
+def lemma2_bounds(c: Sequence[float], delta: float) -> np.ndarray:
+    """Lemma 2's bounds ``L_z`` (shape ``(n,)``) on ``|z_i - zbar_i|`` for gains ``c`` and quantizer
+    step ``delta``; the paper's ``L`` is ``L_z[-1]``."""
+    return _lemma2_bounds(c, delta / 2.0)[0]

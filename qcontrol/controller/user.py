@@ -1,0 +1,205 @@
+"""Control laws written by users: the :class:`Law` protocol, :func:`register_law`, and the adapter
+that lets the engine drive such a law like a built-in one.
+
+A user law sees, at each control sample ``t_k``, the quantized reading ``x_q`` (shape ``(n,)``),
+``yd = [y_d, y_d', ..., y_d^(n)]`` and its own state (shape ``(m,)``), and returns the input ``u``,
+which is held over the control period like any law's. Its state is advanced between samples by
+classical RK4 steps of ``dt``, with ``state' = state_rate(t_k, x_q, yd, state)``: the reading,
+the reference and the time of the last sample held (the same zero-order hold as the input). The
+engine records the law's errors z, zbar and the Lemma 2 check in the backstepping coordinates of
+the scenario's ``c`` and ``delta``, as for the built-in laws.
+
+This path calls Python per copy and per step (a few microseconds a call); the built-in laws keep
+their float fast path.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Hashable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, NamedTuple, Protocol, runtime_checkable
+
+import numpy as np
+
+from ..errors import QcontrolInputError
+from ..quantizer import QuantizedReading
+from ..schema import Table
+from .backstepping import Backstepping, Columns, stack
+from .law import LAW_KINDS, LawContext, LawKind
+
+
+@runtime_checkable
+class Law(Protocol):
+    """A control law for one copy of the plant (see the module docstring)."""
+
+    state_size: int  # m >= 0 states of the law (adaptive estimates, integrators, ...)
+
+    def initial_state(self) -> np.ndarray:
+        """The law's state at t = 0, shape ``(m,)``."""
+
+    def control(self, t: float, x_q: np.ndarray, yd: np.ndarray, state: np.ndarray) -> float:
+        """The input u at a control sample."""
+
+    def state_rate(self, t: float, x_q: np.ndarray, yd: np.ndarray, state: np.ndarray) -> np.ndarray:
+        """``d state / dt``, shape ``(m,)``, with ``x_q``, ``yd`` and ``t`` held until the next sample."""
+
+
+LawFactory = Callable[[dict, int], Law]  # (the [controller] table, the plant order n) -> a Law
+
+
+class _Sample(NamedTuple):
+    """What one evaluation hands the engine: ``u``, and what the state's RK4 steps hold."""
+
+    u: Any  # a float for a batch of one, a (batch,) array otherwise
+    t: float
+    x_q: np.ndarray  # (batch, n)
+    yd: np.ndarray  # (n + 1,)
+
+
+class UserLaw(Backstepping):
+    """A batch of user laws (one per copy) driven by the engine (:class:`~.law.BatchLaw`)."""
+
+    def __init__(self, laws: Sequence[Law], c: Sequence[float], max_error: float, state_name: str) -> None:
+        super().__init__(c, max_error)
+        self.laws = list(laws)
+        sizes = {_state_size(law) for law in self.laws}
+        if len(sizes) != 1:
+            raise QcontrolInputError(f"the copies of a user law have different state sizes {sorted(sizes)}")
+        self.state_size = sizes.pop()
+        self.state_name = state_name
+        self.copies = len(self.laws) if len(self.laws) > 1 else None
+
+    def initial_state(self, batch: int) -> np.ndarray:
+        rows = [np.asarray(law.initial_state(), dtype=float).reshape(self.state_size) for law in self.laws]
+        return np.array(rows if len(rows) == batch else rows * batch).reshape(batch, self.state_size)
+
+    def constants(self) -> dict[str, Any]:
+        return {}
+
+    def control(self, reading: QuantizedReading, yd: Sequence[float], state: Columns,
+                t: float = 0.0) -> _Sample:
+        """``u`` of every copy at the sample ``t`` (its law called with that copy's reading)."""
+        if not isinstance(reading, QuantizedReading) or reading.max_error != self.max_error:
+            self.check_reading(reading)
+        x_q, yd_row = reading.values, np.asarray(yd, dtype=float)
+        states = stack(state, len(x_q))
+        u = np.array([float(self._law(b).control(t, x_q[b].copy(), yd_row.copy(), states[b].copy()))
+                      for b in range(len(x_q))])
+        return _Sample(float(u[0]) if reading.floats else u, t, x_q, yd_row)
+
+    def _law(self, b: int) -> Law:
+        return self.laws[b] if len(self.laws) > 1 else self.laws[0]
+
+    def _rates(self, sample: _Sample, states: np.ndarray) -> np.ndarray:
+        return np.array([np.asarray(self._law(b).state_rate(sample.t, sample.x_q[b].copy(), sample.yd.copy(),
+                                                            states[b].copy()), dtype=float).reshape(-1)
+                         for b in range(len(states))]).reshape(states.shape)
+
+    def advancer(self, h: float, floats: bool) -> Callable[[Columns, _Sample], Columns]:
+        """One classical RK4 step of ``h`` of ``state' = state_rate(t_k, x_q, yd, state)``."""
+
+        def advance(state: Columns, sample: _Sample) -> Columns:
+            if not self.state_size:
+                return state
+            s = stack(state, len(sample.x_q))
+            k1 = self._rates(sample, s)
+            k2 = self._rates(sample, s + 0.5 * h * k1)
+            k3 = self._rates(sample, s + 0.5 * h * k2)
+            k4 = self._rates(sample, s + h * k3)
+            s = s + h / 6.0 * (k1 + 2.0 * (k2 + k3) + k4)
+            return tuple(s[0].tolist()) if floats else tuple(np.ascontiguousarray(s.T))
+
+        return advance
+
+
+def _state_size(law: object) -> int:
+    if not isinstance(law, Law):
+        raise QcontrolInputError(
+            f"a user law must have state_size, initial_state(), control() and state_rate() (the qcontrol.Law "
+            f"protocol); the factory returned {type(law).__name__}"
+        )
+    size = law.state_size
+    if isinstance(size, bool) or not isinstance(size, int) or size < 0:
+        raise QcontrolInputError(f"a user law's state_size must be a whole number >= 0, got {size!r}")
+    return size
+
+
+@dataclass(frozen=True)
+class UserSettings:
+    """The ``[controller]`` table as the factory received it (kind, delta, c and the law's keys)."""
+
+    items: tuple[tuple[str, Any], ...]
+
+    @property
+    def table(self) -> dict:
+        return _thaw(self.items)
+
+
+def _freeze(value: Any) -> Hashable:
+    if isinstance(value, Mapping):
+        return tuple((k, _freeze(v)) for k, v in value.items())
+    if isinstance(value, list):
+        return ("__list__", tuple(_freeze(v) for v in value))
+    return value
+
+
+def _thaw(value: Any) -> Any:
+    if isinstance(value, tuple) and value[:1] == ("__list__",):
+        return [_thaw(v) for v in value[1]]
+    if isinstance(value, tuple):
+        return {k: _thaw(v) for k, v in value}
+    return value
+
+
+def register_law(kind: str, factory: LawFactory, *, state_name: str = "state") -> None:
+    """Make ``controller.kind = "<kind>"`` select a law built by ``factory(table, n)``.
+
+    ``table`` is the scenario's ``[controller]`` table as a dict (``kind``, ``delta``, ``c`` and
+    the law's own keys, from ``[controller.<kind>]`` and from ``[controller]``); ``n`` is the plant
+    order. The factory checks the keys it uses (:func:`check_keys` refuses unknown ones with the
+    usual one-line message) and returns a :class:`Law`; it is called once when a scenario loads
+    (to check it) and once per copy of every run. ``state_name`` names the law's state in outputs.
+    """
+    if not isinstance(kind, str) or not kind.isidentifier():
+        raise QcontrolInputError(f"register_law: kind {kind!r} must be a name such as \"ce\"; choose another")
+    if kind in LAW_KINDS:
+        raise QcontrolInputError(f"register_law: controller kind {kind!r} is already registered; "
+                                 "choose another name")
+
+    def parse(table: Table, ctx: LawContext) -> UserSettings:
+        settings = UserSettings(_freeze({"kind": kind, "delta": ctx.delta, "c": list(ctx.c)} | table.data))
+        _call(factory, settings, ctx, table)
+        return settings
+
+    def build(settings: Sequence[UserSettings], ctx: LawContext) -> UserLaw:
+        laws = [_call(factory, s, ctx, None) for s in settings]
+        return UserLaw(laws, ctx.c, ctx.max_error, state_name)
+
+    LAW_KINDS[kind] = LawKind(kind, None, parse, build, lambda settings, ctx: None)
+
+
+def _call(factory: LawFactory, settings: UserSettings, ctx: LawContext, table: Table | None) -> Law:
+    """The factory's law; its input errors become one line naming the file and the table."""
+    try:
+        law = factory(settings.table, ctx.order)
+    except QcontrolInputError as exc:
+        raise QcontrolInputError(f"{ctx.source}: {exc}") from None
+    except (KeyError, ValueError, TypeError) as exc:
+        raise QcontrolInputError(
+            f"{ctx.source}: controller: the law's factory refused the table ({type(exc).__name__}: {exc}); "
+            "fix the [controller] keys"
+        ) from None
+    _state_size(law)
+    return law
+
+
+def check_keys(table: Mapping[str, Any], allowed: Sequence[str]) -> None:
+    """Refuse a key of a user law's ``[controller]`` table that is not in ``allowed`` (``kind``,
+    ``delta`` and ``c`` are always allowed), with the usual one-line message."""
+    known = ("kind", "delta", "c", *allowed)
+    for key in table:
+        if key not in known:
+            raise QcontrolInputError(
+                f"controller.{key}: unknown key for kind {table.get('kind')!r}; keys of this kind are "
+                f"{', '.join(known)} (remove it or check its spelling)"
+            )

@@ -1,0 +1,163 @@
+"""Many variants of one scenario, batched, in this process, on local workers or on a Dask cluster.
+
+How runs are grouped. Variants that share :func:`qcontrol.assembly.batch_structure` (plant
+expressions, controller kind, gains c, delta, r, reference, dt, duration, ...) differ only in
+numbers the law and the backend take per copy (for the proposed law ``kappa``/``kappa_margin``,
+``gamma``, ``sigma``, ``r_scale``; ``x0``; on the ODE ``theta``). Such variants are stepped
+together as one batch in one :func:`qcontrol.engine.simulate` call (``record="metrics"``).
+Anything else (e.g. a grid over ``controller.c``) splits the runs into groups, each its own batch.
+
+Determinism. Groups are cut into chunks of at most ``CHUNK`` runs in input order, whatever the
+executor; a chunk is one batch. So the in-process path, local worker processes and a Dask cluster
+run the very same batches and give identical numbers (only ``wall_time_s`` differs).
+
+MuJoCo. Chunks run as MuJoCo plant batches (one ``MjData`` per copy, the unmodelled term in the
+passive callback exactly as in a single run), spread over worker processes. ``mujoco.batch``
+threads are not used: they refuse Python physics callbacks.
+
+Laws registered from Python (:func:`qcontrol.register_law`) run in this process and on local
+workers (which start as copies of this process); a Dask cluster's workers do not know them.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import signal
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from ..assembly import batch_structure, run_variants
+from ..errors import QcontrolInputError
+from ..metrics import summary
+from ..plants import BACKENDS
+from ..scenario import Scenario, load_scenario
+
+CHUNK = 250  # runs per batch: fixed, so every executor runs the same batches
+DASK_CONNECT_TIMEOUT = 10.0  # seconds to reach a --scheduler
+Progress = Callable[[int, int], None]  # (runs done, runs in total)
+Task = tuple[str, list[list[str]], str]  # (scenario path, override sets of one chunk, backend)
+
+
+class SweepInterrupted(KeyboardInterrupt):
+    """Ctrl-C during a sweep: ``summaries`` holds the finished runs' summaries (None elsewhere)."""
+
+    def __init__(self, summaries: list[dict | None]) -> None:
+        super().__init__()
+        self.summaries = summaries
+
+
+def run_batch(scs: Sequence[Scenario], backend: str) -> list[dict]:
+    """Run variants that share their batch structure as one batch; one summary dict per variant."""
+    started = time.perf_counter()
+    runs = run_variants(scs, backend, record="metrics")
+    share = (time.perf_counter() - started) / len(scs)
+    out = []
+    for s, run in zip(scs, runs, strict=True):
+        run.wall_time_s = share  # the batch's time, per run
+        out.append(summary(run, s.name, backend))
+    return out
+
+
+def _run_chunk(scenario_path: str, override_sets: list[list[str]], backend: str) -> list[dict]:
+    """Worker entry point (picklable arguments only): load the variants and run them as a batch."""
+    return run_batch([load_scenario(scenario_path, o) for o in override_sets], backend)
+
+
+def plan(scenario_path: str | Path, override_sets: Sequence[Sequence[str]], backend: str) -> list[list[int]]:
+    """Load (and so validate) every variant; return chunks of indices, each one batch."""
+    if backend not in BACKENDS:
+        raise QcontrolInputError(f"--backend {backend!r}: use one of {', '.join(BACKENDS)}")
+    groups: dict[tuple, list[int]] = {}
+    for i, overrides in enumerate(override_sets):
+        sc = load_scenario(scenario_path, list(overrides))
+        BACKENDS[backend].require(sc.backends.get(backend), sc.source)
+        groups.setdefault(batch_structure(sc, backend), []).append(i)
+    return [ids[k : k + CHUNK] for ids in groups.values() for k in range(0, len(ids), CHUNK)]
+
+
+def sweep_summaries(
+    scenario_path: str | Path,
+    override_sets: list[list[str]],
+    backend: str = "ode",
+    workers: int = 1,
+    scheduler: str | None = None,
+    progress: Progress | None = None,
+    chunks: list[list[int]] | None = None,
+) -> list[dict]:
+    """One :func:`qcontrol.metrics.summary` dict per override set, in input order.
+
+    Variants are batched (see the module docstring); ``workers > 1`` spreads the batches over
+    local processes, ``scheduler`` (a Dask ``distributed`` address) over a cluster. Every
+    executor runs the same batches, so the numbers are identical; ``wall_time_s`` is the batch's
+    wall time divided by its size. Bad input raises :class:`QcontrolInputError` before any run
+    (``chunks``: the :func:`plan` already made). Ctrl-C raises :class:`SweepInterrupted` with the
+    finished runs.
+    """
+    if workers < 1:
+        raise QcontrolInputError(f"--workers {workers}: must be >= 1")
+    path, sets = str(scenario_path), [list(o) for o in override_sets]
+    chunks = chunks if chunks is not None else plan(path, sets, backend)
+    results: list[dict | None] = [None] * len(sets)
+    done = 0
+
+    def store(ids: list[int], summaries: list[dict]) -> None:
+        nonlocal done
+        for i, s in zip(ids, summaries, strict=True):
+            results[i] = s
+        done += len(ids)
+        if progress is not None:
+            progress(done, len(sets))
+
+    tasks = [(path, [sets[i] for i in ids], backend) for ids in chunks]
+    try:
+        if scheduler is not None:
+            for ids, summaries in zip(chunks, _on_dask(scheduler, tasks), strict=True):
+                store(ids, summaries)
+        elif workers > 1 and len(chunks) > 1:
+            _on_workers(min(workers, len(chunks)), chunks, tasks, store)
+        else:
+            for ids, task in zip(chunks, tasks, strict=True):
+                store(ids, _run_chunk(*task))
+    except KeyboardInterrupt:
+        raise SweepInterrupted(results) from None
+    return results  # type: ignore[return-value]
+
+
+def _ignore_ctrl_c() -> None:
+    """Workers leave Ctrl-C to the parent, which stops them (and prints nothing of theirs)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _on_workers(workers: int, chunks: list[list[int]], tasks: list[Task],
+                store: Callable[[list[int], list[dict]], None]) -> None:
+    """The chunks on local worker processes (copies of this one: registered laws included)."""
+    pool = multiprocessing.get_context("fork").Pool(workers, initializer=_ignore_ctrl_c)
+    try:
+        pending = [pool.apply_async(_run_chunk, task) for task in tasks]
+        for ids, result in zip(chunks, pending, strict=True):
+            store(ids, result.get())
+        pool.close()
+    finally:
+        pool.terminate()
+        pool.join()
+
+
+def _on_dask(address: str, tasks: list[Task]) -> list[list[dict]]:
+    """Run the chunks on an existing Dask cluster (optional extra ``cluster``)."""
+    try:
+        from distributed import Client
+    except ImportError:
+        raise QcontrolInputError(
+            "--scheduler needs Dask distributed: pip install 'qcontrol[cluster]'"
+        ) from None
+    try:
+        client = Client(address, timeout=DASK_CONNECT_TIMEOUT)
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise QcontrolInputError(
+            f"--scheduler {address}: cannot connect ({exc}); "
+            "give the address of a running Dask scheduler, e.g. tcp://host:8786"
+        ) from None
+    with client:
+        futures = [client.submit(_run_chunk, *task, pure=False) for task in tasks]
+        return client.gather(futures)

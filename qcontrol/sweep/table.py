@@ -1,0 +1,64 @@
+"""A sweep's results: one row per run (``sweep.csv``) and what the sweep was (``sweep.json``)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from collections.abc import Sequence
+from typing import Any
+
+from ..error_rate import TABLE1_OMEGAS, omega_key
+
+RUN_METRICS = ["max_abs_z1_last_half", "max_abs_u", "diverged", "diverged_time", "lemma2_max_ratio"]
+CSV_METRICS = [f"error_rate_{omega_key(w)}" for w in TABLE1_OMEGAS] + RUN_METRICS  # the paper's omegas
+
+
+def metric_columns(summaries: Sequence[dict]) -> list[str]:
+    """The metric columns: an error rate per omega of the runs (``[metrics] omega``), then the run's
+    figures."""
+    omegas = next(iter(summaries))["error_rate"] if summaries else {omega_key(w): 0 for w in TABLE1_OMEGAS}
+    return [f"error_rate_{key}" for key in omegas] + RUN_METRICS
+
+
+def sweep_rows(points: Sequence[dict[str, str]], summaries: Sequence[dict | None]) -> list[dict]:
+    """One row per finished run: the varied keys, the error rates, and the run's figures."""
+    rows = []
+    for point, s in zip(points, summaries, strict=True):
+        if s is None:  # not run (the sweep was interrupted)
+            continue
+        row: dict = dict(point)
+        row |= {f"error_rate_{key}": rate for key, rate in s["error_rate"].items()}
+        row |= {key: s[key] for key in RUN_METRICS}
+        rows.append(row)
+    return rows
+
+
+def csv_text(rows: Sequence[dict], keys: Sequence[str], metrics: Sequence[str]) -> str:
+    """The table as CSV: varied keys, then the metrics; floats with repr precision."""
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=[*keys, *metrics], lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({k: (repr(v) if isinstance(v, float) else "" if v is None else v) for k,
+                         v in row.items()})
+    return buffer.getvalue()
+
+
+def sweep_record(rows: Sequence[dict], total: int, grid: Sequence[tuple[str, list[str]]],
+                 settings: dict[str, Any], wall_time_s: float, provenance: dict) -> dict:
+    """``sweep.json``: what was swept and how it went (the rows themselves are in sweep.csv)."""
+    ratios = [r["lemma2_max_ratio"] for r in rows if r["lemma2_max_ratio"] is not None
+              and math.isfinite(r["lemma2_max_ratio"])]
+    return {
+        "grid": {key: values for key, values in grid},
+        **settings,
+        "runs": total,
+        "runs_finished": len(rows),
+        "interrupted": len(rows) < total,
+        "diverged": sum(bool(r["diverged"]) for r in rows),
+        "lemma2_max_ratio": max(ratios, default=None),
+        "wall_time_s": wall_time_s,
+        "csv": "sweep.csv",
+        "provenance": provenance,
+    }

@@ -1,0 +1,55 @@
+"""Every code block of the README runs: the Python blocks in a fresh interpreter each, and every
+``qcontrol`` command of the shell blocks, in a folder holding the scenarios and models (the
+install and test commands are what CI itself runs)."""
+
+from __future__ import annotations
+
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from qcontrol.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+README = (ROOT / "README.md").read_text()
+PYTHON_BLOCKS = re.findall(r"```python\n(.*?)```", README, re.S)
+SHELL_BLOCKS = re.findall(r"```bash\n(.*?)```", README, re.S)
+
+
+def _commands() -> list[str]:
+    """The qcontrol commands of the shell blocks (continuations joined, comments dropped)."""
+    found = []
+    for block in SHELL_BLOCKS:
+        for line in block.replace("\\\n", " ").splitlines():
+            for part in line.split("#")[0].split("&&"):
+                if part.strip().startswith("qcontrol "):
+                    found.append(part.strip())
+    return found
+
+
+@pytest.fixture
+def workplace(tmp_path: Path) -> Path:
+    for name in ("scenarios", "models"):
+        (tmp_path / name).symlink_to(ROOT / name)
+    return tmp_path
+
+
+def test_the_readme_has_code_to_run() -> None:
+    assert len(PYTHON_BLOCKS) >= 2 and len(_commands()) >= 8
+
+
+@pytest.mark.parametrize("index", range(len(PYTHON_BLOCKS)))
+def test_python_block_runs(workplace: Path, index: int) -> None:
+    result = subprocess.run([sys.executable, "-c", PYTHON_BLOCKS[index]], cwd=workplace, capture_output=True,
+                            text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+
+
+@pytest.mark.parametrize("command", _commands())
+def test_shell_command_runs(workplace: Path, monkeypatch: pytest.MonkeyPatch, command: str) -> None:
+    monkeypatch.chdir(workplace)
+    assert main([*shlex.split(command)[1:], "-q"]) == 0
