@@ -277,3 +277,25 @@ def test_a_recording_carries_the_provenance_and_the_resolved_scenario(tmp_path: 
     provenance = json.loads(texts["info/provenance"].removeprefix("```json\n").removesuffix("\n```"))
     assert provenance == _json(res.summary["provenance"])
     assert "kappa_margin = 0.1" in texts["info/scenario"]  # the scenario as run, not the file's text
+
+
+def test_compare_json_and_table1_json_carry_the_provenance(tmp_path: Path) -> None:
+    assert main(["compare", str(EX2), "--duration", "0.2", "--out", str(tmp_path / "cmp"), "-q"]) == 0
+    compare = json.loads((tmp_path / "cmp" / "compare.json").read_text())
+    assert compare["provenance"]["command"].startswith("qcontrol compare ")
+    assert compare["provenance"]["scenario_file"] == str(EX2)
+    assert compare["mujoco"]["error_rate"] and compare["ode"]["L"] == compare["mujoco"]["L"]
+
+
+def test_run_plot_draws_the_run(tmp_path: Path) -> None:
+    from qcontrol.plots import FIG_HEIGHT_PX, FIG_WIDTH_PX
+
+    assert main(["run", str(EX1), "--backend", "ode", "--duration", "1", "--plot", str(tmp_path / "run.png"),
+                 "--save", str(tmp_path / "run.npz"), "-q"]) == 0
+    data = (tmp_path / "run.png").read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000
+    import struct
+
+    assert struct.unpack(">II", data[16:24]) == (FIG_WIDTH_PX, FIG_HEIGHT_PX)
+    assert len(np.load(tmp_path / "run.npz")["t"]) == 1001
+    assert main(["run", str(EX1), "--save", str(tmp_path / "run.mat"), "-q"]) == 2

@@ -66,6 +66,14 @@ def test_table1_markdown_and_report(reproduction):
         assert needle in report
 
 
+def test_table1_json_carries_the_provenance(reproduction):
+    table = json.loads((reproduction / "table1.json").read_text())
+    provenance = table["provenance"]
+    assert set(provenance["scenario_file"]) == {"proposed", "comparison"}
+    assert provenance["overrides"]["comparison"][0] == "controller.kind=baseline"
+    assert "[controller.baseline]" in provenance["resolved_scenario"]["comparison"]
+
+
 def test_studies_cover_the_paper_values(reproduction):
     studies = json.loads((reproduction / "studies.json").read_text())
     assert 1.1 in studies["kappa_margin"]["values"] and 0.1 in studies["kappa_margin"]["values"]
