@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .assembly import run_scenario
+from .assembly import run_scenario, scene
 from .scenario import Scenario, load_scenario
 from .sweep import run_batch
 
@@ -147,12 +147,22 @@ def imperfections(realistic: Scenario) -> list[tuple[str, tuple[str, ...]]]:
     values = {"torque_limit": o.torque_limit, "frictionloss": o.frictionloss, "armature": o.armature,
               "rod_mass": o.rod_mass, "sensor_noise": list(o.sensor_noise), "sensor_delay": o.sensor_delay,
               "sensor_period": o.sensor_period}
-    rows = [(label, (f"plant.mujoco.{key}={values[key]!r}",)) for key, label in LABELS.items()
-            if key in o.realism]
+    labels = LABELS | {"torque_limit": _limit_label(realistic)}
+    rows = [(labels[key], (f"plant.mujoco.{key}={values[key]!r}",)) for key in LABELS if key in o.realism]
     if sim.control_period is not None:
         rows.append(("control period", (f"simulation.control_period={sim.control_period!r}",)))
     rows.append(("x2 differenced", ('simulation.velocity_source="difference"',)))
     return rows
+
+
+def _limit_label(sc: Scenario) -> str:
+    """"torque limit" on a hinge, "force limit" on a slide."""
+    import mujoco
+
+    drawn = scene(sc)
+    jid = mujoco.mj_name2id(drawn.model, mujoco.mjtObj.mjOBJ_JOINT, drawn.joint)
+    hinge = int(drawn.model.jnt_type[jid]) == int(mujoco.mjtJoint.mjJNT_HINGE)
+    return "torque limit" if hinge else "force limit"
 
 
 def _seeded(overrides: Sequence[str], noisy: bool) -> list[tuple[str, ...]]:

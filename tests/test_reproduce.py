@@ -98,7 +98,7 @@ def test_figures_are_pngs_of_the_stated_size(reproduction, name):
 ROBUSTNESS_ROWS = {  # every imperfection of the realistic scenarios, alone, then all together
     "example2": ["ideal", "torque limit", "friction", "rotor inertia (armature)", "link mass (rod)",
                  "sensor noise", "sensor delay", "control period", "x2 differenced", "all together"],
-    "example1": ["ideal", "torque limit", "friction", "rotor inertia (armature)", "sensor noise",
+    "example1": ["ideal", "force limit", "friction", "rotor inertia (armature)", "sensor noise",
                  "sensor delay", "control period", "x2 differenced", "all together"],
 }
 ROW_NUMBERS = ("max_abs_z1_last_half", "max_abs_u_applied", "saturated_fraction")
