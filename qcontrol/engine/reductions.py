@@ -92,6 +92,11 @@ class LargestAbs(Reduction):
 
     def add(self, chunk: Chunk, values: np.ndarray) -> None:
         size = np.abs(values)
+        if chunk.everyone:  # the usual chunk: every value counts and is finite (then no mask is needed)
+            top = size.max(axis=0)
+            if np.isfinite(top).all():
+                np.maximum(self.largest, top, out=self.largest)
+                return
         counted = np.isfinite(size) if chunk.everyone else chunk.valid & np.isfinite(size)
         np.maximum(self.largest, np.where(counted, size, -np.inf).max(axis=0), out=self.largest)
 
@@ -123,10 +128,13 @@ class SaturatedFraction(Reduction):
         self.samples = np.zeros(batch)
 
     def add(self, chunk: Chunk, values: np.ndarray) -> None:
-        rows = chunk.first + np.arange(len(chunk.t))
-        counted = chunk.valid & ((rows % chunk.hold) == 0)[:, None] & np.isfinite(values)
+        samples = slice((-chunk.first) % chunk.hold, None, chunk.hold)  # the control samples' rows
+        at = values[samples]
+        counted = np.isfinite(at)
+        if not chunk.everyone:
+            counted &= chunk.valid[samples]
         self.samples += counted.sum(axis=0)
-        self.clipped += np.where(counted, values, 0.0).sum(axis=0)
+        self.clipped += np.where(counted, at, 0.0).sum(axis=0)
 
     def value(self, b: int) -> float:
         return float(self.clipped[b] / self.samples[b]) if self.samples[b] else math.nan

@@ -86,8 +86,10 @@ def _u_applied(block: Block, ctx: SignalContext) -> np.ndarray:
 
 def _saturated(block: Block, ctx: SignalContext) -> np.ndarray:
     """1 where the actuator clipped the command, 0 where it applied it (NaN where u is not finite)."""
-    u = block["u"]
-    return np.where(np.isfinite(u), (block["u_applied"] != u).astype(float), np.nan)
+    u, applied = block["u"], block["u_applied"]
+    if applied is u:  # an ideal actuator (the ODE): nothing clipped; u * 0 keeps NaN where u is not finite
+        return u * 0.0
+    return np.where(np.isfinite(u), (applied != u).astype(float), np.nan)
 
 
 def _e_z(block: Block, ctx: SignalContext) -> np.ndarray:
