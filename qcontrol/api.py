@@ -31,7 +31,7 @@ from .controller import lemma2_bounds as _lemma2_bounds
 from .engine import SIGNALS, ProgressCallback, RunMetrics, Trajectory
 from .errors import QcontrolInputError
 from .metrics import backend_deviation, summary
-from .outputs import atomic_path, check_output_file, clean, write_text
+from .outputs import atomic_path, check_output_file, clean, prepare_output_dir, write_text
 from .plants import BACKENDS
 from .scenario import Scenario
 from .scenario.resolve import resolved_toml, scenario_provenance
@@ -79,6 +79,7 @@ class Result:
         if path.suffix not in SAVE_FORMATS:
             raise QcontrolInputError(f"{path}: unknown format {path.suffix!r}; save as .npz or .csv")
         traj = self.trajectory
+        prepare_output_dir(path.parent if str(path.parent) else Path("."), "save")
         if path.suffix == ".csv":
             return write_text(path, _csv_text(traj))
         with atomic_path(path) as tmp, open(tmp, "wb") as file:

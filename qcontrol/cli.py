@@ -1,7 +1,8 @@
-"""The ``qcontrol`` command line: run, compare, reproduce.
+"""The ``qcontrol`` command line: run, compare, reproduce, sweep, check (built on :mod:`qcontrol.api`).
 
 Exit status: 0 success; 1 the run diverged or a theory check failed; 2 bad input; 130 interrupted.
-Bad input is reported as one line on stderr, never as a traceback.
+Bad input is reported as one line on stderr, never as a traceback, and every input is checked
+before any folder or file is made.
 """
 
 from __future__ import annotations
@@ -9,14 +10,17 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
 from . import api
 from ._version import __version__
 from .attribution import attribution_lines
+from .check import add_check_parser, cmd_check
 from .errors import QcontrolInputError
-from .outputs import check_output_file, prepare_output_dir, write_json
+from .explain import divergence_lines, paper_line
+from .outputs import check_output_dir, check_output_file, prepare_output_dir, write_json
 from .plants import BACKENDS
 from .progress import ProgressLine
 from .provenance import command_line
@@ -35,7 +39,9 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _add_scenario_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scenario", type=Path, help="scenario file (TOML), e.g. scenarios/example2.toml")
+    p.add_argument("scenario", type=Path,
+                   help="scenario file (TOML), e.g. scenarios/example2.toml, or a shipped scenario's name "
+                   "(example1, example2, example2-rigid, chain3)")
     p.add_argument(
         "--set",
         dest="overrides",
@@ -45,9 +51,17 @@ def _add_scenario_options(p: argparse.ArgumentParser) -> None:
         help="override a scenario key, e.g. --set controller.kappa_margin=0.1 (repeatable; the value is "
         "read as TOML, otherwise as a string)",
     )
+    add_unset_option(p)
     p.add_argument("--duration", type=float, metavar="S", help="simulated time in seconds")
     p.add_argument("--dt", type=float, metavar="S", help="integration step in seconds")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+
+
+def add_unset_option(p: argparse.ArgumentParser) -> None:
+    """``--unset KEY`` (repeatable): remove a key of the file before the ``--set`` overrides."""
+    p.add_argument("--unset", dest="unset", action="append", default=[], metavar="KEY",
+                   help="remove a key of the scenario file, e.g. --unset reference.amplitude (repeatable; "
+                   "applied before --set)")
 
 
 def _add_recording_options(p: argparse.ArgumentParser) -> None:
@@ -118,6 +132,7 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("-q", "--quiet", action="store_true", help="no progress output")
 
     add_sweep_parser(sub)
+    add_check_parser(sub, _add_scenario_options, _scenario_from_args)
     return parser
 
 
@@ -127,7 +142,22 @@ def _scenario_from_args(args: argparse.Namespace) -> Scenario:
         overrides.append(f"simulation.duration={args.duration!r}")
     if args.dt is not None:
         overrides.append(f"simulation.dt={args.dt!r}")
-    return load_scenario(args.scenario, overrides)
+    return load_scenario(args.scenario, overrides, args.unset)
+
+
+def _check_outputs(args: argparse.Namespace, files: dict[str, Path | None]) -> None:
+    """Check --out and the output ``files`` (option -> path) without creating anything; with
+    --spawn, make sure a viewer runs (one line and exit status 2 when there is no display: before
+    the run starts)."""
+    if args.out is not None:
+        check_output_dir(args.out)
+    for option, path in files.items():
+        if path is not None:
+            check_output_file(path, option)
+    if args.spawn:
+        from .recording.viewer import start_viewer
+
+        start_viewer()
 
 
 def _progress(sc: Scenario, backend: str, args: argparse.Namespace) -> ProgressLine:
@@ -144,11 +174,17 @@ def _print_warnings(s: dict) -> None:
         print(f"  ... and {len(physics) - 3} more MuJoCo warnings")
 
 
-def format_summary(s: dict) -> str:
+def format_summary(s: dict, sc: Scenario | None = None) -> str:
+    """The printed summary of a run; with its scenario, a diverged run says what usually helps
+    (:mod:`qcontrol.explain`)."""
     rates = "  ".join(f"E({k})={v:.4f}" for k, v in s["error_rate"].items())
+    if s["diverged"]:
+        simulated = (f"stopped after {s['steps']} of {round(s['duration'] / s['dt'])} steps of {s['dt']:g} s "
+                     f"({s['steps'] * s['dt']:g} s of {s['duration']:g} s simulated)")
+    else:
+        simulated = f"{s['steps']} steps of {s['dt']:g} s ({s['duration']:g} s simulated)"
     lines = [
-        f"scenario {s['scenario']} on {s['backend']}: {s['steps']} steps of {s['dt']:g} s "
-        f"({s['duration']:g} s simulated) in {s['wall_time_s']:.2f} s",
+        f"scenario {s['scenario']} on {s['backend']}: {simulated} in {s['wall_time_s']:.2f} s",
         f"  error rate: {rates}",
         f"  max |z1| over the last half: {s['max_abs_z1_last_half']:.4g}    max |u|: {s['max_abs_u']:.4g}",
         f"  actuator: max |u applied|: {s['max_abs_u_applied']:.4g}    saturated at "
@@ -156,8 +192,11 @@ def format_summary(s: dict) -> str:
         f"  final {s['adaptive_state']}: [{', '.join(f'{v:.4g}' for v in s['final_eps_hat'])}]",
         _lemma2_line(s),
     ]
-    if s["diverged"]:
-        lines.append(f"  DIVERGED at t = {s['diverged_time']:g} s: {s['divergence_reason']}")
+    if s["diverged"] and sc is not None:
+        lines += divergence_lines(s, sc)
+    elif s["diverged"]:
+        lines.append(f"  DIVERGED: stopped at t = {s['diverged_time']:g} s of {s['duration']:g} s: "
+                     f"{s['divergence_reason']}")
     return "\n".join(lines)
 
 
@@ -169,17 +208,21 @@ def _lemma2_line(s: dict) -> str:
     return f"{ratio} (<= 1 holds: {'yes' if s['lemma2_max_ratio'] <= 1 + LEMMA2_TOLERANCE else 'NO'})"
 
 
+def _print_paper_line(s: dict, sc: Scenario) -> None:
+    """For a scenario of the paper, what the paper reports and where the difference is explained."""
+    told = paper_line(s, sc)
+    if told is not None:
+        print(told)
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     sc = _scenario_from_args(args)
     backend = args.backend or sc.simulation.backend
     BACKENDS[backend].require(sc.backends.get(backend), sc.source)
-    out = prepare_output_dir(args.out) if args.out else None
-    for option, path in (("--rrd", args.rrd), ("--save", args.save), ("--plot", args.plot)):
-        if path is not None:
-            check_output_file(path, option)
     if args.save is not None and args.save.suffix not in api.SAVE_FORMATS:
         raise QcontrolInputError(f"--save {args.save}: unknown format {args.save.suffix!r}; "
                                  "give a .npz or .csv file")
+    _check_outputs(args, {"--rrd": args.rrd, "--save": args.save, "--plot": args.plot})
     # a plain run keeps only its metrics (memory stays flat however long the run); --save and
     # --plot need every row
     record = "full" if args.save is not None or args.plot is not None else "metrics"
@@ -188,9 +231,11 @@ def cmd_run(args: argparse.Namespace) -> int:
                      command=args.command_line)
     progress.finish()
     s = result.summary
-    print(format_summary(s))
+    print(format_summary(s, sc))
+    _print_paper_line(s, sc)
     _print_warnings(s)
-    if out is not None:
+    if args.out is not None:
+        out = prepare_output_dir(args.out)
         write_json(out / "summary.json", s)
         print(f"  wrote {out / 'summary.json'}")
     if args.save is not None:
@@ -221,9 +266,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         raise QcontrolInputError(
             f"{sc.source}: compare needs a [plant.mujoco] table (the MuJoCo twin of the ODE); add one"
         )
-    out = prepare_output_dir(args.out) if args.out else None
-    if args.rrd is not None:
-        check_output_file(args.rrd, "--rrd")
+    _check_outputs(args, {"--rrd": args.rrd})
     progress: dict[str, ProgressLine] = {}
 
     def progress_of(backend: str) -> ProgressLine:
@@ -239,7 +282,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
         print(f"realism options on ({', '.join(report['realism'])}): MuJoCo differs from the ODE model "
               f"by up to {report['max_abs_mismatch']:.3g} in acceleration at sampled states")
     for backend in ("mujoco", "ode"):
-        print(format_summary(result[backend]))
+        print(format_summary(result[backend], sc))
+    _print_paper_line(result["mujoco"], sc)
     _print_warnings(result)
     print(
         f"MuJoCo vs ODE over {result['rows_compared']} instants: "
@@ -249,7 +293,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     )
     if result["realism_alone"]:
         print("\n".join(attribution_lines(result["realism_alone"], result)))
-    if out is not None:
+    if args.out is not None:
+        out = prepare_output_dir(args.out)
         write_json(out / "compare.json", result)
         print(f"  wrote {out / 'compare.json'}")
     if args.rrd is not None:
@@ -280,13 +325,21 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-COMMANDS = {"run": cmd_run, "compare": cmd_compare, "reproduce": cmd_reproduce, "sweep": cmd_sweep}
+COMMANDS = {"run": cmd_run, "compare": cmd_compare, "reproduce": cmd_reproduce, "sweep": cmd_sweep,
+            "check": cmd_check}
+
+
+def _one_line_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                      line: str | None = None) -> str:
+    """A warning as the command line prints it: one line, no source location."""
+    return f"qcontrol: warning: {message}\n"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.command_line = command_line(argv)  # what the outputs' provenance names as the command
+    warnings.formatwarning = _one_line_warning
     started = time.perf_counter()
     try:
         return COMMANDS[args.command](args)

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from .errors import QcontrolInputError
-from .schema import Key, KindKeys, Table, number, read_keys, string, type_name
+from .schema import Key, KindKeys, Section, Table, number, read_keys, string, type_name
 from .timegrid import RELATIVE_SLACK
 
 
@@ -54,16 +54,17 @@ class Disturbance:
         return f"{self.kind} {force} over [{self.start:g}, {self.end:g}) s"
 
 
-START = Key("start", number(nonnegative=True), unit="s", meaning="when it begins (simulated time)")
+START = Key("start", number(nonnegative=True), unit="s", meaning="when it begins (simulated time)",
+            example="5.0")
 IMPULSE_KEYS = (
     START,
-    Key("duration", number(positive=True), unit="s", meaning="how long the force acts"),
-    Key("force", number(), unit="N m or N",
+    Key("duration", number(positive=True), unit="s", meaning="how long the force acts", example="0.05"),
+    Key("force", number(), unit="N m or N", example="20.0",
         meaning="the generalized force on the joint while it acts (its integral is force * duration)"),
 )
 STEP_KEYS = (
     START,
-    Key("value", number(), unit="N m or N",
+    Key("value", number(), unit="N m or N", example="-5.0",
         meaning="the generalized force on the joint from start to the end of the run"),
 )
 
@@ -89,7 +90,14 @@ DISTURBANCE_KINDS: dict[str, DisturbanceKind] = {
         KindKeys("impulse", IMPULSE_KEYS, "a push: force over [start, start + duration)"), _impulse),
     "step": DisturbanceKind(KindKeys("step", STEP_KEYS, "a load that stays: value from start on"), _step),
 }
-KIND = Key("kind", string(tuple(DISTURBANCE_KINDS)), meaning="the kind of disturbance")
+KIND = Key("kind", string(tuple(DISTURBANCE_KINDS)), meaning="the kind of disturbance", example='"impulse"')
+SECTION = Section(
+    "disturbance", (KIND,),
+    "external loads on the joint, on top of u, in MuJoCo (qfrc_applied) and in the ODE (the matched "
+    "term d = F / I, I the joint's inertia from the MuJoCo model, 1 without one); held over each step "
+    "at their average there; any number of them, each its own [[disturbance]]",
+    {name: kind.keys for name, kind in DISTURBANCE_KINDS.items()}, array=True,
+)
 
 
 def parse_disturbances(raw: Any, source: str) -> tuple[Disturbance, ...]:

@@ -1,7 +1,8 @@
 """The error rate of the paper's Table 1, computed from a run's rows as they arrive.
 
 ``E(omega) = #{i : |z_1(t_i)| > omega} / M`` with ``t_i = i T / (M - 1)``, ``i = 0..M-1`` (the
-paper's Table 1, Section 4).
+paper's Table 1, Section 4; docs/math.md, 'Choices the paper leaves open', says how the instants
+are sampled).
 ``z_1`` between recorded instants is interpolated linearly (it is continuous); instants after the
 last finite row of a diverged run count as exceeding every omega. Feeding the rows in chunks gives
 bit-identical results to feeding them at once: every instant is interpolated on the same pair of

@@ -17,10 +17,35 @@ import numpy as np
 from .errors import QcontrolInputError
 
 
+def check_output_dir(path: str | Path, option: str = "--out") -> Path:
+    """Check, without creating anything, that ``path`` is a writable folder or can be made one
+    (its nearest existing ancestor is a writable folder); bad paths are input errors naming the
+    command-line ``option`` they came from. Commands call this before they run and create the
+    folder only when they write into it, so bad input leaves nothing behind."""
+    path = Path(path)
+    existing = path
+    while not existing.exists() and existing != existing.parent:
+        if existing.is_symlink():  # a dangling link: mkdir would fail on it
+            break
+        existing = existing.parent
+    if existing.exists() and not existing.is_dir():
+        raise QcontrolInputError(
+            f"{option} {path}: cannot create the folder ({existing} is a file, not a folder); "
+            "choose a writable folder"
+        )
+    if not existing.exists():
+        raise QcontrolInputError(f"{option} {path}: cannot create the folder ({existing} is a broken link); "
+                                 "choose a writable folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        what = "folder is not writable" if existing == path else f"{existing} is not writable"
+        raise QcontrolInputError(f"{option} {path}: {what}; choose a writable folder")
+    return path
+
+
 def prepare_output_dir(path: str | Path, option: str = "--out") -> Path:
     """Create ``path`` (and parents) and check it is writable; bad paths are input errors
     naming the command-line ``option`` they came from."""
-    path = Path(path)
+    path = check_output_dir(path, option)
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -33,11 +58,12 @@ def prepare_output_dir(path: str | Path, option: str = "--out") -> Path:
 
 
 def check_output_file(path: str | Path, option: str) -> Path:
-    """Check that the folder of an output file exists (or can be made) and is writable."""
+    """Check, without creating anything, that an output file can be written: it is not a folder
+    and its folder exists or can be made, writable."""
     path = Path(path)
     if path.is_dir():
         raise QcontrolInputError(f"{option} {path}: is a folder; give a file name such as run.rrd")
-    prepare_output_dir(path.parent if str(path.parent) else Path("."), option)
+    check_output_dir(path.parent if str(path.parent) else Path("."), option)
     return path
 
 

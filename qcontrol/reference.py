@@ -89,12 +89,12 @@ def _check_derivatives(table: Table, key: str, amplitude: float, frequency: floa
 
 
 SINE_KEYS = (
-    Key("amplitude", number(), 1.0, "y units", "amplitude of the sine"),
-    Key("frequency", number(), 1.0, "rad/s", "angular frequency"),
+    Key("amplitude", number(), 1.0, "y units", "amplitude of the sine", example="1.0"),
+    Key("frequency", number(), 1.0, "rad/s", "angular frequency", example="1.5"),
     Key("phase", number(), 0.0, "rad", "phase at t = 0"),
 )
 OFFSET = Key("offset", number(), 0.0, "y units", "constant added to y_d")
-CONSTANT_KEYS = (Key("value", number(), 0.0, "y units", "the constant y_d"),)
+CONSTANT_KEYS = (Key("value", number(), 0.0, "y units", "the constant y_d", example="0.2"),)
 
 
 def _read_terms(table: Table, key: str, default: object, sizes: object) -> tuple[Sine, ...]:
@@ -110,7 +110,8 @@ def _read_terms(table: Table, key: str, default: object, sizes: object) -> tuple
 
 SUM_KEYS = (
     Key("terms", custom("list of tables {amplitude, frequency, phase}", _read_terms),
-        meaning="the sines summed: amplitude (y units), frequency (rad/s), phase (rad), as for kind sine"),
+        meaning="the sines summed: amplitude (y units), frequency (rad/s), phase (rad), as for kind sine",
+        example="[{amplitude = 1.0, frequency = 1.5}, {amplitude = 0.2, frequency = 4.0, phase = 0.5}]"),
     OFFSET,
 )
 

@@ -16,6 +16,8 @@ PAPER_TABLE1: dict[str, dict[str, float]] = {
     "comparison": dict(zip(OMEGA_KEYS, (0.9570, 0.9339, 0.9132, 0.8925, 0.8679), strict=True)),
 }
 METHOD_LABELS = {"proposed": "proposed (44)-(45)", "comparison": "comparison [20], eq. (46)"}
+# The row of Table 1 that a run of each controller kind is compared with.
+PAPER_TABLE1_ROWS = {"proposed": "proposed", "baseline": "comparison"}
 
 
 def table1(ours: Mapping[str, Mapping[str, Mapping[str, float]]]) -> dict:
@@ -35,7 +37,8 @@ def table1(ours: Mapping[str, Mapping[str, Mapping[str, float]]]) -> dict:
             "Example 2, canonical plant theta = [-1, -3.5, -34.3], paper parameters (delta 0.01, "
             "c = [4, 3], gamma = sigma = 1, kappa = 1.1 + L), bounding functions r = [1 + q2^2, "
             "1 + 2 q2^2, 1] (the paper gives none). Comparison: reference [20]'s law (46) with our "
-            "reconstructed adaptive law. No parameter was fitted to the table."
+            "reconstructed adaptive law (docs/math.md, 'The comparison law'). No parameter was fitted to the "
+            "table."
         ),
     }
 
@@ -150,8 +153,8 @@ def _findings(f: ReportFacts) -> list[str]:
         f"* **Comparison method of [20], eq. (46)**: ours E = {_rates(ours['comparison'], 3)} against the "
         f"paper's {_rates(PAPER_TABLE1['comparison'], 3)} (largest difference {largest:.3f}). "
         "The paper does not print [20]'s adaptive law; ours is the standard theta_hat' = phi(x_q) zbar_2 "
-        "(our reconstruction). Its quality is poor for the reason the paper gives: it feeds the "
-        "non-Lipschitz x2^2 cos(x1) the quantized state and cannot compensate it.",
+        "(our reconstruction: docs/math.md, 'The comparison law'). Its quality is poor for the reason the "
+        "paper gives: it feeds the non-Lipschitz x2^2 cos(x1) the quantized state and cannot compensate it.",
         f"* **Proposed law (44)-(45), paper parameters**: ours E = {_rates(ours['proposed'], 3)} against the "
         f"paper's {_rates(PAPER_TABLE1['proposed'], 4)}. **Not reproduced.** With kappa = 1.1 + L the robust "
         "term of (44), -(zbar_2/kappa)/(kappa - L) (zbar_2^2/kappa + L) eps_hat^T r, is small near "
@@ -159,9 +162,11 @@ def _findings(f: ReportFacts) -> list[str]:
         "(eps_3 = |theta_3| = 34.3): the "
         f"loop settles with |z_1| up to {f.example2['max_abs_z1_last_half']:.3f} rad in the last half "
         f"and |z_2| up to {f.z2_last_half:.2f} (Theorem 1's worst-case figure kappa + L = "
-        f"{f.kappa_plus_L:.3f} is exceeded: the ultimate bound carries the sigma |eps|^2 residual).",
+        f"{f.kappa_plus_L:.3f} is exceeded: the ultimate bound carries the sigma |eps|^2 residual; "
+        "docs/math.md, 'What the theorem promises').",
         "* **Why the proposed row differs.** The paper gives no bounding functions r for Example 2; "
-        "ours are the minimal ones that follow from |x_2| <= |q_2| + delta/2. Any constant "
+        "ours are the minimal ones that follow from |x_2| <= |q_2| + delta/2 (docs/math.md, 'Choices the "
+        "paper leaves open'). Any constant "
         "multiple s >= 1 of r is equally valid, and kappa is a free design constant: the printed "
         "'1.1 + L' may carry an extraction error. Both change the result strongly (studies below): "
         f"kappa = 0.1 + L gives E(0.100) = {at_01['error_rate']['0.100']:.4f}, and scaling r by "
@@ -169,7 +174,8 @@ def _findings(f: ReportFacts) -> list[str]:
         "as studies; the canonical result above uses the paper's printed numbers.",
         "* **Signs lost in the text extraction.** theta's signs are read as physically sensible "
         "(damping, gravity: theta = [-1, -3.5, -34.3]); the sign of theta_2 cannot be recovered "
-        "(see the plant-variant study); Example 1's psi = +0.1 x2^2 (the other sign is a --set away).",
+        "(see the plant-variant study); Example 1's psi = +0.1 x2^2 (the other sign is a --set away). "
+        "docs/math.md, 'Signs', gives the reasoning for every sign.",
         f"* **Example 1**: |z_1| over the last half <= {f.example1['max_abs_z1_last_half']:.3f} m, max |u| "
         f"= {f.example1['max_abs_u']:.2f}, final xi_hat = {f.example1['final_eps_hat'][0]:.3f}; the "
         "paper shows the same qualitative picture (Figs. 1-4) without numbers.",

@@ -5,8 +5,8 @@ chosen backend, with the ideal ODE twin beside MuJoCo, then the sensitivity stud
 a constant scale of r, plant variants) on the ODE backend, then the robustness study on realistic
 hardware (:mod:`qcontrol.robustness`, MuJoCo, in worker processes). Writes PNG figures,
 ``table1.md``, ``table1.json``, ``studies.json``, ``robustness.json``, ``REPORT.md`` and one rerun
-recording per example into the output folder. Parameters come from the paper's text (Section 4);
-nothing is fitted to Table 1.
+recording per example into the output folder. Parameters come from the paper's Section 4
+(docs/math.md, 'The paper's examples'); nothing is fitted to Table 1.
 """
 
 from __future__ import annotations
@@ -23,7 +23,8 @@ from .assembly import controller_constants, run_scenario, scene
 from .controller import lemma2_L
 from .engine import Trajectory
 from .metrics import backend_deviation, summary
-from .outputs import prepare_output_dir, write_json, write_text
+from .outputs import check_output_dir, prepare_output_dir, write_json, write_text
+from .plants import BACKENDS
 from .report import PAPER_TABLE1, ReportFacts, report_markdown, table1, table1_markdown
 from .resources import shipped_dir
 from .robustness import EXAMPLES, default_workers, robustness_study
@@ -117,11 +118,13 @@ def reproduce(
 ) -> dict:
     """Run the whole reproduction into ``out``; returns Table 1 as written to ``table1.json``.
     ``command`` is what the outputs' provenance names as the command (default: this call);
-    ``workers``: processes for the robustness study (default: the machine's cores, at most 4)."""
+    ``workers``: processes for the robustness study (default: the machine's cores, at most 4). Every
+    scenario it uses is validated before the folder is made: bad input creates nothing."""
     command = command or (f"qcontrol.reproduce.reproduce({str(out)!r}, backend={backend!r}, "
                           f"duration={duration!r})")
-    rep = Reproduction(prepare_output_dir(out), backend, duration, Path(scenarios), log, command=command)
-    o = rep.out
+    rep = Reproduction(check_output_dir(out), backend, duration, Path(scenarios), log, command=command)
+    _validate(rep)
+    o = prepare_output_dir(out)
     log(f"Example 1 on {backend}")
     ex1, ex1_twin = rep.twins("example 1", rep.scenario("example1"))
     _example1_figures(o, ex1, ex1_twin)
@@ -166,6 +169,20 @@ def reproduce(
     log(f"wrote {o}: REPORT.md, table1.md, table1.json, studies.json, robustness.json, figures, recordings "
         f"({len(rep.lemma2_ratios)} runs, {time.perf_counter() - rep.started:.1f} s)")
     return table
+
+
+def _validate(rep: Reproduction) -> None:
+    """Load every scenario variant the reproduction runs; the examples must have the backend's
+    section (e.g. [plant.mujoco])."""
+    for name in ("example1", "example2"):
+        sc = rep.scenario(name)
+        BACKENDS[rep.backend].require(sc.backends.get(rep.backend), sc.source)
+    for _, name, overrides in PLANT_VARIANTS:
+        rep.scenario(name, overrides)
+        rep.scenario(name, (*overrides, *BASELINE))
+    for name in ROBUSTNESS_SCENARIOS:  # the robustness study's plants, with their MuJoCo models
+        sc = rep.scenario(name)
+        BACKENDS["mujoco"].require(sc.backends.get("mujoco"), sc.source)
 
 
 def _example1_figures(o: Path, run: Run, twin: Run | None) -> None:

@@ -47,11 +47,11 @@ class Table:
         self.name = name
         if not isinstance(data, dict):
             raise self.error_at(name or "(top level)", f"must be a table, got {type_name(data)}",
-                                f"write [{name}]")
+                                _table_hint(name))
         if allowed is not None:
             unknown = sorted(set(data) - set(allowed))
             if unknown:
-                where = f"in [{name}] " if name else ""
+                where = "" if not name else f"in {name} " if "[" in name else f"in [{name}] "
                 raise self.error(unknown[0], "unknown key", f"allowed keys {where}are {', '.join(allowed)}")
         self.data = data
 
@@ -135,6 +135,15 @@ class Table:
         return Table(self.get(key, default), self.source, self.path(key), allowed)
 
 
+def _table_hint(name: str) -> str:
+    """How to write the table ``name`` in TOML: ``[a.b]``, or for an entry of a list of tables
+    (``a.b[0]``) the header ``[[a.b]]`` of each entry."""
+    bare = re.sub(r"\[[0-9]+\]$", "", name)
+    if bare != name and "[" not in bare:
+        return f"write each entry as a table, under a [[{bare}]] header"
+    return f"write [{name}]" if name else "write key = value pairs under [table] headers"
+
+
 # --------------------------------------------------------------------------------------------
 # Value types: each reads a key of a Table and says in words what it accepts.
 
@@ -192,13 +201,17 @@ def custom(text: str, read: Reader, path: bool = False) -> ValueType:
 @dataclass(frozen=True)
 class Key:
     """One scenario key: how it is read, its default (:data:`REQUIRED` if it must be given),
-    its unit and what it means."""
+    its unit, what it means, and an ``example`` value as TOML text (docs/scenarios.md shows it;
+    a required key needs one). ``default_text`` states a default that is computed when the file
+    is read (e.g. the file's name) for the documentation."""
 
     name: str
     type: ValueType
     default: Any = REQUIRED
     unit: str = ""
     meaning: str = ""
+    example: str = ""
+    default_text: str = ""
 
     @property
     def optional(self) -> bool:
@@ -239,12 +252,15 @@ class KindKeys:
 @dataclass(frozen=True)
 class Section:
     """The keys of one table: ``keys`` always apply; with ``kinds``, the key ``kind`` chooses one
-    of them and that kind's keys apply too (see :func:`kind_table`)."""
+    of them and that kind's keys apply too (see :func:`kind_table`; a kind whose keys are None is
+    a law registered from Python, whose own factory checks them). ``array``: the file holds a list
+    of such tables, ``[[name]]``, each with its kind's keys directly in it (no sub-tables)."""
 
     name: str
     keys: tuple[Key, ...]
     meaning: str = ""
-    kinds: Mapping[str, KindKeys] = field(default_factory=dict)
+    kinds: Mapping[str, KindKeys | None] = field(default_factory=dict)
+    array: bool = False
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -283,7 +299,7 @@ def kind_table(table: Table, common: Sequence[str], kinds: Mapping[str, KindKeys
             continue
         if chosen is not None and key not in chosen.names:
             raise table.error(key, _not_for_kind(key, kind, kinds), _keys_that_apply(table, common, kind,
-                                                                                     chosen))
+                                                                                     chosen, kinds, key))
         group = _group(chosen, key)
         for alternative in group:  # a direct key replaces its whole group of the sub-table
             merged.pop(alternative, None)
@@ -300,17 +316,25 @@ def _group(keys: KindKeys | None, key: str) -> tuple[str, ...]:
     return (key,)
 
 
+def _owners(key: str, kinds: Mapping[str, KindKeys | None]) -> list[str]:
+    return [k for k, keys in kinds.items() if keys is not None and key in keys.names]
+
+
 def _not_for_kind(key: str, kind: str, kinds: Mapping[str, KindKeys | None]) -> str:
-    owners = [k for k, keys in kinds.items() if keys is not None and key in keys.names]
+    owners = _owners(key, kinds)
     if owners:
         return f"does not apply to kind {kind!r} (it is a setting of kind {owners[0]!r})"
     return f"unknown key for kind {kind!r}"
 
 
-def _keys_that_apply(table: Table, common: Sequence[str], kind: str, chosen: KindKeys) -> str:
+def _keys_that_apply(table: Table, common: Sequence[str], kind: str, chosen: KindKeys,
+                     kinds: Mapping[str, KindKeys | None], key: str) -> str:
     names = ", ".join([*common, *chosen.names])
-    return (f"keys of [{table.name}] with kind = {kind!r} are {names}; settings of other kinds go in "
-            f"their own sub-table, e.g. [{table.name}.<kind>]")
+    owners = _owners(key, kinds) or [k for k in kinds if k != kind]
+    if not owners:
+        return f"keys of [{table.name}] with kind = {kind!r} are {names}"
+    return (f"keys of [{table.name}] with kind = {kind!r} are {names}; settings of other kinds go in their "
+            f"own sub-table, e.g. [{table.name}.{owners[0]}]")
 
 
 class _MergedTable(Table):

@@ -68,13 +68,43 @@ class TimeGrid:
 
 def step_count(duration: float, dt: float) -> int:
     """Number of ``dt`` steps in ``duration``; a duration that is not a multiple of dt is refused
-    with the nearest durations and steps that would work."""
+    with the nearest steps and durations that would work."""
     steps = round(duration / dt)
     if steps >= 1 and abs(steps * dt - duration) <= RELATIVE_SLACK * max(1.0, duration):
         return steps
-    near = max(1, steps)
+    below = max(1, math.floor(duration / dt)) * dt
+    above = max(1, math.ceil(duration / dt)) * dt
+    durations = _either(below, above)
+    steps_that_work = _either(*_round_steps(duration, dt)) or f"{_show(duration / max(1, steps))} s"
     raise QcontrolInputError(
         f"simulation.duration = {duration!r} s is not a whole number of steps dt = {dt!r} s; "
-        f"use duration = {_show(near * dt)} s with this dt, or dt = {_show(duration / near)} s "
-        f"({near} steps) for this duration"
+        f"the nearest that work are dt = {steps_that_work} for this duration, or duration = {durations} "
+        "for this dt"
     )
+
+
+def _either(below: float | None, above: float | None) -> str:
+    shown = [f"{_show(t)} s" for t in (below, above) if t is not None]
+    if len(shown) == 2 and shown[0] == shown[1]:
+        shown = shown[:1]
+    return " or ".join(shown)
+
+
+def _round_steps(duration: float, dt: float, digits: int = 3) -> tuple[float | None, float | None]:
+    """The steps nearest ``dt`` from below and from above (within a factor of 2) that have at most
+    ``digits`` significant digits and make ``duration`` a whole number of steps."""
+    exponent = math.floor(math.log10(dt)) - (digits - 1)
+    below = above = None
+    for shift in (-1, 0, 1):  # mantissas 10^(digits-1) .. 10^digits - 1 around dt's decade
+        for mantissa in range(10 ** (digits - 1), 10**digits):
+            step = float(f"{mantissa}e{exponent + shift}")
+            if not dt / 2 <= step <= 2 * dt:
+                continue
+            count = round(duration / step)
+            if count < 1 or abs(count * step - duration) > RELATIVE_SLACK * max(1.0, duration):
+                continue
+            if step < dt and (below is None or step > below):
+                below = step
+            if step > dt and (above is None or step < above):
+                above = step
+    return below, above

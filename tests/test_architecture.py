@@ -30,8 +30,8 @@ LAYERS = [
     {"engine"},
     {"metrics", "scenario"},
     {"assembly"},
-    {"recording", "plots", "report", "robustness_report", "attribution"},
-    {"sweep", "api"},
+    {"recording", "plots", "report", "check", "robustness_report", "attribution"},
+    {"sweep", "api", "explain"},
     {"reproduce", "robustness"},
     {"cli", "_entry"},
 ]

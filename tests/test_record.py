@@ -17,10 +17,12 @@ from rerun.chunk import RrdReader
 import qcontrol
 from qcontrol.controller import ProposedController
 from qcontrol.engine import Trajectory, simulate
+from qcontrol.errors import QcontrolInputError
 from qcontrol.expr import compile_expression as C
 from qcontrol.plants.ode import ChainPlant
 from qcontrol.quantizer import UniformQuantizer
 from qcontrol.recording import Recording, temporary_path
+from qcontrol.recording import recording as recording_module
 from qcontrol.reference import Sine
 
 X, Q = ["x1", "x2"], ["q1", "q2"]
@@ -358,10 +360,10 @@ def test_one_main_run_per_recording_and_unique_ghost_labels(tmp_path):
 
 
 def test_no_viewer_available_warns_and_keeps_the_file(tmp_path, monkeypatch):
-    def no_viewer(**kwargs):
-        raise RuntimeError("Failed to find Rerun Viewer executable in PATH")
+    def no_viewer(*args, **kwargs):
+        raise QcontrolInputError("--spawn: the rerun viewer is not installed; write the recording with --rrd")
 
-    monkeypatch.setattr(rr, "spawn", no_viewer)
+    monkeypatch.setattr(recording_module, "start_viewer", no_viewer)
     with pytest.warns(UserWarning, match="viewer"), Recording(None, spawn=True) as rec:
         assert not rec.enabled
     path = tmp_path / "file.rrd"

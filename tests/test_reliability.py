@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import json
 import os
+import pty
+import select
 import signal
 import subprocess
 import sys
@@ -192,33 +194,63 @@ def test_atomic_path_into_a_missing_folder_is_an_input_error(tmp_path: Path) -> 
 # Ctrl-C
 
 
-def _interrupt(tmp_path: Path, argv: list[str], ready: Path, settle: float = 1.0) -> tuple[int, str, float]:
-    """Start ``qcontrol argv`` (SIGINT at its default: Python's KeyboardInterrupt), wait until
-    ``ready`` exists (the run has started) plus ``settle`` seconds, send SIGINT; return (exit
-    status, stderr, seconds from the signal to the exit)."""
+def _interrupt(tmp_path: Path, argv: list[str], ready: Path | None,
+               settle: float = 1.0) -> tuple[int, str, float]:
+    """Start ``qcontrol argv`` (SIGINT at its default: Python's KeyboardInterrupt), wait until the
+    run has started plus ``settle`` seconds, send SIGINT; return (exit status, stderr, seconds from
+    the signal to the exit). The run has started when ``ready`` exists or, with ``ready`` None,
+    when it shows progress on its stderr, a terminal (a pseudo-terminal here): bad-input checks
+    make nothing before the run, so there is no folder to wait for."""
+    master, terminal = pty.openpty() if ready is None else (None, None)
     proc = subprocess.Popen(
         [sys.executable, "-m", "qcontrol.cli", *argv],
         cwd=tmp_path,
         stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
+        stderr=subprocess.PIPE if terminal is None else terminal,
         text=True,
         env={**os.environ, "HOME": str(tmp_path)},
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # not inherited as ignored
     )
+    if terminal is not None:
+        os.close(terminal)
     try:
         deadline = time.perf_counter() + 60.0
-        while not ready.exists() and proc.poll() is None and time.perf_counter() < deadline:
+        shown = ""
+        while proc.poll() is None and time.perf_counter() < deadline:
+            if ready is not None and ready.exists():
+                break
+            if master is not None and select.select([master], [], [], 0.05)[0]:
+                shown += os.read(master, 4096).decode(errors="replace")
+                if "%" in shown:
+                    break
             time.sleep(0.05)
         time.sleep(settle)
         assert proc.poll() is None, f"finished before the signal: {proc.communicate()}"
         sent = time.perf_counter()
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=15)
-        return proc.returncode, err, time.perf_counter() - sent
+        seconds = time.perf_counter() - sent
+        return proc.returncode, err if master is None else shown + _drain(master), seconds
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+        if master is not None:
+            os.close(master)
+
+
+def _drain(master: int) -> str:
+    """Everything left on a pseudo-terminal whose other end has closed."""
+    text = ""
+    while select.select([master], [], [], 0.5)[0]:
+        try:
+            chunk = os.read(master, 4096)
+        except OSError:  # EIO: the other end is closed
+            break
+        if not chunk:
+            break
+        text += chunk.decode(errors="replace")
+    return text
 
 
 @pytest.mark.parametrize("command, backend", [("run", "ode"), ("run", "mujoco"), ("compare", None)])
@@ -226,15 +258,16 @@ def test_ctrl_c_stops_promptly_exit_130_no_temporary_files(
     tmp_path: Path, command: str, backend: str | None
 ) -> None:
     out = tmp_path / "out"
-    argv = [command, str(EX2), "--duration", "600", "-q", "--out", str(out)]
+    argv = [command, str(EX2), "--duration", "600", "--out", str(out)]
     if backend is not None:
         argv += ["--backend", backend]
-    status, err, seconds = _interrupt(tmp_path, argv, ready=out)
+    status, err, seconds = _interrupt(tmp_path, argv, ready=None)
     assert status == 130, err
     assert seconds < 5.0
     assert "Traceback" not in err and "interrupted" in err
     assert not _leftovers(tmp_path)
     assert not (out / "summary.json").exists() and not (out / "compare.json").exists()
+    assert not out.exists()  # the folder is made only when the results are written
 
 
 def test_ctrl_c_keeps_the_recording(tmp_path: Path) -> None:

@@ -3,7 +3,7 @@
 Reference [20] assumes psi and phi globally Lipschitz and known in form, and feeds them the
 quantized state directly. The paper does not print [20]'s adaptive law: the standard
 tuning-function law ``theta_hat' = Gamma phi(x_q) zbar_n`` used here is our reconstruction, and
-outputs label it so.
+outputs label it so (docs/math.md, 'The comparison law').
 """
 
 from __future__ import annotations
@@ -117,10 +117,10 @@ KEYS = KindKeys(
     "baseline",
     (
         Key("gain", number(positive=True), 1.0,
-            meaning="adaptation gain Gamma of theta_hat' = Gamma phi(x_q) zbar_n"),
+            meaning="adaptation gain Gamma of theta_hat' = Gamma phi(x_q) zbar_n", example="1.0"),
         Key("theta", string(("adaptive", "known")), "adaptive",
             meaning='"adaptive": theta_hat(0) = 0 and adapted; "known": theta_hat = the plant\'s theta, '
-                    "held fixed"),
+                    "held fixed", example='"adaptive"'),
     ),
     meaning="the comparison law (46) of the paper's reference [20], with our reconstructed adaptive law",
 )
@@ -149,4 +149,9 @@ def structure(settings: BaselineSettings, ctx: LawContext) -> Hashable:
     return settings, ctx.theta if settings.theta == "known" else None
 
 
-KIND = LawKind("baseline", KEYS, parse, build, structure)
+KIND = LawKind(
+    "baseline", KEYS, parse, build, structure,
+    divergence_hint="law (46) cancels psi and theta^T phi at the quantized state; a term that is not "
+    "Lipschitz differs there from its true value by more the larger the state (docs/math.md, "
+    "'The comparison law')",
+)

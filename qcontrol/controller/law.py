@@ -88,7 +88,8 @@ class LawKind:
     ``structure(settings, context)`` (the settings that may differ within a batch become
     per-copy parameters); the first variant's context is passed. ``bounds(settings)``: the
     bounding functions r of eqs. (37)-(43) the law uses (one per phi_i, then psi), whose
-    separation is checked along single runs.
+    separation is checked along single runs. ``divergence_hint`` says what usually makes this law
+    diverge, for the message of a diverged run.
     """
 
     name: str
@@ -97,6 +98,7 @@ class LawKind:
     build: Callable[[Sequence[Any], LawContext], BatchLaw]
     structure: Callable[[Any, LawContext], Hashable]
     bounds: Callable[[Any], tuple[Expression, ...]] | None = None  # its bounding functions r, if any
+    divergence_hint: str = ""
 
 
 LAW_KINDS: dict[str, LawKind] = {}

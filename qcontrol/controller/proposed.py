@@ -188,11 +188,12 @@ KEYS = KindKeys(
         Key("kappa", number(positive=True), OPTIONAL,
             meaning="kappa > L of law (44); give it or kappa_margin"),
         Key("kappa_margin", number(positive=True), OPTIONAL,
-            meaning="kappa = L + kappa_margin (the paper writes kappa = 1.1 + L)"),
-        Key("gamma", number(positive=True), meaning="adaptation gain gamma of law (45)"),
-        Key("sigma", number(positive=True), meaning="sigma-modification sigma of law (45)"),
+            meaning="kappa = L + kappa_margin (the paper writes kappa = 1.1 + L)", example="1.1"),
+        Key("gamma", number(positive=True), meaning="adaptation gain gamma of law (45)", example="1.0"),
+        Key("sigma", number(positive=True), meaning="sigma-modification sigma of law (45)", example="1.0"),
         Key("r", expressions("q1..qn"),
-            meaning="bounding functions r_i(x_q) >= 1 of eqs. (37)-(43): one per phi_i, then one for psi"),
+            meaning="bounding functions r_i(x_q) >= 1 of eqs. (37)-(43): one per phi_i, then one for psi",
+            example='["1 + q2**2", "1 + 2*q2**2", "1"]'),
         Key("r_scale", number(positive=True), 1.0, meaning="constant factor >= 1 on every r_i"),
     ),
     meaning="the paper's law (44) with the adaptive law (45)",
@@ -216,6 +217,10 @@ class ProposedSettings:
 def parse(table: Table, ctx: LawContext) -> ProposedSettings:
     """Read and check the proposed law's keys (Theorem 1's kappa > L, r_i >= 1, one r_i per term)."""
     v = read_keys(table, KEYS.keys, {"n": ctx.order})
+    if ctx.uncertain_terms == 0:
+        raise table.error_at("plant", "has no uncertain term (psi or phi) for the proposed law to bound and "
+                             "adapt to (eqs. (37)-(45))", "add psi or phi to [plant], or use controller "
+                             "kind \"baseline\"")
     kappa = _kappa(table, ctx, v["kappa"], v["kappa_margin"])
     r = v["r"]
     if len(r) != ctx.uncertain_terms:
@@ -294,4 +299,8 @@ def structure(settings: ProposedSettings, ctx: LawContext) -> Hashable:
     return settings.r
 
 
-KIND = LawKind("proposed", KEYS, parse, build, structure, bounds=lambda settings: settings.r_expr)
+KIND = LawKind(
+    "proposed", KEYS, parse, build, structure, bounds=lambda settings: settings.r_expr,
+    divergence_hint="the law's gain grows with |x_q| (eq. (44)), so at a fixed sampling period a large "
+    "state destabilizes the sampled loop (docs/math.md, 'What the theorem promises')",
+)

@@ -79,7 +79,7 @@ class ClosedLoop:
                  velocity_source: str = "sensor") -> None:
         n, batch = plant.n, plant.batch
         self.plant, self.law, self.grid = plant, law, grid
-        self.divergence = Divergence(batch, grid.rows, grid.dt, state_bound)
+        self.divergence = Divergence(batch, grid.rows, grid.dt, state_bound, law.state_name)
         self.reference = ReferenceRows(reference, n, grid, whole=record == "full")
         context = SignalContext(law.coordinates, separation, plant.actuator, velocity_source)
         parts = RunParts(grid, law, self.reference, self.divergence, context, metrics, batch, n)

@@ -19,8 +19,6 @@ from __future__ import annotations
 
 import json
 import re
-import shutil
-import sys
 import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -30,9 +28,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..engine import Observer, Trajectory
+from ..errors import QcontrolInputError
 from ..outputs import AtomicFile, clean
 from .scene import Scene
 from .series import RED, TIMELINE, Series, default_blueprint, run_series
+from .viewer import start_viewer, viewer_url
 
 if TYPE_CHECKING:
     import mujoco
@@ -57,15 +57,6 @@ def _label_suffix(label: str) -> str:
     if not cleaned:
         raise ValueError("a ghost run needs a non-empty label (it names its entities, e.g. 'ode')")
     return cleaned
-
-
-def _viewer_executable() -> str | None:
-    """The rerun viewer: on PATH, else beside this interpreter (a venv not on PATH), else None."""
-    found = shutil.which("rerun")
-    if found is None:
-        beside = Path(sys.executable).with_name("rerun")
-        found = str(beside) if beside.exists() else None
-    return found
 
 
 def _ignore(start: int, stop: int, runs: list[Trajectory]) -> None:
@@ -122,9 +113,9 @@ class Recording:
             sinks.append(rr.FileSink(str(self._file.temporary)))
         if self.spawn:
             try:
-                rr.spawn(connect=False, recording=stream, executable_path=_viewer_executable())
-                sinks.append(rr.GrpcSink())
-            except Exception as exc:  # no viewer available: keep the file, if any
+                start_viewer()  # reuses the viewer the command line started before the run
+                sinks.append(rr.GrpcSink(viewer_url()))
+            except QcontrolInputError as exc:  # no viewer available: keep the file, if any
                 warnings.warn(
                     f"could not start a rerun viewer ({exc}); not streaming to a viewer", stacklevel=3
                 )

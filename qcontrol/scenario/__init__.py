@@ -2,7 +2,7 @@
 (:mod:`.load`) and the validated data (:mod:`.model`)."""
 
 from .keys import MAX_STEPS
-from .load import apply_override, load_scenario, parse_scenario
+from .load import apply_override, load_scenario, parse_scenario, remove_key
 from .model import ControllerConfig, ReferenceConfig, Scenario, SimulationConfig
 
 __all__ = [
@@ -14,4 +14,5 @@ __all__ = [
     "apply_override",
     "load_scenario",
     "parse_scenario",
+    "remove_key",
 ]

@@ -8,6 +8,7 @@ or backend registered later takes part in validation (and in the documentation) 
 from __future__ import annotations
 
 from ..controller.law import LAW_KINDS
+from ..disturbance import SECTION as DISTURBANCE
 from ..engine.velocity import VELOCITY_SOURCES
 from ..error_rate import TABLE1_OMEGAS, TABLE1_SAMPLES
 from ..plants.backends import BACKENDS
@@ -15,8 +16,9 @@ from ..reference import REFERENCE_KINDS
 from ..schema import (
     OPTIONAL,
     Key,
-    KindKeys,
     Section,
+    Table,
+    custom,
     expression,
     expressions,
     integer,
@@ -25,31 +27,50 @@ from ..schema import (
     string,
 )
 
+# see top_sections()
 TOP = ("scenario", "plant", "controller", "reference", "simulation", "metrics", "disturbance")
 REQUIRED_TABLES = ("plant", "controller", "reference", "simulation")
-# The engine keeps what a run needs in memory that does not grow with the run, but a full record
-# (compare, reproduce, --save) keeps every row: 20 million steps is a few GB. Longer runs are
-# refused at load instead of failing mid-way.
+# `qcontrol run` keeps only its metrics (memory that does not grow with the run), but a full record
+# (compare, reproduce, the library's default) keeps every row: 20 million steps is a few GB. Longer
+# runs are refused at load, by every command, instead of failing mid-way.
 MAX_STEPS = 20_000_000
+
+
+PAPER_EXAMPLES = (1, 2)
+
+
+def _paper_example(table: Table, key: str, default: object, sizes: object) -> int | None:
+    value = table.get(key, default)
+    if value is not None and (isinstance(value, bool) or value not in PAPER_EXAMPLES):
+        raise table.error(key, f"must be 1 or 2 (the paper's Examples 1 and 2), got {value!r}",
+                          "write paper_example = 2, or leave the key out")
+    return value
 
 
 def scenario_section(default_name: str = "the file name") -> Section:
     return Section("scenario", (
-        Key("name", string(), default_name, meaning="the scenario's name in outputs"),
-        Key("description", string(), "", meaning="what it models"),
+        Key("name", string(), default_name, meaning="the scenario's name in outputs", example='"my-plant"',
+            default_text="the file's name without .toml"),
+        Key("description", string(), "", meaning="what it models", example='"what it models"'),
+        Key("paper_example", custom("1 or 2", _paper_example), OPTIONAL,
+            meaning="the paper's example this scenario reproduces: a run then prints, under its "
+                    "summary, what the paper reports for it (Table 1 for Example 2)"),
     ), "what the scenario is")
 
 
 PLANT = Section(
     "plant",
     (
-        Key("order", integer(2), meaning="n >= 2: x1' = x2, ..., xn' = u + psi + theta^T phi, eq. (1)"),
+        Key("order", integer(2), meaning="n >= 2: x1' = x2, ..., xn' = u + psi + theta^T phi, eq. (1)",
+            example="2"),
         Key("psi", expression("x1..xn"), OPTIONAL,
             meaning="the unknown term psi(x) (never seen by the controller)"),
         Key("phi", expressions("x1..xn"), [],
-            meaning="known functions phi_i(x) of the uncertain term theta^T phi"),
-        Key("theta", numbers("l"), [], meaning="the unknown constants theta_i, one per phi_i"),
-        Key("x0", numbers("n"), unit="state", meaning="initial state x(0)"),
+            meaning="known functions phi_i(x) of the uncertain term theta^T phi",
+            example='["x2", "x2**2*cos(x1)", "sin(x1)"]'),
+        Key("theta", numbers("l"), [], meaning="the unknown constants theta_i, one per phi_i",
+            example="[-1.0, -3.5, -34.3]"),
+        Key("x0", numbers("n"), unit="state", meaning="initial state x(0)", example="[0.3, 0.3]"),
     ),
     "the plant of eq. (1); [plant.<backend>] sub-tables hold each backend's model",
 )
@@ -61,12 +82,13 @@ def controller_section() -> Section:
         "controller",
         (
             Key("kind", string(tuple(LAW_KINDS)), "proposed", meaning="the control law"),
-            Key("delta", number(positive=True), unit="state", meaning="quantizer step delta, eq. (3)"),
-            Key("c", numbers("n", positive=True), meaning="backstepping gains c_1..c_n > 0, eqs. (7)-(27)"),
+            Key("delta", number(positive=True), unit="state", meaning="quantizer step delta, eq. (3)",
+                example="0.01"),
+            Key("c", numbers("n", positive=True), meaning="backstepping gains c_1..c_n > 0, eqs. (7)-(27)",
+                example="[4.0, 3.0]"),
         ),
         "the control law; settings of kinds not chosen may sit in [controller.<kind>]",
-        {name: kind.keys or KindKeys(name, (), "a law registered from Python") for name,
-         kind in LAW_KINDS.items()},
+        {name: kind.keys for name, kind in LAW_KINDS.items()},
     )
 
 
@@ -83,12 +105,13 @@ def simulation_section() -> Section:
     return Section(
         "simulation",
         (
-            Key("duration", number(positive=True), unit="s", meaning="simulated time T"),
-            Key("dt", number(positive=True), unit="s", meaning="fixed RK4 step; u is held over each step"),
+            Key("duration", number(positive=True), unit="s", meaning="simulated time T", example="10.0"),
+            Key("dt", number(positive=True), unit="s", meaning="fixed RK4 step; u is held over each step",
+                example="0.001"),
             Key("control_period", number(positive=True), OPTIONAL, "s",
                 "the controller samples every control_period (a multiple of dt; default dt) and holds u"),
             Key("backend", string(tuple(BACKENDS)), "ode", meaning="the plant backend (a [plant.<backend>] "
-                "table holds its model)"),
+                "table holds its model)", example='"mujoco"'),
             Key("state_bound", number(positive=True), 1e6, "state",
                 "|x_i| beyond this stops the run as diverged"),
             Key("velocity_source", string(VELOCITY_SOURCES), "sensor",
@@ -104,9 +127,18 @@ METRICS = Section(
     "metrics",
     (
         Key("omega", numbers(positive=True), list(TABLE1_OMEGAS), "y",
-            "thresholds omega of the error rate E(omega) = #{i: |z_1(t_i)| > omega} / M (Table 1)"),
+            "thresholds omega of the error rate E(omega) = #{i: |z_1(t_i)| > omega} / M (Table 1)",
+            example="[0.05, 0.1, 0.2]"),
         Key("samples", integer(2), TABLE1_SAMPLES,
-            meaning="samples M of the error rate, at t_i = i T / (M - 1)"),
+            meaning="samples M of the error rate, at t_i = i T / (M - 1)", example="1302"),
     ),
     "what a run reports: the error rate's thresholds and samples (default: the paper's Table 1)",
 )
+
+
+def top_sections(default_name: str = "the file name") -> tuple[Section, ...]:
+    """Every top-level table of a scenario file, in the order docs/scenarios.md shows them (each
+    backend's ``[plant.<backend>]`` comes from the backend registry). A new table is declared here
+    and named in :data:`TOP`."""
+    return (scenario_section(default_name), PLANT, controller_section(), reference_section(),
+            simulation_section(), METRICS, DISTURBANCE)

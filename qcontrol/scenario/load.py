@@ -4,8 +4,8 @@ A scenario is data: the plant (order, psi, phi, theta, x0, and a model per backe
 controller (kind, delta, gains and the kind's own settings), the reference, and the simulation
 settings. Every key is declared once (:mod:`.keys`, and the kinds' own modules); every problem is
 reported as one line naming the file, the key, what is wrong and the fix. Unknown keys, and keys
-that do not apply to the chosen kind, are errors. ``--set key=value`` overrides are applied
-before validation.
+that do not apply to the chosen kind, are errors. ``--unset key`` removals, then ``--set key=value``
+overrides, are applied to the file's data before validation (docs/scenarios.md).
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from __future__ import annotations
 import copy
 import tomllib
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +28,7 @@ from ..plants.backends import BACKENDS, PlantContext
 from ..plants.base import PlantTerms
 from ..reference import REFERENCE_KINDS
 from ..resources import scenario_path, shipped_scenarios
-from ..schema import Section, Table, kind_table, read_keys
+from ..schema import Section, Table, kind_table, read_keys, show_key
 from ..timegrid import TimeGrid
 from .keys import (
     MAX_STEPS,
@@ -45,10 +46,10 @@ from .model import ControllerConfig, ReferenceConfig, Scenario, SimulationConfig
 Overrides = Sequence[str] | Mapping[str, Any]  # "key=value" strings (the value read as TOML), or a dict
 
 
-def load_scenario(path: str | Path, overrides: Overrides = ()) -> Scenario:
+def load_scenario(path: str | Path, overrides: Overrides = (), unset: Sequence[str] = ()) -> Scenario:
     """Read and validate a scenario file (or a shipped scenario by name, e.g. ``"example2"``),
-    applying the overrides first: ``"key=value"`` strings as on the command line (``--set``), or a
-    dict ``{"controller.kappa_margin": 0.1}``."""
+    removing the ``unset`` keys and applying the overrides first: ``"key=value"`` strings as on the
+    command line (``--set``), or a dict ``{"controller.kappa_margin": 0.1}``."""
     path = scenario_path(path)
     if path.is_dir():
         raise QcontrolInputError(f"{path}: is a folder, not a scenario file; pass a .toml scenario")
@@ -61,7 +62,7 @@ def load_scenario(path: str | Path, overrides: Overrides = ()) -> Scenario:
     except (OSError, UnicodeDecodeError) as exc:
         raise QcontrolInputError(f"{path}: cannot read the scenario ({exc}); check the file") from None
     return parse_scenario(text, source=str(path), base_dir=path.parent, overrides=overrides,
-                          default_name=path.stem)
+                          default_name=path.stem, unset=unset)
 
 
 def parse_scenario(
@@ -70,20 +71,24 @@ def parse_scenario(
     base_dir: Path | None = None,
     overrides: Overrides = (),
     default_name: str = "scenario",
+    unset: Sequence[str] = (),
 ) -> Scenario:
     """Validate scenario TOML ``text``; ``source`` names it in messages, ``base_dir`` is the folder
-    paths in it are relative to."""
+    paths in it are relative to. The ``unset`` keys are removed first, then the overrides applied."""
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise QcontrolInputError(f"{source}: malformed TOML ({exc}); fix the syntax") from None
+    for key in unset:
+        remove_key(data, key, source)
     given = _as_given(overrides)
     for item in given:  # strings and (key, value) pairs: the latter come from dicts
         if isinstance(item, str):
             apply_override(data, item)
         else:
             set_key(data, *item, f"override {item[0]!r}")
-    return _build(data, source, base_dir or Path("."), text, given, default_name)
+    scenario = _build(data, source, base_dir or Path("."), text, given, default_name)
+    return replace(scenario, unset=tuple(unset)) if unset else scenario
 
 
 def _as_given(overrides: Overrides) -> tuple[str | tuple[str, Any], ...]:
@@ -97,6 +102,42 @@ def _as_given(overrides: Overrides) -> tuple[str | tuple[str, Any], ...]:
     return tuple(item if isinstance(item, str) else (str(item[0]), item[1]) for item in overrides)
 
 
+def remove_key(data: dict, key: str, source: str) -> None:
+    """Remove one ``--unset`` key (a dotted path) from the file's data; a key that is not there is
+    one line naming where it would be and what is there instead."""
+    parts = key.strip().split(".")
+    if not key.strip() or any(not p for p in parts):
+        raise QcontrolInputError(f"--unset {key!r}: not a key path; write e.g. --unset reference.amplitude")
+    node, where = data, "the top level"
+    for depth, part in enumerate(parts[:-1]):
+        child = node.get(part)
+        if not isinstance(child, dict):
+            path = ".".join(parts[: depth + 1])
+            problem = (f"{path} is a value, not a table" if part in node
+                       else f"{source} has no table [{path}]")
+            raise QcontrolInputError(f"--unset {key}: {problem}; " + _present(node, where))
+        node, where = child, f"[{'.'.join(parts[: depth + 1])}]"
+    last = parts[-1]
+    if last not in node:
+        raise QcontrolInputError(f"--unset {key}: {source} has no key {last} in {where}; "
+                                 + _moved(node, parts) + _present(node, where))
+    del node[last]
+
+
+def _moved(node: dict, parts: Sequence[str]) -> str:
+    """A hint when the key sits in a sub-table of the table named (e.g. a kind's settings)."""
+    holders = [name for name, value in node.items() if isinstance(value, dict) and parts[-1] in value]
+    if not holders:
+        return ""
+    inner = ".".join([*parts[:-1], holders[0], parts[-1]])
+    return f"it is in a sub-table: --unset {inner}; "
+
+
+def _present(node: dict, where: str) -> str:
+    names = ", ".join(show_key(k) for k in node) or "none"
+    return f"the keys in {where} are {names}"
+
+
 def apply_override(data: dict, item: str) -> None:
     """Apply one ``key.path=value`` override; the value is read as TOML, else as a string."""
     key, sep, raw = item.partition("=")
@@ -105,6 +146,10 @@ def apply_override(data: dict, item: str) -> None:
         raise QcontrolInputError(
             f"--set {item!r}: expected KEY=VALUE; write e.g. --set controller.kappa_margin=0.1"
         )
+    parts = key.split(".")
+    if any(not p for p in parts):
+        raise QcontrolInputError(f"--set {item!r}: key {key!r} has an empty part; write e.g. "
+                                 "--set controller.kappa_margin=0.1")
     raw = raw.strip()
     try:
         value = tomllib.loads(f"v = {raw}")["v"]
@@ -135,9 +180,9 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
     for key in REQUIRED_TABLES:
         if key not in data:
             raise QcontrolInputError(f"{source}: [{key}]: missing table; add a [{key}] section")
-    meta = read_keys(Table(data.get("scenario", {}), source, "scenario", ("name", "description")),
-                     scenario_section(default_name).keys, {})
-    plant = root.table("plant", (*PLANT.names, *BACKENDS))
+    about = scenario_section(default_name)
+    meta = read_keys(Table(data.get("scenario", {}), source, "scenario", about.names), about.keys, {})
+    plant = _plant_table(root)
     terms, x0 = _plant(plant)
     controller = _controller(root.table("controller"), terms)
     signal = _reference(root.table("reference"), terms.order)
@@ -151,10 +196,23 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
         order=terms.order, psi=None if terms.psi is None else terms.psi.source,
         phi=tuple(p.source for p in terms.phi), theta=terms.theta, x0=x0, controller=controller,
         reference=signal, simulation=simulation, backends=backends, disturbances=disturbances,
-        psi_expr=terms.psi, phi_expr=terms.phi, metrics=metrics,
+        psi_expr=terms.psi, phi_expr=terms.phi, metrics=metrics, paper_example=meta["paper_example"],
     )
     _check_terms_at_x0(scenario)
     return scenario
+
+
+def _plant_table(root: Table) -> Table:
+    """``[plant]``: the keys of eq. (1) and one sub-table per backend; a backend's key written
+    directly in [plant] is refused with the sub-table it belongs in."""
+    plant = root.table("plant")
+    for key in plant.data:
+        owners = [name for name, backend in BACKENDS.items()
+                  if backend.section is not None and key in backend.section.names]
+        if key not in PLANT.names and key not in BACKENDS and owners:
+            raise plant.error(key, f"does not apply to [plant] (it is a setting of backend {owners[0]!r})",
+                              f"write it in [plant.{owners[0]}]")
+    return Table(plant.data, plant.source, plant.name, (*PLANT.names, *BACKENDS))
 
 
 def _plant(plant: Table) -> tuple[PlantTerms, tuple[float, ...]]:
@@ -179,7 +237,7 @@ def _controller(table: Table, terms: PlantTerms) -> ControllerConfig:
     section = controller_section()
     kind = read_keys(table, section.keys[:1], {})["kind"]
     v = read_keys(table, section.keys, {"n": terms.order})
-    merged = kind_table(table, section.names, {k: law_kind(k).keys for k in section.kinds}, kind)
+    merged = kind_table(table, section.names, section.kinds, kind)
     ctx = LawContext(table.source, terms.order, v["delta"], v["c"], terms.psi, terms.phi, terms.theta)
     return ControllerConfig(kind, v["delta"], v["c"], law_kind(kind).parse(merged, ctx))
 
@@ -196,8 +254,9 @@ def _simulation(table: Table) -> SimulationConfig:
     ratio = v["duration"] / v["dt"]
     if ratio > MAX_STEPS:
         raise table.error("duration", f"{v['duration']:g} s at dt = {v['dt']:g} s is {ratio:.3g} steps, more "
-                          f"than the limit of {MAX_STEPS:,} (a full record keeps every step in memory)",
-                          "shorten the run or use a larger dt")
+                          f"than the limit of {MAX_STEPS:,} steps per run (qcontrol run keeps only its "
+                          "metrics, but compare and reproduce keep every step in memory: several GB at "
+                          "the limit)", "shorten the run or use a larger dt")
     try:
         TimeGrid.of(v["duration"], v["dt"], v["control_period"])
     except QcontrolInputError as exc:

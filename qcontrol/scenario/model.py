@@ -70,6 +70,8 @@ class Scenario:
     base_dir: Path = field(default=Path("."), repr=False, compare=False)  # paths in it are relative to it
     psi_expr: Expression | None = field(default=None, repr=False)
     phi_expr: tuple[Expression, ...] = field(default=(), repr=False)
+    unset: tuple[str, ...] = ()  # keys removed from the file (--unset) before the overrides
+    paper_example: int | None = None  # the paper's example this scenario reproduces, if any
 
     def with_overrides(self, overrides: Mapping[str, Any] | Sequence[str]) -> Scenario:
         """A new scenario: this one's file with its overrides and then ``overrides`` (a dict
@@ -78,7 +80,8 @@ class Scenario:
         from .load import _as_given, parse_scenario
 
         return parse_scenario(self.text, source=self.source, base_dir=self.base_dir,
-                              overrides=(*self.overrides, *_as_given(overrides)), default_name=self.name)
+                              overrides=(*self.overrides, *_as_given(overrides)), default_name=self.name,
+                              unset=self.unset)
 
     @property
     def terms(self) -> PlantTerms:

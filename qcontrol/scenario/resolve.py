@@ -30,8 +30,10 @@ def resolved_toml(sc: Scenario) -> str:
 
 
 def overrides_as_given(sc: Scenario) -> list[Any]:
-    """The overrides as the user gave them: ``"key=value"`` strings, ``{key: value}`` for a dict's."""
-    return [item if isinstance(item, str) else {item[0]: item[1]} for item in sc.overrides]
+    """The overrides as the user gave them: ``{"unset": key}`` for each key removed (``--unset``,
+    applied first), then ``"key=value"`` strings and ``{key: value}`` for a dict's entries."""
+    return [{"unset": key} for key in sc.unset] + [
+        item if isinstance(item, str) else {item[0]: item[1]} for item in sc.overrides]
 
 
 def scenario_file(sc: Scenario) -> str:

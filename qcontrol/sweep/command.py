@@ -2,7 +2,9 @@
 the figure; Ctrl-C keeps the finished rows.
 
 Exit status: 0 when every run finished (diverged runs are results, in the table, not failures);
-2 for bad input (nothing is run or written); 130 when interrupted (the finished rows are written).
+2 for bad input (every variant is validated before anything runs, and the output folder is made
+only when the results are written: bad input creates nothing); 130 when interrupted (the finished
+rows are written).
 """
 
 from __future__ import annotations
@@ -12,9 +14,8 @@ import time
 from pathlib import Path
 
 from ..errors import QcontrolInputError
-from ..outputs import prepare_output_dir, write_json, write_text
+from ..outputs import check_output_dir, prepare_output_dir, write_json, write_text
 from ..plants import BACKENDS
-from ..plots.sweeps import fig_sweep
 from ..progress import ProgressLine
 from ..provenance import command_line
 from ..scenario import load_scenario
@@ -41,6 +42,9 @@ def add_sweep_parser(subparsers: argparse._SubParsersAction) -> None:
                    "(repeatable: the product of all grids is run)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="a fixed override for every run, e.g. simulation.duration=2.0")
+    p.add_argument("--unset", dest="unset", action="append", default=[], metavar="KEY",
+                   help="remove a key of the scenario file for every run, e.g. --unset reference.amplitude "
+                   "(repeatable; applied before --set and --grid)")
     p.add_argument("--random-initial", type=int, default=0, metavar="N",
                    help="N random initial states x0 ~ U[-1, 1]^n per grid point")
     p.add_argument("--seed", type=int, default=0, metavar="S", help="seed of --random-initial (default 0)")
@@ -62,26 +66,29 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise QcontrolInputError(f"--workers {args.workers}: must be >= 1")
     grid = parse_grid(args.grid)
-    base = load_scenario(args.scenario, args.overrides)
+    check_output_dir(args.out)
+    base = load_scenario(args.scenario, args.overrides, args.unset)
     if args.random_initial and any(k == "plant.x0" for k, _ in grid):
         raise QcontrolInputError("--random-initial and --grid plant.x0=...: give one of them")
     backend = args.backend or base.simulation.backend
     points = grid_points(grid, args.random_initial, args.seed, order=base.order)
     keys = list(points[0]) if points else []
     sets = [list(args.overrides) + [f"{k}={v}" for k, v in p.items()] for p in points]
-    chunks = plan(base.source, sets, backend)
-    out = prepare_output_dir(args.out)
+    chunks = plan(base.source, sets, backend, args.unset)
     if backend != "ode" and not args.quiet:
         print(f"sweep on {backend}: one process per chunk of runs; --backend ode steps the runs together "
               "as arrays and is much faster")
     started = time.perf_counter()
     try:
         summaries = sweep_summaries(base.source, sets, backend, args.workers, args.scheduler,
-                                    ProgressLine("sweep", not args.quiet, "runs", piped_every=10), chunks)
+                                    ProgressLine("sweep", not args.quiet, "runs", piped_every=10), chunks,
+                                    args.unset)
         interrupted = False
     except SweepInterrupted as stop:
         summaries, interrupted = stop.summaries, True
+    out = prepare_output_dir(args.out)  # only now: bad input and failures before here create nothing
     settings = {"scenario": base.name, "backend": backend, "fixed_overrides": list(args.overrides),
+                "unset": list(args.unset),
                 "random_initial": args.random_initial, "seed": args.seed}
     rows = sweep_rows(points, summaries)
     finished = [s for s in summaries if s is not None]
@@ -91,6 +98,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
                           scenario_provenance(base, args.command_line or command_line()))
     write_json(out / "sweep.json", record)
     if rows:
+        from ..plots.sweeps import fig_sweep  # matplotlib: imported only when a figure is drawn
+
         fig_sweep(rows, [k for k, _ in grid], [m for m in metrics if m.startswith("error_rate_")],
                   out / "sweep.png", f"{base.name}: {len(rows)} runs on {backend}")
     worst = record["lemma2_max_ratio"]

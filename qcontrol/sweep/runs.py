@@ -36,7 +36,7 @@ from ..scenario import Scenario, load_scenario
 CHUNK = 250  # runs per batch: fixed, so every executor runs the same batches
 DASK_CONNECT_TIMEOUT = 10.0  # seconds to reach a --scheduler
 Progress = Callable[[int, int], None]  # (runs done, runs in total)
-Task = tuple[str, list[list[str]], str]  # (scenario path, override sets of one chunk, backend)
+Task = tuple[str, list[list[str]], str, list[str]]  # (path, override sets of a chunk, backend, unset)
 
 
 class SweepInterrupted(KeyboardInterrupt):
@@ -59,18 +59,21 @@ def run_batch(scs: Sequence[Scenario], backend: str) -> list[dict]:
     return out
 
 
-def _run_chunk(scenario_path: str, override_sets: list[list[str]], backend: str) -> list[dict]:
+def _run_chunk(scenario_path: str, override_sets: list[list[str]], backend: str,
+               unset: Sequence[str] = ()) -> list[dict]:
     """Worker entry point (picklable arguments only): load the variants and run them as a batch."""
-    return run_batch([load_scenario(scenario_path, o) for o in override_sets], backend)
+    return run_batch([load_scenario(scenario_path, o, unset) for o in override_sets], backend)
 
 
-def plan(scenario_path: str | Path, override_sets: Sequence[Sequence[str]], backend: str) -> list[list[int]]:
-    """Load (and so validate) every variant; return chunks of indices, each one batch."""
+def plan(scenario_path: str | Path, override_sets: Sequence[Sequence[str]], backend: str,
+         unset: Sequence[str] = ()) -> list[list[int]]:
+    """Load (and so validate) every variant; return chunks of indices, each one batch. ``unset``
+    keys are removed from the file of every variant before its overrides."""
     if backend not in BACKENDS:
         raise QcontrolInputError(f"--backend {backend!r}: use one of {', '.join(BACKENDS)}")
     groups: dict[tuple, list[int]] = {}
     for i, overrides in enumerate(override_sets):
-        sc = load_scenario(scenario_path, list(overrides))
+        sc = load_scenario(scenario_path, list(overrides), unset)
         BACKENDS[backend].require(sc.backends.get(backend), sc.source)
         groups.setdefault(batch_structure(sc, backend), []).append(i)
     return [ids[k : k + CHUNK] for ids in groups.values() for k in range(0, len(ids), CHUNK)]
@@ -84,6 +87,7 @@ def sweep_summaries(
     scheduler: str | None = None,
     progress: Progress | None = None,
     chunks: list[list[int]] | None = None,
+    unset: Sequence[str] = (),
 ) -> list[dict]:
     """One :func:`qcontrol.metrics.summary` dict per override set, in input order.
 
@@ -92,12 +96,12 @@ def sweep_summaries(
     executor runs the same batches, so the numbers are identical; ``wall_time_s`` is the batch's
     wall time divided by its size. Bad input raises :class:`QcontrolInputError` before any run
     (``chunks``: the :func:`plan` already made). Ctrl-C raises :class:`SweepInterrupted` with the
-    finished runs.
+    finished runs. ``unset`` keys are removed from the file of every variant before its overrides.
     """
     if workers < 1:
         raise QcontrolInputError(f"--workers {workers}: must be >= 1")
-    path, sets = str(scenario_path), [list(o) for o in override_sets]
-    chunks = chunks if chunks is not None else plan(path, sets, backend)
+    path, sets, unset = str(scenario_path), [list(o) for o in override_sets], list(unset)
+    chunks = chunks if chunks is not None else plan(path, sets, backend, unset)
     results: list[dict | None] = [None] * len(sets)
     done = 0
 
@@ -109,7 +113,7 @@ def sweep_summaries(
         if progress is not None:
             progress(done, len(sets))
 
-    tasks = [(path, [sets[i] for i in ids], backend) for ids in chunks]
+    tasks = [(path, [sets[i] for i in ids], backend, unset) for ids in chunks]
     try:
         if scheduler is not None:
             for ids, summaries in zip(chunks, _on_dask(scheduler, tasks), strict=True):

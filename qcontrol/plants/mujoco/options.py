@@ -135,7 +135,8 @@ def _noise(table: Table, key: str, default: Any, sizes: Any) -> tuple[float, flo
         return value, value
     if len(raw) != 2:
         raise table.error(key, f"expected 2 values (position, velocity), got {len(raw)}",
-                          "write one std dev for all sensors or [position_std, velocity_std]")
+                          "write one standard deviation for both readings, e.g. 0.001, or two, e.g. "
+                          "[0.001, 0.01] (position, velocity)")
     return _standard_deviation(table, key, raw[0]), _standard_deviation(table, key, raw[1])
 
 
@@ -173,14 +174,19 @@ SECTION = Section(
     "plant.mujoco",
     (
         Key("model", custom("path of an MJCF file", _element_name, path=True),
-            meaning="the MJCF file, relative to the scenario file's folder"),
-        Key("joint", _NAME, meaning="the hinge or slide joint whose position is x1 and velocity x2"),
-        Key("position_sensor", _NAME, meaning="<jointpos> sensor on the joint: the reading of x1"),
-        Key("velocity_sensor", _NAME, meaning="<jointvel> sensor on the joint: the reading of x2"),
-        Key("actuator", _NAME, meaning="<motor> on the joint; its command is I u (I from mj_fullM)"),
+            meaning="the MJCF file, relative to the scenario file's folder",
+            example='"../models/pendulum.xml"'),
+        Key("joint", _NAME, meaning="the hinge or slide joint whose position is x1 and velocity x2",
+            example='"hinge"'),
+        Key("position_sensor", _NAME, meaning="<jointpos> sensor on the joint: the reading of x1",
+            example='"angle"'),
+        Key("velocity_sensor", _NAME, meaning="<jointvel> sensor on the joint: the reading of x2",
+            example='"angular_velocity"'),
+        Key("actuator", _NAME, meaning="<motor> on the joint; its command is I u (I from mj_fullM)",
+            example='"torque"'),
         Key("native_terms", custom("list of term names (psi, phi1, ...)", _term_names), [],
             meaning="terms MuJoCo's own physics produces (damping, gravity); the others are added as a "
-                    "passive force"),
+                    "passive force", example='["phi1", "phi3"]'),
         Key("integrator", string(INTEGRATORS), "RK4", meaning="MuJoCo's integrator"),
         Key("parameters", custom("table {mass, length, damping, gravity}", _parameters), {},
             meaning="override the MJCF: body mass [kg], hinge-to-centre length [m], joint damping, gravity "
@@ -208,6 +214,10 @@ def parse(table: Table, terms: PlantTerms, base_dir: pathlib.Path) -> MujocoOpti
     """Read and check ``[plant.mujoco]`` (every error one line naming the key); ``base_dir`` is
     the scenario file's folder, against which ``model`` is resolved."""
     table = Table(table.data, table.source, table.name, SECTION.names)
+    if terms.order != 2:
+        raise table.error_at(table.name, f"the MuJoCo backend models one joint, i.e. plant order 2, but "
+                             f"plant.order = {terms.order}", "remove [plant.mujoco] (the ode backend runs "
+                             "any order)")
     v = read_keys(table, SECTION.keys, {"terms": terms.names})
     model = (pathlib.Path(base_dir) / v["model"]).resolve()
     if not model.is_file():
