@@ -47,18 +47,18 @@ LABELS = {  # realism options of [plant.mujoco] studied alone, in this order
 # overrides with {v} the value). The realistic values are in the scenario files.
 MARGINS: dict[str, tuple[tuple[str, str, tuple[float, ...], tuple[str, ...]], ...]] = {
     "example2": (
-        ("torque limit", "N m", (30.0, 20.0, 10.0, 5.0), ("plant.mujoco.torque_limit={v!r}",)),
-        ("friction", "N m", (3.0, 10.0, 30.0), ("plant.mujoco.frictionloss={v!r}",)),
-        ("sensor delay", "s", (0.005, 0.01, 0.02, 0.05), ("plant.mujoco.sensor_delay={v!r}",)),
-        ("control period", "s", (0.005, 0.01, 0.02, 0.05), ("simulation.control_period={v!r}",)),
+        ("torque limit", "N m", (20.0, 10.0, 5.0), ("plant.mujoco.torque_limit={v!r}",)),
+        ("friction", "N m", (10.0, 30.0), ("plant.mujoco.frictionloss={v!r}",)),
+        ("sensor delay", "s", (0.02, 0.05), ("plant.mujoco.sensor_delay={v!r}",)),
+        ("control period", "s", (0.02, 0.05), ("simulation.control_period={v!r}",)),
         ("x2 differenced over T", "s", (0.005, 0.02, 0.05),
          ('simulation.velocity_source="difference"', "simulation.control_period={v!r}")),
     ),
     "example1": (
-        ("force limit", "N", (3.0, 2.0, 1.0), ("plant.mujoco.torque_limit={v!r}",)),
+        ("force limit", "N", (2.0, 1.0), ("plant.mujoco.torque_limit={v!r}",)),
         ("friction", "N", (0.1, 0.3, 3.0), ("plant.mujoco.frictionloss={v!r}",)),
-        ("sensor delay", "s", (0.01, 0.05), ("plant.mujoco.sensor_delay={v!r}",)),
-        ("control period", "s", (0.01, 0.05), ("simulation.control_period={v!r}",)),
+        ("sensor delay", "s", (0.05,), ("plant.mujoco.sensor_delay={v!r}",)),
+        ("control period", "s", (0.05,), ("simulation.control_period={v!r}",)),
         ("x2 differenced over T", "s", (0.02, 0.1),
          ('simulation.velocity_source="difference"', "simulation.control_period={v!r}")),
     ),
