@@ -25,6 +25,7 @@ import numpy as np
 
 from ._version import __version__
 from .assembly import build_plant, controller_constants, run_scenario, scene
+from .attribution import realism_attribution
 from .controller import Backstepping
 from .controller import lemma2_bounds as _lemma2_bounds
 from .engine import SIGNALS, ProgressCallback, RunMetrics, Trajectory
@@ -197,7 +198,10 @@ def compare(scenario: Scenario, *, rrd: str | Path | None = None, spawn: bool = 
     result = {
         "scenario": scenario.name, "integrator": scenario.backends["mujoco"].integrator,
         "dt": scenario.simulation.dt, **backend_deviation(runs["mujoco"].record, runs["ode"].record),
-        "consistency": plant.consistency_report, "mujoco": runs["mujoco"].summary, "ode": runs["ode"].summary,
+        "consistency": plant.consistency_report,
+        "realism_alone": realism_attribution(scenario, runs["ode"].record) if plant.consistency_report.get(
+            "realism") else {},
+        "mujoco": runs["mujoco"].summary, "ode": runs["ode"].summary,
         "physics_warnings": list(plant.warnings), "provenance": scenario_provenance(scenario, command),
     }
     return Comparison(result, runs["mujoco"], runs["ode"])
@@ -216,6 +220,9 @@ def _recording(rrd: str | Path | None, spawn: bool, sc: Scenario, command: str) 
     rec = Recording(None if rrd is None else Path(rrd), spawn=spawn)
     rec.log_static(resolved_toml(sc), controller_constants(sc), __version__,
                    provenance=scenario_provenance(sc, command))
+    from .recording.disturbances import log_disturbances
+
+    log_disturbances(rec, sc)  # arrows and time markers of the scenario's [[disturbance]]s, if any
     return rec
 
 

@@ -11,11 +11,13 @@ from collections.abc import Hashable, Sequence
 from typing import Any
 
 from .controller import BatchLaw, law_kind
+from .disturbance import Schedule, scaled_changes
 from .engine import Observer, ProgressCallback, RunMetrics, Separation, Trajectory, simulate
 from .plants import BACKENDS, Plant, Scene
 from .quantizer import UniformQuantizer
 from .reference import Reference
 from .scenario import Scenario
+from .timegrid import TimeGrid
 
 
 def build_quantizer(sc: Scenario) -> UniformQuantizer:
@@ -80,7 +82,7 @@ def batch_structure(sc: Scenario, backend: str | None = None) -> Hashable:
     c = sc.controller
     return (
         name, entry.structure(sc.terms, sc.backends.get(name)), c.kind, c.delta, c.c,
-        law_kind(c.kind).structure(c.settings, sc.law_context), sc.reference, sc.simulation,
+        law_kind(c.kind).structure(c.settings, sc.law_context), sc.reference, sc.simulation, sc.disturbances,
     )
 
 
@@ -92,6 +94,27 @@ def scene(sc: Scenario) -> Scene | None:
         if drawn is not None:
             return drawn
     return None
+
+
+def input_inertia(sc: Scenario) -> float:
+    """The joint's generalized inertia I that relates u (and a disturbance's generalized force F,
+    ``d = F / I``) to a force on the joint: from the first backend section that has a joint (the
+    MuJoCo model's ``mj_fullM``), else 1 (the ODE's unit input gain)."""
+    for name, options in sc.backends.items():
+        inertia = BACKENDS[name].inertia
+        if inertia is not None:
+            return inertia(options, sc.simulation.dt)
+    return 1.0
+
+
+def loads(sc: Scenario) -> list[tuple[int, float]]:
+    """The rows where the scenario's external load changes and its new value in u's units
+    (``d = F / I``; see :mod:`qcontrol.disturbance`); empty without disturbances."""
+    if not sc.disturbances:
+        return []
+    sim = sc.simulation
+    grid = TimeGrid.of(sim.duration, sim.dt, sim.control_period)
+    return list(scaled_changes(Schedule(sc.disturbances), grid.dt, grid.rows, input_inertia(sc)))
 
 
 def controller_constants(sc: Scenario, law: BatchLaw | None = None) -> dict[str, Any]:
@@ -121,7 +144,7 @@ def run_variants(
     return simulate(plant, build_law(variants), build_quantizer(first), build_reference(first), x0,
                     sim.duration, sim.dt, control_period=sim.control_period, state_bound=sim.state_bound,
                     progress=progress, observer=observer, record=record, metrics=first.metrics,
-                    separation=separation)
+                    separation=separation, loads=loads(first), velocity_source=sim.velocity_source)
 
 
 def run_scenario(

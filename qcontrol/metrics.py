@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .engine import RunMetrics, Trajectory
+from .engine.velocity import lemma2_applies
 from .error_rate import TABLE1_OMEGAS, error_rate, omega_key
 
 __all__ = ["TABLE1_OMEGAS", "backend_deviation", "error_rate", "finite_max_abs", "lemma2_max_ratio",
@@ -32,7 +33,9 @@ def summary(run: Trajectory | RunMetrics, scenario: str, backend: str) -> dict:
     or only its metrics. The Lemma 2 check covers every instant before a divergence: the row that
     stopped a diverged run holds an out-of-range state (NaN, Inf, or beyond ``state_bound``,
     possibly so large that ``x / delta`` has no fractional digits left), where quantization error
-    is meaningless.
+    is meaningless. With the velocity differenced from the encoder (``velocity_source =
+    "difference"``) the controller's x2 is no quantized reading and Lemma 2 does not apply: the
+    ratio is still reported, with ``lemma2_applies`` false.
     """
     values = run.reduced()
     return {
@@ -48,9 +51,13 @@ def summary(run: Trajectory | RunMetrics, scenario: str, backend: str) -> dict:
         "error_rate": values["error_rate"],
         "max_abs_z1_last_half": values["max_abs_z1_last_half"],
         "max_abs_u": values["max_abs_u"],
+        "max_abs_u_applied": values["max_abs_u_applied"],
+        "saturated_fraction": values["saturated_fraction"],
         "final_eps_hat": [float(v) for v in values["final_adaptive"]],
         "adaptive_state": run.adaptive_name,
         "lemma2_max_ratio": lemma2_max_ratio(values["e_z_max"][None, :], run.L_z),
+        "velocity_source": run.velocity_source,
+        "lemma2_applies": lemma2_applies(run.velocity_source),
         "L_z": [float(v) for v in run.L_z],
         "L": float(run.L_z[-1]),
         **bound_constants(run.bound_names, values["bound_constants"]),

@@ -6,6 +6,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from .metrics import TABLE1_OMEGAS, omega_key
+from .robustness_report import robustness_section
 
 OMEGA_KEYS = [omega_key(w) for w in TABLE1_OMEGAS]
 
@@ -101,11 +102,14 @@ class ReportFacts:
     example2: Mapping
     z2_last_half: float  # max |z_2| over Example 2's last half
     kappa_plus_L: float
+    robustness: Mapping | None = None  # robustness.json, when the study ran
 
 
 def report_markdown(f: ReportFacts) -> str:
     """The reproduction report, section by section."""
-    sections = (_header(f), _table1_section(f), _findings(f), _checks(f), _studies_section(f), _figures(f))
+    robustness = robustness_section(f.robustness) if f.robustness is not None else []
+    sections = (_header(f), _table1_section(f), _findings(f), _checks(f), _studies_section(f), robustness,
+                _figures(f))
     return "\n".join(line for section in sections for line in section)
 
 

@@ -2,10 +2,11 @@
 
 Runs Example 1 and Example 2 (proposed law and the comparison method of reference [20]) on the
 chosen backend, with the ideal ODE twin beside MuJoCo, then the sensitivity studies (kappa - L,
-a constant scale of r, plant variants) on the ODE backend. Writes PNG figures, ``table1.md``,
-``table1.json``, ``studies.json``, ``REPORT.md`` and one rerun recording per example into the
-output folder. Parameters come from the paper's Section 4 (docs/math.md, 'The paper's examples');
-nothing is fitted to Table 1.
+a constant scale of r, plant variants) on the ODE backend, then the robustness study on realistic
+hardware (:mod:`qcontrol.robustness`, MuJoCo, in worker processes). Writes PNG figures,
+``table1.md``, ``table1.json``, ``studies.json``, ``robustness.json``, ``REPORT.md`` and one rerun
+recording per example into the output folder. Parameters come from the paper's Section 4
+(docs/math.md, 'The paper's examples'); nothing is fitted to Table 1.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from .outputs import check_output_dir, prepare_output_dir, write_json, write_tex
 from .plants import BACKENDS
 from .report import PAPER_TABLE1, ReportFacts, report_markdown, table1, table1_markdown
 from .resources import shipped_dir
+from .robustness import EXAMPLES, default_workers, robustness_study
 from .scenario import Scenario, load_scenario
 from .scenario.resolve import resolved_toml, scenario_provenance, scenarios_provenance
 from .sweep import sweep_summaries
@@ -39,6 +41,7 @@ PLANT_VARIANTS = (
     ("rigid pendulum", "example2-rigid", ()),
 )
 BASELINE = ("controller.kind=baseline",)
+ROBUSTNESS_SCENARIOS = tuple(name for pair in EXAMPLES for name in pair)
 
 
 @dataclass
@@ -111,9 +114,11 @@ def reproduce(
     scenarios: str | Path = SCENARIO_DIR,
     log: Callable[[str], None] = print,
     command: str | None = None,
+    workers: int | None = None,
 ) -> dict:
     """Run the whole reproduction into ``out``; returns Table 1 as written to ``table1.json``.
-    ``command`` is what the outputs' provenance names as the command (default: this call). Every
+    ``command`` is what the outputs' provenance names as the command (default: this call);
+    ``workers``: processes for the robustness study (default: the machine's cores, at most 4). Every
     scenario it uses is validated before the folder is made: bad input creates nothing."""
     command = command or (f"qcontrol.reproduce.reproduce({str(out)!r}, backend={backend!r}, "
                           f"duration={duration!r})")
@@ -155,8 +160,13 @@ def reproduce(
     }
     studied = {name: rep.scenario(name) for name in ("example2", "example2-rigid")}
     write_json(o / "studies.json", studies | {"provenance": scenarios_provenance(studied, command)})
-    write_text(o / "REPORT.md", _report(rep, table, studies, deviations, ex1, ex2))
-    log(f"wrote {o}: REPORT.md, table1.md, table1.json, studies.json, figures, recordings "
+    robustness = robustness_study(rep.scenarios, duration, workers or default_workers(), log)
+    hardware = {name: rep.scenario(name) for name in ROBUSTNESS_SCENARIOS}
+    write_json(o / "robustness.json", robustness | {"provenance": scenarios_provenance(hardware, command)})
+    plots.fig_robustness(robustness, o / "study_robustness.png")
+    plots.fig_margins(robustness, o / "study_margins.png")
+    write_text(o / "REPORT.md", _report(rep, table, studies, deviations, ex1, ex2, robustness))
+    log(f"wrote {o}: REPORT.md, table1.md, table1.json, studies.json, robustness.json, figures, recordings "
         f"({len(rep.lemma2_ratios)} runs, {time.perf_counter() - rep.started:.1f} s)")
     return table
 
@@ -170,6 +180,9 @@ def _validate(rep: Reproduction) -> None:
     for _, name, overrides in PLANT_VARIANTS:
         rep.scenario(name, overrides)
         rep.scenario(name, (*overrides, *BASELINE))
+    for name in ROBUSTNESS_SCENARIOS:  # the robustness study's plants, with their MuJoCo models
+        sc = rep.scenario(name)
+        BACKENDS["mujoco"].require(sc.backends.get("mujoco"), sc.source)
 
 
 def _example1_figures(o: Path, run: Run, twin: Run | None) -> None:
@@ -255,7 +268,8 @@ def _studies(rep: Reproduction) -> dict:
     }
 
 
-def _report(rep: Reproduction, table: dict, studies: dict, deviations: dict, ex1: Run, ex2: Run) -> str:
+def _report(rep: Reproduction, table: dict, studies: dict, deviations: dict, ex1: Run, ex2: Run,
+            robustness: dict) -> str:
     """REPORT.md from the runs' facts (see :func:`qcontrol.report.report_markdown`)."""
     traj, c = ex2.traj, ex2.scenario.controller
     facts = ReportFacts(
@@ -263,6 +277,6 @@ def _report(rep: Reproduction, table: dict, studies: dict, deviations: dict, ex1
         seconds=time.perf_counter() - rep.started, lemma2_ratios=rep.lemma2_ratios, diverged=rep.diverged,
         table=table, studies=studies, deviations=deviations, example1=ex1.summary, example2=ex2.summary,
         z2_last_half=float(np.nanmax(np.abs(traj.z[traj.t >= traj.duration / 2, -1]))),
-        kappa_plus_L=c.settings.kappa + lemma2_L(c.c, c.delta),
+        kappa_plus_L=c.settings.kappa + lemma2_L(c.c, c.delta), robustness=robustness,
     )
     return report_markdown(facts)

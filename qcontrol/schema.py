@@ -253,12 +253,14 @@ class KindKeys:
 class Section:
     """The keys of one table: ``keys`` always apply; with ``kinds``, the key ``kind`` chooses one
     of them and that kind's keys apply too (see :func:`kind_table`; a kind whose keys are None is
-    a law registered from Python, whose own factory checks them)."""
+    a law registered from Python, whose own factory checks them). ``array``: the file holds a list
+    of such tables, ``[[name]]``, each with its kind's keys directly in it (no sub-tables)."""
 
     name: str
     keys: tuple[Key, ...]
     meaning: str = ""
     kinds: Mapping[str, KindKeys | None] = field(default_factory=dict)
+    array: bool = False
 
     @property
     def names(self) -> tuple[str, ...]:

@@ -24,15 +24,15 @@ EX2 = ROOT / "scenarios" / "example2.toml"
 LAYERS = [
     {"_version", "errors", "schema", "timegrid", "expr", "progress", "outputs", "error_rate", "resources",
      "provenance"},
-    {"quantizer", "reference"},
+    {"quantizer", "reference", "disturbance"},
     {"controller"},
     {"plants"},
     {"engine"},
     {"metrics", "scenario"},
     {"assembly"},
-    {"recording", "plots", "report", "check"},
+    {"recording", "plots", "report", "check", "robustness_report", "attribution"},
     {"sweep", "api", "explain"},
-    {"reproduce"},
+    {"reproduce", "robustness"},
     {"cli", "_entry"},
 ]
 
@@ -110,7 +110,8 @@ def test_recorded_derived_and_reduced_signals() -> None:
         assert set(signal.reads) <= set(above), signal.name
     assert needed(("e_z",)) == ("zbar", "e_z")
     assert {r.name for r in REDUCTIONS} == {"error_rate", "max_abs_z1_last_half", "max_abs_u", "e_z_max",
-                                             "final_adaptive", "bound_constants"}
+                                             "final_adaptive", "bound_constants", "max_abs_u_applied",
+                                             "saturated_fraction"}
 
 
 def test_a_metrics_run_keeps_the_reductions_of_the_full_record() -> None:

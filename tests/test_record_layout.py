@@ -164,14 +164,14 @@ def test_no_model_no_3d_view(tmp_path):
 def test_a_new_plot_lands_in_its_panel_or_a_tab_of_its_own(tmp_path, monkeypatch):
     """A series added to the signal table under an existing panel (e.g. an applied torque beside
     the commanded u) is drawn in that panel's view; one under a new panel gets a view of its own."""
-    extra = (Plot("signals/input/u_applied", "u applied"), Plot("signals/extra/u", "u again"))
+    extra = (Plot("signals/input/u_again", "u again"), Plot("signals/extra/u", "u again"))
     table = tuple(dataclasses.replace(s, plots=s.plots + extra) if s.name == "u" else s for s in SIGNALS)
     monkeypatch.setattr(series, "SIGNALS", table)
     path = tmp_path / "extra.rrd"
     with Recording(path) as rec:
         run = example2(0.1, rec.observer("ode"))
     entities = read_entities(path)
-    for added in ("signals/input/u_applied", "signals/extra/u"):
+    for added in ("signals/input/u_again", "signals/extra/u"):
         _, values = temporal(entities[added], "Scalars:scalars")
         np.testing.assert_array_equal(values[:, 0], run.u)
     found = views(active_blueprint(path))

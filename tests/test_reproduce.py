@@ -14,7 +14,8 @@ FIGURES = [
     "fig1_output.png", "fig2_tracking_error.png", "fig3_xi_hat.png", "fig4_input.png",
     "fig5_outputs.png", "fig6_tracking_errors.png", "fig7_eps_hat.png", "fig8_input.png",
     "fig_example1_mujoco_vs_ode.png", "fig_example2_mujoco_vs_ode.png", "table1.png",
-    "study_kappa.png", "study_r_scale.png", "study_plant_variants.png",
+    "study_kappa.png", "study_r_scale.png", "study_plant_variants.png", "study_robustness.png",
+    "study_margins.png",
 ]
 OMEGAS = ["0.100", "0.125", "0.150", "0.175", "0.200"]
 
@@ -28,8 +29,8 @@ def reproduction(tmp_path_factory):
 
 def test_every_file_is_written(reproduction):
     names = {p.name for p in reproduction.iterdir()}
-    expected = set(FIGURES) | {"table1.md", "table1.json", "studies.json", "REPORT.md", "example1.rrd",
-                               "example2.rrd"}
+    expected = set(FIGURES) | {"table1.md", "table1.json", "studies.json", "robustness.json", "REPORT.md",
+                               "example1.rrd", "example2.rrd"}
     assert expected <= names
     assert not [n for n in names if n.endswith(".part")]
 
@@ -58,7 +59,9 @@ def test_table1_markdown_and_report(reproduction):
     assert "| proposed (44)-(45) | paper | 0.0253 | 0.0223 | 0.0200 | 0.0177 | 0.0161 |" in md
     assert "| comparison [20], eq. (46) | paper | 0.9570 | 0.9339 | 0.9132 | 0.8925 | 0.8679 |" in md
     report = (reproduction / "REPORT.md").read_text()
-    needles = ("Not reproduced", "Lemma 2", "kappa - L", "scale of r", "MuJoCo vs ODE", "fig5_outputs.png")
+    needles = ("Not reproduced", "Lemma 2", "kappa - L", "scale of r", "MuJoCo vs ODE", "fig5_outputs.png",
+               "## Robustness on realistic hardware", "study_robustness.png", "### Reading", "Saturation",
+               "Velocity from the encoder", "Friction")
     for needle in needles:
         assert needle in report
 
@@ -90,3 +93,40 @@ def test_figures_are_pngs_of_the_stated_size(reproduction, name):
     width, height = struct.unpack(">II", data[16:24])
     assert (width, height) == (FIG_WIDTH_PX, FIG_HEIGHT_PX)
     assert len(data) > 10_000
+
+
+ROBUSTNESS_ROWS = {  # every imperfection of the realistic scenarios, alone, then all together
+    "example2": ["ideal", "torque limit", "friction", "rotor inertia (armature)", "link mass (rod)",
+                 "sensor noise", "sensor delay", "control period", "x2 differenced", "all together"],
+    "example1": ["ideal", "force limit", "friction", "rotor inertia (armature)", "sensor noise",
+                 "sensor delay", "control period", "x2 differenced", "all together"],
+}
+ROW_NUMBERS = ("max_abs_z1_last_half", "max_abs_u_applied", "saturated_fraction")
+
+
+def test_robustness_json_holds_every_row(reproduction):
+    study = json.loads((reproduction / "robustness.json").read_text())
+    assert len(study["seeds"]) >= 20
+    for example, labels in ROBUSTNESS_ROWS.items():
+        for law in ("proposed", "comparison"):
+            rows = [r for r in study["rows"] if r["example"] == example and r["law"] == law]
+            assert [r["imperfection"] for r in rows] == labels
+            for r in rows:
+                noisy = r["imperfection"] in ("sensor noise", "all together")
+                assert r["mujoco"]["runs"] == (len(study["seeds"]) if noisy else 1) and r["ode"]["runs"] == 1
+                for backend in ("mujoco", "ode"):
+                    cell = r[backend]
+                    assert list(cell["error_rate"]) == OMEGAS and 0 <= cell["diverged"] <= cell["runs"]
+                    for key in ROW_NUMBERS:
+                        spread = cell[key]
+                        assert set(spread) == {"median", "min", "max"}
+                        if spread["median"] is not None:
+                            assert spread["min"] <= spread["median"] <= spread["max"]
+                    assert 0.0 <= cell["saturated_fraction"]["max"] <= 1.0
+    kinds = {(c["plant"], c["disturbance"], c["law"], c["backend"]) for c in study["disturbances"]}
+    assert kinds == {(p, d, law, b) for p in ("ideal arm", "realistic arm") for d in ("impulse", "load step")
+                     for law in ("proposed", "comparison") for b in ("mujoco", "ode")}
+    for c in study["disturbances"]:
+        keys = {"peak_abs_z1", "peak_deviation", "recovery_time_s", "recovery_to_undisturbed_s"}
+        assert keys <= set(c["result"])
+    assert {m["example"] for m in study["margins"]} == {"example1", "example2"}

@@ -15,7 +15,7 @@ progress, streaming to an observer, reducing to metrics) happens at a few schedu
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -31,6 +31,7 @@ from .reference_rows import ReferenceRows
 from .results import RunMetrics, Trajectory
 from .rows import NEVER, ArrayRows, FloatRows
 from .signals import Separation, SignalContext
+from .velocity import VELOCITY_SOURCES, differencing
 
 ProgressCallback = Callable[[int, int], None]  # (row reached, last row)
 RECORD_MODES = ("full", "metrics")
@@ -51,35 +52,57 @@ class Progress:
             self.callback(end, self.last)
 
 
+class Loads:
+    """The external load of a run (:meth:`~qcontrol.plants.base.Plant.disturb`), applied at the
+    rows where it changes: ``changes`` are ``(row, d)`` in row order, ``d`` in u's units."""
+
+    def __init__(self, plant: Plant, changes: Sequence[tuple[int, float]]) -> None:
+        self.plant, self.changes, self.applied = plant, list(changes), 0
+
+    def next_event(self, k: int) -> int:
+        return self.changes[self.applied][0] if self.applied < len(self.changes) else NEVER
+
+    def at(self, k: int) -> None:
+        """Apply every change due at or before row ``k`` (before the step from row ``k``)."""
+        while self.applied < len(self.changes) and self.changes[self.applied][0] <= k:
+            self.plant.disturb(self.changes[self.applied][1])
+            self.applied += 1
+
+
 class ClosedLoop:
     """The parts of one run (each with one job) and the loop that drives them (:meth:`run`)."""
 
     def __init__(self, plant: Plant, law: BatchLaw, quantizer: Quantizer, reference: Reference,
                  grid: TimeGrid, state_bound: float, progress: ProgressCallback | None,
                  observer: Observer | None, observe_every: int, record: str, metrics: MetricSettings,
-                 separation: Separation | None) -> None:
+                 separation: Separation | None, loads: Sequence[tuple[int, float]] = (),
+                 velocity_source: str = "sensor") -> None:
         n, batch = plant.n, plant.batch
         self.plant, self.law, self.grid = plant, law, grid
         self.divergence = Divergence(batch, grid.rows, grid.dt, state_bound, law.state_name)
         self.reference = ReferenceRows(reference, n, grid, whole=record == "full")
-        context = SignalContext(law.coordinates, separation)
+        context = SignalContext(law.coordinates, separation, plant.actuator, velocity_source)
         parts = RunParts(grid, law, self.reference, self.divergence, context, metrics, batch, n)
         self.record = (FullRecord(parts, observer, observe_every) if record == "full"
                        else MetricsRecord(parts, observer))
         self.rows = FloatRows(self.record.buffer) if batch == 1 else ArrayRows(self.record.buffer,
                                                                                state_bound)
         self.quantize = self.rows.quantizer(quantizer)
+        if velocity_source == "difference":
+            self.quantize = differencing(self.quantize, grid.hold, grid.hold * grid.dt, self.rows.floats)
         self.progress = Progress(progress, grid.rows)
+        self.loads = Loads(plant, loads)
 
     def next_event(self, k: int) -> int:
         """The first row after ``k`` at which the loop has more to do than step."""
         return min(self.grid.rows - 1, self.rows.next_event(k), self.progress.next_event(k),
-                   self.record.next_event(k))
+                   self.record.next_event(k), self.loads.next_event(k))
 
     def rare_work(self, k: int) -> bool:
-        """Everything but the closed loop itself, at row ``k``: write and test the rows, report
-        progress, stream or reduce. True when the run is over (at its end, or every copy stopped:
-        then the run ends where the last copy did)."""
+        """Everything but the closed loop itself, at row ``k``: apply a changed external load,
+        write and test the rows, report progress, stream or reduce. True when the run is over (at
+        its end, or every copy stopped: then the run ends where the last copy did)."""
+        self.loads.at(k)
         self.rows.flush(k)
         self.divergence.test(*self.rows.untested(k), self.record.buffer)
         stopped = self.divergence.all_stopped
@@ -131,6 +154,8 @@ def simulate(
     record: str = "full",
     metrics: MetricSettings | None = None,
     separation: Separation | None = None,
+    loads: Sequence[tuple[int, float]] = (),
+    velocity_source: str = "sensor",
 ) -> list[Trajectory] | list[RunMetrics]:
     """Run the closed loop for every copy in ``plant``'s batch; one :class:`Trajectory` each.
 
@@ -143,14 +168,19 @@ def simulate(
     buffered chunk as short trajectories (``t`` starting at the chunk's first instant).
     ``metrics`` sets the error rate's thresholds and samples (default: the paper's Table 1);
     ``separation`` names the terms of eq. (1) and their bounding functions r to check along the
-    run (eqs. (37)-(43); default: not checked).
+    run (eqs. (37)-(43); default: not checked). ``loads``: ``(row, d)`` where the external load
+    changes (:meth:`Plant.disturb`, u's units; see :mod:`qcontrol.disturbance`).
+    ``velocity_source``: ``"sensor"``, or ``"difference"`` for an x2 differenced from the
+    quantized position over the control period (:mod:`.velocity`).
     """
     if record not in RECORD_MODES:
         raise ValueError(f"record must be one of {RECORD_MODES}, got {record!r}")
+    if velocity_source not in VELOCITY_SOURCES:
+        raise ValueError(f"velocity_source must be one of {VELOCITY_SOURCES}, got {velocity_source!r}")
     if law.copies is not None and law.copies != plant.batch:
         raise ValueError(f"the controller has per-copy parameters for {law.copies} copies, "
                          f"the plant {plant.batch}")
     grid = TimeGrid.of(duration, dt, control_period)
     loop = ClosedLoop(plant, law, quantizer, reference, grid, state_bound, progress, observer, observe_every,
-                      record, metrics or MetricSettings(), separation)
+                      record, metrics or MetricSettings(), separation, loads, velocity_source)
     return loop.run(x0)

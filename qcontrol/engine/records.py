@@ -71,7 +71,9 @@ class _Record:
         """What copy ``b``'s record carries besides its signals (:class:`RunRecord`'s fields)."""
         d, separation = self.divergence, self.context.separation
         return dict(adaptive_name=self.law.state_name, L_z=self.law.coordinates.L_z.copy(), dt=self.grid.dt,
-                    duration=self.grid.duration, diverged=d.times[b] is not None, diverged_time=d.times[b],
+                    duration=self.grid.duration, hold=self.grid.hold,
+                    velocity_source=self.context.velocity_source,
+                    diverged=d.times[b] is not None, diverged_time=d.times[b],
                     divergence_reason=d.reasons[b], wall_time_s=now - self.started, metrics=self.metrics,
                     bound_names=() if separation is None else separation.names)
 
@@ -105,7 +107,8 @@ class FullRecord(_Record):
         self.derived = 0  # rows [0, derived) have their derived signals
         self.arrays = self.buffer.arrays | {"yd": parts.reference.table[:, None, :]}
         for s in DERIVED:
-            self.arrays[s.name] = np.full((self.grid.rows, self.batch, self.widths[s.name]), np.nan)
+            width = () if s.width == "1" else (self.widths[s.name],)
+            self.arrays[s.name] = np.full((self.grid.rows, self.batch, *width), np.nan)
 
     def next_event(self, k: int) -> int:
         return NEVER if self.observer is None else chunk_end(self.observed, self.observe_every,
@@ -167,7 +170,8 @@ class MetricsRecord(_Record):
         rows = max(1, REDUCE_ELEMENTS // self.batch)
         for first in range(base, stop, rows):
             last = min(stop, first + rows)
-            chunk = Chunk(first, self.grid.instants(first, last), self.divergence.kept, diverged)
+            chunk = Chunk(first, self.grid.instants(first, last), self.divergence.kept, diverged,
+                          self.grid.hold)
             block = self.signals(first, last, self.derived)
             for fold in self.reductions:
                 fold.add(chunk, fold.values(block))

@@ -36,6 +36,7 @@ class Chunk:
     t: np.ndarray
     kept: np.ndarray
     diverged: np.ndarray
+    hold: int = 1  # rows per control period: the control samples are the rows k with k % hold == 0
 
     @cached_property
     def everyone(self) -> bool:
@@ -91,6 +92,11 @@ class LargestAbs(Reduction):
 
     def add(self, chunk: Chunk, values: np.ndarray) -> None:
         size = np.abs(values)
+        if chunk.everyone:  # the usual chunk: every value counts and is finite (then no mask is needed)
+            top = size.max(axis=0)
+            if np.isfinite(top).all():
+                np.maximum(self.largest, top, out=self.largest)
+                return
         counted = np.isfinite(size) if chunk.everyone else chunk.valid & np.isfinite(size)
         np.maximum(self.largest, np.where(counted, size, -np.inf).max(axis=0), out=self.largest)
 
@@ -102,6 +108,36 @@ def tracking_error(block: Mapping[str, np.ndarray]) -> np.ndarray:
     """``z_1 = x_1 - y_d`` (eq. (7)), shape ``(rows, batch, 1)``: the same floats as ``z[..., :1]``,
     without deriving the other errors."""
     return block["x"][..., :1] - block["yd"][..., :1]
+
+
+class LargestAbsApplied(LargestAbs):
+    """The largest finite ``|u|`` the actuator applied."""
+
+    name, signal = "max_abs_u_applied", "u_applied"
+
+
+class SaturatedFraction(Reduction):
+    """The fraction of control samples (rows ``k`` with ``k % hold == 0`` and a finite u) at which
+    the actuator clipped the command (NaN when there is none)."""
+
+    name, signal = "saturated_fraction", "saturated"
+
+    def __init__(self, batch: int, width: int, duration: float, settings: MetricSettings) -> None:
+        super().__init__(batch, width, duration, settings)
+        self.clipped = np.zeros(batch)
+        self.samples = np.zeros(batch)
+
+    def add(self, chunk: Chunk, values: np.ndarray) -> None:
+        samples = slice((-chunk.first) % chunk.hold, None, chunk.hold)  # the control samples' rows
+        at = values[samples]
+        counted = np.isfinite(at)
+        if not chunk.everyone:
+            counted &= chunk.valid[samples]
+        self.samples += counted.sum(axis=0)
+        self.clipped += np.where(counted, at, 0.0).sum(axis=0)
+
+    def value(self, b: int) -> float:
+        return float(self.clipped[b] / self.samples[b]) if self.samples[b] else math.nan
 
 
 class ErrorRate(Reduction):

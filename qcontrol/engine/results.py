@@ -16,12 +16,15 @@ from .signals import REDUCTIONS, SIGNALS
 @dataclass(kw_only=True)
 class RunRecord:
     """What every record of a run carries: the adaptive state's name, the Lemma 2 bounds ``L_z``,
-    the step and horizon, and how the run ended."""
+    the step and horizon, the control period in steps (``hold``), where the controller's x2 came
+    from (``velocity_source``), and how the run ended."""
 
     adaptive_name: str
     L_z: np.ndarray
     dt: float
     duration: float
+    hold: int = 1
+    velocity_source: str = "sensor"
     diverged: bool = False
     diverged_time: float | None = None
     divergence_reason: str = ""
@@ -62,7 +65,7 @@ class Trajectory(RunRecord):
     def reduced(self) -> dict[str, Any]:
         """The metrics of the run, by the same reductions as a metrics-only run (one chunk)."""
         rows = len(self.t)
-        chunk = Chunk(0, self.t, np.array([rows]), np.array([self.diverged]))
+        chunk = Chunk(0, self.t, np.array([rows]), np.array([self.diverged]), self.hold)
         block = {name: array[:, None] for name, array in self.signals.items()}  # a batch of one
         values = {}
         for reduction in REDUCTIONS:

@@ -25,9 +25,11 @@ from .reductions import (
     ErrorRate,
     FinalValue,
     LargestAbs,
+    LargestAbsApplied,
     LastHalfLargestAbs,
     Lemma2Largest,
     Reduction,
+    SaturatedFraction,
 )
 
 Block = Mapping[str, np.ndarray]  # signals of rows [first, stop): (rows, batch, width); y_d (rows, 1, n+1)
@@ -43,13 +45,21 @@ class Separation:
     r: tuple[Expression, ...]
 
 
+def _as_commanded(u: np.ndarray) -> np.ndarray:
+    return u
+
+
 @dataclass(frozen=True)
 class SignalContext:
-    """What derivations may read besides the block: the coordinates of the recorded errors, and
-    the separation to check (None: not checked; its signal then has no columns)."""
+    """What derivations may read besides the block: the coordinates of the recorded errors, the
+    separation to check (None: not checked; its signal then has no columns), the plant's actuator
+    (commanded u -> applied u, :meth:`~qcontrol.plants.base.Plant.actuator`) and where the
+    controller's x2 came from (``"sensor"`` or ``"difference"``, see :mod:`qcontrol.engine.velocity`)."""
 
     coordinates: Backstepping
     separation: Separation | None = None
+    actuator: Callable[[np.ndarray], np.ndarray] = _as_commanded
+    velocity_source: str = "sensor"
 
     @property
     def terms(self) -> int:
@@ -67,6 +77,19 @@ def _z(block: Block, ctx: SignalContext) -> np.ndarray:
 def _zbar(block: Block, ctx: SignalContext) -> np.ndarray:
     """The quantized errors (31)-(33) from the quantized reading (what the controller computed)."""
     return ctx.coordinates.quantized_errors(block["x_q"], block["yd"])[0]
+
+
+def _u_applied(block: Block, ctx: SignalContext) -> np.ndarray:
+    """What the actuator applied for the commanded u (clipped at its limit)."""
+    return ctx.actuator(block["u"])
+
+
+def _saturated(block: Block, ctx: SignalContext) -> np.ndarray:
+    """1 where the actuator clipped the command, 0 where it applied it (NaN where u is not finite)."""
+    u, applied = block["u"], block["u_applied"]
+    if applied is u:  # an ideal actuator (the ODE): nothing clipped; u * 0 keeps NaN where u is not finite
+        return u * 0.0
+    return np.where(np.isfinite(u), (applied != u).astype(float), np.nan)
 
 
 def _e_z(block: Block, ctx: SignalContext) -> np.ndarray:
@@ -118,8 +141,8 @@ class Plot:
     ``components``: the ones shown (None: all); ``per_bound``: divided by the Lemma 2 bound L_zi;
     ``twin``: also drawn for a twin run (the ODE beside MuJoCo: MuJoCo wide, the twin thin on
     top); ``difference``: the panel where a twin's ``|main - twin|`` of it is drawn; ``guide``: the
-    bound drawn as constant lines in the panel; ``color``: "main", "reference", "quantized" or
-    "palette" (one colour per component)."""
+    bound drawn as constant lines in the panel; ``color``: "main", "reference", "quantized",
+    "applied" or "palette" (one colour per component)."""
 
     path: str
     label: str
@@ -174,6 +197,11 @@ SIGNALS: tuple[Signal, ...] = (
     Signal("u", "1", "input", True, "input held over [t_k, t_k + dt): law (44), (46) or a user law",
            reductions=(LargestAbs,),
            plots=(Plot("signals/input/u", "u", twin=True, difference="signals/difference/u"),)),
+    Signal("u_applied", "1", "input", True, "input the actuator applied: u, clipped where the actuator "
+           "saturates (the plant's actuator)", _u_applied, reads=("u",), reductions=(LargestAbsApplied,),
+           plots=(Plot("signals/input/u_applied", "u applied", color="applied"),)),
+    Signal("saturated", "1", "-", True, "1 where the actuator clipped the command u over the step, else 0",
+           _saturated, reads=("u", "u_applied"), reductions=(SaturatedFraction,)),
     Signal("adaptive", "m", "adaptive", False, "adaptive estimates (eps_hat of (45), theta_hat of (46), ...)",
            reductions=(FinalValue,), plots=(Plot("signals/adaptive/{a}", "{a}_{i}", color="palette"),)),
     Signal("yd", "n+1", "y", False, "reference y_d and its derivatives y_d', ..., y_d^(n)", shared=True,

@@ -43,7 +43,9 @@ class Backend:
     ``section``/``parse``: the keys of ``[plant.<name>]`` and their parsed options (None when the
     backend takes no section); ``build(terms, options, dt)`` makes one plant of ``len(terms)``
     copies; ``structure(terms, options)`` is what variants stepped as one batch must share;
-    ``scene(options, dt)`` what recordings draw (None: nothing to draw).
+    ``scene(options, dt)`` what recordings draw (None: nothing to draw); ``inertia(options, dt)``
+    the joint's generalized inertia I, the gain between u and a generalized force on the joint
+    (None: the backend has no joint of its own, e.g. the ODE with its unit input gain).
     """
 
     name: str
@@ -53,6 +55,7 @@ class Backend:
     structure: Callable[[PlantTerms, Any], Hashable]
     scene: Callable[[Any, float], Scene | None]
     summary: str
+    inertia: Callable[[Any, float], float] | None = None
 
     def require(self, options: Any, source: str) -> None:
         """Refuse a scenario that lacks the section this backend needs to run."""

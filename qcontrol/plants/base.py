@@ -74,6 +74,16 @@ class Plant(Protocol):
     def step(self, u: np.ndarray, h: float) -> None:
         """Advance every copy by ``h`` seconds with the input ``u`` held (zero-order hold)."""
 
+    def disturb(self, d: float) -> None:
+        """Apply the external load ``d`` to every copy from the next step on, until changed: a
+        matched term ``x_n' = u + d + psi + theta^T phi`` in u's units (a generalized force ``F``
+        on the joint is ``d = F / I``; see :mod:`qcontrol.disturbance`). :meth:`reset` sets it to 0."""
+
+    def actuator(self, u: np.ndarray) -> np.ndarray:
+        """The input the plant applies for the commanded ``u`` (same units, same shape): ``u``
+        itself for an ideal actuator, ``u`` clipped at the actuator's limit otherwise. Where it
+        does not clip, the result is ``u`` exactly."""
+
 
 def array_io(plant: Plant, h: float) -> IO:
     """:meth:`Plant.io` in array form, from a plant's :meth:`~Plant.state`,

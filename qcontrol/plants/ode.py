@@ -64,6 +64,7 @@ class ChainPlant:
         else:
             self._g = self._uncertainty_columns
         self._x: list[Column] = [0.0] * self.n if self._floats else [np.zeros(self.batch)] * self.n
+        self._load = [0.0]  # the external load d of :meth:`disturb` (a cell the step closures read)
         self.warnings: list[str] = []  # an ODE has nothing to warn about
         self.consistency_report: dict[str, Any] = {}  # it is eq. (1)
 
@@ -98,6 +99,15 @@ class ChainPlant:
     def reset(self, x0: np.ndarray) -> None:
         x0 = np.array(np.broadcast_to(x0, (self.batch, self.n)), dtype=float)
         self._x = x0[0].tolist() if self._floats else list(np.ascontiguousarray(x0.T))
+        self._load[0] = 0.0
+
+    def disturb(self, d: float) -> None:
+        """The matched load d, held like u: ``x_n' = u + d + psi + theta^T phi``."""
+        self._load[0] = float(d)
+
+    def actuator(self, u: np.ndarray) -> np.ndarray:
+        """Eq. (1)'s input is applied as commanded."""
+        return u
 
     def state(self) -> np.ndarray:
         return np.array([self._x]) if self._floats else np.array(self._x).T
@@ -111,7 +121,7 @@ class ChainPlant:
             u = float(np.ravel(u)[0])
         elif not (isinstance(u, np.ndarray) and u.shape == (self.batch,)):
             u = np.broadcast_to(np.asarray(u, dtype=float), (self.batch,))
-        self._x = _rk4(self._x, u, h, self._g)
+        self._x = _rk4(self._x, u + self._load[0] if self._load[0] else u, h, self._g)
 
     def io(self, h: float) -> IO:
         """``observe() -> (x, reading)`` and ``step(u)`` (an RK4 step of ``h``) for one run; for a
@@ -119,14 +129,15 @@ class ChainPlant:
         the state exactly, so both are the state (the engine only reads them)."""
         if not self._floats:
             return array_io(self, h)
-        g = self._g
+        g, load = self._g, self._load
 
         def observe() -> tuple[list[float], list[float]]:
             x = self._x
             return x, x
 
-        def step(u: float) -> None:
-            self._x = _rk4(self._x, u, h, g)
+        def step(u: float) -> None:  # u and d are both held over the step: RK4 sees their sum
+            d = load[0]
+            self._x = _rk4(self._x, u + d if d else u, h, g)
 
         return observe, step
 

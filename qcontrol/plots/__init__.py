@@ -1,5 +1,6 @@
-"""Figures (paper Figs. 1-8, backend overlay, sensitivity studies, Table 1): :mod:`.runs` draws
-runs, :mod:`.studies` studies and tables, :mod:`.common` holds what they share.
+"""Figures (paper Figs. 1-8, backend overlay, sensitivity studies, Table 1, robustness): :mod:`.runs`
+draws runs, :mod:`.studies` studies and tables, :mod:`.robustness` the robustness study,
+:mod:`.common` holds what they share.
 
 Every function draws one matplotlib figure on the Agg canvas (never pyplot's global state, never
 a display), writes it as a PNG of exactly ``FIG_WIDTH_PX x FIG_HEIGHT_PX`` pixels and returns the
@@ -25,6 +26,7 @@ from .common import (
     PAPER_TITLES,
     Units,
 )
+from .robustness import fig_margins, fig_robustness
 from .runs import (
     DEFAULT_METHOD_LABELS,
     fig_adaptive,
@@ -54,7 +56,9 @@ __all__ = [
     "fig_compare_error",
     "fig_compare_output",
     "fig_input",
+    "fig_margins",
     "fig_output",
+    "fig_robustness",
     "fig_run",
     "fig_sensitivity",
     "fig_table1",

@@ -103,6 +103,12 @@ class Recording:
         return self._stream is not None
 
     @property
+    def stream(self) -> rr.RecordingStream | None:
+        """The open rerun stream (None once closed, or when there is nowhere to write), for
+        modules that log more than runs (e.g. :mod:`.disturbances`)."""
+        return self._stream
+
+    @property
     def part_path(self) -> Path | None:
         """Where the file is written until the recording is closed."""
         return None if self.path is None else temporary_path(self.path)

@@ -3,7 +3,7 @@
 
 Series layout (``{L}`` a ghost run's label, ``{a}`` the adaptive state's name, ``i`` from 1)::
 
-    signals/tracking/y, y_d, y_{L}        signals/error/z1, z1_{L}       signals/input/u, u_{L}
+    signals/tracking/y, y_d, y_{L}        signals/error/z1, z1_{L}       signals/input/u, u_{L}, u_applied
     signals/adaptive/{a}  (one instance per estimate)
     signals/state/x{i}/x, signals/state/x{i}/q
     signals/quantization/x{i}/error       (x_meas - q(x_meas)) and band (+delta/2, -delta/2)
@@ -34,9 +34,9 @@ from ..engine.signals import Plot, Signal
 
 TIMELINE = "sim_time"
 BLUE, ORANGE, GREEN, RED = (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40)
-PURPLE, BROWN, LIGHT = (148, 103, 189), (140, 86, 75), (245, 245, 245)
+PURPLE, BROWN, OLIVE, LIGHT = (148, 103, 189), (140, 86, 75), (188, 189, 34), (245, 245, 245)
 PALETTE = (BLUE, ORANGE, GREEN, RED, PURPLE, BROWN)
-ROLE_COLORS = {"main": BLUE, "reference": ORANGE, "quantized": RED}
+ROLE_COLORS = {"main": BLUE, "reference": ORANGE, "quantized": RED, "applied": OLIVE}
 WIDE, THIN = 5.0, 1.5  # line widths (points) of a main run beside its twin, and of the twin
 
 

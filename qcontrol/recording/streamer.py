@@ -12,6 +12,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..engine import Trajectory
 from .scene import Scene
@@ -23,12 +24,13 @@ if TYPE_CHECKING:
     from .recording import Recording
 
 
-def time_nanoseconds(t: np.ndarray) -> np.ndarray:
+def time_nanoseconds(t: ArrayLike) -> np.ndarray:
     """The ``sim_time`` values logged for times ``t`` (seconds): ``round(t * 1e9)`` as int64 ns."""
     return np.round(np.asarray(t, dtype=float) * 1e9).astype(np.int64)
 
 
-def _time_column(t: np.ndarray) -> rr.TimeColumn:
+def time_column(t: ArrayLike) -> rr.TimeColumn:
+    """The ``sim_time`` index column of rows at times ``t`` (seconds)."""
     import rerun as rr
 
     return rr.TimeColumn(TIMELINE, duration=time_nanoseconds(t).view("timedelta64[ns]"))
@@ -81,14 +83,14 @@ class RunStreamer:
                 self.recording.see_motion(run.yd[rows, 0])
         if first:
             self.recording.update_layout()
-        times = _time_column(run.t[rows])
+        times = time_column(run.t[rows])
         import rerun as rr
 
         scalars = rr.Scalars.columns
         for s in self.series:
             stream.send_columns(s.path, indexes=[times], columns=scalars(scalars=s.values(run)[rows]))
         if first and self.guides:  # constant over the run: its two ends, once
-            ends = _time_column(np.array([run.t[start], max(run.duration, run.t[stop - 1])]))
+            ends = time_column(np.array([run.t[start], max(run.duration, run.t[stop - 1])]))
             for g in self.guides:
                 stream.send_columns(g.path, indexes=[ends], columns=scalars(scalars=np.array([g.levels] * 2)))
         if self.differences:

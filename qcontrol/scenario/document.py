@@ -129,6 +129,8 @@ def _alternatives(kind: KindKeys) -> list[str]:
 
 def section_markdown(section: Section) -> list[str]:
     """A top-level table: its keys, then, for a kinded table, one part per kind."""
+    if section.array:
+        return array_markdown(section)
     lines = [f"## [{section.name}]", "", f"`[{section.name}]`: {section.meaning}.", ""]
     if not section.kinds:
         return [*lines, *key_table(section.keys), "", "Example:", "", *_block(example_lines(section.name,
@@ -137,6 +139,22 @@ def section_markdown(section: Section) -> list[str]:
               "", *key_table(section.keys), ""]
     for name, kind in section.kinds.items():
         lines += kind_markdown(section, name, kind)
+    return lines
+
+
+def array_markdown(section: Section) -> list[str]:
+    """A list of kinded tables, ``[[name]]``: the kind key, then each kind's keys and an example."""
+    lines = [f"## [[{section.name}]]", "", f"`[[{section.name}]]`: {section.meaning}.", "",
+             f"Each `[[{section.name}]]` takes `kind` (one of {', '.join(f'`{k}`' for k in section.kinds)}) "
+             "and that kind's keys, directly:", "", *key_table(section.keys), ""]
+    for name, kind in section.kinds.items():
+        lines += [f"### [[{section.name}]] kind = \"{name}\"", ""]
+        if kind is not None and kind.meaning:
+            lines += [f"Kind `{name}`: {kind.meaning}.", ""]
+        keys = kind.keys if kind is not None else ()
+        example = [f"[[{section.name}]]", f'kind = "{name}"', *(f"{k.name} = {k.example}" for k in keys
+                                                               if k.example)]
+        lines += [*key_table(keys), "", "Example:", "", *_block(example)]
     return lines
 
 

@@ -8,6 +8,8 @@ or backend registered later takes part in validation (and in the documentation) 
 from __future__ import annotations
 
 from ..controller.law import LAW_KINDS
+from ..disturbance import SECTION as DISTURBANCE
+from ..engine.velocity import VELOCITY_SOURCES
 from ..error_rate import TABLE1_OMEGAS, TABLE1_SAMPLES
 from ..plants.backends import BACKENDS
 from ..reference import REFERENCE_KINDS
@@ -25,7 +27,8 @@ from ..schema import (
     string,
 )
 
-TOP = ("scenario", "plant", "controller", "reference", "simulation", "metrics")  # see top_sections()
+# see top_sections()
+TOP = ("scenario", "plant", "controller", "reference", "simulation", "metrics", "disturbance")
 REQUIRED_TABLES = ("plant", "controller", "reference", "simulation")
 # `qcontrol run` keeps only its metrics (memory that does not grow with the run), but a full record
 # (compare, reproduce, the library's default) keeps every row: 20 million steps is a few GB. Longer
@@ -111,6 +114,10 @@ def simulation_section() -> Section:
                 "table holds its model)", example='"mujoco"'),
             Key("state_bound", number(positive=True), 1e6, "state",
                 "|x_i| beyond this stops the run as diverged"),
+            Key("velocity_source", string(VELOCITY_SOURCES), "sensor",
+                meaning="the controller's x2: the velocity sensor's reading, quantized (the paper), or the "
+                "quantized position differenced over the control period (an encoder only; outside the "
+                "paper's assumptions)"),
         ),
         "how the closed loop is run",
     )
@@ -134,4 +141,4 @@ def top_sections(default_name: str = "the file name") -> tuple[Section, ...]:
     backend's ``[plant.<backend>]`` comes from the backend registry). A new table is declared here
     and named in :data:`TOP`."""
     return (scenario_section(default_name), PLANT, controller_section(), reference_section(),
-            simulation_section(), METRICS)
+            simulation_section(), METRICS, DISTURBANCE)

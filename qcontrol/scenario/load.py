@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..controller.law import LawContext, law_kind
+from ..disturbance import parse_disturbances
 from ..engine import MetricSettings
 from ..errors import QcontrolInputError
 from ..expr import compile_expression
@@ -188,13 +189,14 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
     simulation = _simulation(root.table("simulation"))
     metrics = _metrics(root.table("metrics", default={}))
     backends = _backends(plant, terms, base_dir, simulation)
+    disturbances = parse_disturbances(data.get("disturbance"), source)
     scenario = Scenario(
         name=meta["name"], description=meta["description"], source=source, text=text, overrides=overrides,
         data=copy.deepcopy(data), base_dir=base_dir,
         order=terms.order, psi=None if terms.psi is None else terms.psi.source,
         phi=tuple(p.source for p in terms.phi), theta=terms.theta, x0=x0, controller=controller,
-        reference=signal, simulation=simulation, backends=backends, psi_expr=terms.psi, phi_expr=terms.phi,
-        metrics=metrics, paper_example=meta["paper_example"],
+        reference=signal, simulation=simulation, backends=backends, disturbances=disturbances,
+        psi_expr=terms.psi, phi_expr=terms.phi, metrics=metrics, paper_example=meta["paper_example"],
     )
     _check_terms_at_x0(scenario)
     return scenario

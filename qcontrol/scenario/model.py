@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from ..controller.law import LawContext
+from ..disturbance import Disturbance
 from ..engine import MetricSettings
 from ..expr import Expression
 from ..plants.base import PlantTerms
@@ -40,12 +41,14 @@ class SimulationConfig:
     control_period: float | None
     backend: str
     state_bound: float
+    velocity_source: str = "sensor"
 
 
 @dataclass(frozen=True)
 class Scenario:
     """A validated scenario. Expressions are compiled once (``psi_expr``, ``phi_expr``); each
-    ``[plant.<backend>]`` section is parsed into ``backends[name]`` by its backend."""
+    ``[plant.<backend>]`` section is parsed into ``backends[name]`` by its backend; the
+    ``[[disturbance]]`` list into ``disturbances``."""
 
     name: str
     description: str
@@ -61,6 +64,7 @@ class Scenario:
     reference: ReferenceConfig
     simulation: SimulationConfig
     backends: dict[str, Any] = field(default_factory=dict)
+    disturbances: tuple[Disturbance, ...] = ()
     metrics: MetricSettings = field(default_factory=MetricSettings)
     data: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)  # the TOML after overrides
     base_dir: Path = field(default=Path("."), repr=False, compare=False)  # paths in it are relative to it

@@ -50,7 +50,14 @@ def scene(options: MujocoOptions, dt: float) -> Scene:
     return Scene(build_model(options, dt), options.joint)
 
 
+def inertia(options: MujocoOptions, dt: float) -> float:
+    """The nominal joint inertia I (``mj_fullM``, realism options off): u's gain to a torque."""
+    from .model import compiled
+
+    return compiled(options, dt).inertia
+
+
 BACKEND = Backend("mujoco", SECTION, parse, build, structure, scene,
-                  "MuJoCo physics of an MJCF model (order 2: one joint)")
+                  "MuJoCo physics of an MJCF model (order 2: one joint)", inertia)
 
 __all__ = ["BACKEND", "MujocoOptions"]

@@ -15,6 +15,11 @@ from ...schema import Key, Section, Table, custom, number, read_keys, string
 from ..base import PlantTerms
 
 INTEGRATORS = ("RK4", "Euler", "implicit", "implicitfast")
+REALISM_FIELDS = {  # each realism option and the fields that make it (noise needs its seed)
+    "torque_limit": ("torque_limit",), "frictionloss": ("frictionloss",), "armature": ("armature",),
+    "rod_mass": ("rod_mass",), "sensor_noise": ("sensor_noise", "noise_seed"),
+    "sensor_delay": ("sensor_delay",), "sensor_period": ("sensor_period",),
+}
 PARAMETERS = ("mass", "length", "damping", "gravity")
 MAX_SENSOR_TIME = 1e3  # seconds; MuJoCo's sensor history length is an int of delay / timestep
 
@@ -61,6 +66,11 @@ class MujocoOptions:
             self, torque_limit=None, frictionloss=0.0, armature=0.0, rod_mass=0.0,
             sensor_noise=(0.0, 0.0), noise_seed=None, sensor_delay=0.0, sensor_period=0.0,
         )
+
+    def only(self, name: str) -> MujocoOptions:
+        """The nominal model with the realism option ``name`` (one of :attr:`realism`) alone on."""
+        current = vars(self)
+        return replace(self.nominal(), **{key: current[key] for key in REALISM_FIELDS[name]})
 
 
 # --------------------------------------------------------------------------------------------

@@ -71,6 +71,7 @@ class MujocoPlant:
             if value > 0:
                 whole_steps(value, self.timestep, f"{where}.{key}", "the scenario's dt")
         self._ctrl_per_u = self.inertia / self._ids.actuator_gain
+        self._ctrl_range = _ctrl_range(self.model, self._ids.actuator)  # (low, high) or None
         native = tuple(name in options.native_terms for name in terms.names)
         exprs = ([terms.psi] if terms.psi is not None else []) + list(terms.phi)
         coefficients = ([1.0] if terms.psi is not None else []) + list(terms.theta)
@@ -125,6 +126,24 @@ class MujocoPlant:
                 mujoco.mj_forward(model, data)
         self._dead[:] = [False] * self.batch  # in place: the step closures hold this list
         self._rng = np.random.default_rng(self.options.noise_seed)
+
+    def disturb(self, d: float) -> None:
+        """The external load d (u's units) as the generalized force ``I d`` in ``qfrc_applied``
+        (``I`` the nominal inertia, as for u), held until changed; ``mj_resetData`` clears it."""
+        force = self.inertia * float(d)
+        for data in self._datas:
+            data.qfrc_applied[self._ids.dof] = force
+
+    def actuator(self, u: np.ndarray) -> np.ndarray:
+        """u as the motor applies it: MuJoCo clamps the command ``ctrl = (I / gain) u`` to the
+        actuator's ctrlrange (``+-torque_limit``), so where ``ctrl`` leaves the range the applied
+        input is the range's end divided by ``I / gain``; elsewhere u itself."""
+        if self._ctrl_range is None:
+            return u
+        low, high = self._ctrl_range
+        u = np.asarray(u, dtype=float)
+        ctrl = self._ctrl_per_u * u  # the very product the step writes into ctrl
+        return np.where(ctrl < low, low / self._ctrl_per_u, np.where(ctrl > high, high / self._ctrl_per_u, u))
 
     def state(self) -> np.ndarray:
         """The true ``(qpos, qvel)`` of every copy (NaN for a copy MuJoCo had to reset)."""
@@ -213,3 +232,12 @@ class MujocoPlant:
             return x, [sensordata.item(p), sensordata.item(v)]
 
         return observe, steppers[0]
+
+
+def _ctrl_range(model: mujoco.MjModel, actuator: int) -> tuple[float, float] | None:
+    """The range MuJoCo clamps the actuator's ctrl to, or None when it does not clamp."""
+    clamping = not model.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_CLAMPCTRL)
+    if not (clamping and model.actuator_ctrllimited[actuator]):
+        return None
+    low, high = model.actuator_ctrlrange[actuator]
+    return float(low), float(high)

@@ -1,0 +1,298 @@
+"""The robustness study of ``qcontrol reproduce``: both examples on realistic hardware.
+
+For Example 2 (the arm, ``example2-arm.toml``) and Example 1 (the cart, ``example1-cart.toml``),
+with the proposed law (44)-(45) and the comparison law (46), on MuJoCo with the ODE twin's numbers
+beside:
+
+* **each imperfection alone** on the paper's ideal scenario, with the realistic scenario's value
+  (each number has one source: the realistic file), the x2 differenced from the encoder, and
+  **all together** (the realistic scenario as shipped, without its demonstration disturbance);
+  rows with sensor noise run :data:`SEEDS` seeds and report the median and the range;
+* **margins**: each imperfection alone, pushed beyond the hardware, to find where it breaks;
+* **disturbances** on the ideal and the realistic arm: an impulse and a load step at half the
+  run, the peak error and the recovery time.
+
+The ODE twin runs the same scenario on the ODE of eq. (1): it shares what is not physics (the
+control period, the velocity source, the disturbances) and none of the ``[plant.mujoco]`` realism
+options, so the gap between the two columns is the physics. Runs are independent and go to worker
+processes; the numbers do not depend on how many.
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .assembly import run_scenario, scene
+from .scenario import Scenario, load_scenario
+from .sweep import run_batch
+
+SEEDS = tuple(range(1, 21))  # sensor-noise seeds of every row with noise on
+LAWS = (("proposed", ()), ("comparison", ("controller.kind=baseline",)))
+EXAMPLES = (("example2", "example2-arm"), ("example1", "example1-cart"))  # (ideal, realistic)
+NUMBERS = ("max_abs_z1_last_half", "max_abs_u_applied", "saturated_fraction", "lemma2_max_ratio")
+RECOVERY_BAND = 0.1  # |z1| < 0.1: Table 1's smallest omega
+LABELS = {  # realism options of [plant.mujoco] studied alone, in this order
+    "torque_limit": "torque limit", "frictionloss": "friction", "armature": "rotor inertia (armature)",
+    "rod_mass": "link mass (rod)", "sensor_noise": "sensor noise", "sensor_delay": "sensor delay",
+    "sensor_period": "sensor period",
+}
+# Margins: each imperfection alone on the ideal scenario, beyond the hardware: (label, unit, values,
+# overrides with {v} the value). The realistic values are in the scenario files.
+MARGINS: dict[str, tuple[tuple[str, str, tuple[float, ...], tuple[str, ...]], ...]] = {
+    "example2": (
+        ("torque limit", "N m", (20.0, 10.0, 5.0), ("plant.mujoco.torque_limit={v!r}",)),
+        ("friction", "N m", (10.0, 30.0), ("plant.mujoco.frictionloss={v!r}",)),
+        ("sensor delay", "s", (0.02, 0.05), ("plant.mujoco.sensor_delay={v!r}",)),
+        ("control period", "s", (0.02, 0.05), ("simulation.control_period={v!r}",)),
+        ("x2 differenced over T", "s", (0.005, 0.02, 0.05),
+         ('simulation.velocity_source="difference"', "simulation.control_period={v!r}")),
+    ),
+    "example1": (
+        ("force limit", "N", (2.0, 1.0), ("plant.mujoco.torque_limit={v!r}",)),
+        ("friction", "N", (0.1, 0.3, 3.0), ("plant.mujoco.frictionloss={v!r}",)),
+        ("sensor delay", "s", (0.05,), ("plant.mujoco.sensor_delay={v!r}",)),
+        ("control period", "s", (0.05,), ("simulation.control_period={v!r}",)),
+        ("x2 differenced over T", "s", (0.02, 0.1),
+         ('simulation.velocity_source="difference"', "simulation.control_period={v!r}")),
+    ),
+}
+# Disturbances on the arm, at half the run: a bump (20 N m for 50 ms: 1 N m s, as in
+# example2-arm.toml) and a load that stays (10 N m, about 30 % of the largest gravity torque).
+DISTURBANCES = (
+    ("impulse", 'disturbance=[{{kind = "impulse", start = {t!r}, duration = 0.05, force = 20.0}}]'),
+    ("load step", 'disturbance=[{{kind = "step", start = {t!r}, value = 10.0}}]'),
+)
+
+
+@dataclass(frozen=True)
+class Task:
+    """One run of the study: a scenario file, its overrides and the backend (picklable)."""
+
+    path: str
+    overrides: tuple[str, ...]
+    backend: str
+
+
+def _summary(task: Task) -> dict:
+    """Worker entry point: the summary of one run (metrics only)."""
+    return run_batch([load_scenario(task.path, list(task.overrides))], task.backend)[0]
+
+
+@dataclass(frozen=True)
+class Errors:
+    """What a disturbance case needs of a run: its instants, z1, and whether it diverged."""
+
+    t: np.ndarray
+    z1: np.ndarray
+    diverged: bool
+
+
+def _errors(task: Task) -> Errors:
+    """Worker entry point: the tracking error of one run (full record)."""
+    run = run_scenario(load_scenario(task.path, list(task.overrides)), task.backend)
+    return Errors(run.t, run.z[:, 0].copy(), bool(run.diverged))
+
+
+def recovery(disturbed: Errors, quiet: Errors, start: float, delta: float) -> dict:
+    """What a disturbance at ``start`` did to the tracking error z1 (``quiet``: the same run without it).
+
+    ``peak_abs_z1`` (and ``peak_abs_z1_undisturbed``): max |z1| from ``start`` on;
+    ``peak_deviation``: max |z1 - z1_undisturbed| from ``start`` on; ``recovery_time_s``: from
+    ``start`` until |z1| < 0.1 holds to the end (None: never); ``recovery_to_undisturbed_s``: from
+    ``start`` until z1 is back within delta of the undisturbed run's for good (None: never);
+    ``final_deviation``: max |z1 - z1_undisturbed| over the last second."""
+    rows = min(len(disturbed.t), len(quiet.t))
+    t, z, zq = disturbed.t[:rows], disturbed.z1[:rows], quiet.z1[:rows]
+    after = t >= start - 1e-12
+    deviation = np.abs(z - zq)
+    return {
+        "diverged": bool(disturbed.diverged), "peak_abs_z1": _largest(np.abs(z[after])),
+        "peak_abs_z1_undisturbed": _largest(np.abs(zq[after])), "peak_deviation": _largest(deviation[after]),
+        "recovery_time_s": _settled(t, np.abs(z), RECOVERY_BAND, after, start, disturbed.diverged),
+        "recovery_to_undisturbed_s": _settled(t, deviation, delta, after, start, disturbed.diverged),
+        "final_deviation": _largest(deviation[t >= t[-1] - 1.0]),
+    }
+
+
+def _largest(values: np.ndarray) -> float:
+    finite = values[np.isfinite(values)]
+    return float(finite.max()) if finite.size else float("nan")
+
+
+def _settled(t: np.ndarray, values: np.ndarray, band: float, after: np.ndarray, start: float,
+             diverged: bool) -> float | None:
+    """Time from ``start`` to the first row after which ``values < band`` holds to the end (None:
+    never; NaN counts as outside)."""
+    bad = np.flatnonzero(after & ~(values < band))
+    if diverged or (bad.size and bad[-1] == len(t) - 1):
+        return None
+    return 0.0 if not bad.size else float(t[bad[-1] + 1] - start)
+
+
+# --------------------------------------------------------------------------------------------
+# the cases
+
+
+def imperfections(realistic: Scenario) -> list[tuple[str, tuple[str, ...]]]:
+    """``(label, overrides on the ideal scenario)`` for each imperfection of ``realistic`` alone,
+    then the x2 differenced from the encoder."""
+    o, sim = realistic.backends["mujoco"], realistic.simulation
+    values = {"torque_limit": o.torque_limit, "frictionloss": o.frictionloss, "armature": o.armature,
+              "rod_mass": o.rod_mass, "sensor_noise": list(o.sensor_noise), "sensor_delay": o.sensor_delay,
+              "sensor_period": o.sensor_period}
+    labels = LABELS | {"torque_limit": _limit_label(realistic)}
+    rows = [(labels[key], (f"plant.mujoco.{key}={values[key]!r}",)) for key in LABELS if key in o.realism]
+    if sim.control_period is not None:
+        rows.append(("control period", (f"simulation.control_period={sim.control_period!r}",)))
+    rows.append(("x2 differenced", ('simulation.velocity_source="difference"',)))
+    return rows
+
+
+def _limit_label(sc: Scenario) -> str:
+    """"torque limit" on a hinge, "force limit" on a slide."""
+    import mujoco
+
+    drawn = scene(sc)
+    jid = mujoco.mj_name2id(drawn.model, mujoco.mjtObj.mjOBJ_JOINT, drawn.joint)
+    hinge = int(drawn.model.jnt_type[jid]) == int(mujoco.mjtJoint.mjJNT_HINGE)
+    return "torque limit" if hinge else "force limit"
+
+
+def _seeded(overrides: Sequence[str], noisy: bool) -> list[tuple[str, ...]]:
+    """The override sets of a row: one per seed when sensor noise is on, else the row itself."""
+    if not noisy:
+        return [tuple(overrides)]
+    return [(*overrides, f"plant.mujoco.noise_seed={s}") for s in SEEDS]
+
+
+def _physics_free(overrides: Sequence[str]) -> tuple[str, ...]:
+    """What the ODE twin shares: every override but the MuJoCo model's."""
+    return tuple(o for o in overrides if not o.startswith("plant.mujoco."))
+
+
+@dataclass
+class Plan:
+    """Every task of the study, each run once, and how the rows find their summaries."""
+
+    tasks: list[Task]
+    index: dict[Task, int]
+
+    def add(self, task: Task) -> Task:
+        if task not in self.index:
+            self.index[task] = len(self.tasks)
+            self.tasks.append(task)
+        return task
+
+
+def robustness_study(scenarios: Path, duration: float | None, workers: int,
+                     log: Callable[[str], None] = print) -> dict:
+    """Run the whole study; the object written to ``robustness.json``."""
+    extra = (f"simulation.duration={duration!r}",) if duration is not None else ()
+    plan = Plan([], {})
+    rows, margins, disturbances = [], [], []
+    for ideal, realistic in EXAMPLES:
+        ideal_path, real_path = str(scenarios / f"{ideal}.toml"), str(scenarios / f"{realistic}.toml")
+        real = load_scenario(real_path, list(extra))
+        noisy_real = "sensor_noise" in real.backends["mujoco"].realism
+        cases = [("ideal", ideal_path, ()), *((label, ideal_path, o) for label, o in imperfections(real)),
+                 ("all together", real_path, ("disturbance=[]",))]
+        for law, law_overrides in LAWS:
+            for label, path, overrides in cases:
+                noisy = label == "sensor noise" or (label == "all together" and noisy_real)
+                sets = _seeded((*overrides, *law_overrides, *extra), noisy)
+                rows.append({"example": ideal, "imperfection": label, "law": law, "scenario": Path(path).stem,
+                             "overrides": list(sets[0][: len(overrides)]),
+                             "seeds": list(SEEDS) if noisy else None,
+                             "mujoco": [plan.add(Task(path, s, "mujoco")) for s in sets],
+                             "ode": [plan.add(Task(path, _physics_free(sets[0]), "ode"))]})
+            for label, unit, values, templates in MARGINS[ideal]:
+                for v in values:
+                    overrides = tuple(t.format(v=v) for t in templates)
+                    margins.append({"example": ideal, "imperfection": label, "unit": unit, "value": v,
+                                    "law": law, "overrides": list(overrides),
+                                    "mujoco": [plan.add(Task(ideal_path, (*overrides, *law_overrides, *extra),
+                                                             "mujoco"))]})
+        if ideal == "example2":
+            disturbances += _disturbance_cases(ideal_path, real_path, real.simulation.duration, extra)
+    log(f"study: robustness: {len(plan.tasks)} runs, {len(disturbances)} disturbance cases, "
+        f"on {workers} worker(s)")
+    runs = Plan([], {})
+    for case in disturbances:
+        case["runs"] = (runs.add(case.pop("task")), runs.add(case.pop("quiet")))
+    summaries, errors = _execute(plan.tasks, runs.tasks, workers)
+    for row in rows + margins:
+        for backend in ("mujoco", "ode"):
+            if backend in row:
+                row[backend] = aggregate([summaries[plan.index[task]] for task in row[backend]])
+    for case in disturbances:
+        disturbed, quiet = (errors[runs.index[task]] for task in case.pop("runs"))
+        case["result"] = recovery(disturbed, quiet, case["start"], case.pop("delta"))
+    return {"seeds": list(SEEDS), "recovery_band": RECOVERY_BAND, "rows": rows, "margins": margins,
+            "disturbances": disturbances}
+
+
+def _disturbance_cases(ideal_path: str, real_path: str, duration: float,
+                       extra: tuple[str, ...]) -> list[dict]:
+    """An impulse and a load step at half the run on the ideal and the realistic arm, both laws,
+    on MuJoCo and on the ODE twin."""
+    start = duration / 2.0
+    cases = []
+    for plant, path in (("ideal arm", ideal_path), ("realistic arm", real_path)):
+        delta = load_scenario(path, list(extra)).controller.delta
+        for kind, template in DISTURBANCES:
+            for law, law_overrides in LAWS:
+                for backend in ("mujoco", "ode"):
+                    overrides = (template.format(t=start), *law_overrides, *extra)
+                    cases.append({"plant": plant, "scenario": Path(path).stem, "disturbance": kind,
+                                  "law": law, "backend": backend, "start": start, "overrides": [overrides[0]],
+                                  "delta": delta, "task": Task(path, overrides, backend),
+                                  "quiet": Task(path, ("disturbance=[]", *law_overrides, *extra), backend)})
+    return cases
+
+
+def _execute(tasks: list[Task], full: list[Task], workers: int) -> tuple[list[dict], list[Errors]]:
+    """Every task's summary and every full run's tracking error, in order."""
+    if workers <= 1:
+        return [_summary(t) for t in tasks], [_errors(t) for t in full]
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        errors = [pool.submit(_errors, t) for t in full]
+        summaries = list(pool.map(_summary, tasks, chunksize=max(1, len(tasks) // (8 * workers))))
+        return summaries, [f.result() for f in errors]
+
+
+def default_workers() -> int:
+    """Worker processes for the study: the machine's cores, at most 4."""
+    return max(1, min(4, os.cpu_count() or 1))
+
+
+# --------------------------------------------------------------------------------------------
+# aggregation
+
+
+def _spread(values: Sequence[float]) -> dict[str, float]:
+    finite = [v for v in values if v is not None and np.isfinite(v)]
+    if not finite:
+        return {"median": float("nan"), "min": float("nan"), "max": float("nan")}
+    return {"median": float(statistics.median(finite)), "min": float(min(finite)), "max": float(max(finite))}
+
+
+def aggregate(summaries: Sequence[dict]) -> dict:
+    """One row's runs (one, or one per seed): every number as median, min and max over the runs
+    (over the finite values: a diverged run has no max |z1| over the last half), and how many
+    runs diverged."""
+    omegas = list(summaries[0]["error_rate"])
+    return {
+        "runs": len(summaries),
+        "diverged": sum(bool(s["diverged"]) for s in summaries),
+        "lemma2_applies": all(s["lemma2_applies"] for s in summaries),
+        "error_rate": {w: _spread([s["error_rate"][w] for s in summaries]) for w in omegas},
+        **{key: _spread([s[key] for s in summaries]) for key in NUMBERS},
+    }
+
