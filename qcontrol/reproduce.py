@@ -136,20 +136,7 @@ def reproduce(
     _example2_figures(o, ex2, ex2_twin, base)
     _record(o / "example2.rrd", ex2, {"ode": ex2_twin, "baseline": base}, command, twins=("ode",))
 
-    ours = {backend: {"proposed": ex2.summary["error_rate"], "comparison": base.summary["error_rate"]}}
-    if ex2_twin is not None and base_twin is not None:
-        ours["ode"] = {"proposed": ex2_twin.summary["error_rate"],
-                       "comparison": base_twin.summary["error_rate"]}
-    table = table1(ours) | {"provenance": scenarios_provenance(
-        {"proposed": ex2.scenario, "comparison": base.scenario}, command)}
-    write_json(o / "table1.json", table)
-    write_text(o / "table1.md", table1_markdown(table))
-    plots.fig_table1(
-        {method: {"paper": PAPER_TABLE1[method], **{b.upper() if b == "ode" else "MuJoCo" if b == "mujoco"
-                                                     else b: r[method] for b, r in ours.items()}}
-         for method in ("proposed", "comparison")},
-        o / "table1.png",
-    )
+    table = _table1(o, backend, ex2, ex2_twin, base, base_twin, command)
 
     studies = _studies(rep)
     deviations = {
@@ -160,15 +147,43 @@ def reproduce(
     }
     studied = {name: rep.scenario(name) for name in ("example2", "example2-rigid")}
     write_json(o / "studies.json", studies | {"provenance": scenarios_provenance(studied, command)})
-    robustness = robustness_study(rep.scenarios, duration, workers or default_workers(), log)
-    hardware = {name: rep.scenario(name) for name in ROBUSTNESS_SCENARIOS}
-    write_json(o / "robustness.json", robustness | {"provenance": scenarios_provenance(hardware, command)})
-    plots.fig_robustness(robustness, o / "study_robustness.png")
-    plots.fig_margins(robustness, o / "study_margins.png")
+    robustness = _robustness(o, rep, workers)
     write_text(o / "REPORT.md", _report(rep, table, studies, deviations, ex1, ex2, robustness))
     log(f"wrote {o}: REPORT.md, table1.md, table1.json, studies.json, robustness.json, figures, recordings "
-        f"({len(rep.lemma2_ratios)} runs, {time.perf_counter() - rep.started:.1f} s)")
+        f"({len(rep.lemma2_ratios)} example and study runs, then the robustness study; "
+        f"{time.perf_counter() - rep.started:.1f} s)")
     return table
+
+
+def _table1(o: Path, backend: str, ex2: Run, ex2_twin: Run | None, base: Run, base_twin: Run | None,
+            command: str) -> dict:
+    """Table 1 from Example 2's runs (both methods, both backends): table1.json, .md and .png."""
+    ours = {backend: {"proposed": ex2.summary["error_rate"], "comparison": base.summary["error_rate"]}}
+    if ex2_twin is not None and base_twin is not None:
+        ours["ode"] = {"proposed": ex2_twin.summary["error_rate"],
+                       "comparison": base_twin.summary["error_rate"]}
+    table = table1(ours) | {"provenance": scenarios_provenance(
+        {"proposed": ex2.scenario, "comparison": base.scenario}, command)}
+    write_json(o / "table1.json", table)
+    write_text(o / "table1.md", table1_markdown(table))
+    names = {"ode": "ODE", "mujoco": "MuJoCo"}
+    plots.fig_table1(
+        {method: {"paper": PAPER_TABLE1[method], **{names.get(b, b): r[method] for b, r in ours.items()}}
+         for method in ("proposed", "comparison")},
+        o / "table1.png",
+    )
+    return table
+
+
+def _robustness(o: Path, rep: Reproduction, workers: int | None) -> dict:
+    """The robustness study on realistic hardware: robustness.json and its two figures."""
+    robustness = robustness_study(rep.scenarios, rep.duration, workers or default_workers(), rep.log)
+    hardware = {name: rep.scenario(name) for name in ROBUSTNESS_SCENARIOS}
+    provenance = scenarios_provenance(hardware, rep.command)
+    write_json(o / "robustness.json", robustness | {"provenance": provenance})
+    plots.fig_robustness(robustness, o / "study_robustness.png")
+    plots.fig_margins(robustness, o / "study_margins.png")
+    return robustness
 
 
 def _validate(rep: Reproduction) -> None:
