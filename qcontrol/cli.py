@@ -24,6 +24,7 @@ from .outputs import check_output_dir, check_output_file, prepare_output_dir, wr
 from .plants import BACKENDS
 from .progress import ProgressLine
 from .provenance import command_line
+from .resources import shipped_scenarios
 from .scenario import Scenario, load_scenario
 from .sweep import add_sweep_parser, cmd_sweep
 
@@ -41,7 +42,7 @@ class _Parser(argparse.ArgumentParser):
 def _add_scenario_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenario", type=Path,
                    help="scenario file (TOML), e.g. scenarios/example2.toml, or a shipped scenario's name "
-                   "(example1, example2, example2-rigid, chain3)")
+                   f"({', '.join(shipped_scenarios())})")
     p.add_argument(
         "--set",
         dest="overrides",

@@ -104,12 +104,28 @@ def test_provenance_names_versions_and_the_scenario_file() -> None:
     provenance = qcontrol.run(sc, backend="ode").summary["provenance"]
     assert provenance["qcontrol_version"] == qcontrol.__version__
     assert set(provenance["versions"]) == {"mujoco", "numpy", "rerun-sdk", "python"}
-    assert provenance["scenario_file"] == str(EX2)
+    assert provenance["scenario_file"] == "qcontrol:scenarios/example2.toml"  # shipped: no machine path
+    assert 'model = "qcontrol:models/pendulum.xml"' in provenance["resolved_scenario"]
     import hashlib
 
     assert provenance["scenario_sha256"] == hashlib.sha256(EX2.read_bytes()).hexdigest()
     assert provenance["overrides"] == [{"simulation.duration": 1.0}]
     assert "duration = 1.0" in provenance["resolved_scenario"]
+
+
+def test_a_file_of_ones_own_is_named_by_its_path_and_may_use_a_shipped_model(tmp_path: Path) -> None:
+    """Outside the shipped folder the provenance names the absolute path; the shipped model named
+    as ``qcontrol:models/...`` is the same file as the relative path the shipped scenario uses."""
+    mine = tmp_path / "mine.toml"
+    mine.write_text(EX2.read_text().replace('"../models/pendulum.xml"', '"qcontrol:models/pendulum.xml"'))
+    ours = qcontrol.run(qcontrol.load_scenario(mine, SHORT), backend="mujoco").summary
+    shipped = qcontrol.run(qcontrol.load_scenario(EX2, SHORT), backend="mujoco").summary
+    assert ours["provenance"]["scenario_file"] == str(mine.resolve())
+    assert ours["error_rate"] == shipped["error_rate"] and ours["final_eps_hat"] == shipped["final_eps_hat"]
+    bad = tmp_path / "bad.toml"
+    bad.write_text(mine.read_text().replace("qcontrol:models/pendulum.xml", "qcontrol:models/nope.xml"))
+    with pytest.raises(QcontrolInputError, match="model: file 'qcontrol:models/nope.xml' not found"):
+        qcontrol.load_scenario(bad)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -283,7 +299,7 @@ def test_compare_json_and_table1_json_carry_the_provenance(tmp_path: Path) -> No
     assert main(["compare", str(EX2), "--duration", "0.2", "--out", str(tmp_path / "cmp"), "-q"]) == 0
     compare = json.loads((tmp_path / "cmp" / "compare.json").read_text())
     assert compare["provenance"]["command"].startswith("qcontrol compare ")
-    assert compare["provenance"]["scenario_file"] == str(EX2)
+    assert compare["provenance"]["scenario_file"] == "qcontrol:scenarios/example2.toml"
     assert compare["mujoco"]["error_rate"] and compare["ode"]["L"] == compare["mujoco"]["L"]
 
 

@@ -1,5 +1,6 @@
 """A scenario as it was run: the TOML after overrides (with its name written out and file paths
-made absolute, so the text reproduces the run from any folder), and the provenance of an output."""
+made absolute, or ``qcontrol:models/...`` for a model shipped with qcontrol, so the text reproduces
+the run from any folder), and the provenance of an output."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import tomli_w
 
 from ..plants.backends import BACKENDS
 from ..provenance import provenance, sha256
+from ..resources import resolve_file, shipped_label
 from .model import Scenario
 
 
@@ -25,7 +27,7 @@ def resolved_toml(sc: Scenario) -> str:
             continue
         for key in backend.section.keys:
             if key.type.path and isinstance(section.get(key.name), str):
-                section[key.name] = str((sc.base_dir / section[key.name]).resolve())
+                section[key.name] = _portable(resolve_file(section[key.name], sc.base_dir))
     return tomli_w.dumps(data)
 
 
@@ -36,10 +38,16 @@ def overrides_as_given(sc: Scenario) -> list[Any]:
         item if isinstance(item, str) else {item[0]: item[1]} for item in sc.overrides]
 
 
+def _portable(path: Path) -> str:
+    """A file as provenance names it: ``qcontrol:<kind>/<file>`` if it ships with qcontrol (the
+    same on every machine), else its absolute path."""
+    return shipped_label(path) or str(path.resolve())
+
+
 def scenario_file(sc: Scenario) -> str:
-    """The scenario's file as an absolute path (or its source label, e.g. ``<string>``)."""
+    """The scenario's file (see :func:`_portable`), or its source label (e.g. ``<string>``)."""
     path = Path(sc.source)
-    return str(path.resolve()) if path.is_file() else sc.source
+    return _portable(path) if path.is_file() else sc.source
 
 
 def scenario_provenance(sc: Scenario, command: str) -> dict[str, Any]:

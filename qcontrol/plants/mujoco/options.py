@@ -11,6 +11,7 @@ import pathlib
 from dataclasses import dataclass, replace
 from typing import Any
 
+from ...resources import resolve_file
 from ...schema import Key, Section, Table, custom, number, read_keys, string
 from ..base import PlantTerms
 
@@ -174,7 +175,8 @@ SECTION = Section(
     "plant.mujoco",
     (
         Key("model", custom("path of an MJCF file", _element_name, path=True),
-            meaning="the MJCF file, relative to the scenario file's folder",
+            meaning="the MJCF file, relative to the scenario file's folder, or a model shipped with "
+            "qcontrol: \"qcontrol:models/pendulum.xml\", \"qcontrol:models/slider.xml\"",
             example='"../models/pendulum.xml"'),
         Key("joint", _NAME, meaning="the hinge or slide joint whose position is x1 and velocity x2",
             example='"hinge"'),
@@ -219,11 +221,12 @@ def parse(table: Table, terms: PlantTerms, base_dir: pathlib.Path) -> MujocoOpti
                              f"plant.order = {terms.order}", "remove [plant.mujoco] (the ode backend runs "
                              "any order)")
     v = read_keys(table, SECTION.keys, {"terms": terms.names})
-    model = (pathlib.Path(base_dir) / v["model"]).resolve()
+    model = resolve_file(v["model"], base_dir)
     if not model.is_file():
         raise table.error("model", f"file {v['model']!r} not found (looked at {model})",
                           "give the MJCF path relative to the scenario file's folder, "
-                          "e.g. \"../models/pendulum.xml\"")
+                          "e.g. \"../models/pendulum.xml\", or a shipped model, "
+                          "\"qcontrol:models/pendulum.xml\"")
     if any(s > 0 for s in v["sensor_noise"]) and v["noise_seed"] is None:
         raise table.error("noise_seed", "missing while sensor_noise is on",
                           "add an explicit integer seed, e.g. noise_seed = 1, so runs are reproducible")
