@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
 from collections import defaultdict
 from pathlib import Path
 
@@ -23,6 +24,7 @@ from qcontrol.plants.ode import ChainPlant
 from qcontrol.quantizer import UniformQuantizer
 from qcontrol.recording import Recording, temporary_path
 from qcontrol.recording import recording as recording_module
+from qcontrol.recording.streamer import pose_rows
 from qcontrol.reference import Sine
 
 X, Q = ["x1", "x2"], ["q1", "q2"]
@@ -271,15 +273,19 @@ def test_expected_entities_and_static_content(compare_recording):
         "info/version",
     }
     assert expected <= set(entities), expected - set(entities)
+    assert "signals/input/u_applied" not in entities  # no actuator limit: the applied input is u itself
     assert "order = 2" in static_value(entities["info/scenario"], "TextDocument:text")[0]
     assert static_value(entities["info/constants"], "c") == [4.0, 3.0]
     assert static_value(entities["info/version"], "TextDocument:text") == [f"qcontrol {qcontrol.__version__}"]
     _, bound = temporal(entities["theory/lemma2/bound"], "Scalars:scalars")
     assert np.all(bound == 1.0)
-    # A stream of transforms, one per row, for each moving body of both runs; shapes are static.
-    for body in ("world/bodies/arm", "world/ode_ghost/arm"):
+    # A stream of transforms for each moving body of both runs, every 10 ms of simulated time
+    # (every 10th row at dt = 1 ms: the series keep every row); shapes are static.
+    rows = pose_rows(slice(0, len(main.t)), main.dt)
+    np.testing.assert_array_equal(rows, np.arange(0, len(main.t), 10))
+    for body in ("world/bodies/arm", "world/ode_ghost/arm", "world/target"):
         times, _ = temporal(entities[body], "Transform3D:translation")
-        np.testing.assert_array_equal(times, sim_time_ns(main.t))
+        np.testing.assert_array_equal(times, sim_time_ns(main.t)[rows])
     assert "Capsules3D:lengths" in entities["world/bodies/arm/rod"][0].column_names
     assert "Ellipsoids3D:half_sizes" in entities["world/bodies/arm/bob"][0].column_names
 
@@ -303,14 +309,16 @@ def test_bodies_follow_the_joint_and_target_follows_the_reference(compare_record
     data = mujoco.MjData(model)
     body = model.body("arm").id
     bob = model.geom("bob").id
-    for k in (0, 137, len(main.t) - 1):
+    rows = pose_rows(slice(0, len(main.t)), main.dt)
+    for j in (0, 13, len(rows) - 1):
+        k = rows[j]
         data.qpos[0] = main.y[k]
         mujoco.mj_kinematics(model, data)
-        np.testing.assert_allclose(translation[k], data.xpos[body], atol=1e-6)
-        np.testing.assert_allclose(quaternion[k], data.xquat[body][[1, 2, 3, 0]], atol=1e-6)  # xyzw
+        np.testing.assert_allclose(translation[j], data.xpos[body], atol=1e-6)
+        np.testing.assert_allclose(quaternion[j], data.xquat[body][[1, 2, 3, 0]], atol=1e-6)  # xyzw
         data.qpos[0] = main.yd[k, 0]
         mujoco.mj_kinematics(model, data)
-        np.testing.assert_allclose(target[k], data.geom_xpos[bob], atol=1e-6)
+        np.testing.assert_allclose(target[j], data.geom_xpos[bob], atol=1e-6)
 
 
 def test_twin_body_is_an_outline_around_the_main_body(compare_recording):
@@ -346,10 +354,27 @@ def test_diverging_run_ends_at_the_divergence_time(tmp_path):
     rrd_verify(path)
 
 
+def _rows_on_disk(part: Path, entity: str, expected: int, timeout: float = 10.0) -> int:
+    """The rows of ``entity`` in the file being written, once they reach ``expected`` (rerun
+    writes on its own thread: the file may end in a frame being written; read it again)."""
+    deadline = time.monotonic() + timeout
+    rows = -1
+    while time.monotonic() < deadline:
+        try:
+            rows = len(temporal(read_entities(part)[entity], "Scalars:scalars")[0])
+        except (RuntimeError, KeyError):  # a frame being written, or the entity not there yet
+            rows = -1
+        if rows == expected:
+            break
+        time.sleep(0.01)
+    return rows
+
+
 @pytest.mark.filterwarnings("ignore:RRD file has no footer")  # the .part file is read while open
 def test_interrupted_run_keeps_the_flushed_chunks(tmp_path, monkeypatch):
     """A KeyboardInterrupt mid-run still leaves a complete file with every chunk streamed so far;
-    chunks are on disk (readable) while the run goes on, not left in rerun's batcher."""
+    chunks are on disk (readable) while the run goes on, not left in rerun's batcher: each call
+    starts writing its chunk and the next call waits until it is written."""
     monkeypatch.setenv("RERUN_FLUSH_TICK_SECS", "1000")  # the batcher alone would keep everything
     monkeypatch.setenv("RERUN_FLUSH_NUM_BYTES", str(10**12))
     path = tmp_path / "interrupted.rrd"
@@ -367,8 +392,7 @@ def test_interrupted_run_keeps_the_flushed_chunks(tmp_path, monkeypatch):
             before = len(flushes)
             inner(start, stop, runs)
             assert len(flushes) > before, "the chunk was not flushed to disk"
-            times, _ = temporal(read_entities(temporary_path(path))["signals/input/u"], "Scalars:scalars")
-            seen.append(len(times))
+            seen.append(_rows_on_disk(temporary_path(path), "signals/input/u", stop))
             if len(seen) == 2:
                 raise KeyboardInterrupt
 
@@ -388,9 +412,10 @@ def test_slider_target_is_at_the_reference_position(tmp_path):
     entities = read_entities(path)
     _, target = temporal(entities["world/target"], "Transform3D:translation")
     _, cart = temporal(entities["world/bodies/cart"], "Transform3D:translation")
-    np.testing.assert_allclose(target[:, 0], run.yd[:, 0], atol=1e-6)
-    np.testing.assert_allclose(cart[:, 0], run.y, atol=1e-6)
-    np.testing.assert_allclose(cart[:, 1:], np.tile([0.0, 0.05], (len(run.t), 1)), atol=1e-7)
+    rows = pose_rows(slice(0, len(run.t)), run.dt)
+    np.testing.assert_allclose(target[:, 0], run.yd[rows, 0], atol=1e-6)
+    np.testing.assert_allclose(cart[:, 0], run.y[rows], atol=1e-6)
+    np.testing.assert_allclose(cart[:, 1:], np.tile([0.0, 0.05], (len(rows), 1)), atol=1e-7)
     assert "Boxes3D:half_sizes" in entities["world/fixed/rail"][0].column_names
 
 

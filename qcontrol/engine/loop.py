@@ -81,7 +81,8 @@ class ClosedLoop:
         self.plant, self.law, self.grid = plant, law, grid
         self.divergence = Divergence(batch, grid.rows, grid.dt, state_bound, law.state_name)
         self.reference = ReferenceRows(reference, n, grid, whole=record == "full")
-        context = SignalContext(law.coordinates, separation, plant.actuator, velocity_source)
+        context = SignalContext(law.coordinates, separation, plant.actuator, velocity_source,
+                                plant.actuator_limited)
         parts = RunParts(grid, law, self.reference, self.divergence, context, metrics, batch, n)
         self.record = (FullRecord(parts, observer, observe_every) if record == "full"
                        else MetricsRecord(parts, observer))

@@ -73,6 +73,7 @@ class _Record:
         return dict(adaptive_name=self.law.state_name, L_z=self.law.coordinates.L_z.copy(), dt=self.grid.dt,
                     duration=self.grid.duration, hold=self.grid.hold,
                     velocity_source=self.context.velocity_source,
+                    actuator_limited=self.context.actuator_limited,
                     diverged=d.times[b] is not None, diverged_time=d.times[b],
                     divergence_reason=d.reasons[b], wall_time_s=now - self.started, metrics=self.metrics,
                     bound_names=() if separation is None else separation.names)

@@ -17,7 +17,7 @@ from .signals import REDUCTIONS, SIGNALS
 class RunRecord:
     """What every record of a run carries: the adaptive state's name, the Lemma 2 bounds ``L_z``,
     the step and horizon, the control period in steps (``hold``), where the controller's x2 came
-    from (``velocity_source``), and how the run ended."""
+    from (``velocity_source``), whether the actuator could clip u, and how the run ended."""
 
     adaptive_name: str
     L_z: np.ndarray
@@ -25,6 +25,7 @@ class RunRecord:
     duration: float
     hold: int = 1
     velocity_source: str = "sensor"
+    actuator_limited: bool = False  # whether the plant's actuator could clip u (u_applied may differ)
     diverged: bool = False
     diverged_time: float | None = None
     divergence_reason: str = ""

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -31,6 +32,9 @@ from .reductions import (
     Reduction,
     SaturatedFraction,
 )
+
+if TYPE_CHECKING:
+    from .results import RunRecord
 
 Block = Mapping[str, np.ndarray]  # signals of rows [first, stop): (rows, batch, width); y_d (rows, 1, n+1)
 
@@ -53,13 +57,15 @@ def _as_commanded(u: np.ndarray) -> np.ndarray:
 class SignalContext:
     """What derivations may read besides the block: the coordinates of the recorded errors, the
     separation to check (None: not checked; its signal then has no columns), the plant's actuator
-    (commanded u -> applied u, :meth:`~qcontrol.plants.base.Plant.actuator`) and where the
-    controller's x2 came from (``"sensor"`` or ``"difference"``, see :mod:`qcontrol.engine.velocity`)."""
+    (commanded u -> applied u, :meth:`~qcontrol.plants.base.Plant.actuator`; ``actuator_limited``:
+    whether it can clip at all) and where the controller's x2 came from (``"sensor"`` or
+    ``"difference"``, see :mod:`qcontrol.engine.velocity`)."""
 
     coordinates: Backstepping
     separation: Separation | None = None
     actuator: Callable[[np.ndarray], np.ndarray] = _as_commanded
     velocity_source: str = "sensor"
+    actuator_limited: bool = False
 
     @property
     def terms(self) -> int:
@@ -79,15 +85,21 @@ def _zbar(block: Block, ctx: SignalContext) -> np.ndarray:
     return ctx.coordinates.quantized_errors(block["x_q"], block["yd"])[0]
 
 
+def _can_clip(run: RunRecord) -> bool:
+    """Whether the run's actuator could clip u (else ``u applied`` is u and is not drawn twice)."""
+    return run.actuator_limited
+
+
 def _u_applied(block: Block, ctx: SignalContext) -> np.ndarray:
-    """What the actuator applied for the commanded u (clipped at its limit)."""
-    return ctx.actuator(block["u"])
+    """What the actuator applied for the commanded u (clipped at its limit; u itself for an
+    actuator without one)."""
+    return ctx.actuator(block["u"]) if ctx.actuator_limited else block["u"]
 
 
 def _saturated(block: Block, ctx: SignalContext) -> np.ndarray:
     """1 where the actuator clipped the command, 0 where it applied it (NaN where u is not finite)."""
     u, applied = block["u"], block["u_applied"]
-    if applied is u:  # an ideal actuator (the ODE): nothing clipped; u * 0 keeps NaN where u is not finite
+    if not ctx.actuator_limited:  # nothing clipped; u * 0 keeps NaN where u is not finite
         return u * 0.0
     return np.where(np.isfinite(u), (applied != u).astype(float), np.nan)
 
@@ -142,7 +154,8 @@ class Plot:
     ``twin``: also drawn for a twin run (the ODE beside MuJoCo: MuJoCo wide, the twin thin on
     top); ``difference``: the panel where a twin's ``|main - twin|`` of it is drawn; ``guide``: the
     bound drawn as constant lines in the panel; ``color``: "main", "reference", "quantized",
-    "applied" or "palette" (one colour per component)."""
+    "applied" or "palette" (one colour per component); ``when``: drawn only for runs it holds
+    for (None: always)."""
 
     path: str
     label: str
@@ -152,6 +165,7 @@ class Plot:
     difference: str | None = None
     guide: Guide | None = None
     color: str = "main"
+    when: Callable[[RunRecord], bool] | None = None
 
 
 @dataclass(frozen=True)
@@ -199,7 +213,7 @@ SIGNALS: tuple[Signal, ...] = (
            plots=(Plot("signals/input/u", "u", twin=True, difference="signals/difference/u"),)),
     Signal("u_applied", "1", "input", True, "input the actuator applied: u, clipped where the actuator "
            "saturates (the plant's actuator)", _u_applied, reads=("u",), reductions=(LargestAbsApplied,),
-           plots=(Plot("signals/input/u_applied", "u applied", color="applied"),)),
+           plots=(Plot("signals/input/u_applied", "u applied", color="applied", when=_can_clip),)),
     Signal("saturated", "1", "-", True, "1 where the actuator clipped the command u over the step, else 0",
            _saturated, reads=("u", "u_applied"), reductions=(SaturatedFraction,)),
     Signal("adaptive", "m", "adaptive", False, "adaptive estimates (eps_hat of (45), theta_hat of (46), ...)",

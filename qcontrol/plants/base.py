@@ -79,6 +79,8 @@ class Plant(Protocol):
         matched term ``x_n' = u + d + psi + theta^T phi`` in u's units (a generalized force ``F``
         on the joint is ``d = F / I``; see :mod:`qcontrol.disturbance`). :meth:`reset` sets it to 0."""
 
+    actuator_limited: bool  # whether the actuator can clip a command (False: actuator() is the identity)
+
     def actuator(self, u: np.ndarray) -> np.ndarray:
         """The input the plant applies for the commanded ``u`` (same units, same shape): ``u``
         itself for an ideal actuator, ``u`` clipped at the actuator's limit otherwise. Where it

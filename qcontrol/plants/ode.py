@@ -66,6 +66,7 @@ class ChainPlant:
         self._x: list[Column] = [0.0] * self.n if self._floats else [np.zeros(self.batch)] * self.n
         self._load = [0.0]  # the external load d of :meth:`disturb` (a cell the step closures read)
         self.warnings: list[str] = []  # an ODE has nothing to warn about
+        self.actuator_limited = False  # eq. (1)'s input is applied as commanded
         self.consistency_report: dict[str, Any] = {}  # it is eq. (1)
 
     def __enter__(self) -> ChainPlant:

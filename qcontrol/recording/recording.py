@@ -3,10 +3,11 @@
 A :class:`Recording` writes one ``.rrd`` file while runs go on. Each run streams into it through an
 engine observer (:meth:`Recording.observer`, see :func:`qcontrol.engine.simulate`; the streamer is
 in :mod:`.streamer`): every call sends the rows that became final as columns (``send_columns``) on
-the duration timeline ``sim_time`` and flushes them to disk, so an interrupted or diverged run
-leaves a readable recording up to its last chunk. The series come from the signal table
-(:mod:`.series`), the 3-D bodies from the MuJoCo model (:mod:`.scene`); the static entities are
-``info/scenario``, ``info/constants`` and ``info/version``. Times are integer nanoseconds
+the duration timeline ``sim_time`` and starts writing them to disk, which goes on on another
+core while the run continues (the next call first waits until they are written), so an
+interrupted or diverged run leaves a readable recording up to its last chunk. The series come
+from the signal table (:mod:`.series`), the 3-D bodies from the MuJoCo model (:mod:`.scene`); the
+static entities are ``info/scenario``, ``info/constants`` and ``info/version``. Times are integer nanoseconds
 ``round(t * 1e9)``. Only ``runs[0]`` of a batch is streamed.
 
 The layout (:mod:`.layout`, with the fixed camera of :mod:`.camera`) is sent active and default,
@@ -18,7 +19,8 @@ recording is closed.
 File handling: data goes to ``<path>.part`` while the recording is open. On *any* exit of the
 ``with`` block (clean, exception, ``KeyboardInterrupt``) the stream is flushed and closed and the
 file renamed to ``path``: what was recorded up to the last chunk is kept, no temporary file is
-left behind. Only a killed process leaves the ``.part`` file (readable up to its last flush).
+left behind. Only a killed process leaves the ``.part`` file (readable up to its last chunk but
+one at least).
 """
 
 from __future__ import annotations
@@ -157,13 +159,15 @@ class Recording:
             if self._file is not None and self._file.temporary.exists():
                 self._file.commit()
 
-    def flush(self) -> None:
-        """Block until everything logged so far is written; a failure (e.g. a viewer that went
-        away) is reported once as a warning and does not stop the run."""
+    def flush(self, wait: bool = True) -> None:
+        """Write everything logged so far: block until it is written, or (``wait=False``) start
+        writing it and return, so that the run goes on while rerun encodes and writes on another
+        core. A failure (e.g. a viewer that went away) is reported once as a warning and does not
+        stop the run."""
         if self._stream is None:
             return
         try:
-            self._stream.flush()
+            self._stream.flush(timeout_sec=1e38 if wait else 0.0)
         except RuntimeError as exc:
             if not self._flush_failed:
                 warnings.warn(f"rerun could not flush the recording: {exc}", stacklevel=2)

@@ -127,7 +127,7 @@ def _plots(run: Trajectory, twin_drawn_only: bool):
     """(signal, plot, components) of every entity the table draws for a run."""
     for signal in SIGNALS:
         for plot in signal.plots:
-            if twin_drawn_only and not plot.twin:
+            if (twin_drawn_only and not plot.twin) or (plot.when is not None and not plot.when(run)):
                 continue
             for shown in _groups(signal, plot, run):
                 yield signal, plot, shown

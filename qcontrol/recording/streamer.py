@@ -4,7 +4,7 @@ What it sends per batch of rows: every series of the run (:func:`.series.run_ser
 main run, with its first rows, the guides' constant lines (the Lemma 2 bound, the quantization
 band) from the first instant to the run's horizon; for a twin, ``|main - twin|`` of its
 twin-drawn series, against the main run's rows at the same instants; and, with a scene, the pose
-of every body (and, for the main run, of the target marker).
+of every body (and, for the main run, of the target marker) every 10 ms of simulated time.
 """
 
 from __future__ import annotations
@@ -34,6 +34,19 @@ def time_column(t: ArrayLike) -> rr.TimeColumn:
     import rerun as rr
 
     return rr.TimeColumn(TIMELINE, duration=time_nanoseconds(t).view("timedelta64[ns]"))
+
+
+POSE_PERIOD = 0.01  # s of simulated time between the 3-D view's poses (a display shows 60 frames a second)
+
+
+def pose_rows(rows: slice, dt: float) -> np.ndarray:
+    """The rows of ``rows`` at which the 3-D view is posed: every row whose time is a multiple of
+    :data:`POSE_PERIOD` (every row when ``dt`` is that long or longer). The series keep every row;
+    the bodies need no more than a display can show, and a pose costs a recording as much as
+    three series."""
+    stride = max(1, round(POSE_PERIOD / dt))
+    first = -(-rows.start // stride) * stride
+    return np.arange(first, rows.stop, stride)
 
 
 def log_style(stream: rr.RecordingStream, series: Series) -> None:
@@ -73,6 +86,7 @@ class RunStreamer:
         stop = min(stop, len(run.t))
         if start >= stop:
             return
+        self.recording.flush()  # the previous rows are on disk (written while the run went on)
         rows = slice(start, stop)
         first = self.series is None
         if first:
@@ -96,8 +110,8 @@ class RunStreamer:
         if self.differences:
             self._send_differences(run, rows, times)
         if self.scene is not None:
-            self._send_poses(run, rows, times)
-        self.recording.flush()
+            self._send_poses(run, rows)
+        self.recording.flush(wait=False)
 
     def _start(self, run: Trajectory) -> None:
         """On the first rows: the series styles (static), the panels they fill; a twin restyles
@@ -140,11 +154,17 @@ class RunStreamer:
             self.recording._stream.send_columns(d.path, indexes=[times],
                                                 columns=rr.Scalars.columns(scalars=gap))
 
-    def _send_poses(self, run: Trajectory, rows: slice, times: rr.TimeColumn) -> None:
+    def _send_poses(self, run: Trajectory, rows: slice) -> None:
+        """The bodies' poses (and the target's, for the main run) at the rows of ``rows`` that
+        fall on the pose grid (:func:`pose_rows`)."""
         import rerun as rr
 
         stream, scene = self.recording._stream, self.scene
-        pos, quat = scene.replay(run.x[rows, 0])
+        picked = pose_rows(rows, run.dt)
+        if not len(picked):
+            return
+        times = time_column(run.t[picked])
+        pos, quat = scene.replay(run.x[picked, 0])
         for j, body in enumerate(scene.bodies):
             stream.send_columns(
                 f"{self.world}/{scene.body_names[body]}",
@@ -152,6 +172,6 @@ class RunStreamer:
                 columns=rr.Transform3D.columns(translation=pos[:, j], quaternion=quat[:, j]),
             )
         if self.role == "main":
-            target = scene.tip_positions(run.yd[rows, 0])
+            target = scene.tip_positions(run.yd[picked, 0])
             stream.send_columns("world/target", indexes=[times],
                                 columns=rr.Transform3D.columns(translation=target))

@@ -72,6 +72,7 @@ class MujocoPlant:
                 whole_steps(value, self.timestep, f"{where}.{key}", "the scenario's dt")
         self._ctrl_per_u = self.inertia / self._ids.actuator_gain
         self._ctrl_range = _ctrl_range(self.model, self._ids.actuator)  # (low, high) or None
+        self.actuator_limited = self._ctrl_range is not None
         native = tuple(name in options.native_terms for name in terms.names)
         exprs = ([terms.psi] if terms.psi is not None else []) + list(terms.phi)
         coefficients = ([1.0] if terms.psi is not None else []) + list(terms.theta)
