@@ -85,6 +85,16 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
 
+    _add_run_parser(sub)
+    _add_compare_parser(sub)
+    _add_reproduce_parser(sub)
+    add_sweep_parser(sub)
+    add_check_parser(sub, _add_scenario_options, _scenario_from_args)
+    return parser
+
+
+def _add_run_parser(sub: argparse._SubParsersAction) -> None:
+    """Register ``qcontrol run`` (its handler is :func:`cmd_run`)."""
     run = sub.add_parser(
         "run",
         help="run one scenario and print a summary",
@@ -102,6 +112,9 @@ def build_parser() -> argparse.ArgumentParser:
                      "FILE.png; keeps every row in memory, unlike a plain run")
     _add_recording_options(run)
 
+
+def _add_compare_parser(sub: argparse._SubParsersAction) -> None:
+    """Register ``qcontrol compare`` (its handler is :func:`cmd_compare`)."""
     compare = sub.add_parser(
         "compare",
         help="run the same controller on MuJoCo physics and on the ideal ODE",
@@ -113,6 +126,9 @@ def build_parser() -> argparse.ArgumentParser:
     compare.add_argument("--out", type=Path, metavar="DIR", help="write DIR/compare.json")
     _add_recording_options(compare)
 
+
+def _add_reproduce_parser(sub: argparse._SubParsersAction) -> None:
+    """Register ``qcontrol reproduce`` (its handler is :func:`cmd_reproduce`)."""
     rep = sub.add_parser(
         "reproduce",
         help="reproduce the paper's Figures 1-8 and Table 1 with an honest report",
@@ -131,10 +147,6 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--workers", type=int, default=None, metavar="N",
                      help="worker processes for the robustness study (default: the cores, at most 4)")
     rep.add_argument("-q", "--quiet", action="store_true", help="no progress output")
-
-    add_sweep_parser(sub)
-    add_check_parser(sub, _add_scenario_options, _scenario_from_args)
-    return parser
 
 
 def _scenario_from_args(args: argparse.Namespace) -> Scenario:
