@@ -3,13 +3,11 @@ arrow on the body while one acts, a marker on the time axis, the load beside u).
 
 from __future__ import annotations
 
-from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
-import pyarrow as pa
 import pytest
-from rerun.chunk import RrdReader
+from test_record import read_entities, temporal
 
 from qcontrol.assembly import scene
 from qcontrol.cli import main
@@ -18,26 +16,6 @@ from qcontrol.scenario import load_scenario
 
 ARM = Path(__file__).resolve().parents[1] / "scenarios" / "example2-arm.toml"
 
-
-def read_entities(path: Path) -> dict[str, list[pa.RecordBatch]]:
-    """Every chunk of the recording, grouped by entity path (without the leading slash)."""
-    entities: dict[str, list[pa.RecordBatch]] = defaultdict(list)
-    for chunk in RrdReader(path).stream():
-        entities[chunk.entity_path.lstrip("/")].append(chunk.to_record_batch())
-    return entities
-
-
-def temporal(batches: list[pa.RecordBatch], component: str) -> tuple[np.ndarray, np.ndarray]:
-    """Times (int64 ns) and scalar values of a component over ``sim_time``, time-sorted."""
-    times, values = [], []
-    for batch in batches:
-        if "sim_time" in batch.column_names and component in batch.column_names:
-            times.append(batch.column("sim_time").cast(pa.int64()).to_numpy())
-            rows = np.array(batch.column(component).to_pylist(), dtype=float)
-            values.append(rows.reshape(batch.num_rows, -1))
-    t = np.concatenate(times)
-    order = np.argsort(t, kind="stable")
-    return t[order], np.concatenate(values)[order]
 LIMIT = 15.0  # N m: low enough that the arm's controller meets it
 
 
