@@ -159,3 +159,23 @@ def test_a_figure_for_each_grid_dimension(tmp_path, grids):
     data = (tmp_path / "sweep.png").read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n"
     assert struct.unpack(">II", data[16:24]) == (FIG_WIDTH_PX, FIG_HEIGHT_PX)
+
+
+def test_a_diverged_cell_is_marked_and_does_not_set_the_colour_scale():
+    """A run that diverged has an enormous max |u|: its cell is left blank (marked x), and the
+    colours span the other cells only."""
+    import matplotlib.pyplot as plt
+
+    from qcontrol.plots.sweeps import _heatmap, _Points
+
+    rows = [{"a": a, "b": b, "max_abs_u": u, "diverged": str(d)}
+            for a, b, u, d in [("1", "1", 20.0, False), ("2", "1", 30.0, False),
+                               ("1", "2", 40.0, False), ("2", "2", 2e17, True)]]
+    fig, ax = plt.subplots()
+    _heatmap(ax, rows, _Points(rows, ["a", "b"]), ["a", "b"], (), "max_abs_u", "max |u|")
+    (image,) = ax.get_images()
+    cells = image.get_array()
+    assert cells.mask.tolist() == [[False, False], [False, True]]  # rows: b = 1, 2; columns: a = 1, 2
+    assert (image.norm.vmin, image.norm.vmax) == (20.0, 40.0)
+    assert "x" in [t.get_text() for t in ax.texts]
+    plt.close(fig)

@@ -126,17 +126,23 @@ def _mark_diverged(ax: Axes, points: _Points, labels: list[str], xs: np.ndarray)
 
 def _heatmap(ax: Axes, rows: Sequence[dict], points: _Points, keys: Sequence[str], fixed: tuple[str, ...],
              metric: str, label: str) -> None:
-    """A heatmap of ``metric`` over the first two keys (the others held at ``fixed``)."""
+    """A heatmap of ``metric`` over the first two keys (the others held at ``fixed``). A cell where
+    a run diverged is left blank and marked: its values (max |u| of 1e17, say) would otherwise set
+    the colour scale of the whole map."""
     xs, _ = _axis_values(rows, keys[0])
     ys, _ = _axis_values(rows, keys[1])
+    diverged = np.array([[points.diverged((x, y, *fixed)) for x in xs] for y in ys])
     grid = np.array([[points.stat((x, y, *fixed), metric)[0] for x in xs] for y in ys])
+    grid[diverged] = np.nan
     image = ax.imshow(np.ma.masked_invalid(grid), origin="lower", aspect="auto", cmap="viridis")
     ax.figure.colorbar(image, ax=ax, shrink=0.85)
-    for (j, y), (i, x) in itertools.product(enumerate(ys), enumerate(xs)):
-        if points.diverged((x, y, *fixed)):
+    for j, i in itertools.product(range(len(ys)), range(len(xs))):
+        if diverged[j, i]:
             ax.text(i, j, "x", ha="center", va="center", color="red", fontsize=12, fontweight="bold")
         elif len(xs) * len(ys) <= 64 and np.isfinite(grid[j, i]):
-            ax.text(i, j, f"{grid[j, i]:.3g}", ha="center", va="center", color="white", fontsize=6)
+            light = image.norm(grid[j, i]) > 0.6  # viridis is light at its top: dark text there
+            ax.text(i, j, f"{grid[j, i]:.3g}", ha="center", va="center", color="black" if light else "white",
+                    fontsize=6)
     ax.set_xticks(range(len(xs)), xs, rotation=30, ha="right", fontsize=7)
     ax.set_yticks(range(len(ys)), ys, fontsize=7)
     ax.set_xlabel(keys[0])
