@@ -111,6 +111,7 @@ def _lines(rows: Sequence[dict], points: _Points, rate_columns: Sequence[str], p
 def _line(ax: Axes, points: _Points, labels: list[str], xs: np.ndarray, metric: str, label: str,
           color: str) -> None:
     stats = np.array([points.stat((v,), metric) for v in labels]).reshape(-1, 3)
+    stats[[points.diverged((v,)) for v in labels]] = np.nan  # marked by _mark_diverged instead
     ax.plot(xs, stats[:, 0], color=color, marker="o", markersize=4, linewidth=1.3, label=label)
     if np.any(stats[:, 1] != stats[:, 2]):  # several runs per point: their range
         ax.fill_between(xs, stats[:, 1], stats[:, 2], color=color, alpha=0.15, linewidth=0)
