@@ -33,6 +33,7 @@ from ..engine import SIGNALS, Trajectory
 from ..engine.signals import Plot, Signal
 
 TIMELINE = "sim_time"
+Rows = slice | np.ndarray  # the rows of a run a series is read at
 BLUE, ORANGE, GREEN, RED = (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40)
 PURPLE, BROWN, OLIVE, LIGHT = (148, 103, 189), (140, 86, 75), (188, 189, 34), (245, 245, 245)
 PALETTE = (BLUE, ORANGE, GREEN, RED, PURPLE, BROWN)
@@ -60,7 +61,7 @@ class Series:
     tag: str  # the run it belongs to, in the legend: "y (mujoco)"
     colors: tuple[tuple[int, int, int], ...]
     step: bool
-    values: Callable[[Trajectory], np.ndarray]
+    values: Callable[[Trajectory, Rows], np.ndarray]
     panel: Panel
     drawn_for_twin: bool = False
     width: float | None = None
@@ -90,22 +91,20 @@ class Difference:
     path: str
     name: str
     step: bool
-    values: Callable[[Trajectory], np.ndarray]
+    values: Callable[[Trajectory, Rows], np.ndarray]
     panel: Panel
 
 
-def _columns(signal: Signal, shown: tuple[int, ...], per_bound: bool) -> Callable[[Trajectory], np.ndarray]:
+def _columns(signal: Signal, shown: tuple[int, ...], per_bound: bool
+             ) -> Callable[[Trajectory, Rows], np.ndarray]:
+    """The values of components ``shown`` at some rows (the rows first: a batch of a long run
+    copies only its own rows); ``per_bound``: divided by the Lemma 2 bounds."""
     if signal.width == "1":
-        return lambda run: run.signals[signal.name]
-    if len(shown) == 1:
-        (i,) = shown
-        if per_bound:
-            return lambda run: run.signals[signal.name][:, i] / run.L_z[i]
-        return lambda run: run.signals[signal.name][:, i]
-    index = list(shown)
+        return lambda run, rows: run.signals[signal.name][rows]
+    index = shown[0] if len(shown) == 1 else list(shown)
     if per_bound:
-        return lambda run: run.signals[signal.name][:, index] / run.L_z[index]
-    return lambda run: run.signals[signal.name][:, index]
+        return lambda run, rows: run.signals[signal.name][rows][:, index] / run.L_z[index]
+    return lambda run, rows: run.signals[signal.name][rows][:, index]
 
 
 def _groups(signal: Signal, plot: Plot, run: Trajectory) -> list[tuple[int, ...]]:

@@ -102,7 +102,7 @@ class RunStreamer:
 
         scalars = rr.Scalars.columns
         for s in self.series:
-            stream.send_columns(s.path, indexes=[times], columns=scalars(scalars=s.values(run)[rows]))
+            stream.send_columns(s.path, indexes=[times], columns=scalars(scalars=s.values(run, rows)))
         if first and self.guides:  # constant over the run: its two ends, once
             ends = time_column(np.array([run.t[start], max(run.duration, run.t[stop - 1])]))
             for g in self.guides:
@@ -148,9 +148,9 @@ class RunStreamer:
                                                  rtol=0.0, atol=1e-9)
         for d in self.differences:
             against = np.full(len(index), np.nan)
-            against[same] = d.values(main)[index[same]]
+            against[same] = d.values(main, index[same])
             with np.errstate(invalid="ignore"):
-                gap = np.abs(against - d.values(run)[rows])
+                gap = np.abs(against - d.values(run, rows))
             self.recording._stream.send_columns(d.path, indexes=[times],
                                                 columns=rr.Scalars.columns(scalars=gap))
 
