@@ -84,17 +84,6 @@ class GuideLine:
     levels: tuple[float, ...]
 
 
-@dataclass(frozen=True)
-class Difference:
-    """``|main - twin|`` of one twin-drawn series (``values`` is its column of either run)."""
-
-    path: str
-    name: str
-    step: bool
-    values: Callable[[Trajectory, Rows], np.ndarray]
-    panel: Panel
-
-
 def _columns(signal: Signal, shown: tuple[int, ...], per_bound: bool
              ) -> Callable[[Trajectory, Rows], np.ndarray]:
     """The values of components ``shown`` at some rows (the rows first: a batch of a long run
@@ -173,9 +162,9 @@ def guide_lines(run: Trajectory) -> list[GuideLine]:
     return lines
 
 
-def differences(run: Trajectory, main_label: str, twin_label: str, suffix: str) -> list[Difference]:
-    """``|main - twin|`` of every plot that names a difference panel (one component each), for a
-    twin run."""
+def differences(run: Trajectory, main_label: str, twin_label: str, suffix: str) -> list[Series]:
+    """The series ``|main - twin|`` of every plot that names a difference panel (one component
+    each), for a twin run; their ``values`` read either run's column."""
     found = []
     for signal, plot, shown in _plots(run, True):
         if plot.difference is None:
@@ -184,6 +173,6 @@ def differences(run: Trajectory, main_label: str, twin_label: str, suffix: str) 
         text = plot.label.format(i=i + 1, a=run.adaptive_name)
         name = f"|{text} ({main_label}) - {text} ({twin_label})|"
         values = _columns(signal, shown, plot.per_bound)
-        found.append(Difference(f"{plot.difference}/{suffix}", name, signal.held, values,
-                                Panel(plot.difference, plot.difference)))
+        found.append(Series(f"{plot.difference}/{suffix}", (name,), "", (BLUE,), signal.held, values,
+                            Panel(plot.difference, plot.difference)))
     return found

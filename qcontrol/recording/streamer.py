@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike
 
 from ..engine import Trajectory
 from .scene import Scene
-from .series import BLUE, RED, TIMELINE, Difference, GuideLine, Series, differences, guide_lines, run_series
+from .series import RED, TIMELINE, GuideLine, Series, differences, guide_lines, run_series
 
 if TYPE_CHECKING:
     import rerun as rr
@@ -76,7 +76,7 @@ class RunStreamer:
         self.twin_of = twin_of
         self.series: list[Series] | None = None
         self.guides: list[GuideLine] = []
-        self.differences: list[Difference] = []
+        self.differences: list[Series] = []
 
     def __call__(self, start: int, stop: int, runs: list[Trajectory]) -> None:
         stream = self.recording._stream
@@ -134,7 +134,7 @@ class RunStreamer:
                     log_style(stream, s.beside_twin())
             self.differences = differences(run, recording.main_label, self.label, self.suffix)
             for d in self.differences:
-                log_style(stream, Series(d.path, (d.name,), "", (BLUE,), d.step, d.values, d.panel))
+                log_style(stream, d)
         recording.add_panels([s.panel for s in self.series] + [d.panel for d in self.differences])
 
     def _send_differences(self, run: Trajectory, rows: slice, times: rr.TimeColumn) -> None:
