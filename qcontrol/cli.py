@@ -187,9 +187,9 @@ def _print_warnings(s: dict) -> None:
         print(f"  ... and {len(physics) - 3} more MuJoCo warnings")
 
 
-def format_summary(s: dict, sc: Scenario | None = None) -> str:
-    """The printed summary of a run; with its scenario, a diverged run says what usually helps
-    (:mod:`qcontrol.explain`)."""
+def format_summary(s: dict, sc: Scenario) -> str:
+    """The printed summary of a run; a diverged run says when and why it stopped and what usually
+    helps (:mod:`qcontrol.explain`)."""
     rates = "  ".join(f"E({k})={v:.4f}" for k, v in s["error_rate"].items())
     if s["diverged"]:
         simulated = (f"stopped after {s['steps']} of {round(s['duration'] / s['dt'])} steps of {s['dt']:g} s "
@@ -205,11 +205,8 @@ def format_summary(s: dict, sc: Scenario | None = None) -> str:
         f"  final {s['adaptive_state']}: [{', '.join(f'{v:.4g}' for v in s['final_eps_hat'])}]",
         _lemma2_line(s),
     ]
-    if s["diverged"] and sc is not None:
+    if s["diverged"]:
         lines += divergence_lines(s, sc)
-    elif s["diverged"]:
-        lines.append(f"  DIVERGED: stopped at t = {s['diverged_time']:g} s of {s['duration']:g} s: "
-                     f"{s['divergence_reason']}")
     return "\n".join(lines)
 
 

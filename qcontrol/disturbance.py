@@ -169,17 +169,6 @@ class Schedule:
             out[k:] = value
         return out
 
-    def acting(self, dt: float, rows: int) -> list[tuple[Disturbance, int, int]]:
-        """Each item with the rows ``[first, stop)`` whose steps it acts on (empty when it falls
-        after the run)."""
-        spans = []
-        for item in self.items:
-            first = min(rows, max(0, math.floor(item.start / dt + RELATIVE_SLACK)))
-            last = rows if item.lasting else math.ceil(item.end / dt - RELATIVE_SLACK)
-            stop = min(rows, max(first + 1, last))
-            spans.append((item, first, stop))
-        return spans
-
 
 def scaled_changes(schedule: Schedule, dt: float, rows: int, inertia: float) -> Sequence[tuple[int, float]]:
     """:meth:`Schedule.changes` in u's units: ``d = F / I`` (see the module docstring)."""

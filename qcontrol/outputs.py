@@ -120,18 +120,12 @@ class AtomicFile:
 
 
 @contextmanager
-def atomic_path(path: str | Path, *, keep_partial: bool = False,
-                temporary: Path | None = None) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; on success it replaces ``path``. On an exception it
-    is removed, or, with ``keep_partial``, moved into place too (what was written is kept)."""
-    file = AtomicFile(path, temporary)
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; on success it replaces ``path``, on an exception it
+    is removed."""
+    file = AtomicFile(path)
     try:
         yield file.temporary
-    except BaseException:
-        if keep_partial and file.temporary.exists():
-            file.commit()
-        raise
-    else:
         file.commit()
     finally:
         file.discard()

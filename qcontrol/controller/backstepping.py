@@ -175,13 +175,6 @@ class Backstepping:
         both = q @ self._Wq + yd @ self._Wy
         return both[..., : self.n], both[..., self.n :]
 
-    def lemma2_errors(self, x_meas: np.ndarray, x_q: np.ndarray, yd: np.ndarray) -> tuple[np.ndarray,
-                                                                                          np.ndarray]:
-        """``zbar`` (eqs. (31)-(33)) from the quantized readings and the Lemma 2 errors
-        ``e_z = |z(x_meas) - zbar|`` for many instants at once (shapes as in :meth:`errors`)."""
-        zbar, _ = self.quantized_errors(x_q, yd)
-        return zbar, np.abs(self.errors(x_meas, yd) - zbar)
-
     def recursion(self, q: Columns, yd: Sequence[Column]) -> tuple[list[Column], list[Column]]:
         """Eqs. (31)-(34) as written, over columns: ``zbar_1 = q_1 - y_d``,
         ``alphabar_i = -c_i zbar_i + D_i``, ``zbar_{i+1} = q_{i+1} - alphabar_i``.

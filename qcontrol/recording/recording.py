@@ -110,11 +110,6 @@ class Recording:
         modules that log more than runs (e.g. :mod:`.disturbances`)."""
         return self._stream
 
-    @property
-    def part_path(self) -> Path | None:
-        """Where the file is written until the recording is closed."""
-        return None if self.path is None else temporary_path(self.path)
-
     def _open(self) -> None:
         import rerun as rr
 

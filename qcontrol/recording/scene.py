@@ -138,7 +138,6 @@ class Scene:
             b: entity_name(mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b) or "", f"body{b}")
             for b in self.bodies
         }
-        self.tip_geom, self.tip_radius = self._tip(jid)
         self._reference_pose(jid)
 
     @staticmethod
@@ -157,21 +156,13 @@ class Scene:
             raise ValueError("the recorded joint must be a hinge or a slide joint (one position x1)")
         return jid
 
-    def _tip(self, jid: int) -> tuple[int, float]:
-        """The moving geom farthest from the joint anchor (the bob, the cart) and its size."""
-        import mujoco
-
-        model, data = self.model, self.data
-        data.qpos[:] = model.qpos0
-        mujoco.mj_kinematics(model, data)
-        mujoco.mj_comPos(model, data)  # fills xanchor
-        joint_body = int(model.jnt_bodyid[jid])
-        moving = [g for g in range(model.ngeom) if self._descends(int(model.geom_bodyid[g]), joint_body)]
+    def _tip(self, moving: list[int]) -> tuple[int, float]:
+        """Of the geoms that move with the joint (at the reference pose), the one farthest from
+        the joint's anchor (the bob, the cart), and its size."""
         if not moving:
             raise ValueError("no geom moves with the recorded joint: nothing to draw the target for")
-        anchor = data.xanchor[jid]
-        far = max(moving, key=lambda g: (np.linalg.norm(data.geom_xpos[g] - anchor), g))
-        return far, float(model.geom_rbound[far])
+        far = max(moving, key=lambda g: (np.linalg.norm(self.data.geom_xpos[g] - self.anchor), g))
+        return far, float(self.model.geom_rbound[far])
 
     def _descends(self, body: int, ancestor: int) -> bool:
         while body > 0:
@@ -210,8 +201,6 @@ class Scene:
         """The tip geom's position (rows, 3) with the joint at each of ``position`` (the rigid
         motion of :meth:`replay` applied to the tip); NaN where it is not finite."""
         q = np.asarray(position, dtype=float)[:, None] - self.q0
-        if not self.tip_moves:
-            return self.tip0 + 0.0 * q
         if not self.hinge:
             return self.tip0 + q * self.axis
         return self._turned(self.tip_turn, q)
@@ -229,7 +218,8 @@ class Scene:
         return still + across * np.cos(angle) + normal * np.sin(angle)
 
     def _reference_pose(self, jid: int) -> None:
-        """Poses at ``qpos0`` and the joint's world axis and anchor, for :meth:`replay`."""
+        """Poses at ``qpos0``, the joint's world axis and anchor, and the tip (:meth:`_tip`), for
+        :meth:`replay` and :meth:`tip_positions`."""
         import mujoco
 
         model, data = self.model, self.data
@@ -241,11 +231,11 @@ class Scene:
         self.axis = data.xaxis[jid].copy()
         self.anchor = data.xanchor[jid].copy()
         self.xpos0, self.xquat0 = data.xpos.copy(), data.xquat.copy()
-        self.tip0 = data.geom_xpos[self.tip_geom].copy()
         joint_body = int(model.jnt_bodyid[jid])
         self.moving = np.array([self._descends(b, joint_body) for b in self.bodies], dtype=bool)
-        self.tip_moves = self._descends(int(model.geom_bodyid[self.tip_geom]), joint_body)
         drawn = [g for g in range(model.ngeom) if self._descends(int(model.geom_bodyid[g]), joint_body)]
+        self.tip_geom, self.tip_radius = self._tip(drawn)
+        self.tip0 = data.geom_xpos[self.tip_geom].copy()
         self.moving_centres = data.geom_xpos[drawn].copy()  # at qpos0, for framing the motion
         self.moving_radii = model.geom_rbound[drawn].astype(float)
         self.body_turn = self._turn_terms(self.xpos0[self.bodies][self.moving])

@@ -27,9 +27,9 @@ CONNECT_TIMEOUT = 0.5  # seconds to reach a display or a port
 NO_VIEWER_FIX = "write the recording with --rrd FILE and open it with `rerun FILE` where there is a display"
 
 
-def viewer_url(port: int | None = None) -> str:
-    """Where a recording streams to the viewer (default port :data:`PORT`)."""
-    return f"rerun+http://127.0.0.1:{PORT if port is None else port}/proxy"
+def viewer_url() -> str:
+    """Where a recording streams to the viewer (port :data:`PORT`)."""
+    return f"rerun+http://127.0.0.1:{PORT}/proxy"
 
 
 def viewer_executable() -> str | None:
