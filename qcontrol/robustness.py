@@ -157,12 +157,7 @@ def imperfections(realistic: Scenario) -> list[tuple[str, tuple[str, ...]]]:
 
 def _limit_label(sc: Scenario) -> str:
     """"torque limit" on a hinge, "force limit" on a slide."""
-    import mujoco
-
-    drawn = scene(sc)
-    jid = mujoco.mj_name2id(drawn.model, mujoco.mjtObj.mjOBJ_JOINT, drawn.joint)
-    hinge = int(drawn.model.jnt_type[jid]) == int(mujoco.mjtJoint.mjJNT_HINGE)
-    return "torque limit" if hinge else "force limit"
+    return "torque limit" if scene(sc).hinge else "force limit"
 
 
 def _seeded(overrides: Sequence[str], noisy: bool) -> list[tuple[str, ...]]:

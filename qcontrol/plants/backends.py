@@ -35,6 +35,14 @@ class Scene:
     model: Any  # mujoco.MjModel
     joint: str
 
+    @property
+    def hinge(self) -> bool:
+        """Whether the joint turns (a hinge: its generalized force is a torque) or slides."""
+        import mujoco
+
+        jid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, self.joint)
+        return int(self.model.jnt_type[jid]) == int(mujoco.mjtJoint.mjJNT_HINGE)
+
 
 @dataclass(frozen=True)
 class Backend:

@@ -21,8 +21,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..assembly import input_inertia, scene
-from ..disturbance import Disturbance, Schedule
+from ..assembly import loads, scene
+from ..disturbance import Disturbance
 from ..scenario import Scenario
 from ..timegrid import TimeGrid
 from .scene import Scene
@@ -73,14 +73,13 @@ def log_disturbances(recording: Recording, sc: Scenario) -> None:
 
     sim = sc.simulation
     grid = TimeGrid.of(sim.duration, sim.dt, sim.control_period)
-    unit = _unit(sc)
     drawn = scene(sc)
+    unit = "" if drawn is None else "N m" if drawn.hinge else "N"  # else generalized force units
     if drawn is not None:
         _arrows(stream, Scene(drawn.model, drawn.joint), sc.disturbances, unit, grid.duration)
-    schedule, inertia = Schedule(sc.disturbances), input_inertia(sc)
-    changes = schedule.changes(grid.dt, grid.rows)
+    changes = loads(sc)  # d = F / I where the load changes
     times = [k * grid.dt for k, _ in changes] + [grid.duration]
-    values = [f / inertia for _, f in changes] + [changes[-1][1] / inertia]
+    values = [d for _, d in changes] + [changes[-1][1]]
     stream.log("signals/input/disturbance", rr.SeriesLines(names="disturbance d = F / I", colors=[PURPLE],
                                                           interpolation_mode="StepAfter"), static=True)
     stream.send_columns("signals/input/disturbance", indexes=[time_column(times)],
@@ -93,17 +92,6 @@ def log_disturbances(recording: Recording, sc: Scenario) -> None:
                             columns=rr.Scalars.columns(scalars=[0.0] * len(starts)))
     _events(stream, sc.disturbances, unit, grid.duration)
     recording.flush()
-
-
-def _unit(sc: Scenario) -> str:
-    """N m on a hinge, N on a slide (the joint of the drawn model), else generalized force units."""
-    drawn = scene(sc)
-    if drawn is None:
-        return ""
-    import mujoco
-
-    jid = mujoco.mj_name2id(drawn.model, mujoco.mjtObj.mjOBJ_JOINT, drawn.joint)
-    return "N m" if int(drawn.model.jnt_type[jid]) == int(mujoco.mjtJoint.mjJNT_HINGE) else "N"
 
 
 def _arrows(stream, drawn: Scene, items: tuple[Disturbance, ...], unit: str, duration: float) -> None:
