@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from .assembly import run_scenario, scene
+from .metrics import finite_max_abs
 from .scenario import Scenario, load_scenario
 from .sweep import run_batch
 
@@ -113,17 +114,13 @@ def recovery(disturbed: Errors, quiet: Errors, start: float, delta: float) -> di
     after = t >= start - 1e-12
     deviation = np.abs(z - zq)
     return {
-        "diverged": bool(disturbed.diverged), "peak_abs_z1": _largest(np.abs(z[after])),
-        "peak_abs_z1_undisturbed": _largest(np.abs(zq[after])), "peak_deviation": _largest(deviation[after]),
+        "diverged": bool(disturbed.diverged), "peak_abs_z1": finite_max_abs(z[after]),
+        "peak_abs_z1_undisturbed": finite_max_abs(zq[after]),
+        "peak_deviation": finite_max_abs(deviation[after]),
         "recovery_time_s": _settled(t, np.abs(z), RECOVERY_BAND, after, start, disturbed.diverged),
         "recovery_to_undisturbed_s": _settled(t, deviation, delta, after, start, disturbed.diverged),
-        "final_deviation": _largest(deviation[t >= t[-1] - 1.0]),
+        "final_deviation": finite_max_abs(deviation[t >= t[-1] - 1.0]),
     }
-
-
-def _largest(values: np.ndarray) -> float:
-    finite = values[np.isfinite(values)]
-    return float(finite.max()) if finite.size else float("nan")
 
 
 def _settled(t: np.ndarray, values: np.ndarray, band: float, after: np.ndarray, start: float,

@@ -63,8 +63,7 @@ def margins_table(margins: Sequence[Mapping]) -> list[str]:
              "max \\|u applied\\| | saturated | diverged |", "|---|---|---|---|---|---|---|---|---|"]
     for r in margins:
         m = r["mujoco"]
-        value = f"{1000 * r['value']:g} ms" if r["unit"] == "s" else f"{r['value']:g} {r['unit']}"
-        lines.append(f"| {r['example']} | {r['imperfection']} | {value} | {r['law']} | "
+        lines.append(f"| {r['example']} | {r['imperfection']} | {show_amount(r)} | {r['law']} | "
                      f"{_cell(m['error_rate'][E], _rate)} | {_cell(m['max_abs_z1_last_half'])} | "
                      f"{_cell(m['max_abs_u_applied'])} | {_cell(m['saturated_fraction'])} | {_diverged(m)} |")
     return lines
@@ -141,7 +140,8 @@ def _ladder(margins: Sequence[Mapping], example: str, law: str, label: str) -> l
     return [r for r in margins if r["example"] == example and r["law"] == law and r["imperfection"] == label]
 
 
-def _show(row: Mapping) -> str:
+def show_amount(row: Mapping) -> str:
+    """A margin row's amount of its imperfection: a time in ms, anything else in its own unit."""
     return f"{1000 * row['value']:g} ms" if row["unit"] == "s" else f"{row['value']:g} {row['unit']}"
 
 
@@ -151,8 +151,8 @@ def _first_divergence(margins: Sequence[Mapping], example: str, law: str, label:
         return "not studied"
     gone = [r for r in ladder if r["mujoco"]["diverged"]]
     if not gone:
-        return f"bounded up to {_show(ladder[-1])}"
-    return "diverged at " + ", ".join(_show(r) for r in gone)
+        return f"bounded up to {show_amount(ladder[-1])}"
+    return "diverged at " + ", ".join(show_amount(r) for r in gone)
 
 
 def _saturation(rows: Sequence[Mapping], margins: Sequence[Mapping], example: str, law: str) -> str:
@@ -164,11 +164,11 @@ def _saturation(rows: Sequence[Mapping], margins: Sequence[Mapping], example: st
     base = _median(ideal["mujoco"], "max_abs_z1_last_half")
     hurt = next((r for r in ladder if not _median(r["mujoco"], "max_abs_z1_last_half") <= 1.2 * base), None)
     if hurt is None:
-        return f"{example} {law}: no cost down to {_show(ladder[-1])}"
+        return f"{example} {law}: no cost down to {show_amount(ladder[-1])}"
     m = hurt["mujoco"]
     clipped = _number(100 * _median(m, "saturated_fraction"))
-    return (f"{example} {law}: at {_show(hurt)} the actuator clips {clipped} % of the samples and max |z1| "
-            f"last half is {_number(_median(m, 'max_abs_z1_last_half'))} (ideal {_number(base)})")
+    return (f"{example} {law}: at {show_amount(hurt)} the actuator clips {clipped} % of the samples and "
+            f"max |z1| last half is {_number(_median(m, 'max_abs_z1_last_half'))} (ideal {_number(base)})")
 
 
 def _largest(rows: Sequence[Mapping], key: str, labels: Sequence[str]) -> float:

@@ -11,17 +11,17 @@ from pathlib import Path
 import numpy as np
 from matplotlib.axes import Axes
 
+from ..robustness_report import E, show_amount
 from .common import COLORS, new_figure, save
 
 LAW_COLORS = {"proposed": COLORS[0], "comparison": COLORS[1]}
 EXAMPLE_TITLES = {"example2": "Example 2, the arm", "example1": "Example 1, the cart"}
-E_KEY = "0.100"
 Z_FLOOR = 1e-3  # the log axis of max |z1| starts here
 
 
 def _value(cell: Mapping, metric: str) -> tuple[float, float, float]:
     """(median, min, max) of a metric of an aggregated row (NaN when there is none)."""
-    spread = cell["error_rate"][E_KEY] if metric == "E" else cell[metric]
+    spread = cell["error_rate"][E] if metric == "E" else cell[metric]
     values = [spread[k] for k in ("median", "min", "max")]
     return tuple(math.nan if v is None else float(v) for v in values)  # type: ignore[return-value]
 
@@ -104,7 +104,7 @@ def fig_margins(study: Mapping, path: str | os.PathLike) -> Path:
     for ax, example in zip(axes[0], examples, strict=True):
         rows = [r for r in study["margins"] if r["example"] == example]
         laws = list(dict.fromkeys(r["law"] for r in rows))
-        labels = list(dict.fromkeys(f"{r['imperfection']} {_amount(r)}" for r in rows))
+        labels = list(dict.fromkeys(f"{r['imperfection']} {show_amount(r)}" for r in rows))
         cells = {law: [r["mujoco"] for r in rows if r["law"] == law] for law in laws}
         _bars(ax, labels, cells, None, "max_abs_z1_last_half", True, seeded=False)
         ax.set_xlabel(r"max $|z_1|$ over the last half (MuJoCo)", fontsize=8)
@@ -113,10 +113,3 @@ def fig_margins(study: Mapping, path: str | os.PathLike) -> Path:
     fig.suptitle("Margins: each imperfection alone, beyond the hardware, until it breaks the loop",
                  fontsize=10)
     return save(fig, path)
-
-
-def _amount(row: Mapping) -> str:
-    value, unit = row["value"], row["unit"]
-    if unit == "s":
-        return f"{1000 * value:g} ms"
-    return f"{value:g} {unit}"
