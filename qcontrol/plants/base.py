@@ -32,6 +32,16 @@ class PlantTerms:
         """Names of the terms of ``psi + theta^T phi``: ``psi`` (if present), ``phi1`` .. ``phil``."""
         return (["psi"] if self.psi is not None else []) + [f"phi{i + 1}" for i in range(len(self.phi))]
 
+    @property
+    def expressions(self) -> list[Expression]:
+        """The terms in the order of :attr:`names`: ``psi`` (if present), then ``phi``."""
+        return ([self.psi] if self.psi is not None else []) + list(self.phi)
+
+    @property
+    def coefficients(self) -> list[float]:
+        """Each term's coefficient in the order of :attr:`names`: 1 for ``psi``, theta_i for ``phi_i``."""
+        return ([1.0] if self.psi is not None else []) + list(self.theta)
+
 
 class Plant(Protocol):
     """A batch of ``batch`` independent copies of an n-th order plant, eq. (1).

@@ -58,8 +58,7 @@ def consistency_report(compiled: CompiledModel, options: MujocoOptions, terms: P
 def _columns(terms: PlantTerms, x: np.ndarray, u: np.ndarray) -> tuple[dict[str, np.ndarray], dict[str,
                                                                                                    float]]:
     """Each term's value at the samples, and its coefficient (1 for u and psi, theta_i for phi_i)."""
-    exprs = ([terms.psi] if terms.psi is not None else []) + list(terms.phi)
-    coefficients = ([1.0] if terms.psi is not None else []) + list(terms.theta)
+    exprs, coefficients = terms.expressions, terms.coefficients
     columns = {"u": u} | {name: np.broadcast_to(e(x), u.shape) for name, e in zip(terms.names, exprs,
                                                                                   strict=True)}
     return columns, {"u": 1.0} | dict(zip(terms.names, coefficients, strict=True))
@@ -82,7 +81,7 @@ def _accelerations(compiled: CompiledModel, x: np.ndarray, u: np.ndarray,
 
 def _refusal(report: dict, contribution: dict[str, float], terms: PlantTerms,
              options: MujocoOptions) -> QcontrolInputError:
-    exprs = ([terms.psi] if terms.psi is not None else []) + list(terms.phi)
+    exprs = terms.expressions
     labels = {nm: f"{nm} = {e.source}" for nm, e in zip(terms.names, exprs, strict=True)} | {
         "u": "the input gain (u)", "constant": "a constant offset"}
     worst = max(contribution, key=contribution.__getitem__)

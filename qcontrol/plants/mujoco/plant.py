@@ -74,8 +74,7 @@ class MujocoPlant:
         self._ctrl_range = _ctrl_range(self.model, self._ids.actuator)  # (low, high) or None
         self.actuator_limited = self._ctrl_range is not None
         native = tuple(name in options.native_terms for name in terms.names)
-        exprs = ([terms.psi] if terms.psi is not None else []) + list(terms.phi)
-        coefficients = ([1.0] if terms.psi is not None else []) + list(terms.theta)
+        exprs, coefficients = terms.expressions, terms.coefficients
         applied = [(c, scalar_function(e)) for c, e, n in zip(coefficients, exprs, native,
                                                               strict=True) if not n]
         self._force = generalized_force(applied, self.inertia) if applied else None
