@@ -25,7 +25,7 @@ from ..errors import QcontrolInputError
 from ..quantizer import QuantizedReading
 from ..schema import Table
 from .backstepping import Backstepping, Columns, stack
-from .law import LAW_KINDS, LawContext, LawKind
+from .law import LawContext, LawKind, register_kind
 
 
 @runtime_checkable
@@ -162,10 +162,6 @@ def register_law(kind: str, factory: LawFactory, *, state_name: str = "state") -
     """
     if not isinstance(kind, str) or not kind.isidentifier():
         raise QcontrolInputError(f"register_law: kind {kind!r} must be a name such as \"ce\"; choose another")
-    if kind in LAW_KINDS:
-        raise QcontrolInputError(f"register_law: controller kind {kind!r} is already registered; "
-                                 "choose another name")
-
     def parse(table: Table, ctx: LawContext) -> UserSettings:
         settings = UserSettings(_freeze({"kind": kind, "delta": ctx.delta, "c": list(ctx.c)} | table.data))
         _call(factory, settings, ctx, table)
@@ -175,7 +171,7 @@ def register_law(kind: str, factory: LawFactory, *, state_name: str = "state") -
         laws = [_call(factory, s, ctx, None) for s in settings]
         return UserLaw(laws, ctx.c, ctx.max_error, state_name)
 
-    LAW_KINDS[kind] = LawKind(kind, None, parse, build, lambda settings, ctx: None)
+    register_kind(LawKind(kind, None, parse, build, lambda settings, ctx: None))  # refuses a taken name
 
 
 def _call(factory: LawFactory, settings: UserSettings, ctx: LawContext, table: Table | None) -> Law:
