@@ -48,6 +48,13 @@ class Chunk:
         """``(rows, batch)``: the row counts for the copy."""
         return (self.first + np.arange(len(self.t)))[:, None] < self.kept[None, :]
 
+    @cached_property
+    def before_divergence(self) -> np.ndarray:
+        """``(rows, batch)``: the row counts for the copy and is not the one that stopped it (whose
+        state left the range where the theory's checks mean anything)."""
+        last = np.where(self.diverged, self.kept - 1, self.kept)
+        return (self.first + np.arange(len(self.t)))[:, None] < last[None, :]
+
 
 class Reduction:
     """Folds one signal, ``(rows, batch[, width])`` per chunk, into a value per copy.
@@ -193,9 +200,7 @@ class Lemma2Largest(Reduction):
     def add(self, chunk: Chunk, values: np.ndarray) -> None:
         checked = np.isfinite(values)
         if not chunk.everyone:
-            last = np.where(chunk.diverged, chunk.kept - 1, chunk.kept)
-            rows = chunk.first + np.arange(len(chunk.t))
-            checked &= (rows[:, None] < last[None, :])[..., None]
+            checked &= chunk.before_divergence[..., None]
         np.maximum(self.largest, np.where(checked, values, -np.inf).max(axis=0), out=self.largest)
 
     def value(self, b: int) -> np.ndarray:
@@ -234,9 +239,7 @@ class BoundConstants(Reduction):
     def add(self, chunk: Chunk, values: np.ndarray) -> None:
         values = np.where(np.isfinite(values), values, np.inf)
         if not chunk.everyone:
-            last = np.where(chunk.diverged, chunk.kept - 1, chunk.kept)
-            rows = chunk.first + np.arange(len(chunk.t))
-            values = np.where((rows[:, None] < last[None, :])[..., None], values, -np.inf)
+            values = np.where(chunk.before_divergence[..., None], values, -np.inf)
         np.maximum(self.largest, values.max(axis=0, initial=-np.inf), out=self.largest)
 
     def value(self, b: int) -> np.ndarray:
