@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from ._version import __version__
-from .assembly import build_plant, controller_constants, run_scenario, scene
+from .assembly import build_plant, controller_constants, run_scenario, runnable_backend, scene
 from .attribution import realism_attribution
 from .controller import Backstepping
 from .controller import lemma2_bounds as _lemma2_bounds
@@ -32,9 +32,8 @@ from .engine import SIGNALS, ProgressCallback, RunMetrics, Trajectory
 from .errors import QcontrolInputError
 from .metrics import backend_deviation, summary
 from .outputs import atomic_path, check_output_file, clean, prepare_output_dir, write_text
-from .plants import BACKENDS
 from .scenario import Scenario
-from .scenario.resolve import resolved_toml, scenario_provenance
+from .scenario.resolve import scenario_provenance
 
 SAVE_FORMATS = (".npz", ".csv")
 
@@ -150,17 +149,15 @@ def run(scenario: Scenario, backend: str | None = None, *, rrd: str | Path | Non
     ``spawn`` streams it to a rerun viewer. ``command`` is what the provenance names as the
     command (default: this call).
     """
-    backend = backend or scenario.simulation.backend
-    if backend not in BACKENDS:
-        raise QcontrolInputError(f"backend {backend!r}: use one of {', '.join(BACKENDS)}")
-    BACKENDS[backend].require(scenario.backends.get(backend), scenario.source)
+    backend = runnable_backend(scenario, backend)
     command = command or _call("run", scenario, backend=backend, rrd=None if rrd is None else str(rrd))
+    provenance = scenario_provenance(scenario, command)
     plant = build_plant(scenario, backend)
-    with _recording(rrd, spawn, scenario, command) as rec:
+    with _recording(rrd, spawn, scenario, provenance) as rec:
         observer = None if rec is None else _observer(rec, scenario, backend)
         traj = run_scenario(scenario, backend, plant=plant, observer=observer, record=record,
                             progress=progress)
-    result = summary(traj, scenario.name, backend) | {"provenance": scenario_provenance(scenario, command)}
+    result = summary(traj, scenario.name, backend) | {"provenance": provenance}
     result["physics_warnings"] = list(plant.warnings)
     return Result(result, scenario, backend, traj)
 
@@ -181,14 +178,12 @@ def compare(scenario: Scenario, *, rrd: str | Path | None = None, spawn: bool = 
     """Run the scenario on its MuJoCo model and on the ODE with the same step and hold, and
     measure how far they drift apart (``max_abs_dx``, ``max_abs_dy``, ``max_abs_du``, ...).
     ``progress(backend)`` may give a progress callback per run."""
-    if "mujoco" not in scenario.backends:
-        raise QcontrolInputError(
-            f"{scenario.source}: compare needs a [plant.mujoco] table (the MuJoCo twin of the ODE); add one"
-        )
+    require_twin(scenario)
     command = command or _call("compare", scenario, rrd=None if rrd is None else str(rrd))
+    provenance = scenario_provenance(scenario, command)
     plant = build_plant(scenario, "mujoco")
     runs: dict[str, Result] = {}
-    with _recording(rrd, spawn, scenario, command) as rec:
+    with _recording(rrd, spawn, scenario, provenance) as rec:
         for backend in ("mujoco", "ode"):  # the ODE run is drawn as the MuJoCo run's twin
             twin_of = runs["mujoco"].record if backend == "ode" else None
             observer = None if rec is None else _observer(rec, scenario, backend, twin_of)
@@ -202,13 +197,21 @@ def compare(scenario: Scenario, *, rrd: str | Path | None = None, spawn: bool = 
         "realism_alone": realism_attribution(scenario, runs["ode"].record) if plant.consistency_report.get(
             "realism") else {},
         "mujoco": runs["mujoco"].summary, "ode": runs["ode"].summary,
-        "physics_warnings": list(plant.warnings), "provenance": scenario_provenance(scenario, command),
+        "physics_warnings": list(plant.warnings), "provenance": provenance,
     }
     return Comparison(result, runs["mujoco"], runs["ode"])
 
 
-def _recording(rrd: str | Path | None, spawn: bool, sc: Scenario, command: str) -> Any:
-    """A rerun Recording of the scenario (its resolved text, constants, provenance), or nothing."""
+def require_twin(scenario: Scenario) -> None:
+    """Refuse, in one line, a scenario :func:`compare` cannot run: one without a MuJoCo model."""
+    if "mujoco" not in scenario.backends:
+        raise QcontrolInputError(
+            f"{scenario.source}: compare needs a [plant.mujoco] table (the MuJoCo twin of the ODE); add one"
+        )
+
+
+def _recording(rrd: str | Path | None, spawn: bool, sc: Scenario, provenance: dict[str, Any]) -> Any:
+    """A rerun Recording of the scenario (its resolved text, constants, ``provenance``), or nothing."""
     from contextlib import nullcontext
 
     if rrd is None and not spawn:
@@ -218,8 +221,8 @@ def _recording(rrd: str | Path | None, spawn: bool, sc: Scenario, command: str) 
     from .recording import Recording  # imports rerun when it opens: only when asked for
 
     rec = Recording(None if rrd is None else Path(rrd), spawn=spawn)
-    rec.log_static(resolved_toml(sc), controller_constants(sc), __version__,
-                   provenance=scenario_provenance(sc, command))
+    rec.log_static(provenance["resolved_scenario"], controller_constants(sc), __version__,
+                   provenance=provenance)
     from .recording.disturbances import log_disturbances
 
     log_disturbances(rec, sc)  # arrows and time markers of the scenario's [[disturbance]]s, if any

@@ -13,6 +13,7 @@ from typing import Any
 from .controller import BatchLaw, law_kind
 from .disturbance import Schedule, scaled_changes
 from .engine import Observer, ProgressCallback, RunMetrics, Separation, Trajectory, simulate
+from .errors import QcontrolInputError
 from .plants import BACKENDS, Plant, Scene
 from .quantizer import UniformQuantizer
 from .reference import Reference
@@ -60,13 +61,21 @@ def backend_of(sc: Scenario, backend: str | None = None) -> str:
     return backend or sc.simulation.backend
 
 
+def runnable_backend(sc: Scenario, backend: str | None = None) -> str:
+    """:func:`backend_of`, refused in one line if no backend has that name or the scenario lacks
+    the section it needs (e.g. ``--backend mujoco`` without ``[plant.mujoco]``)."""
+    name = backend_of(sc, backend)
+    if name not in BACKENDS:
+        raise QcontrolInputError(f"backend {name!r}: use one of {', '.join(BACKENDS)}")
+    BACKENDS[name].require(sc.backends.get(name), sc.source)
+    return name
+
+
 def build_plants(variants: Sequence[Scenario], backend: str | None = None) -> Plant:
     """One plant with a copy per variant, on ``backend`` (default: the first variant's)."""
     first = variants[0]
-    entry = BACKENDS[backend_of(first, backend)]
-    options = first.backends.get(entry.name)
-    entry.require(options, first.source)
-    return entry.build([v.terms for v in variants], options, first.simulation.dt)
+    entry = BACKENDS[runnable_backend(first, backend)]
+    return entry.build([v.terms for v in variants], first.backends.get(entry.name), first.simulation.dt)
 
 
 def build_plant(sc: Scenario, backend: str | None = None, batch: int = 1) -> Plant:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable
 
-from .assembly import build_controller, build_plant
+from .assembly import build_controller, build_plant, runnable_backend
 from .plants import BACKENDS
 from .scenario import Scenario
 
@@ -44,8 +44,7 @@ def add_check_parser(subparsers: argparse._SubParsersAction,
 def cmd_check(args: argparse.Namespace) -> int:
     """Validate the scenario and build its law and each backend's plant; print one line."""
     sc = args.load(args)
-    backend = args.backend or sc.simulation.backend
-    BACKENDS[backend].require(sc.backends.get(backend), sc.source)
+    backend = runnable_backend(sc, args.backend)
     build_controller(sc)
     built = [_plant_note(sc, name) for name in _backends_to_build(sc, backend)]
     if not args.quiet:

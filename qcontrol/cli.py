@@ -16,6 +16,7 @@ from pathlib import Path
 
 from . import api
 from ._version import __version__
+from .assembly import runnable_backend
 from .attribution import attribution_lines
 from .check import add_check_parser, cmd_check
 from .errors import QcontrolInputError
@@ -227,8 +228,7 @@ def _print_paper_line(s: dict, sc: Scenario) -> None:
 
 def cmd_run(args: argparse.Namespace) -> int:
     sc = _scenario_from_args(args)
-    backend = args.backend or sc.simulation.backend
-    BACKENDS[backend].require(sc.backends.get(backend), sc.source)
+    backend = runnable_backend(sc, args.backend)
     if args.save is not None and args.save.suffix not in api.SAVE_FORMATS:
         raise QcontrolInputError(f"--save {args.save}: unknown format {args.save.suffix!r}; "
                                  "give a .npz or .csv file")
@@ -272,10 +272,7 @@ def _plot_run(result: api.Result, path: Path) -> Path:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     sc = _scenario_from_args(args)
-    if "mujoco" not in sc.backends:
-        raise QcontrolInputError(
-            f"{sc.source}: compare needs a [plant.mujoco] table (the MuJoCo twin of the ODE); add one"
-        )
+    api.require_twin(sc)  # before --spawn starts a viewer
     _check_outputs(args, {"--rrd": args.rrd})
     progress: dict[str, ProgressLine] = {}
 
