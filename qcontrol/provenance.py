@@ -8,7 +8,6 @@ import platform
 import shlex
 import sys
 from collections.abc import Sequence
-from importlib import metadata
 from typing import Any
 
 import numpy as np
@@ -20,6 +19,8 @@ _PACKAGES = ("mujoco", "rerun-sdk")
 
 def versions() -> dict[str, str]:
     """The versions of qcontrol's scientific dependencies and of Python."""
+    from importlib import metadata  # 10 ms to import: only when an output is written
+
     found = {"numpy": np.__version__, "python": platform.python_version()}
     for name in _PACKAGES:
         try:
