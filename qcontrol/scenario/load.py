@@ -227,17 +227,17 @@ def _plant(plant: Table) -> tuple[PlantTerms, tuple[float, ...]]:
     return PlantTerms(order, psi, phi, v["theta"]), v["x0"]
 
 
-def _chosen(table: Table, section: Section) -> tuple[dict[str, Any], Table]:
-    """The common keys of a kinded table and the merged table of the chosen kind's keys."""
-    common = read_keys(table, section.keys, {})
+def _chosen(table: Table, section: Section, sizes: dict[str, int] | None = None
+            ) -> tuple[dict[str, Any], Table]:
+    """The common keys of a kinded table (``kind`` first) and the merged table of the chosen kind's
+    keys; ``sizes`` gives the lengths the common keys' lists must have."""
+    common = read_keys(table, section.keys, sizes or {})
     return common, kind_table(table, section.names, section.kinds, common["kind"])
 
 
 def _controller(table: Table, terms: PlantTerms) -> ControllerConfig:
-    section = controller_section()
-    kind = read_keys(table, section.keys[:1], {})["kind"]
-    v = read_keys(table, section.keys, {"n": terms.order})
-    merged = kind_table(table, section.names, section.kinds, kind)
+    v, merged = _chosen(table, controller_section(), {"n": terms.order})
+    kind = v["kind"]
     ctx = LawContext(table.source, terms.order, v["delta"], v["c"], terms.psi, terms.phi, terms.theta)
     return ControllerConfig(kind, v["delta"], v["c"], law_kind(kind).parse(merged, ctx))
 
