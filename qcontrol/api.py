@@ -153,8 +153,8 @@ def run(scenario: Scenario, backend: str | None = None, *, rrd: str | Path | Non
     command = command or _call("run", scenario, backend=backend, rrd=None if rrd is None else str(rrd))
     provenance = scenario_provenance(scenario, command)
     plant = build_plant(scenario, backend)
-    with _recording(rrd, spawn, scenario, provenance) as rec:
-        observer = None if rec is None else _observer(rec, scenario, backend)
+    with recording_for(rrd, spawn, scenario, provenance) as rec:
+        observer = None if rec is None else observer_for(rec, scenario, backend)
         traj = run_scenario(scenario, backend, plant=plant, observer=observer, record=record,
                             progress=progress)
     result = summary(traj, scenario.name, backend) | {"provenance": provenance}
@@ -183,10 +183,10 @@ def compare(scenario: Scenario, *, rrd: str | Path | None = None, spawn: bool = 
     provenance = scenario_provenance(scenario, command)
     plant = build_plant(scenario, "mujoco")
     runs: dict[str, Result] = {}
-    with _recording(rrd, spawn, scenario, provenance) as rec:
+    with recording_for(rrd, spawn, scenario, provenance) as rec:
         for backend in ("mujoco", "ode"):  # the ODE run is drawn as the MuJoCo run's twin
             twin_of = runs["mujoco"].record if backend == "ode" else None
-            observer = None if rec is None else _observer(rec, scenario, backend, twin_of)
+            observer = None if rec is None else observer_for(rec, scenario, backend, twin_of)
             traj = run_scenario(scenario, backend, plant=plant if backend == "mujoco" else None,
                                 observer=observer, progress=progress(backend) if progress else None)
             runs[backend] = Result(summary(traj, scenario.name, backend), scenario, backend, traj)
@@ -210,8 +210,9 @@ def require_twin(scenario: Scenario) -> None:
         )
 
 
-def _recording(rrd: str | Path | None, spawn: bool, sc: Scenario, provenance: dict[str, Any]) -> Any:
-    """A rerun Recording of the scenario (its resolved text, constants, ``provenance``), or nothing."""
+def recording_for(rrd: str | Path | None, spawn: bool, sc: Scenario, provenance: dict[str, Any]) -> Any:
+    """A rerun Recording of the scenario (its resolved text, constants, ``provenance`` and
+    disturbances), or nothing without ``rrd`` and ``spawn``."""
     from contextlib import nullcontext
 
     if rrd is None and not spawn:
@@ -229,14 +230,17 @@ def _recording(rrd: str | Path | None, spawn: bool, sc: Scenario, provenance: di
     return rec
 
 
-def _observer(rec: Any, sc: Scenario, backend: str, twin_of: Trajectory | None = None) -> Any:
-    """The recording's observer of a run on ``backend``; with ``twin_of`` the run is drawn as that
-    main run's twin (thin lines on its wide ones, an outline body, the differences)."""
+def observer_for(rec: Any, sc: Scenario, label: str, twin_of: Trajectory | None = None,
+                 ghost: bool | None = None) -> Any:
+    """The recording's observer of a run labelled ``label`` (its backend, or e.g. "baseline");
+    with ``twin_of`` the run is drawn as that main run's twin (thin lines on its wide ones, an
+    outline body, the differences); ``ghost`` (default: whether it is a twin) draws another run
+    beside the main one."""
     drawn = scene(sc)
-    ghost = twin_of is not None
+    ghost = twin_of is not None if ghost is None else ghost
     if drawn is None:
-        return rec.observer(backend, ghost=ghost, twin_of=twin_of)
-    return rec.observer(backend, drawn.model, drawn.joint, ghost=ghost, twin_of=twin_of)
+        return rec.observer(label, ghost=ghost, twin_of=twin_of)
+    return rec.observer(label, drawn.model, drawn.joint, ghost=ghost, twin_of=twin_of)
 
 
 # --------------------------------------------------------------------------------------------

@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from . import plots
-from .assembly import controller_constants, run_scenario, scene
+from .api import observer_for, recording_for
+from .assembly import run_scenario
 from .controller import lemma2_L
 from .engine import Trajectory
 from .metrics import backend_deviation, summary
@@ -29,7 +30,7 @@ from .report import PAPER_TABLE1, ReportFacts, report_markdown, table1, table1_m
 from .resources import shipped_dir
 from .robustness import EXAMPLES, default_workers, robustness_study
 from .scenario import Scenario, load_scenario
-from .scenario.resolve import resolved_toml, scenario_provenance, scenarios_provenance
+from .scenario.resolve import scenario_provenance, scenarios_provenance
 from .sweep import sweep_summaries
 
 SCENARIO_DIR = shipped_dir("scenarios")
@@ -128,13 +129,13 @@ def reproduce(
     log(f"Example 1 on {backend}")
     ex1, ex1_twin = rep.twins("example 1", rep.scenario("example1"))
     _example1_figures(o, ex1, ex1_twin)
-    _record(o / "example1.rrd", ex1, {"ode": ex1_twin}, command, twins=("ode",))
+    _record(o / "example1.rrd", ex1, {"ode": ex1_twin}, command)
 
     log(f"Example 2 on {backend}: proposed and comparison method [20]")
     ex2, ex2_twin = rep.twins("example 2 proposed", rep.scenario("example2"))
     base, base_twin = rep.twins("example 2 comparison", rep.scenario("example2", BASELINE))
     _example2_figures(o, ex2, ex2_twin, base)
-    _record(o / "example2.rrd", ex2, {"ode": ex2_twin, "baseline": base}, command, twins=("ode",))
+    _record(o / "example2.rrd", ex2, {"ode": ex2_twin, "baseline": base}, command)
 
     table = _table1(o, backend, ex2, ex2_twin, base, base_twin, command)
 
@@ -224,25 +225,16 @@ def _example2_figures(o: Path, run: Run, twin: Run | None, base: Run) -> None:
                                   "Example 2: MuJoCo pendulum vs ideal ODE, same controller", u)
 
 
-def _record(path: Path, main: Run, ghosts: dict[str, Run | None], command: str,
-            twins: tuple[str, ...]) -> None:
-    """A rerun recording of the main run with its ghosts: the ``twins`` (the same closed loop on
+def _record(path: Path, main: Run, ghosts: dict[str, Run | None], command: str) -> None:
+    """A rerun recording of the main run with its ghosts: its twin "ode" (the same closed loop on
     the ODE) and the others (the comparison method)."""
-    from ._version import __version__
-    from .recording import Recording
-
     sc = main.scenario
-    drawn = scene(sc)
-    model, joint = (None, None) if drawn is None else (drawn.model, drawn.joint)
-    with Recording(path) as rec:
-        rec.log_static(resolved_toml(sc), controller_constants(sc), __version__,
-                       provenance=scenario_provenance(sc, command))
-        rec.observer(main.backend, model, joint)(0, len(main.traj.t), [main.traj])
+    with recording_for(path, False, sc, scenario_provenance(sc, command)) as rec:
+        observer_for(rec, sc, main.backend)(0, len(main.traj.t), [main.traj])
         for label, ghost in ghosts.items():
             if ghost is not None:
-                observer = rec.observer(label, model, joint, ghost=True,
-                                        twin_of=main.traj if label in twins else None)
-                observer(0, len(ghost.traj.t), [ghost.traj])
+                twin_of = main.traj if label == "ode" else None
+                observer_for(rec, sc, label, twin_of, ghost=True)(0, len(ghost.traj.t), [ghost.traj])
 
 
 def _rates(summaries: Sequence[dict]) -> dict[str, list[float]]:
