@@ -280,7 +280,7 @@ def _report(rep: Reproduction, table: dict, studies: dict, deviations: dict, ex1
     """REPORT.md from the runs' facts (see :func:`qcontrol.report.report_markdown`)."""
     traj, c = ex2.traj, ex2.scenario.controller
     facts = ReportFacts(
-        backend=rep.backend, duration=rep.duration, runs=len(rep.lemma2_ratios), study_runs=rep.study_runs,
+        backend=rep.backend, duration=rep.duration, study_runs=rep.study_runs,
         seconds=time.perf_counter() - rep.started, lemma2_ratios=rep.lemma2_ratios, diverged=rep.diverged,
         table=table, studies=studies, deviations=deviations, example1=ex1.summary, example2=ex2.summary,
         z2_last_half=float(np.nanmax(np.abs(traj.z[traj.t >= traj.duration / 2, -1]))),
