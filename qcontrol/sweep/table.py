@@ -17,8 +17,9 @@ CSV_METRICS = [f"error_rate_{omega_key(w)}" for w in TABLE1_OMEGAS] + RUN_METRIC
 def metric_columns(summaries: Sequence[dict]) -> list[str]:
     """The metric columns: an error rate per omega of the runs (``[metrics] omega``), then the run's
     figures."""
-    omegas = next(iter(summaries))["error_rate"] if summaries else {omega_key(w): 0 for w in TABLE1_OMEGAS}
-    return [f"error_rate_{key}" for key in omegas] + RUN_METRICS
+    if not summaries:
+        return list(CSV_METRICS)
+    return [f"error_rate_{key}" for key in summaries[0]["error_rate"]] + RUN_METRICS
 
 
 def sweep_rows(points: Sequence[dict[str, str]], summaries: Sequence[dict | None]) -> list[dict]:
