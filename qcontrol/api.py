@@ -82,7 +82,7 @@ class Result:
         if path.suffix == ".csv":
             return write_text(path, _csv_text(traj))
         with atomic_path(path) as tmp, open(tmp, "wb") as file:
-            np.savez(file, t=traj.t, summary=np.array(json.dumps(_jsonable(self.summary))), **traj.signals)
+            np.savez(file, t=traj.t, summary=np.array(json.dumps(clean(self.summary))), **traj.signals)
         return path
 
 
@@ -122,11 +122,6 @@ def _csv_text(traj: Trajectory) -> str:
     writer.writerow([name for name, _ in named])
     writer.writerows(zip(*[[repr(float(v)) for v in values] for _, values in named], strict=True))
     return buffer.getvalue()
-
-
-def _jsonable(value: Any) -> Any:
-    """JSON has no NaN/Inf: None. numpy values become plain Python."""
-    return clean(value)
 
 
 # --------------------------------------------------------------------------------------------

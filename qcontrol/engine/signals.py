@@ -93,7 +93,7 @@ def _can_clip(run: RunRecord) -> bool:
 def _u_applied(block: Block, ctx: SignalContext) -> np.ndarray:
     """What the actuator applied for the commanded u (clipped at its limit; u itself for an
     actuator without one)."""
-    return ctx.actuator(block["u"]) if ctx.actuator_limited else block["u"]
+    return ctx.actuator(block["u"])
 
 
 def _saturated(block: Block, ctx: SignalContext) -> np.ndarray:
