@@ -76,7 +76,7 @@ def log_disturbances(recording: Recording, sc: Scenario) -> None:
     drawn = scene(sc)
     unit = "" if drawn is None else "N m" if drawn.hinge else "N"  # else generalized force units
     if drawn is not None:
-        _arrows(stream, Scene(drawn.model, drawn.joint), sc.disturbances, unit, grid.duration)
+        _arrows(stream, recording.scene_of(drawn.model, drawn.joint), sc.disturbances, unit, grid.duration)
     changes = loads(sc)  # d = F / I where the load changes
     times = [k * grid.dt for k, _ in changes] + [grid.duration]
     values = [d for _, d in changes] + [changes[-1][1]]

@@ -90,6 +90,7 @@ class Recording:
         self._fixed_logged = False
         self._panels: set[Panel] = set()
         self._scene: Scene | None = None  # the first run's scene: the camera's model
+        self._scenes: dict[tuple[int, str | None], Scene] = {}  # by model and joint (scene_of)
         self._travel = (np.inf, -np.inf)  # joint positions (and reference) seen so far
         self._framed: tuple[float, float] | None = None  # what the camera sent frames
         self._camera: Camera | None = None
@@ -238,11 +239,20 @@ class Recording:
                 raise ValueError(_MAIN_RUN_TAKEN)
             self._main_taken = True
             suffix, world, role = "", "world/bodies", "main"
-        scene = None if model is None else Scene(model, joint)
+        scene = None if model is None else self.scene_of(model, joint)
         if scene is not None:
             self._log_scene(scene, world, role)
             self._scene = self._scene or scene
         return RunStreamer(self, label, suffix, role, scene, world, twin_of)
+
+    def scene_of(self, model: mujoco.MjModel, joint: str | None) -> Scene:
+        """The model's :class:`Scene` for ``joint``, made once per recording (the main run, its
+        twin and the disturbance arrows draw the same model; a scene only reads its reference
+        pose once made)."""
+        key = (id(model), joint)
+        if key not in self._scenes:
+            self._scenes[key] = Scene(model, joint)
+        return self._scenes[key]
 
     def _log_scene(self, scene: Scene, world: str, role: str) -> None:
         """The static geometry: shapes in their bodies, world-body geoms, the target marker."""
