@@ -17,7 +17,7 @@ from qcontrol.plants import mujoco as mujoco_backend
 from qcontrol.plants.backends import PlantContext
 from qcontrol.plants.base import PlantTerms
 from qcontrol.plants.mujoco import callbacks as qmj
-from qcontrol.plants.mujoco.model import build_model
+from qcontrol.plants.mujoco.mjcf import build_model
 from qcontrol.plants.mujoco.options import MujocoOptions
 from qcontrol.plants.mujoco.plant import MujocoPlant
 from qcontrol.plants.ode import ChainPlant

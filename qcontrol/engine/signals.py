@@ -242,7 +242,7 @@ RECORDED = tuple(s for s in SIGNALS if s.recorded)
 DERIVED = tuple(s for s in SIGNALS if s.derive is not None)
 REDUCTIONS: tuple[type[Reduction], ...] = tuple(r for s in SIGNALS for r in s.reductions)
 assert tuple(s.name for s in RECORDED) == ("x", "x_meas", "x_q", "u", "adaptive"), (
-    "the loop records exactly these, in this order (see qcontrol.engine.rows)")
+    "the loop records exactly these, in this order (see qcontrol.engine.row_buffer)")
 
 
 def needed(names: tuple[str, ...]) -> tuple[str, ...]:

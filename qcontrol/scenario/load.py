@@ -1,4 +1,4 @@
-"""Scenario files: TOML -> validated :class:`~qcontrol.scenario.model.Scenario`.
+"""Scenario files: TOML -> validated :class:`~qcontrol.scenario.definition.Scenario`.
 
 A scenario is data: the plant (order, psi, phi, theta, x0, and a model per backend), the
 controller (kind, delta, gains and the kind's own settings), the reference, and the simulation
@@ -30,6 +30,7 @@ from ..reference import REFERENCE_KINDS
 from ..resources import scenario_path, shipped_scenarios
 from ..schema import Section, Table, kind_table, read_keys, show_key
 from ..timegrid import TimeGrid
+from .definition import ControllerConfig, ReferenceConfig, Scenario, SimulationConfig
 from .keys import (
     MAX_STEPS,
     METRICS,
@@ -41,7 +42,6 @@ from .keys import (
     scenario_section,
     simulation_section,
 )
-from .model import ControllerConfig, ReferenceConfig, Scenario, SimulationConfig
 
 Overrides = Sequence[str] | Mapping[str, Any]  # "key=value" strings (the value read as TOML), or a dict
 

@@ -37,7 +37,7 @@ from ...timegrid import whole_steps
 from ..base import IO, PlantTerms, array_io
 from .callbacks import collect_warnings, generalized_force, passive_forces, unstable
 from .consistency import consistency_report
-from .model import compiled
+from .mjcf import compiled
 from .options import MujocoOptions
 
 _mj_step, _mj_sensor_pos, _mj_sensor_vel = mujoco.mj_step, mujoco.mj_sensorPos, mujoco.mj_sensorVel
