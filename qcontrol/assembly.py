@@ -99,7 +99,8 @@ def scene(sc: Scenario) -> SceneSource | None:
     """What a recording of the scenario draws in 3-D, whichever backend runs it: the model of the
     first backend section that has one (an ODE run of Example 2 replays the MuJoCo pendulum)."""
     for name, options in sc.backends.items():
-        drawn = BACKENDS[name].scene(options, sc.simulation.dt)
+        backend = BACKENDS[name]
+        drawn = None if backend.scene is None else backend.scene(options, sc.simulation.dt)
         if drawn is not None:
             return drawn
     return None
