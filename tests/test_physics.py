@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import json
 import math
-import pathlib
 
 import numpy as np
 import pytest
+from conftest import SCENARIOS
 
 from qcontrol.assembly import build_plant, build_reference, input_inertia, loads, run_scenario
 from qcontrol.cli import main
@@ -20,8 +20,6 @@ from qcontrol.errors import QcontrolInputError
 from qcontrol.metrics import summary
 from qcontrol.quantizer import UniformQuantizer
 from qcontrol.scenario import load_scenario
-
-SCENARIOS = pathlib.Path(__file__).resolve().parents[1] / "scenarios"
 
 
 class OpenLoop(Backstepping):
