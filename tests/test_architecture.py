@@ -32,7 +32,7 @@ LAYERS = [
     {"controller"},
     {"plants"},
     {"engine"},
-    {"metrics", "scenario"},
+    {"metrics", "scenario", "summary"},
     {"paper"},
     {"assembly"},
     {"recording", "plots", "attribution"},

@@ -179,11 +179,16 @@ def test_the_differenced_velocity_is_the_quantized_position_over_the_period(batc
     assert np.abs(expected).max() > 0  # the cart moved: the test compared real differences
 
 
-def test_lemma2_does_not_decide_the_exit_status_when_x2_is_differenced() -> None:
-    base = {"diverged": False, "lemma2_max_ratio": 5.0}
-    assert _status(base | {"lemma2_applies": True}) == 1
-    assert _status(base | {"lemma2_applies": False}) == 0
-    assert _status(base | {"lemma2_applies": False, "diverged": True}) == 1
+def test_lemma2_does_not_decide_the_exit_status_when_x2_is_differenced(short_example2) -> None:
+    import dataclasses
+
+    import qcontrol
+
+    base = dataclasses.replace(qcontrol.run(short_example2, "ode", record="metrics").typed_summary,
+                               diverged=False, lemma2_max_ratio=5.0)
+    assert _status(dataclasses.replace(base, lemma2_applies=True)) == 1
+    assert _status(dataclasses.replace(base, lemma2_applies=False)) == 0
+    assert _status(dataclasses.replace(base, lemma2_applies=False, diverged=True)) == 1
 
 
 # ---------------------------------------------------------------------------------------------
