@@ -197,6 +197,45 @@ def compare(scenario: Scenario, *, rrd: str | Path | None = None, spawn: bool = 
     return Comparison(result, runs["mujoco"], runs["ode"])
 
 
+def check_video(scenario: Scenario, path: str | Path, fps: float = 30.0, camera: str | None = None,
+                size: tuple[int, int] | None = None) -> Any:
+    """Check, before a run, that its video can be made (:func:`video`): the scenario has a MuJoCo
+    model with a camera, the format is known, the encoder is installed, an offscreen OpenGL context
+    opens. One line (:class:`QcontrolInputError`) otherwise. Returns the checked request."""
+    drawn = scene(scenario)
+    if drawn is None:
+        raise QcontrolInputError(f"--video: {scenario.source} has no MuJoCo model to render; add a "
+                                 "[plant.mujoco] table, or leave out --video")
+    from .render import check_video_request, require_offscreen_gl
+    from .render.frames import camera_id
+
+    camera_id(drawn.model, camera, str(scenario.source))
+    request = check_video_request(path, fps, camera, size)
+    try:
+        import imageio_ffmpeg  # noqa: F401
+    except ImportError:
+        raise QcontrolInputError("--video needs the video extra (the ffmpeg encoder): "
+                                 "pip install 'qcontrol[video]'") from None
+    require_offscreen_gl()
+    return request
+
+
+def video(result: Result, path: str | Path, *, fps: float = 30.0, camera: str | None = None,
+          size: tuple[int, int] | None = None, twin: Result | None = None,
+          progress: ProgressCallback | None = None) -> Path:
+    """Render a run (kept with ``record="full"``) as MuJoCo draws it, to ``path`` (.mp4 or .gif):
+    ``fps`` frames per second of simulated time, from the model's camera ``camera`` (None: its
+    first), ``size`` (width, height) pixels (None: 640 x 480 for MP4, 400 x 300 for GIF), with
+    t, q(x1) and u overlaid; ``twin`` (a comparison's ODE run) is drawn as a
+    translucent ghost. Only reads the trajectories: the runs' numbers do not change."""
+    from .render import write_video
+
+    request = check_video(result.scenario, path, fps, camera, size)
+    drawn = scene(result.scenario)
+    return write_video(request, result.trajectory, drawn.model, drawn.joint, str(result.scenario.source),
+                       None if twin is None else twin.trajectory, progress)
+
+
 def require_twin(scenario: Scenario) -> None:
     """Refuse, in one line, a scenario :func:`compare` cannot run: one without a MuJoCo model."""
     if "mujoco" not in scenario.backends:

@@ -25,6 +25,7 @@ from .outputs import check_output_dir, check_output_file, prepare_output_dir, wr
 from .plants import BACKENDS
 from .progress import ProgressLine
 from .provenance import command_line
+from .render import DEFAULT_FPS
 from .resources import shipped_scenarios
 from .scenario import Scenario, load_scenario
 from .sweep import add_sweep_parser, cmd_sweep
@@ -66,11 +67,29 @@ def add_unset_option(p: argparse.ArgumentParser) -> None:
                    "applied before --set)")
 
 
+def _video_size(text: str) -> tuple[int, int]:
+    from .render.video import parse_size
+
+    try:
+        return parse_size(text)
+    except QcontrolInputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def _add_recording_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rrd", type=Path, metavar="FILE",
                    help="write a rerun recording (open it with `rerun FILE`)")
     p.add_argument("--spawn", action="store_true",
                    help="stream to a rerun viewer started on this machine (needs a display)")
+    p.add_argument("--video", type=Path, metavar="FILE",
+                   help="render the run as MuJoCo draws it to FILE.mp4 or FILE.gif (headless: EGL or OSMesa; "
+                   "after the run, about 0.1-0.3 s per frame on a CPU; needs the model's MuJoCo twin)")
+    p.add_argument("--video-fps", type=float, default=DEFAULT_FPS, metavar="N",
+                   help=f"video frames per second of simulated time (default {DEFAULT_FPS:g})")
+    p.add_argument("--video-size", type=_video_size, metavar="WxH",
+                   help="video frame size in pixels (default 640x480 for .mp4, 400x300 for .gif)")
+    p.add_argument("--video-camera", metavar="NAME",
+                   help="the model's camera to render from (default: its first named camera)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -238,9 +257,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise QcontrolInputError(f"--save {args.save}: unknown format {args.save.suffix!r}; "
                                  "give a .npz or .csv file")
     _check_outputs(args, {"--rrd": args.rrd, "--save": args.save, "--plot": args.plot})
-    # a plain run keeps only its metrics (memory stays flat however long the run); --save and
-    # --plot need every row
-    record = "full" if args.save is not None or args.plot is not None else "metrics"
+    _check_video(args, sc)
+    # a plain run keeps only its metrics (memory stays flat however long the run); --save, --plot
+    # and --video need every row
+    record = "metrics" if args.save is None and args.plot is None and args.video is None else "full"
     progress = _progress(sc, backend, args)
     result = api.run(sc, backend, rrd=args.rrd, spawn=args.spawn, record=record, progress=progress,
                      command=args.command_line)
@@ -259,7 +279,28 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"  wrote {_plot_run(result, args.plot)}")
     if args.rrd is not None:
         print(f"  wrote {args.rrd} (open it with: rerun {args.rrd})")
+    _write_video(args, result)
     return _status(s)
+
+
+def _check_video(args: argparse.Namespace, sc: Scenario) -> None:
+    """Before the run: that --video can be written (one line and exit status 2 otherwise)."""
+    if args.video is not None:
+        api.check_video(sc, args.video, args.video_fps, args.video_camera, args.video_size)
+
+
+def _write_video(args: argparse.Namespace, result: api.Result, twin: api.Result | None = None) -> None:
+    if args.video is None:
+        return
+    progress = ProgressLine(f"video {args.video.name}", not args.quiet, unit="frames")
+    started = time.perf_counter()
+    path = api.video(result, args.video, fps=args.video_fps, camera=args.video_camera,
+                     size=args.video_size, twin=twin, progress=progress)
+    progress.finish()
+    seconds = time.perf_counter() - started
+    simulated = max(result.summary["steps"] * result.summary["dt"], 1e-9)
+    print(f"  wrote {path} ({path.stat().st_size / 1e6:.2f} MB, rendered in {seconds:.1f} s: "
+          f"{seconds / simulated:.2f} s per simulated second)")
 
 
 def _plot_run(result: api.Result, path: Path) -> Path:
@@ -279,6 +320,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     sc = _scenario_from_args(args)
     api.require_twin(sc)  # before --spawn starts a viewer
     _check_outputs(args, {"--rrd": args.rrd})
+    _check_video(args, sc)
     progress: dict[str, ProgressLine] = {}
 
     def progress_of(backend: str) -> ProgressLine:
@@ -311,6 +353,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         print(f"  wrote {out / 'compare.json'}")
     if args.rrd is not None:
         print(f"  wrote {args.rrd} (open it with: rerun {args.rrd})")
+    _write_video(args, cmp.mujoco, twin=cmp.ode)
     return max(_status(result["mujoco"]), _status(result["ode"]))
 
 

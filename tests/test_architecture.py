@@ -31,6 +31,7 @@ LAYERS = [
     {"metrics", "scenario"},
     {"assembly"},
     {"recording", "plots", "report", "check", "robustness_report", "attribution"},
+    {"render"},
     {"sweep", "api", "explain"},
     {"reproduce", "robustness"},
     {"cli", "_entry"},
