@@ -127,3 +127,40 @@ def test_missing_gl_names_the_package(tmp_path, capsys, monkeypatch):
     err = capsys.readouterr().err
     assert "libegl1" in err and "apt-get install" in err and len(err.strip().splitlines()) == 1
     assert list(tmp_path.iterdir()) == []
+
+
+def _views(container) -> list:
+    """The views of a layout, depth first."""
+    import rerun.blueprint as rrb
+
+    found = []
+    for item in container.contents:
+        found += _views(item) if isinstance(item, rrb.Container) else [item]
+    return found
+
+
+@needs_gl
+def test_recording_holds_the_camera_view_beside_the_3d_view(tmp_path):
+    from rerun.chunk import RrdReader
+
+    from qcontrol.recording.layout import default_blueprint
+
+    rrd = tmp_path / "run.rrd"
+    assert main(["run", str(EX2), "--duration", "0.2", "-q", "--rrd", str(rrd), "--camera-view"]) == 0
+    times, blobs = [], 0
+    for chunk in RrdReader(rrd).stream():
+        if chunk.entity_path.lstrip("/") == "camera/front":
+            batch = chunk.to_record_batch()
+            times += batch.column("sim_time").cast("int64").to_pylist()
+            blob = next(c for c in batch.column_names if c.lower().endswith("blob"))
+            blobs += sum(1 for b in batch.column(blob).to_pylist() if b and bytes(b[0][:2]) == b"\xff\xd8")
+    # 15 frames per simulated second, each at the row it shows: 0, 66, 133 and 200 ms
+    assert times == [0, 66_000_000, 133_000_000, 200_000_000] and blobs == 4  # JPEG files
+    layout = default_blueprint([], None, "camera/front")
+    assert [(type(v).__name__, v.origin) for v in _views(layout.root_container)][0] == (
+        "Spatial2DView", "camera/front")  # the first view: top left
+
+
+def test_camera_view_needs_a_recording(capsys):
+    assert main(["run", str(EX2), "-q", "--camera-view"]) == 2
+    assert "add --rrd FILE" in capsys.readouterr().err

@@ -94,7 +94,8 @@ class Recording:
         self._travel = (np.inf, -np.inf)  # joint positions (and reference) seen so far
         self._framed: tuple[float, float] | None = None  # what the camera sent frames
         self._camera: Camera | None = None
-        self._layout_sent: tuple[frozenset[Panel], Camera | None] | None = None
+        self._layout_sent: tuple[frozenset[Panel], Camera | None, str | None] | None = None
+        self._camera_view: str | None = None  # the entity of MuJoCo's rendered frames, if any
         self.main_series: list[Series] = []  # the main run's, restyled once a twin is drawn on them
         self.main_label = "main"
         self._flush_failed = False
@@ -285,6 +286,22 @@ class Recording:
                 static=True,
             )
 
+    def log_camera_frames(self, name: str, times: np.ndarray, jpegs: Sequence[bytes]) -> None:
+        """MuJoCo's rendered frames (JPEG files' bytes) at simulated ``times`` [s], under
+        ``camera/<name>``, shown beside the 3-D view in the layout."""
+        if self._stream is None or not len(jpegs):
+            return
+        import rerun as rr
+
+        from .streamer import time_column
+
+        entity = f"camera/{_label_suffix(name)}"
+        self._stream.send_columns(entity, indexes=[time_column(np.asarray(times, dtype=float))],
+                                  columns=rr.EncodedImage.columns(blob=list(jpegs),
+                                                                  media_type=["image/jpeg"] * len(jpegs)))
+        self._camera_view = entity
+        self.update_layout()
+
     # -- layout ----------------------------------------------------------------------------
 
     def add_panels(self, panels: list[Panel]) -> None:
@@ -318,9 +335,9 @@ class Recording:
         if self._stream is None or not self._panels:
             return
         camera = self._current_camera() if final or self._layout_sent is None else self._camera
-        layout = (frozenset(self._panels), camera)
+        layout = (frozenset(self._panels), camera, self._camera_view)
         if layout != self._layout_sent:
-            self._stream.send_blueprint(default_blueprint(list(self._panels), camera),
+            self._stream.send_blueprint(default_blueprint(list(self._panels), camera, self._camera_view),
                                         make_active=True, make_default=True)
             self._layout_sent = layout
 

@@ -102,6 +102,32 @@ def _writer(path: Path, suffix: str, size: tuple[int, int], fps: float) -> Gener
                                        macro_block_size=16, ffmpeg_log_level="error")
 
 
+CAMERA_VIEW_FPS = 15.0  # a recording's rendered frames per second of simulated time
+CAMERA_VIEW_SIZE = (320, 240)
+JPEG_QUALITY = 80  # about 10 kB a frame: a 10 s recording's camera view is about 1.5 MB
+
+
+def camera_view_frames(traj: Trajectory, model: object, joint: str, source: str, camera: str | None = None,
+                       twin: Trajectory | None = None) -> tuple[str, np.ndarray, list[bytes]]:
+    """MuJoCo's rendered frames of ``traj`` for a recording: the camera's name, the frames'
+    simulated times and the JPEG files' bytes (``CAMERA_VIEW_FPS``, ``CAMERA_VIEW_SIZE``)."""
+    import io
+
+    import mujoco
+    from PIL import Image
+
+    cid = camera_id(model, camera, source)  # type: ignore[arg-type]
+    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_CAMERA, cid) or f"camera{cid}"
+    instants = _instants(traj, CAMERA_VIEW_FPS, twin)
+    jpegs = []
+    with FrameRenderer(model, joint, cid, *CAMERA_VIEW_SIZE) as renderer:  # type: ignore[arg-type]
+        for instant in instants:
+            buffer = io.BytesIO()
+            Image.fromarray(renderer.render(instant)).save(buffer, format="JPEG", quality=JPEG_QUALITY)
+            jpegs.append(buffer.getvalue())
+    return name, np.array([i.t for i in instants]), jpegs
+
+
 def write_video(request: VideoRequest, traj: Trajectory, model: object, joint: str, source: str,
                 twin: Trajectory | None = None,
                 progress: Callable[[int, int], None] | None = None) -> Path:
