@@ -296,7 +296,7 @@ def recording_for(rrd: str | Path | None, spawn: bool, sc: Scenario, provenance:
 
 def observer_for(rec: Any, sc: Scenario, label: str, twin_of: Trajectory | None = None,
                  ghost: bool | None = None) -> Any:
-    """The recording's observer of a run labelled ``label`` (its backend, or e.g. "baseline");
+    """The recording's observer of a run labelled ``label`` (its backend, or e.g. "comparison");
     with ``twin_of`` the run is drawn as that main run's twin (thin lines on its wide ones, an
     outline body, the differences); ``ghost`` (default: whether it is a twin) draws another run
     beside the main one."""

@@ -52,7 +52,7 @@ def _write(tmp_path: Path, text: str) -> Path:
 
 def _variant(old: str, new: str) -> str:
     """Example 2 with one edit, loadable from any folder (absolute MJCF path)."""
-    text = EX2.read_text().replace('"../models/', f'"{ROOT}/models/')
+    text = EX2.read_text().replace('"qcontrol:models/', f'"{ROOT}/models/')
     assert old in text
     return text.replace(old, new)
 

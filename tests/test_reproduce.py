@@ -70,8 +70,8 @@ def test_table1_json_carries_the_provenance(reproduction):
     table = json.loads((reproduction / "table1.json").read_text())
     provenance = table["provenance"]
     assert set(provenance["scenario_file"]) == {"proposed", "comparison"}
-    assert provenance["overrides"]["comparison"][0] == "controller.kind=baseline"
-    assert "[controller.baseline]" in provenance["resolved_scenario"]["comparison"]
+    assert provenance["overrides"]["comparison"][0] == "controller.kind=comparison"
+    assert "[controller.comparison]" in provenance["resolved_scenario"]["comparison"]
 
 
 def test_studies_cover_the_paper_values(reproduction):

@@ -16,7 +16,7 @@ def add_reproduce_parser(sub: argparse._SubParsersAction) -> None:
     rep = sub.add_parser(
         "reproduce",
         help="reproduce the paper's Figures 1-8 and Table 1 with an honest report",
-        description="Run both examples of the paper (proposed law and the comparison method of [20]) "
+        description="Run both examples of the paper (proposed law and the comparison law of [20]) "
         "and the sensitivity studies; write figures, table1.md/.json, REPORT.md and recordings.",
     )
     rep.add_argument("--out", type=Path, default=Path("results"), metavar="DIR",

@@ -146,7 +146,7 @@ def _findings(f: ReportFacts) -> list[str]:
     return [
         "## What was reproduced and what was not",
         "",
-        f"* **Comparison method of [20], eq. (46)**: ours E = {_rates(ours['comparison'], 3)} against the "
+        f"* **Comparison law of [20], eq. (46)**: ours E = {_rates(ours['comparison'], 3)} against the "
         f"paper's {_rates(PAPER_TABLE1['comparison'], 3)} (largest difference {largest:.3f}). "
         "The paper does not print [20]'s adaptive law; ours is the standard theta_hat' = phi(x_q) zbar_2 "
         "(our reconstruction: docs/math.md, 'The comparison law'). Its quality is poor for the reason the "

@@ -1,6 +1,6 @@
 """``qcontrol reproduce``: the paper's Figures 1-8 and Table 1, side by side with ours.
 
-Runs Example 1 and Example 2 (proposed law and the comparison method of reference [20]) on the
+Runs Example 1 and Example 2 (proposed law and the comparison law of reference [20]) on the
 chosen backend, with the ideal ODE twin beside MuJoCo, then the sensitivity studies (kappa - L,
 a constant scale of r, plant variants) on the ODE backend, then the robustness study on realistic
 hardware (:mod:`qcontrol.robustness`, MuJoCo, in worker processes). Writes PNG figures,
@@ -42,7 +42,7 @@ PLANT_VARIANTS = (
     ("theta2 = +3.5", "example2", ("plant.theta=[-1.0, 3.5, -34.3]",)),
     ("rigid pendulum", "example2-rigid", ()),
 )
-BASELINE = ("controller.kind=baseline",)
+BASELINE = ("controller.kind=comparison",)
 ROBUSTNESS_SCENARIOS = tuple(name for pair in EXAMPLES for name in pair)
 
 
@@ -132,11 +132,11 @@ def reproduce(
     _example1_figures(o, ex1, ex1_twin)
     _record(o / "example1.rrd", ex1, {"ode": ex1_twin}, command)
 
-    log(f"Example 2 on {backend}: proposed and comparison method [20]")
+    log(f"Example 2 on {backend}: proposed and comparison law [20]")
     ex2, ex2_twin = rep.twins("example 2 proposed", rep.scenario("example2"))
     base, base_twin = rep.twins("example 2 comparison", rep.scenario("example2", BASELINE))
     _example2_figures(o, ex2, ex2_twin, base)
-    _record(o / "example2.rrd", ex2, {"ode": ex2_twin, "baseline": base}, command)
+    _record(o / "example2.rrd", ex2, {"ode": ex2_twin, "comparison": base}, command)
 
     table = _table1(o, backend, ex2, ex2_twin, base, base_twin, command)
 
@@ -228,7 +228,7 @@ def _example2_figures(o: Path, run: Run, twin: Run | None, base: Run) -> None:
 
 def _record(path: Path, main: Run, ghosts: dict[str, Run | None], command: str) -> None:
     """A rerun recording of the main run with its ghosts: its twin "ode" (the same closed loop on
-    the ODE) and the others (the comparison method)."""
+    the ODE) and the others (the comparison law)."""
     sc = main.scenario
     with recording_for(path, False, sc, scenario_provenance(sc, command)) as rec:
         observer_for(rec, sc, main.backend)(0, len(main.traj.t), [main.traj])

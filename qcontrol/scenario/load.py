@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ..controller.law import LawContext, law_kind
+from ..controller.law import KIND_ALIASES, LawContext, law_kind
 from ..disturbance import Disturbance, parse_disturbances
 from ..engine import MetricSettings
 from ..errors import QcontrolInputError
@@ -141,8 +141,26 @@ def parse_scenario(
             apply_override(data, item)
         else:
             set_key(data, *item, f"override {item[0]!r}")
+    _current_kind_names(data, source)
     scenario = _build(data, source, base_dir or Path("."), text, given, default_name)
     return replace(scenario, unset=tuple(unset)) if unset else scenario
+
+
+def _current_kind_names(data: dict, source: str) -> None:
+    """A controller kind (and its sub-table) written under a former name takes its current one
+    (``baseline`` -> ``comparison``), so that older scenario files and commands keep working."""
+    controller = data.get("controller")
+    if not isinstance(controller, dict):
+        return
+    kind = controller.get("kind")
+    if isinstance(kind, str) and kind in KIND_ALIASES:
+        controller["kind"] = KIND_ALIASES[kind]
+    for old, new in KIND_ALIASES.items():
+        if isinstance(controller.get(old), dict):
+            if new in controller:
+                raise QcontrolInputError(f"{source}: [controller.{old}] is the former name of "
+                                         f"[controller.{new}], which is there too; keep one of them")
+            controller[new] = controller.pop(old)
 
 
 def _as_given(overrides: Overrides) -> tuple[str | tuple[str, Any], ...]:
