@@ -67,10 +67,11 @@ def summary(run: Trajectory | RunMetrics, scenario: str, backend: str) -> dict:
 def bound_constants(names: tuple[str, ...], largest: np.ndarray) -> dict:
     """The separation (37)-(43) as the run measured it: ``bound_constants`` maps each term to the
     largest ``|term| / r(x_q)`` seen (None where it was infinite or undefined: the term is not
-    bounded by its r on the run), and ``warnings`` says so in words. Both None/empty when the
-    separation was not checked (a law without r, or a sweep's batch)."""
+    bounded by its r on the run), and ``warnings`` says so in words. ``bound_constants`` is absent
+    when the separation was not checked: a law without bounding functions r (the comparison law),
+    or a sweep's batch."""
     if not names:
-        return {"bound_constants": None, "warnings": []}
+        return {"warnings": []}
     constants = {name: float(v) if np.isfinite(v) else None for name, v in zip(names, largest, strict=True)}
     warnings = [f"{name} is not bounded by its r on this run: |{name}| / r(x_q) was infinite or undefined "
                 "(eqs. (37)-(43) need |term(x)| <= constant * r(x_q) wherever |x - x_q| <= delta/2)"

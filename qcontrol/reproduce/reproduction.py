@@ -109,6 +109,9 @@ class Reproduction:
         return summaries
 
 
+QUICK_DURATION = 1.0  # s: the horizon of `reproduce --quick`
+
+
 def reproduce(
     out: str | Path,
     backend: str = "mujoco",
@@ -117,11 +120,16 @@ def reproduce(
     log: Callable[[str], None] = print,
     command: str | None = None,
     workers: int | None = None,
+    quick: bool = False,
 ) -> dict:
     """Run the whole reproduction into ``out``; returns Table 1 as written to ``table1.json``.
     ``command`` is what the outputs' provenance names as the command (default: this call);
-    ``workers``: processes for the robustness study (default: the machine's cores, at most 4). Every
-    scenario it uses is validated before the folder is made: bad input creates nothing."""
+    ``workers``: processes for the robustness study (default: the machine's cores, at most 4);
+    ``quick``: a first look: ``QUICK_DURATION`` unless ``duration`` is given, and no robustness study
+    (its 248 MuJoCo runs are most of the time). Every scenario it uses is validated before the
+    folder is made: bad input creates nothing."""
+    if quick and duration is None:
+        duration = QUICK_DURATION
     command = command or (f"qcontrol.reproduce.reproduce({str(out)!r}, backend={backend!r}, "
                           f"duration={duration!r})")
     rep = Reproduction(check_output_dir(out), backend, duration, Path(scenarios), log, command=command)
@@ -149,10 +157,12 @@ def reproduce(
     }
     studied = {name: rep.scenario(name) for name in ("example2", "example2-rigid")}
     write_json(o / "studies.json", studies | {"provenance": scenarios_provenance(studied, command)})
-    robustness = _robustness(o, rep, workers)
+    robustness = None if quick else _robustness(o, rep, workers)
     write_text(o / "REPORT.md", _report(rep, table, studies, deviations, ex1, ex2, robustness))
-    log(f"wrote {o}: REPORT.md, table1.md, table1.json, studies.json, robustness.json, figures, recordings "
-        f"({len(rep.lemma2_ratios)} example and study runs, then the robustness study; "
+    robust = "" if quick else "robustness.json, "
+    study = "no robustness study (--quick)" if quick else "then the robustness study"
+    log(f"wrote {o}: REPORT.md, table1.md, table1.json, studies.json, {robust}figures, recordings "
+        f"({len(rep.lemma2_ratios)} example and study runs, {study}; "
         f"{time.perf_counter() - rep.started:.1f} s)")
     return table
 
@@ -277,7 +287,7 @@ def _studies(rep: Reproduction) -> dict:
 
 
 def _report(rep: Reproduction, table: dict, studies: dict, deviations: dict, ex1: Run, ex2: Run,
-            robustness: dict) -> str:
+            robustness: dict | None) -> str:
     """REPORT.md from the runs' facts (see :func:`qcontrol.report.report_markdown`)."""
     traj, c = ex2.traj, ex2.scenario.controller
     facts = ReportFacts(
