@@ -14,8 +14,8 @@ own, titled by its path. The time panel is collapsed to its play bar.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 from .camera import Camera
@@ -50,8 +50,10 @@ PANELS: dict[str, PanelStyle] = {  # keyed by panel (a series path's parent), in
     "signals/adaptive": PanelStyle("adaptive estimates", "adaptive"),
     "theory/lemma2": PanelStyle("Lemma 2: |e_zi| / L_zi <= 1 at every step (the bound 1: red line)",
                                 "Lemma 2", (0.0, 1.1)),
-    "signals/difference/y": PanelStyle("|y - y_twin|: MuJoCo against its ODE twin", "twin difference"),
-    "signals/difference/u": PanelStyle("|u - u_twin|", "twin difference"),
+    "signals/difference/y": PanelStyle("log10 |y - y_twin|: MuJoCo against its ODE twin (-16: equal to "
+                                       "rounding)", "twin difference", (-17.0, 1.0)),
+    "signals/difference/u": PanelStyle("log10 |u - u_twin| (-16: equal to rounding)", "twin difference",
+                                       (-17.0, 3.0)),
 }
 FRONT_TABS = ("twin difference", "x1")  # the first of these present is the tab shown on opening
 
@@ -92,15 +94,19 @@ def _camera_view(origin: str) -> rrb.Spatial2DView:
 
 
 def default_blueprint(panels: Sequence[Panel], camera: Camera | None,
-                      camera_view: str | None = None) -> rrb.Blueprint:
+                      camera_view: str | None = None,
+                      ranges: Mapping[Panel, tuple[float, float]] | None = None) -> rrb.Blueprint:
     """The layout for a recording whose series fill ``panels`` (in any order, repeats allowed),
     with the 3-D view seen from ``camera`` (None: no 3-D view) and, with ``camera_view`` (an
-    entity holding MuJoCo's rendered frames), that picture beside it."""
+    entity holding MuJoCo's rendered frames), that picture beside it. ``ranges`` fixes the y axis
+    of panels (those whose values are all one number: rerun would show one tick)."""
     import rerun.blueprint as rrb
 
     groups: dict[str, list[tuple[rrb.TimeSeriesView, float]]] = {COLUMN: []}
     for panel in sorted(set(panels), key=_order):
         style = _style(panel)
+        if ranges and panel in ranges:
+            style = replace(style, y_range=ranges[panel])
         groups.setdefault(style.group, []).append((_plot(panel, style), style.height))
     stacks = {group: rrb.Vertical(*(view for view, _ in views), row_shares=[share for _, share in views],
                                   name=None if group == COLUMN else group)
