@@ -210,3 +210,14 @@ def test_example1_and_other_scenarios(capsys: pytest.CaptureFixture[str]) -> Non
     assert "paper: Example 1 is shown in Figs. 1-4 without numbers" in capsys.readouterr().out
     assert main(["run", str(CHAIN3), "--duration", "0.5", "-q"]) == 0
     assert "paper" not in capsys.readouterr().out
+
+
+def test_a_kind_switched_on_the_command_line_names_the_unset_fix(capsys: pytest.CaptureFixture[str]) -> None:
+    switched = ["--set", "reference.kind=constant", "--set", "reference.value=0.2"]
+    assert main(["run", str(EX2), "-q", *switched]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert "reference.amplitude: does not apply to kind 'constant'" in err
+    assert err.endswith("as the kind came from --set, remove the file's key: --unset reference.amplitude")
+    assert main(["run", str(EX2), "-q", "--set", "controller.gain=2"]) == 2
+    assert capsys.readouterr().err.strip().endswith("or leave out --set controller.gain=...")

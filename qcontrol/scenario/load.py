@@ -22,7 +22,7 @@ import numpy as np
 from ..controller.law import KIND_ALIASES, LawContext, law_kind
 from ..disturbance import Disturbance, parse_disturbances
 from ..engine import MetricSettings
-from ..errors import QcontrolInputError
+from ..errors import KeyNotForKind, QcontrolInputError
 from ..expr import Expression, compile_expression
 from ..plants.backends import BACKENDS, PlantContext
 from ..plants.base import PlantTerms
@@ -142,7 +142,10 @@ def parse_scenario(
         else:
             set_key(data, *item, f"override {item[0]!r}")
     _current_kind_names(data, source)
-    scenario = _build(data, source, base_dir or Path("."), text, given, default_name)
+    try:
+        scenario = _build(data, source, base_dir or Path("."), text, given, default_name)
+    except KeyNotForKind as exc:
+        raise QcontrolInputError(_command_line_fix(exc, given)) from None
     return replace(scenario, unset=tuple(unset)) if unset else scenario
 
 
@@ -161,6 +164,18 @@ def _current_kind_names(data: dict, source: str) -> None:
                 raise QcontrolInputError(f"{source}: [controller.{old}] is the former name of "
                                          f"[controller.{new}], which is there too; keep one of them")
             controller[new] = controller.pop(old)
+
+
+def _command_line_fix(exc: KeyNotForKind, given: Sequence[str | tuple[str, Any]]) -> str:
+    """A key the chosen kind does not take, with the fix on the command line when the overrides
+    chose the kind (the key is then the file's: ``--unset`` it) or set the key (leave it out)."""
+    keys = [(item.partition("=")[0] if isinstance(item, str) else item[0]).strip() for item in given]
+    table = exc.key.rsplit(".", 1)[0]
+    if exc.key in keys:
+        return f"{exc}; or leave out --set {exc.key}=..."
+    if f"{table}.kind" in keys:
+        return f"{exc}; or, as the kind came from --set, remove the file's key: --unset {exc.key}"
+    return str(exc)
 
 
 def _as_given(overrides: Overrides) -> tuple[str | tuple[str, Any], ...]:
