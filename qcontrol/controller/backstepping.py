@@ -10,8 +10,8 @@
 The laws' formulas are written once, over *columns*: one value per state (``q_1 .. q_n``) or per
 adaptive estimate, each either a ``(batch,)`` array or, for a batch of one, a plain Python float.
 They use only elementwise arithmetic and coefficients precomputed as Python floats, so the same
-lines step a batch of 1000 copies on numpy arrays and a single run on floats, where a numpy call on
-a one-element array would cost a microsecond each.
+lines step a batch of 1000 copies on numpy arrays and a single run on floats (the engine's fast
+path, :mod:`qcontrol.engine.fastpath`).
 """
 
 from __future__ import annotations
