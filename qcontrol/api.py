@@ -142,13 +142,14 @@ def _call(name: str, sc: Scenario, **kw: Any) -> str:
 
 def run(scenario: Scenario, backend: str | None = None, *, rrd: str | Path | None = None,
         spawn: bool = False, record: str = "full", progress: ProgressCallback | None = None,
-        command: str | None = None) -> Result:
+        command: str | None = None, camera_view: bool = False) -> Result:
     """Run the scenario's closed loop on ``backend`` (None: the scenario's ``simulation.backend``).
 
     ``record="full"`` keeps every row (the Result's arrays); ``"metrics"`` only the summary, in
     memory that does not grow with the run. ``rrd`` writes a rerun recording while it runs,
-    ``spawn`` streams it to a rerun viewer. ``command`` is what the provenance names as the
-    command (default: this call).
+    ``spawn`` streams it to a rerun viewer; with ``camera_view`` the recording also holds
+    MuJoCo's own rendering of the run beside its 3-D view (the run keeps every row for it).
+    ``command`` is what the provenance names as the command (default: this call).
     """
     backend = runnable_backend(scenario, backend)
     command = command or _call("run", scenario, backend=backend, rrd=None if rrd is None else str(rrd))
@@ -156,8 +157,10 @@ def run(scenario: Scenario, backend: str | None = None, *, rrd: str | Path | Non
     plant = build_plant(scenario, backend)
     with recording_for(rrd, spawn, scenario, provenance) as rec:
         observer = None if rec is None else observer_for(rec, scenario, backend)
-        traj = run_scenario(scenario, backend, plant=plant, observer=observer, record=record,
-                            progress=progress)
+        traj = run_scenario(scenario, backend, plant=plant, observer=observer,
+                            record="full" if camera_view and rec is not None else record, progress=progress)
+        if camera_view and rec is not None:
+            _log_camera_view(rec, scenario, traj)
     result = summary(traj, scenario.name, backend) | {"provenance": provenance}
     result["physics_warnings"] = list(plant.warnings)
     return Result(result, scenario, backend, traj)
@@ -175,7 +178,7 @@ class Comparison:
 
 def compare(scenario: Scenario, *, rrd: str | Path | None = None, spawn: bool = False,
             progress: Callable[[str], ProgressCallback | None] | None = None,
-            command: str | None = None) -> Comparison:
+            command: str | None = None, camera_view: bool = False) -> Comparison:
     """Run the scenario on its MuJoCo model and on the ODE with the same step and hold, and
     measure how far they drift apart (``max_abs_dx``, ``max_abs_dy``, ``max_abs_du``, ...).
     ``progress(backend)`` may give a progress callback per run."""
@@ -191,6 +194,8 @@ def compare(scenario: Scenario, *, rrd: str | Path | None = None, spawn: bool = 
             traj = run_scenario(scenario, backend, plant=plant if backend == "mujoco" else None,
                                 observer=observer, progress=progress(backend) if progress else None)
             runs[backend] = Result(summary(traj, scenario.name, backend), scenario, backend, traj)
+        if camera_view and rec is not None:
+            _log_camera_view(rec, scenario, runs["mujoco"].record, runs["ode"].record)
     result = {
         "scenario": scenario.name, "integrator": scenario.backends["mujoco"].integrator,
         "dt": scenario.simulation.dt, **backend_deviation(runs["mujoco"].record, runs["ode"].record),
@@ -201,6 +206,70 @@ def compare(scenario: Scenario, *, rrd: str | Path | None = None, spawn: bool = 
         "physics_warnings": list(plant.warnings), "provenance": provenance,
     }
     return Comparison(result, runs["mujoco"], runs["ode"])
+
+
+def check_video(scenario: Scenario, path: str | Path, fps: float = 30.0, camera: str | None = None,
+                size: tuple[int, int] | None = None) -> Any:
+    """Check, before a run, that its video can be made (:func:`video`): the scenario has a MuJoCo
+    model with a camera, the format is known, the encoder is installed, an offscreen OpenGL context
+    opens. One line (:class:`QcontrolInputError`) otherwise. Returns the checked request."""
+    drawn = scene(scenario)
+    if drawn is None:
+        raise QcontrolInputError(f"--video: {scenario.source} has no MuJoCo model to render; add a "
+                                 "[plant.mujoco] table, or leave out --video")
+    from .render import check_video_request, require_offscreen_gl
+    from .render.frames import camera_id
+
+    camera_id(drawn.model, camera, str(scenario.source))
+    request = check_video_request(path, fps, camera, size)
+    try:
+        import imageio_ffmpeg  # noqa: F401
+    except ImportError:
+        raise QcontrolInputError("--video needs the video extra (the ffmpeg encoder): "
+                                 "pip install 'qcontrol[video]'") from None
+    require_offscreen_gl()
+    return request
+
+
+def video(result: Result, path: str | Path, *, fps: float = 30.0, camera: str | None = None,
+          size: tuple[int, int] | None = None, twin: Result | None = None,
+          progress: ProgressCallback | None = None) -> Path:
+    """Render a run (kept with ``record="full"``) as MuJoCo draws it, to ``path`` (.mp4 or .gif):
+    ``fps`` frames per second of simulated time, from the model's camera ``camera`` (None: its
+    first), ``size`` (width, height) pixels (None: 640 x 480 for MP4, 400 x 300 for GIF), with
+    t, q(x1) and u overlaid; ``twin`` (a comparison's ODE run) is drawn as a
+    translucent ghost. Only reads the trajectories: the runs' numbers do not change."""
+    from .render import write_video
+
+    request = check_video(result.scenario, path, fps, camera, size)
+    drawn = scene(result.scenario)
+    return write_video(request, result.trajectory, drawn.model, drawn.joint, str(result.scenario.source),
+                       None if twin is None else twin.trajectory, progress)
+
+
+def _log_camera_view(rec: Any, sc: Scenario, traj: Trajectory, twin: Trajectory | None = None) -> None:
+    """MuJoCo's rendering of a finished run (and its twin's ghost) into the recording ``rec``."""
+    from .render.video import camera_view_frames
+
+    drawn = scene(sc)
+    if drawn is None:
+        raise QcontrolInputError(f"--camera-view: {sc.source} has no MuJoCo model to render")
+    name, times, jpegs = camera_view_frames(traj, drawn.model, drawn.joint, str(sc.source), twin=twin)
+    rec.log_camera_frames(name, times, jpegs)
+
+
+def check_camera_view(scenario: Scenario) -> None:
+    """Before a run: that its recording can hold MuJoCo's rendering (a model with a camera, an
+    offscreen OpenGL context); one line otherwise."""
+    from .render import require_offscreen_gl
+    from .render.frames import camera_id
+
+    drawn = scene(scenario)
+    if drawn is None:
+        raise QcontrolInputError(f"--camera-view: {scenario.source} has no MuJoCo model to render; add a "
+                                 "[plant.mujoco] table, or leave out --camera-view")
+    camera_id(drawn.model, None, str(scenario.source))
+    require_offscreen_gl()
 
 
 def require_twin(scenario: Scenario) -> None:
@@ -233,7 +302,7 @@ def recording_for(rrd: str | Path | None, spawn: bool, sc: Scenario, provenance:
 
 def observer_for(rec: Any, sc: Scenario, label: str, twin_of: Trajectory | None = None,
                  ghost: bool | None = None) -> Any:
-    """The recording's observer of a run labelled ``label`` (its backend, or e.g. "baseline");
+    """The recording's observer of a run labelled ``label`` (its backend, or e.g. "comparison");
     with ``twin_of`` the run is drawn as that main run's twin (thin lines on its wide ones, an
     outline body, the differences); ``ghost`` (default: whether it is a twin) draws another run
     beside the main one."""

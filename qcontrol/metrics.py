@@ -61,8 +61,9 @@ def run_summary(run: Trajectory | RunMetrics, scenario: str, backend: str) -> Su
 def bound_constants(names: tuple[str, ...], largest: np.ndarray) -> dict:
     """The separation (37)-(43) as the run measured it: ``bound_constants`` maps each term to the
     largest ``|term| / r(x_q)`` seen (None where it was infinite or undefined: the term is not
-    bounded by its r on the run), and ``warnings`` says so in words. Both None/empty when the
-    separation was not checked (a law without r, or a sweep's batch)."""
+    bounded by its r on the run), and ``warnings`` says so in words. ``bound_constants`` is None,
+    and absent from ``summary.json``, when the separation was not checked: a law without bounding
+    functions r (the comparison law), or a sweep's batch."""
     if not names:
         return {"bound_constants": None, "warnings": ()}
     constants = {name: float(v) if np.isfinite(v) else None for name, v in zip(names, largest, strict=True)}

@@ -20,7 +20,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from .errors import QcontrolInputError
+from .errors import KeyNotForKind, QcontrolInputError
 
 REQUIRED: Any = object()  # the default of a key that must be given
 OPTIONAL: Any = object()  # the default of a key that may be left out and then has no value
@@ -298,8 +298,9 @@ def kind_table(table: Table, common: Sequence[str], kinds: Mapping[str, KindKeys
         if key in common or key in kinds:
             continue
         if chosen is not None and key not in chosen.names:
-            raise table.error(key, _not_for_kind(key, kind, kinds), _keys_that_apply(table, common, kind,
-                                                                                     chosen, kinds, key))
+            problem = table.error(key, _not_for_kind(key, kind, kinds),
+                                  _keys_that_apply(table, common, kind, chosen, kinds, key))
+            raise KeyNotForKind(str(problem), table.path(key))
         group = _group(chosen, key)
         for alternative in group:  # a direct key replaces its whole group of the sub-table
             merged.pop(alternative, None)

@@ -22,8 +22,9 @@ class Summary:
     (45), theta_hat of (46), ...). Lemma 2: ``lemma2_max_ratio`` = max over time and i of
     ``|e_zi| / L_zi`` (<= 1 holds), ``lemma2_applies`` (false when x2 is differenced,
     ``velocity_source``), the bounds ``L_z`` and ``L = L_zn``. The separation (37)-(43):
-    ``bound_constants`` (term -> largest ``|term| / r(x_q)``, None where unbounded; None when not
-    checked) and ``warnings``. ``provenance`` and ``physics_warnings`` are present (not None) in
+    ``bound_constants`` (term -> largest ``|term| / r(x_q)``, None where unbounded; None, and absent
+    from ``summary.json``, when not checked: a law without bounding functions, a sweep's batch) and
+    ``warnings``. ``provenance`` and ``physics_warnings`` are present (not None) in
     the summary of a single run written by ``qcontrol run`` or :func:`qcontrol.run`.
     """
 
@@ -48,7 +49,7 @@ class Summary:
     lemma2_applies: bool
     L_z: tuple[float, ...]
     L: float
-    bound_constants: Mapping[str, float | None] | None
+    bound_constants: Mapping[str, float | None] | None = None
     warnings: tuple[str, ...] = ()
     provenance: Mapping[str, Any] | None = field(default=None, compare=False)
     physics_warnings: tuple[str, ...] | None = None
@@ -78,7 +79,7 @@ class Summary:
         return cls(**values)
 
 
-_OPTIONAL = ("provenance", "physics_warnings")
+_OPTIONAL = ("bound_constants", "provenance", "physics_warnings")
 
 
 def _plain(value: Any) -> Any:

@@ -36,6 +36,7 @@ LAYERS = [
     {"paper"},
     {"assembly"},
     {"recording", "plots", "attribution"},
+    {"render"},
     {"sweep", "api", "explain"},
     {"reproduce"},
     {"cli", "_entry"},
@@ -257,17 +258,18 @@ def test_a_direct_key_replaces_its_alternative_in_the_sub_table() -> None:
 
 
 def test_switching_kind_takes_the_other_kinds_sub_table() -> None:
-    sc = load_scenario(EX2, ["controller.kind=baseline", "controller.gain=2.0"])
-    assert sc.controller.kind == "baseline" and sc.controller.settings.gain == 2.0
-    assert sc.controller.settings.theta == "adaptive"  # from [controller.baseline]
+    sc = load_scenario(EX2, ["controller.kind=comparison", "controller.gain=2.0"])
+    assert sc.controller.kind == "comparison" and sc.controller.settings.gain == 2.0
+    assert sc.controller.settings.theta == "adaptive"  # from [controller.comparison]
 
 
 @pytest.mark.parametrize(("overrides", "fragments"), [
     (["controller.gain=2.0"],
-     ["controller.gain", "does not apply to kind 'proposed'", "setting of kind 'baseline'", "kappa_margin"]),
-    (["controller.kind=baseline", "controller.gamma=2.0"],
-     ["controller.gamma", "kind 'baseline'", "gain, theta"]),
-    (["controller.baseline.gian=2.0"], ["controller.baseline.gian: unknown key", "gain, theta"]),
+     ["controller.gain", "does not apply to kind 'proposed'", "setting of kind 'comparison'",
+      "kappa_margin"]),
+    (["controller.kind=comparison", "controller.gamma=2.0"],
+     ["controller.gamma", "kind 'comparison'", "gain, theta"]),
+    (["controller.comparison.gian=2.0"], ["controller.comparison.gian: unknown key", "gain, theta"]),
     (["controller.proposed=1"], ["controller.proposed", "must be a table"]),
 ])
 def test_keys_of_another_kind_are_refused_with_the_keys_that_apply(overrides: list[str],

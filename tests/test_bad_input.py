@@ -30,7 +30,7 @@ CANARY = "PWNED"  # a file the malicious expressions would create if anything we
 
 def _text(base: Path) -> str:
     """A scenario's text, loadable from any folder (absolute MJCF path)."""
-    return base.read_text(encoding="utf-8").replace('"../models/', f'"{ROOT}/models/')
+    return base.read_text(encoding="utf-8").replace('"qcontrol:models/', f'"{ROOT}/models/')
 
 
 def _edit(base: Path, old: str, new: str) -> str:
@@ -169,7 +169,7 @@ CATALOGUE: dict[str, Case] = {
     "type: controller kind": case(
         ex2('kind = "proposed"', 'kind = "pid"'),
         "controller.kind: 'pid' is not allowed",
-        "proposed, baseline",
+        "proposed, comparison",
     ),
     "type: backend is a boolean": case(
         ex2('backend = "mujoco"', "backend = true"), "simulation.backend: must be a string"
@@ -212,9 +212,9 @@ CATALOGUE: dict[str, Case] = {
     "sign: zero state bound": case(
         ex2("dt = 0.001", "dt = 0.001\nstate_bound = 0"), "simulation.state_bound: must be > 0"
     ),
-    "sign: baseline gain": case(
-        ex2('kind = "proposed"', 'kind = "baseline"').replace("gain = 1.0", "gain = 0.0"),
-        "controller.baseline.gain: must be > 0",
+    "sign: comparison gain": case(
+        ex2('kind = "proposed"', 'kind = "comparison"').replace("gain = 1.0", "gain = 0.0"),
+        "controller.comparison.gain: must be > 0",
     ),
     "sign: negative MJCF mass parameter": case(
         _edit(SCENARIOS / "example2-rigid.toml", "mass = 1.0", "mass = -1.0"),

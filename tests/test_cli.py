@@ -50,7 +50,7 @@ def _write(tmp_path: Path, text: str) -> Path:
 
 def _variant(old: str, new: str) -> str:
     """Example 2 with one edit, loadable from any folder (absolute MJCF path)."""
-    text = EX2.read_text().replace('"../models/', f'"{ROOT}/models/')
+    text = EX2.read_text().replace('"qcontrol:models/', f'"{ROOT}/models/')
     assert old in text
     return text.replace(old, new)
 
@@ -173,7 +173,7 @@ def test_compare_rrd_holds_both_runs(tmp_path, capsys):
     c = json.loads((out / "compare.json").read_text())
     assert np.max(np.abs(y - y_ode)) == c["max_abs_dy"] <= 1e-9  # the recording holds the same two runs
     _, dy = temporal(entities["signals/difference/y/ode"], "Scalars:scalars")  # the ODE run is the twin
-    np.testing.assert_array_equal(dy, np.abs(y - y_ode))
+    np.testing.assert_array_equal(dy, np.log10(np.maximum(np.abs(y - y_ode), 1e-16)))  # as log10, floored
 
 
 def test_run_without_rrd_does_not_import_rerun():
@@ -210,3 +210,27 @@ def test_run_streams_chunks_with_bounded_memory_same_numbers(tmp_path, overrides
     for key in ("error_rate", "max_abs_u", "max_abs_z1_last_half", "final_eps_hat", "lemma2_max_ratio",
                 "diverged", "diverged_time", "steps"):
         assert got[key] == want[key], key
+
+
+def test_progress_is_shown_on_a_terminal_only(tmp_path, capsys, monkeypatch):
+    """Piped (here: captured), no command writes progress lines; on a terminal the line is redrawn."""
+    import io
+
+    from qcontrol.progress import ProgressLine
+
+    assert main(["sweep", str(EX2), "--backend", "ode", "--grid", "controller.gamma=0.5,2", "--set",
+                 "simulation.duration=0.2", "--out", str(tmp_path / "sweep")]) == 0
+    assert main(["run", str(EX2), "--duration", "0.2"]) == 0
+    assert capsys.readouterr().err == ""
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    terminal = Terminal()
+    monkeypatch.setattr(sys, "stderr", terminal)
+    line = ProgressLine("sweep", True, "runs")
+    for done in range(5):
+        line(done, 4)
+    drawn = "".join(f"\rsweep: {100 * d // 4:3d}% ({d}/4 runs)" for d in range(5))
+    assert terminal.getvalue() == drawn + "\n"

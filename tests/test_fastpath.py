@@ -7,7 +7,7 @@ import pytest
 from conftest import SCENARIOS
 
 from qcontrol.assembly import build_controller, build_plant, build_quantizer, build_reference
-from qcontrol.controller import BaselineController, ProposedController
+from qcontrol.controller import ComparisonController, ProposedController
 from qcontrol.engine import simulate
 from qcontrol.engine.fastpath import float_quantizer
 from qcontrol.expr import compile_expression
@@ -27,8 +27,8 @@ def _controllers():
         "proposed": ProposedController([4.0, 3.0], 0.005, kappa=1.125, gamma=1.5, sigma=0.7, r=r),
         "proposed-r_scale": ProposedController([4.0, 3.0], 0.005, kappa=1.125, gamma=1.5, sigma=0.7, r=r,
                                                r_scale=2.5),
-        "baseline": BaselineController([4.0, 3.0], 0.005, psi, phi, adaptation_gain=2.0),
-        "baseline-known": BaselineController([4.0, 3.0], 0.005, None, phi, known_theta=[-1.0, -3.5, -34.3]),
+        "baseline": ComparisonController([4.0, 3.0], 0.005, psi, phi, adaptation_gain=2.0),
+        "baseline-known": ComparisonController([4.0, 3.0], 0.005, None, phi, known_theta=[-1.0, -3.5, -34.3]),
     }
 
 
@@ -71,8 +71,8 @@ class _Seen:
         return self.inner.control(reading, yd, adaptive, t)
 
 
-@pytest.mark.parametrize("overrides", [[], ["controller.kind=baseline"], ["controller.r_scale=2.0"],
-                                       ["controller.kind=baseline", "controller.theta=known"],
+@pytest.mark.parametrize("overrides", [[], ["controller.kind=comparison"], ["controller.r_scale=2.0"],
+                                       ["controller.kind=comparison", "controller.theta=known"],
                                        ["simulation.control_period=0.004"]])
 @pytest.mark.parametrize("backend", ["ode", "mujoco"])
 def test_batch_of_one_on_floats_equals_the_numpy_batch(overrides: list[str], backend: str) -> None:

@@ -53,7 +53,7 @@ def here(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
 
 def _mismatched_physics(tmp_path: Path) -> Path:
     """Example 2 whose theta disagrees with the MJCF: refused when the MuJoCo plant is built."""
-    text = EX2.read_text().replace('"../models/', f'"{ROOT}/models/')
+    text = EX2.read_text().replace('"qcontrol:models/', f'"{ROOT}/models/')
     path = tmp_path / "inputs" / "bad.toml"
     path.parent.mkdir()
     path.write_text(text.replace("theta = [-1.0, -3.5, -34.3]", "theta = [-1.0, -3.5, -20.0]"))
@@ -98,7 +98,7 @@ def test_reproduce_creates_nothing_on_bad_input(here: Path, capsys: pytest.Captu
     partial = here / "partial"
     partial.mkdir()
     for name in ("example1.toml", "example2.toml"):
-        text = (SCENARIOS / name).read_text().replace('"../models/', f'"{ROOT}/models/')
+        text = (SCENARIOS / name).read_text().replace('"qcontrol:models/', f'"{ROOT}/models/')
         (partial / name).write_text(text)
     _refused_and_nothing_made(here, capsys, ["reproduce", "--scenarios", str(partial), "--out", "runs/bad4",
                                              "-q"], "example2-rigid.toml", "not found")

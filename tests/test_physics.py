@@ -196,7 +196,7 @@ def test_lemma2_does_not_decide_the_exit_status_when_x2_is_differenced(short_exa
 
 
 @pytest.mark.parametrize("name", ["example2-arm", "example1-cart"])
-@pytest.mark.parametrize("law", ["proposed", "baseline"])
+@pytest.mark.parametrize("law", ["proposed", "comparison"])
 def test_the_realistic_scenarios_run_to_the_end_and_stay_bounded(name: str, law: str) -> None:
     """Both laws on both realistic plants, the full 10 s with their disturbance: no divergence,
     the states stay within a few times the reference, Lemma 2 holds for what the quantizer read."""

@@ -70,8 +70,8 @@ def test_table1_json_carries_the_provenance(reproduction):
     table = json.loads((reproduction / "table1.json").read_text())
     provenance = table["provenance"]
     assert set(provenance["scenario_file"]) == {"proposed", "comparison"}
-    assert provenance["overrides"]["comparison"][0] == "controller.kind=baseline"
-    assert "[controller.baseline]" in provenance["resolved_scenario"]["comparison"]
+    assert provenance["overrides"]["comparison"][0] == "controller.kind=comparison"
+    assert "[controller.comparison]" in provenance["resolved_scenario"]["comparison"]
 
 
 def test_studies_cover_the_paper_values(reproduction):
@@ -130,3 +130,13 @@ def test_robustness_json_holds_every_row(reproduction):
         keys = {"peak_abs_z1", "peak_deviation", "recovery_time_s", "recovery_to_undisturbed_s"}
         assert keys <= set(c["result"])
     assert {m["example"] for m in study["margins"]} == {"example1", "example2"}
+
+
+def test_quick_reproduce_skips_the_robustness_study(tmp_path, capsys):
+    out = tmp_path / "quick"
+    assert main(["reproduce", "--quick", "--duration", "0.3", "--out", str(out)]) == 0
+    assert "no robustness study (--quick)" in capsys.readouterr().out
+    assert (out / "table1.json").is_file() and (out / "REPORT.md").is_file()
+    assert not (out / "robustness.json").exists() and not (out / "study_margins.png").exists()
+    report = (out / "REPORT.md").read_text()
+    assert "Not run here (`qcontrol reproduce --quick`)" in report

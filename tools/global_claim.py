@@ -7,7 +7,7 @@ For each example and each of eight directions d (the axes and the diagonals) the
 x0 = s d is scaled up (s = 0.5, 1, 2, 5, 10, ... up to --max-scale), then bisected between the last
 scale that works and the first that fails. "Works" means what the theorem promises, on the ideal
 ODE plant at the scenario's step: the run does not diverge (no NaN/Inf, |x_i| <= state_bound) and
-max |e_zi| / L_zi <= 1 at every step. Then the baseline law (controller.kind = baseline) is run from
+max |e_zi| / L_zi <= 1 at every step. Then the comparison law (controller.kind = comparison) is run from
 the largest working x0 and from the first failing one. One row per direction:
 
     example  direction  largest s that works  first s that fails  how the proposed law fails there
@@ -104,14 +104,14 @@ def main(argv: list[str] | None = None) -> int:
     started = time.perf_counter()
     print(f"ODE backend, dt = {args.dt:g} s, {args.duration:g} s runs; x0 = s * direction")
     print(f"{'example':9s} {'direction':>9s} {'largest s ok':>12s} {'first s fails':>13s}  "
-          f"{'proposed at first fail':28s} {'baseline at largest ok':24s} {'baseline at first fail':24s}")
+          f"{'proposed at first fail':28s} {'comparison at largest ok':24s} {'comparison at first fail':24s}")
     for example in args.examples:
         for d in DIRECTIONS:
             good, bad, failure = largest(example, d, args.dt, args.duration, args.max_scale, args.bisect)
             baseline = []
             for s in (good, bad):
                 if s > 0 and math.isfinite(s):
-                    base = run(example, tuple(s * v for v in d), args.dt, args.duration, "baseline")
+                    base = run(example, tuple(s * v for v in d), args.dt, args.duration, "comparison")
                     baseline.append("ok" if base.ok else base.how)
                 else:
                     baseline.append("-")

@@ -19,6 +19,7 @@ from .arguments import (
     scenario_from_args,
 )
 from .printing import format_summary, print_paper_line, print_warnings, status
+from .rendering import add_rendering_options, check_rendering, write_video
 
 
 def add_run_parser(sub: argparse._SubParsersAction) -> None:
@@ -39,6 +40,7 @@ def add_run_parser(sub: argparse._SubParsersAction) -> None:
                      help="draw the run (y and y_d, z1, u, the adaptive estimates, the Lemma 2 ratio) to "
                      "FILE.png; keeps every row in memory, unlike a plain run")
     add_recording_options(run)
+    add_rendering_options(run)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -48,12 +50,13 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise QcontrolInputError(f"--save {args.save}: unknown format {args.save.suffix!r}; "
                                  "give a .npz or .csv file")
     check_outputs(args, {"--rrd": args.rrd, "--save": args.save, "--plot": args.plot})
-    # a plain run keeps only its metrics (memory stays flat however long the run); --save and
-    # --plot need every row
-    record = "full" if args.save is not None or args.plot is not None else "metrics"
+    check_rendering(args, sc)
+    # a plain run keeps only its metrics (memory stays flat however long the run); --save, --plot
+    # and --video need every row
+    record = "metrics" if args.save is None and args.plot is None and args.video is None else "full"
     progress = progress_line(sc, backend, args)
     result = api.run(sc, backend, rrd=args.rrd, spawn=args.spawn, record=record, progress=progress,
-                     command=args.command_line)
+                     command=args.command_line, camera_view=args.camera_view)
     progress.finish()
     s = result.summary
     print(format_summary(s, sc))
@@ -69,6 +72,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"  wrote {_plot_run(result, args.plot)}")
     if args.rrd is not None:
         print(f"  wrote {args.rrd} (open it with: rerun {args.rrd})")
+    write_video(args, result)
     return status(s)
 
 

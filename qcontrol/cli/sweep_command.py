@@ -79,7 +79,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     try:
         summaries = sweep_summaries(base.source, sets, backend, args.workers, args.scheduler,
-                                    ProgressLine("sweep", not args.quiet, "runs", piped_every=10), chunks,
+                                    ProgressLine("sweep", not args.quiet, "runs"), chunks,
                                     args.unset)
         interrupted = False
     except SweepInterrupted as stop:

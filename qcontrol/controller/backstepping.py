@@ -224,8 +224,8 @@ class ControlOutput(NamedTuple):
 
     u: np.ndarray
     zbar: np.ndarray
-    target: np.ndarray  # proposed: s r / sigma; baseline: Gamma phi zbar_n (a rate)
-    rate: float | np.ndarray  # proposed: gamma sigma, a float or per copy; baseline: 0
+    target: np.ndarray  # proposed: s r / sigma; comparison: Gamma phi zbar_n (a rate)
+    rate: float | np.ndarray  # proposed: gamma sigma, a float or per copy; comparison: 0
 
 
 # ControlOutput((u, zbar, target, rate)) without NamedTuple's Python-level __new__ (hot loop)

@@ -111,6 +111,10 @@ def register_kind(kind: LawKind) -> None:
     LAW_KINDS[kind.name] = kind
 
 
+# Former names of kinds: a scenario written with one still loads, as the kind it now names.
+KIND_ALIASES: dict[str, str] = {"baseline": "comparison"}
+
+
 def law_kind(name: str) -> LawKind:
     """The registered kind ``name`` (the scenario loader has checked that it exists)."""
     return LAW_KINDS[name]

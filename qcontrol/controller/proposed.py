@@ -227,7 +227,7 @@ def parse(table: Table, ctx: LawContext) -> ProposedSettings:
     if ctx.uncertain_terms == 0:
         raise table.error_at("plant", "has no uncertain term (psi or phi) for the proposed law to bound and "
                              "adapt to (eqs. (37)-(45))", "add psi or phi to [plant], or use controller "
-                             "kind \"baseline\"")
+                             "kind \"comparison\"")
     kappa = _kappa(table, ctx, v["kappa"], v["kappa_margin"])
     r = v["r"]
     if len(r) != ctx.uncertain_terms:

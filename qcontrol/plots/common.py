@@ -31,8 +31,8 @@ PAPER_TITLES: dict[int, str] = {
     2: "Fig. 2. Tracking error $y - y_d$ (Example 1)",
     3: r"Fig. 3. Estimated parameter $\hat{\xi}$ (Example 1)",
     4: "Fig. 4. Control input with quantized states (Example 1)",
-    5: "Fig. 5. Output y of the proposed scheme and the method of [20], and $y_d$ (Example 2)",
-    6: "Fig. 6. Tracking error $y - y_d$ of the proposed scheme and the method of [20] (Example 2)",
+    5: "Fig. 5. Output y of the proposed scheme and the comparison law of [20], and $y_d$ (Example 2)",
+    6: "Fig. 6. Tracking error $y - y_d$ of the proposed scheme and the comparison law of [20] (Example 2)",
     7: r"Fig. 7. Estimated parameters $\hat{\varepsilon}_i$, i = 1, 2, 3 (Example 2)",
     8: "Fig. 8. Control input with state quantization (Example 2)",
 }

@@ -94,7 +94,9 @@ class Recording:
         self._travel = (np.inf, -np.inf)  # joint positions (and reference) seen so far
         self._framed: tuple[float, float] | None = None  # what the camera sent frames
         self._camera: Camera | None = None
-        self._layout_sent: tuple[frozenset[Panel], Camera | None] | None = None
+        self._layout_sent: tuple[Any, ...] | None = None
+        self._camera_view: str | None = None  # the entity of MuJoCo's rendered frames, if any
+        self._spans: dict[Panel, tuple[float, float]] = {}  # each panel's finite values so far
         self.main_series: list[Series] = []  # the main run's, restyled once a twin is drawn on them
         self.main_label = "main"
         self._flush_failed = False
@@ -285,11 +287,44 @@ class Recording:
                 static=True,
             )
 
+    def log_camera_frames(self, name: str, times: np.ndarray, jpegs: Sequence[bytes]) -> None:
+        """MuJoCo's rendered frames (JPEG files' bytes) at simulated ``times`` [s], under
+        ``camera/<name>``, shown beside the 3-D view in the layout."""
+        if self._stream is None or not len(jpegs):
+            return
+        import rerun as rr
+
+        from .streamer import time_column
+
+        entity = f"camera/{_label_suffix(name)}"
+        self._stream.send_columns(entity, indexes=[time_column(np.asarray(times, dtype=float))],
+                                  columns=rr.EncodedImage.columns(blob=list(jpegs),
+                                                                  media_type=["image/jpeg"] * len(jpegs)))
+        self._camera_view = entity
+        self.update_layout()
+
     # -- layout ----------------------------------------------------------------------------
 
     def add_panels(self, panels: list[Panel]) -> None:
         """Panels a run's series fill; the layout shows them from its next update."""
         self._panels.update(panels)
+
+    def see_values(self, panel: Panel, values: np.ndarray) -> None:
+        """Values a panel shows: a panel whose values are all one number gets a fixed range
+        around it when the recording closes (rerun would label its axis with that one tick)."""
+        finite = values[np.isfinite(values)]
+        if finite.size:
+            low, high = self._spans.get(panel, (np.inf, -np.inf))
+            self._spans[panel] = (min(low, float(finite.min())), max(high, float(finite.max())))
+
+    def _flat_ranges(self) -> dict[Panel, tuple[float, float]]:
+        """``value -+ 1`` (or -+ 10 % of it, if larger) for the panels whose values are all one number."""
+        ranges = {}
+        for panel, (low, high) in self._spans.items():
+            if high - low <= 1e-12 * max(1.0, abs(high)):
+                half = max(1.0, 0.1 * abs(high))
+                ranges[panel] = (low - half, high + half)
+        return ranges
 
     def see_motion(self, positions: np.ndarray) -> None:
         """Joint positions (and reference positions) drawn in 3-D: the camera frames them."""
@@ -314,14 +349,16 @@ class Recording:
     def update_layout(self, final: bool = False) -> None:
         """Send the layout (active and default) if it differs from the one sent last. The camera
         is re-made only for the closing update (``final``) or the first one, so that a live viewer
-        does not jump while a run goes on."""
+        does not jump while a run goes on; the closing update also fixes the range of panels whose
+        values are all one number."""
         if self._stream is None or not self._panels:
             return
         camera = self._current_camera() if final or self._layout_sent is None else self._camera
-        layout = (frozenset(self._panels), camera)
+        ranges = self._flat_ranges() if final else {}
+        layout = (frozenset(self._panels), camera, self._camera_view, tuple(sorted(ranges.items(), key=str)))
         if layout != self._layout_sent:
-            self._stream.send_blueprint(default_blueprint(list(self._panels), camera),
-                                        make_active=True, make_default=True)
+            blueprint = default_blueprint(list(self._panels), camera, self._camera_view, ranges)
+            self._stream.send_blueprint(blueprint, make_active=True, make_default=True)
             self._layout_sent = layout
 
 

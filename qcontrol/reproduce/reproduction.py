@@ -1,6 +1,6 @@
 """``qcontrol reproduce``: the paper's Figures 1-8 and Table 1, side by side with ours.
 
-Runs Example 1 and Example 2 (proposed law and the comparison method of reference [20]) on the
+Runs Example 1 and Example 2 (proposed law and the comparison law of reference [20]) on the
 chosen backend, with the ideal ODE twin beside MuJoCo, then the sensitivity studies (kappa - L,
 a constant scale of r, plant variants) on the ODE backend, then the robustness study on realistic
 hardware (:mod:`qcontrol.robustness`, MuJoCo, in worker processes). Writes PNG figures,
@@ -42,7 +42,7 @@ PLANT_VARIANTS = (
     ("theta2 = +3.5", "example2", ("plant.theta=[-1.0, 3.5, -34.3]",)),
     ("rigid pendulum", "example2-rigid", ()),
 )
-BASELINE = ("controller.kind=baseline",)
+BASELINE = ("controller.kind=comparison",)
 ROBUSTNESS_SCENARIOS = tuple(name for pair in EXAMPLES for name in pair)
 
 
@@ -109,6 +109,9 @@ class Reproduction:
         return summaries
 
 
+QUICK_DURATION = 1.0  # s: the horizon of `reproduce --quick`
+
+
 def reproduce(
     out: str | Path,
     backend: str = "mujoco",
@@ -117,11 +120,16 @@ def reproduce(
     log: Callable[[str], None] = print,
     command: str | None = None,
     workers: int | None = None,
+    quick: bool = False,
 ) -> dict:
     """Run the whole reproduction into ``out``; returns Table 1 as written to ``table1.json``.
     ``command`` is what the outputs' provenance names as the command (default: this call);
-    ``workers``: processes for the robustness study (default: the machine's cores, at most 4). Every
-    scenario it uses is validated before the folder is made: bad input creates nothing."""
+    ``workers``: processes for the robustness study (default: the machine's cores, at most 4);
+    ``quick``: a first look: ``QUICK_DURATION`` unless ``duration`` is given, and no robustness study
+    (its 248 MuJoCo runs are most of the time). Every scenario it uses is validated before the
+    folder is made: bad input creates nothing."""
+    if quick and duration is None:
+        duration = QUICK_DURATION
     command = command or (f"qcontrol.reproduce.reproduce({str(out)!r}, backend={backend!r}, "
                           f"duration={duration!r})")
     rep = Reproduction(check_output_dir(out), backend, duration, Path(scenarios), log, command=command)
@@ -132,11 +140,11 @@ def reproduce(
     _example1_figures(o, ex1, ex1_twin)
     _record(o / "example1.rrd", ex1, {"ode": ex1_twin}, command)
 
-    log(f"Example 2 on {backend}: proposed and comparison method [20]")
+    log(f"Example 2 on {backend}: proposed and comparison law [20]")
     ex2, ex2_twin = rep.twins("example 2 proposed", rep.scenario("example2"))
     base, base_twin = rep.twins("example 2 comparison", rep.scenario("example2", BASELINE))
     _example2_figures(o, ex2, ex2_twin, base)
-    _record(o / "example2.rrd", ex2, {"ode": ex2_twin, "baseline": base}, command)
+    _record(o / "example2.rrd", ex2, {"ode": ex2_twin, "comparison": base}, command)
 
     table = _table1(o, backend, ex2, ex2_twin, base, base_twin, command)
 
@@ -149,10 +157,12 @@ def reproduce(
     }
     studied = {name: rep.scenario(name) for name in ("example2", "example2-rigid")}
     write_json(o / "studies.json", studies | {"provenance": scenarios_provenance(studied, command)})
-    robustness = _robustness(o, rep, workers)
+    robustness = None if quick else _robustness(o, rep, workers)
     write_text(o / "REPORT.md", _report(rep, table, studies, deviations, ex1, ex2, robustness))
-    log(f"wrote {o}: REPORT.md, table1.md, table1.json, studies.json, robustness.json, figures, recordings "
-        f"({len(rep.lemma2_ratios)} example and study runs, then the robustness study; "
+    robust = "" if quick else "robustness.json, "
+    study = "no robustness study (--quick)" if quick else "then the robustness study"
+    log(f"wrote {o}: REPORT.md, table1.md, table1.json, studies.json, {robust}figures, recordings "
+        f"({len(rep.lemma2_ratios)} example and study runs, {study}; "
         f"{time.perf_counter() - rep.started:.1f} s)")
     return table
 
@@ -228,7 +238,7 @@ def _example2_figures(o: Path, run: Run, twin: Run | None, base: Run) -> None:
 
 def _record(path: Path, main: Run, ghosts: dict[str, Run | None], command: str) -> None:
     """A rerun recording of the main run with its ghosts: its twin "ode" (the same closed loop on
-    the ODE) and the others (the comparison method)."""
+    the ODE) and the others (the comparison law)."""
     sc = main.scenario
     with recording_for(path, False, sc, scenario_provenance(sc, command)) as rec:
         observer_for(rec, sc, main.backend)(0, len(main.traj.t), [main.traj])
@@ -277,7 +287,7 @@ def _studies(rep: Reproduction) -> dict:
 
 
 def _report(rep: Reproduction, table: dict, studies: dict, deviations: dict, ex1: Run, ex2: Run,
-            robustness: dict) -> str:
+            robustness: dict | None) -> str:
     """REPORT.md from the runs' facts (see :func:`qcontrol.report.report_markdown`)."""
     traj, c = ex2.traj, ex2.scenario.controller
     facts = ReportFacts(

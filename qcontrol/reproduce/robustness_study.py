@@ -35,7 +35,7 @@ from ..scenario import Scenario, load_scenario
 from ..sweep import run_batch
 
 SEEDS = tuple(range(1, 21))  # sensor-noise seeds of every row with noise on
-LAWS = (("proposed", ()), ("comparison", ("controller.kind=baseline",)))
+LAWS = (("proposed", ()), ("comparison", ("controller.kind=comparison",)))
 EXAMPLES = (("example2", "example2-arm"), ("example1", "example1-cart"))  # (ideal, realistic)
 NUMBERS = ("max_abs_z1_last_half", "max_abs_u_applied", "saturated_fraction", "lemma2_max_ratio")
 RECOVERY_BAND = 0.1  # |z1| < 0.1: Table 1's smallest omega

@@ -19,10 +19,10 @@ from typing import Any
 
 import numpy as np
 
-from ..controller.law import LawContext, law_kind
+from ..controller.law import KIND_ALIASES, LawContext, law_kind
 from ..disturbance import Disturbance, parse_disturbances
 from ..engine import MetricSettings
-from ..errors import QcontrolInputError
+from ..errors import KeyNotForKind, QcontrolInputError
 from ..expr import Expression, compile_expression
 from ..plants.backends import BACKENDS, PlantContext
 from ..plants.base import PlantTerms
@@ -149,8 +149,41 @@ def parse_scenario(
             apply_override(data, item)
         else:
             set_key(data, *item, f"override {item[0]!r}")
-    scenario = _build(data, source, base_dir or Path("."), text, given, default_name)
+    _current_kind_names(data, source)
+    try:
+        scenario = _build(data, source, base_dir or Path("."), text, given, default_name)
+    except KeyNotForKind as exc:
+        raise QcontrolInputError(_command_line_fix(exc, given)) from None
     return replace(scenario, unset=tuple(unset)) if unset else scenario
+
+
+def _current_kind_names(data: dict, source: str) -> None:
+    """A controller kind (and its sub-table) written under a former name takes its current one
+    (``baseline`` -> ``comparison``), so that older scenario files and commands keep working."""
+    controller = data.get("controller")
+    if not isinstance(controller, dict):
+        return
+    kind = controller.get("kind")
+    if isinstance(kind, str) and kind in KIND_ALIASES:
+        controller["kind"] = KIND_ALIASES[kind]
+    for old, new in KIND_ALIASES.items():
+        if isinstance(controller.get(old), dict):
+            if new in controller:
+                raise QcontrolInputError(f"{source}: [controller.{old}] is the former name of "
+                                         f"[controller.{new}], which is there too; keep one of them")
+            controller[new] = controller.pop(old)
+
+
+def _command_line_fix(exc: KeyNotForKind, given: Sequence[str | tuple[str, Any]]) -> str:
+    """A key the chosen kind does not take, with the fix on the command line when the overrides
+    chose the kind (the key is then the file's: ``--unset`` it) or set the key (leave it out)."""
+    keys = [(item.partition("=")[0] if isinstance(item, str) else item[0]).strip() for item in given]
+    table = exc.key.rsplit(".", 1)[0]
+    if exc.key in keys:
+        return f"{exc}; or leave out --set {exc.key}=..."
+    if f"{table}.kind" in keys:
+        return f"{exc}; or, as the kind came from --set, remove the file's key: --unset {exc.key}"
+    return str(exc)
 
 
 def _as_given(overrides: Overrides) -> tuple[str | tuple[str, Any], ...]:

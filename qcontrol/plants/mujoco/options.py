@@ -177,7 +177,7 @@ SECTION = Section(
         Key("model", custom("path of an MJCF file", _element_name, path=True),
             meaning="the MJCF file, relative to the scenario file's folder, or a model shipped with "
             "qcontrol: \"qcontrol:models/pendulum.xml\", \"qcontrol:models/slider.xml\"",
-            example='"../models/pendulum.xml"'),
+            example='"qcontrol:models/pendulum.xml"'),
         Key("joint", _NAME, meaning="the hinge or slide joint whose position is x1 and velocity x2",
             example='"hinge"'),
         Key("position_sensor", _NAME, meaning="<jointpos> sensor on the joint: the reading of x1",
