@@ -1,11 +1,12 @@
 """MuJoCo's process-global hooks: the passive-force callback and the warning handler.
 
-``mjcb_passive`` is one function for the whole process. One dispatcher serves every plant in use:
-each ``MjData`` has its own entry (:func:`passive_forces`), and the callback found before the
-first plant is restored after the last. A term of eq. (1) with no rigid-body counterpart
-(Example 1's psi, Example 2's theta2 x2^2 cos x1) is added to ``qfrc_passive`` here; MuJoCo's
-RK4 calls the callback at each of its four stages, so MuJoCo and the ODE integrate the same
-vector field with the same scheme.
+``mjcb_passive`` is one function for the whole process, installed while plants are in use and
+restored after the last (:func:`passive_forces`). Where the plants' terms compile
+(:mod:`.native`) and every plant in use shares them, it is the native callback itself; otherwise
+one Python dispatcher serves every plant, each ``MjData`` with its own entry. A term of eq. (1)
+with no rigid-body counterpart (Example 1's psi, Example 2's theta2 x2^2 cos x1) is added to
+``qfrc_passive`` there; MuJoCo's RK4 calls the callback at each of its four stages, so MuJoCo and
+the ODE integrate the same vector field with the same scheme.
 
 MuJoCo's default warning handler appends to ``MUJOCO_LOG.TXT`` in the working folder. Importing
 this module replaces it for the whole process with :func:`collect_warnings`' sinks: a plant
@@ -23,11 +24,13 @@ from typing import Any
 import mujoco
 
 from ...expr import ScalarFn
+from .native import NativeForce
 
 GeneralizedForce = Callable[[float, float], float]  # (qpos, qvel) -> generalized force
 
 _ENTRIES: dict[int, Callable[[], None]] = {}  # id(MjData) -> adds the non-native terms to it
 _PREVIOUS: list[Any] = []  # the passive callback that was installed before the dispatcher
+_NATIVE: list[str] = []  # [key] while a native callback (of that key) is installed directly
 UNCLAIMED_WARNINGS: list[str] = []  # warnings while no run collects them (the last 100)
 _SINKS: list[list[str]] = []  # the innermost collecting run's list is last
 
@@ -51,7 +54,7 @@ def generalized_force(terms: Sequence[tuple[float, ScalarFn]], inertia: float) -
 
 
 def _dispatch(model: mujoco.MjModel, data: mujoco.MjData) -> None:
-    """The installed ``mjcb_passive``: MuJoCo passes the very MjData objects the plants own."""
+    """The Python ``mjcb_passive``: MuJoCo passes the very MjData objects the plants own."""
     apply = _ENTRIES.get(id(data))
     if apply is not None:
         apply()
@@ -68,21 +71,49 @@ def _applier(data: mujoco.MjData, qadr: int, dof: int, force: GeneralizedForce) 
     return apply
 
 
+def _native_applier(model: mujoco.MjModel, data: mujoco.MjData, native: NativeForce) -> Callable[[], None]:
+    """The native callback called from the Python dispatcher (when plants of different terms, or
+    a foreign callback, share the process's one ``mjcb_passive``)."""
+    call, m, d = native.pointer, model._address, data._address
+
+    def apply() -> None:
+        call(m, d)
+
+    return apply
+
+
+def _install(native: NativeForce | None) -> None:
+    """Install the callback for the first plant: its native one when it has one and no foreign
+    callback must be chained, else the Python dispatcher."""
+    previous = mujoco.get_mjcb_passive()
+    _PREVIOUS[:] = [None if previous is _dispatch else previous]
+    if native is not None and _PREVIOUS[0] is None:
+        mujoco.set_mjcb_passive(native.pointer)
+        _NATIVE[:] = [native.key]
+    else:
+        mujoco.set_mjcb_passive(_dispatch)
+
+
 @contextmanager
-def passive_forces(datas: Sequence[mujoco.MjData], qadr: int, dof: int,
-                   force: GeneralizedForce | None) -> Iterator[None]:
-    """Register ``datas`` with the dispatcher, installing it if needed; undo everything on exit."""
+def passive_forces(model: mujoco.MjModel, datas: Sequence[mujoco.MjData], qadr: int, dof: int,
+                   force: GeneralizedForce | None, native: NativeForce | None = None) -> Iterator[None]:
+    """Register ``datas`` for the passive force, installing the callback if needed; undo
+    everything on exit. With ``native`` (whose numbers the caller keeps in each copy's userdata)
+    MuJoCo calls compiled code directly while every plant in use shares its terms; otherwise the
+    Python dispatcher serves every plant, calling the native callbacks through ctypes."""
     if force is None:
         yield
         return
     if not _ENTRIES:
-        previous = mujoco.get_mjcb_passive()
-        _PREVIOUS[:] = [None if previous is _dispatch else previous]
+        _install(native)
+    elif _NATIVE and (native is None or native.key != _NATIVE[0]):
         mujoco.set_mjcb_passive(_dispatch)
+        _NATIVE.clear()
     keys = []
     try:
         for data in datas:
-            _ENTRIES[id(data)] = _applier(data, qadr, dof, force)
+            _ENTRIES[id(data)] = (_native_applier(model, data, native) if native is not None
+                                  else _applier(data, qadr, dof, force))
             keys.append(id(data))
         yield
     finally:
@@ -91,6 +122,7 @@ def passive_forces(datas: Sequence[mujoco.MjData], qadr: int, dof: int,
         if not _ENTRIES:
             mujoco.set_mjcb_passive(_PREVIOUS[0] if _PREVIOUS else None)
             _PREVIOUS.clear()
+            _NATIVE.clear()
 
 
 def _warn(message: str) -> None:

@@ -12,7 +12,8 @@ inertia. So:
   (divided by the motor's gain), with ``I`` read from the model by ``mujoco.mj_fullM``.
 * Terms MuJoCo's own physics produces (``native_terms``, e.g. joint damping for ``theta1 * x2``
   and gravity for ``theta3 * sin(x1)`` in Example 2) are left to MuJoCo; every other term is
-  added by the passive callback (:mod:`.callbacks`).
+  added by the passive callback (:mod:`.callbacks`): compiled code (:mod:`.native`) where numba
+  is available, the same arithmetic in Python otherwise.
 * The controller reads ``sensordata`` (jointpos, jointvel sensors), never ``qpos``/``qvel``.
 
 Realism options (each off by default) make the model differ from eq. (1) as hardware would; the
@@ -38,6 +39,7 @@ from ..base import IO, PlantTerms, array_io
 from .callbacks import collect_warnings, generalized_force, passive_forces, unstable
 from .consistency import consistency_report
 from .model import compiled
+from .native import native_force
 from .options import MujocoOptions
 
 _mj_step, _mj_sensor_pos, _mj_sensor_vel = mujoco.mj_step, mujoco.mj_sensorPos, mujoco.mj_sensorVel
@@ -75,9 +77,11 @@ class MujocoPlant:
         self.actuator_limited = self._ctrl_range is not None
         native = tuple(name in options.native_terms for name in terms.names)
         exprs, coefficients = terms.expressions, terms.coefficients
-        applied = [(c, scalar_function(e)) for c, e, n in zip(coefficients, exprs, native,
-                                                              strict=True) if not n]
-        self._force = generalized_force(applied, self.inertia) if applied else None
+        applied = [(c, e) for c, e, n in zip(coefficients, exprs, native, strict=True) if not n]
+        self._force = (generalized_force([(c, scalar_function(e)) for c, e in applied], self.inertia)
+                       if applied else None)
+        self._native = native_force([e for _, e in applied]) if applied else None
+        self._userdata = [self.inertia * c for c, _ in applied]  # the products the Python force uses
         self._datas = [mujoco.MjData(self.model) for _ in range(self.batch)]
         self._views = [(d.ctrl, d.sensordata, d.qpos, d.qvel) for d in self._datas]
         self._sadr = (int(self.model.sensor_adr[self._ids.position_sensor]),
@@ -97,7 +101,10 @@ class MujocoPlant:
             raise RuntimeError("MujocoPlant is already in use by a 'with' block")
         self.warnings = []
         self._steppers = {}  # (they hold the warnings list)
-        self._entered = [passive_forces(self._datas, self._ids.qpos, self._ids.dof, self._force),
+        for data in self._datas if self._native is not None else ():
+            self._native.fill(data, self._ids.qpos, self._ids.dof, self._userdata)
+        self._entered = [passive_forces(self.model, self._datas, self._ids.qpos, self._ids.dof, self._force,
+                                        self._native),
                          collect_warnings(self.warnings)]
         for manager in self._entered:
             manager.__enter__()
@@ -115,6 +122,8 @@ class MujocoPlant:
         model, ids = self.model, self._ids
         for b, data in enumerate(self._datas):
             mujoco.mj_resetData(model, data)
+            if self._native is not None:  # (reset zeroes userdata)
+                self._native.fill(data, ids.qpos, ids.dof, self._userdata)
             data.qpos[ids.qpos] = x0[b, 0]
             data.qvel[ids.dof] = x0[b, 1]
             mujoco.mj_forward(model, data)
