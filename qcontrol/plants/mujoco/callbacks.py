@@ -16,6 +16,7 @@ collects its run's warnings (a blow-up is reported as a divergence), and warning
 
 from __future__ import annotations
 
+import ctypes
 import math
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -123,6 +124,12 @@ def passive_forces(model: mujoco.MjModel, datas: Sequence[mujoco.MjData], qadr: 
             mujoco.set_mjcb_passive(_PREVIOUS[0] if _PREVIOUS else None)
             _PREVIOUS.clear()
             _NATIVE.clear()
+
+
+def python_callback_installed() -> bool:
+    """Whether ``mjcb_passive`` is a Python function now (which ``mujoco.batch`` refuses)."""
+    installed = mujoco.get_mjcb_passive()
+    return installed is not None and not isinstance(installed, ctypes._CFuncPtr)
 
 
 def _warn(message: str) -> None:

@@ -141,6 +141,11 @@ class NativeForce:
         data.userdata[:FIRST_COEFFICIENT] = (self.tag, qadr, dof)
         data.userdata[FIRST_COEFFICIENT:FIRST_COEFFICIENT + len(coefficients)] = coefficients
 
+    def fill_rows(self, userdata: np.ndarray, qadr: int, dof: int, coefficients: Sequence[float]) -> None:
+        """:meth:`fill` for every row of a batch's ``(copies, nuserdata)`` userdata."""
+        userdata[:, :FIRST_COEFFICIENT] = (self.tag, qadr, dof)
+        userdata[:, FIRST_COEFFICIENT:FIRST_COEFFICIENT + len(coefficients)] = coefficients
+
 
 def native_force(terms: Sequence[Expression]) -> NativeForce | None:
     """The native callback for ``terms`` (compiled, or loaded from the disk cache), or None
