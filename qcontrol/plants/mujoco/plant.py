@@ -40,12 +40,13 @@ from ..base import IO, PlantTerms, array_io
 from .callbacks import (
     collect_warnings,
     generalized_force,
+    kept_aside,
     passive_forces,
     python_callback_installed,
     unstable,
 )
 from .consistency import consistency_report
-from .model import compiled
+from .mjcf import compiled
 from .native import native_force
 from .options import MujocoOptions
 from .threaded import ThreadedCopies, threadable
@@ -105,7 +106,8 @@ class MujocoPlant:
                                          self._userdata) if eligible and compiled_paths.requested() else None)
         self._threads = False  # whether this run steps the copies on the batch (set at __enter__)
         self.warnings: list[str] = []  # MuJoCo's warnings during the last run
-        self.consistency_report = consistency_report(built, options, terms, native, self._force)
+        with kept_aside():  # the model check's warnings, outside any run
+            self.consistency_report = consistency_report(built, options, terms, native, self._force)
 
     # ---- context manager: the process-global passive callback, and the run's warnings
     def __enter__(self) -> MujocoPlant:

@@ -23,7 +23,7 @@ import mujoco
 import numpy as np
 from mujoco import batch as mj_batch
 
-from .model import Ids
+from .mjcf import Ids
 from .native import NativeForce
 
 # warnings MuJoCo gives when it resets a copy ("... The simulation is unstable.")
