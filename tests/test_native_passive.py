@@ -6,6 +6,7 @@ from __future__ import annotations
 import ctypes
 import math
 import pathlib
+import warnings
 
 import mujoco
 import numpy as np
@@ -19,16 +20,16 @@ from qcontrol.plants.mujoco.native import native_force, struct_offsets
 from qcontrol.scenario import load_scenario
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
-SCENARIOS = sorted(ROOT.glob("scenarios/*.toml"))
+SCENARIOS = [p for p in sorted(ROOT.glob("scenarios/*.toml")) if load_scenario(p).order == 2]  # MuJoCo's
 PROBE = """<mujoco><size nuserdata="32"/><worldbody><body><joint type="slide" axis="1 0 0"/>
 <geom size="0.1" mass="1"/></body></worldbody></mujoco>"""
 
 # every row of the expression table, constants folded or not, and each way math can raise
 EXPRESSIONS = [
     "x2**2*cos(x1)", "0.1*x2**2", "sqrt(x1)", "log(x2)", "exp(x2)", "x1**0.5", "x2**x1", "1/x1",
-    "tan(x1) - tanh(x2)", "sin(x1)*abs(x2)", "sign(x1)*x2", "min(x1, x2, 0.5)", "max(x2, x1)",
-    "-x1 + 2*pi", "x1**(1+1)", "sin(0.5)*x2", "(x1 - x2)/(x1 + x2)", "exp(-x1**2)*x2**3", "-(x1*x2)",
-    "0.2*sqrt(abs(x2)) - 3", "log(0.5)*x1",
+    "tan(x1) - tanh(x2)", "sin(x1)*abs(x2) + sign(x1)*x2", "min(x1, x2, 0.5) - max(x2, x1)",
+    "-x1 + 2*pi + x1**(1+1) + sin(0.5)*x2 + log(0.5)*x1 - (x1*x2)", "(x1 - x2)/(x1 + x2)",
+    "exp(-x1**2)*x2**3 + 0.2*sqrt(abs(x2)) - 3",
 ]
 VALUES = [0.0, -0.0, 1.0, -1.0, 0.5, -2.5, 3.0, 700.0, -710.0, 1e308, -1e-310, math.inf, -math.inf, math.nan]
 
@@ -71,6 +72,39 @@ def test_native_force_is_the_python_force_bit_for_bit(source: str) -> None:
     assert not mismatches, mismatches[:5]
 
 
+def test_compiled_paths_off_or_unavailable_fall_back_to_python(monkeypatch: pytest.MonkeyPatch) -> None:
+    import qcontrol.compiled as compiled_paths
+
+    term = compile_expression("x2**2*cos(x1) + 1", ["x1", "x2"])
+    monkeypatch.setenv(ENVIRONMENT_SWITCH, "0")
+    assert native_force([term]) is None  # chosen: no warning
+    monkeypatch.setenv(ENVIRONMENT_SWITCH, "1")
+    monkeypatch.setattr(compiled_paths, "numba_missing", lambda: "numba cannot be imported (test)")
+    monkeypatch.setattr(compiled_paths, "_SAID", set())
+    with pytest.warns(RuntimeWarning, match="run in Python, not compiled: numba cannot be imported"):
+        assert native_force([term]) is None
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # said once per process
+        assert native_force([term]) is None
+
+
+def test_generated_code_is_cached_in_the_user_cache_folder(monkeypatch: pytest.MonkeyPatch,
+                                                           tmp_path: pathlib.Path) -> None:
+    from qcontrol.compiled import cache
+
+    monkeypatch.delenv("QCONTROL_CACHE_DIR")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    assert cache.cache_folder() == tmp_path / "qcontrol" / "compiled"
+    monkeypatch.setenv("QCONTROL_CACHE_DIR", str(tmp_path / "elsewhere"))
+    text = "VALUE = 42\n"
+    module = cache.generated_module("probe", text)
+    assert module.VALUE == 42 and module.__file__.startswith(str(tmp_path / "elsewhere"))
+    files = list((tmp_path / "elsewhere").glob("qcontrol_probe_*.py"))
+    assert len(files) == 1 and files[0].read_text() == text
+    assert cache.generated_module("probe", text) is module  # keyed by the text: the same module
+    assert cache.generated_module("probe", "VALUE = 43\n").VALUE == 43
+
+
 def test_untagged_data_is_left_alone() -> None:
     """Another model's data (no tag in its userdata) is not touched by the installed callback."""
     native = native_force([compile_expression("x2 + 1", ["x1", "x2"])])
@@ -92,8 +126,6 @@ def test_untagged_data_is_left_alone() -> None:
 def test_compiled_and_python_callbacks_give_identical_runs(path: pathlib.Path,
                                                            monkeypatch: pytest.MonkeyPatch) -> None:
     sc = load_scenario(path, ["simulation.duration=0.3"])
-    if sc.order != 2:
-        pytest.skip("the MuJoCo backend models order 2")
     compiled = run_scenario(sc, "mujoco")
     assert mujoco.get_mjcb_passive() is None and not callbacks._ENTRIES  # restored after the run
     monkeypatch.setenv(ENVIRONMENT_SWITCH, "0")
