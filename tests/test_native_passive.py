@@ -14,7 +14,7 @@ import pytest
 
 from qcontrol.assembly import run_scenario
 from qcontrol.compiled import ENVIRONMENT_SWITCH
-from qcontrol.expr import compile_expression, scalar_function
+from qcontrol.expr import compile_expression
 from qcontrol.plants.mujoco import callbacks
 from qcontrol.plants.mujoco.native import native_force, struct_offsets
 from qcontrol.scenario import load_scenario
@@ -57,7 +57,7 @@ def test_native_force_is_the_python_force_bit_for_bit(source: str) -> None:
     native = native_force([term])
     assert native is not None, "numba is a dependency: the native callback must compile"
     inertia, theta = 0.37, -1.3
-    python = callbacks.generalized_force([(theta, scalar_function(term))], inertia)
+    python = callbacks.GeneralizedForce([(theta, term)], inertia).at
     model = mujoco.MjModel.from_xml_string(PROBE)
     data = mujoco.MjData(model)
     native.fill(data, 0, 0, [inertia * theta])

@@ -3,7 +3,9 @@
 A numba ``cfunc`` with MuJoCo's callback signature ``void(const mjModel*, mjData*)``, generated
 from the same expression trees as the Python callback (:func:`qcontrol.expr.source.float_source`)
 and computing the same numbers: ``qfrc_passive[dof] += sum_i (I c_i) term_i(qpos[qadr],
-qvel[dof])``, summed in order from 0.0, NaN where the Python callback's ``math`` would raise.
+qvel[dof])``, summed in order from 0.0. Where Python's ``math`` refuses a term, the Python force
+takes numpy's answer; the compiled code, with numpy's error model, computes that very IEEE value
+(NaN, Inf) without raising.
 MuJoCo calls it without the Python interpreter (RK4: four times per step; ``mujoco.batch``:
 from its C threads).
 
@@ -122,7 +124,7 @@ def passive(model, data):
                   dof + 1, dtype=np.float64)
     q, v = qpos[qadr], qvel[dof]
 {indented}
-    qfrc[dof] += math.nan if {FLAG} else total
+    qfrc[dof] += total
 '''
     return source, tag
 
