@@ -15,6 +15,8 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "qcontrol"
+# compiled code is cached beside pytest's own cache, so later sessions load it instead of compiling
+os.environ.setdefault("QCONTROL_CACHE_DIR", str(ROOT / ".pytest_cache" / "qcontrol-compiled"))
 SCENARIOS = ROOT / "scenarios"
 MODELS = ROOT / "models"
 EX1 = SCENARIOS / "example1.toml"

@@ -27,7 +27,7 @@ from qcontrol.scenario import load_scenario
 # Each layer may import only from the layers before it (docs/architecture.md, "Modules").
 LAYERS = [
     {"_version", "errors", "schema", "timegrid", "expr", "progress", "outputs", "error_rate", "resources",
-     "provenance"},
+     "provenance", "compiled"},
     {"quantizer", "reference", "disturbance"},
     {"controller"},
     {"plants"},

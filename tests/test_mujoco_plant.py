@@ -146,8 +146,10 @@ def test_inconsistent_model_is_refused_naming_the_term(table: dict, theta: list,
     assert "\n" not in message and term in message and "differs" in message
 
 
-def test_rk4_calls_the_passive_callback_at_every_stage() -> None:
+def test_rk4_calls_the_passive_callback_at_every_stage(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("QCONTROL_COMPILE", "0")  # the Python callback, which can count its calls
     mj, _ = plants("example2")
+    assert mj._native is None
     with mj:
         mj.reset(np.array([[0.3, 0.3]]))
         key = id(mj._datas[0])

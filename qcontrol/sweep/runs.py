@@ -11,9 +11,11 @@ Determinism. Groups are cut into chunks of at most ``CHUNK`` runs in input order
 executor; a chunk is one batch. So the in-process path, local worker processes and a Dask cluster
 run the very same batches and give identical numbers (only ``wall_time_s`` differs).
 
-MuJoCo. Chunks run as MuJoCo plant batches (one ``MjData`` per copy, the unmodelled term in the
-passive callback exactly as in a single run), spread over worker processes. ``mujoco.batch``
-threads are not used: they refuse Python physics callbacks.
+MuJoCo. Chunks run as MuJoCo plant batches, spread over worker processes: on ``mujoco.batch``
+(the copies stepped in C, the unmodelled term in the native passive callback) where the plant
+allows it, else one ``MjData`` per copy; the numbers are the same either way
+(:mod:`qcontrol.plants.mujoco.threaded`). One batch runs on one thread: the workers are the
+parallelism.
 
 Laws registered from Python (:func:`qcontrol.register_law`) run in this process and on local
 workers (which start as copies of this process); a Dask cluster's workers do not know them.

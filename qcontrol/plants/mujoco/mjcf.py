@@ -26,6 +26,7 @@ import numpy as np
 
 from ...errors import QcontrolInputError
 from .callbacks import kept_aside
+from .native import USERDATA_SLOTS
 from .options import MujocoOptions
 
 INTEGRATORS = {
@@ -111,6 +112,7 @@ def _compile(options: MujocoOptions, timestep: float | None) -> tuple[mujoco.MjM
     if timestep is not None:
         spec.option.timestep = timestep
     spec.option.integrator = INTEGRATORS[options.integrator]
+    spec.nuserdata = max(spec.nuserdata, USERDATA_SLOTS)  # room for the native passive callback's numbers
     _apply_parameters(spec, joint, options, fail)
     _apply_realism(spec, joint, actuator, options, fail)
     try:

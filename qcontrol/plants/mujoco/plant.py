@@ -12,7 +12,8 @@ inertia. So:
   (divided by the motor's gain), with ``I`` read from the model by ``mujoco.mj_fullM``.
 * Terms MuJoCo's own physics produces (``native_terms``, e.g. joint damping for ``theta1 * x2``
   and gravity for ``theta3 * sin(x1)`` in Example 2) are left to MuJoCo; every other term is
-  added by the passive callback (:mod:`.callbacks`).
+  added by the passive callback (:mod:`.callbacks`): compiled code (:mod:`.native`) where numba
+  is available, the same arithmetic in Python otherwise.
 * The controller reads ``sensordata`` (jointpos, jointvel sensors), never ``qpos``/``qvel``.
 
 Realism options (each off by default) make the model differ from eq. (1) as hardware would; the
@@ -30,13 +31,23 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from ... import compiled as compiled_paths
 from ...errors import QcontrolInputError
 from ...timegrid import whole_steps
 from ..base import PlantTerms
-from .callbacks import GeneralizedForce, collect_warnings, kept_aside, passive_forces, unstable
+from .callbacks import (
+    GeneralizedForce,
+    collect_warnings,
+    kept_aside,
+    passive_forces,
+    python_callback_installed,
+    unstable,
+)
 from .consistency import consistency_report
 from .mjcf import compiled
+from .native import native_force
 from .options import MujocoOptions
+from .threaded import ThreadedCopies, threadable
 
 _mj_step, _mj_sensor_pos, _mj_sensor_vel = mujoco.mj_step, mujoco.mj_sensorPos, mujoco.mj_sensorVel
 
@@ -75,6 +86,8 @@ class MujocoPlant:
         exprs, coefficients = terms.expressions, terms.coefficients
         applied = [(c, e) for c, e, n in zip(coefficients, exprs, native, strict=True) if not n]
         self._force = GeneralizedForce(applied, self.inertia) if applied else None
+        self._native = native_force([e for _, e in applied]) if applied else None
+        self._userdata = [self.inertia * c for c, _ in applied]  # the products the Python force uses
         self._datas = [mujoco.MjData(self.model) for _ in range(self.batch)]
         self._views = [(d.ctrl, d.sensordata, d.qpos, d.qvel) for d in self._datas]
         self._sadr = (int(self.model.sensor_adr[self._ids.position_sensor]),
@@ -85,6 +98,10 @@ class MujocoPlant:
         self._noisy = bool(self._noise.any())
         self._rng = np.random.default_rng(options.noise_seed)
         self._entered: list[Any] = []
+        eligible = threadable(self.model, self.batch, self._native, self._force is not None)
+        self._threaded = (ThreadedCopies(self.model, self._ids, self.batch, self._ctrl_per_u, self._native,
+                                         self._userdata) if eligible and compiled_paths.requested() else None)
+        self._threads = False  # whether this run steps the copies on the batch (set at __enter__)
         self.warnings: list[str] = []  # MuJoCo's warnings during the last run
         with kept_aside():  # the model check's warnings, outside any run
             self.consistency_report = consistency_report(built, options, terms, native, self._force)
@@ -95,10 +112,14 @@ class MujocoPlant:
             raise RuntimeError("MujocoPlant is already in use by a 'with' block")
         self.warnings = []
         self._steppers = {}  # (they hold the warnings list)
-        self._entered = [passive_forces(self._datas, self._ids.qpos, self._ids.dof, self._force),
+        for data in self._datas if self._native is not None else ():
+            self._native.fill(data, self._ids.qpos, self._ids.dof, self._userdata)
+        self._entered = [passive_forces(self.model, self._datas, self._ids.qpos, self._ids.dof, self._force,
+                                        self._native),
                          collect_warnings(self.warnings)]
         for manager in self._entered:
             manager.__enter__()
+        self._threads = self._threaded is not None and not python_callback_installed()
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -114,9 +135,15 @@ class MujocoPlant:
     def reset(self, x0: np.ndarray) -> None:
         """Put every copy at ``x0`` (shape ``(batch, 2)``); sensor histories are filled with it."""
         x0 = np.broadcast_to(np.asarray(x0, dtype=float), (self.batch, 2))
+        self._rng = np.random.default_rng(self.options.noise_seed)
+        if self._threads:
+            self._threaded.reset(x0)
+            return
         model, ids = self.model, self._ids
         for b, data in enumerate(self._datas):
             mujoco.mj_resetData(model, data)
+            if self._native is not None:  # (reset zeroes userdata)
+                self._native.fill(data, ids.qpos, ids.dof, self._userdata)
             data.qpos[ids.qpos] = x0[b, 0]
             data.qvel[ids.dof] = x0[b, 1]
             mujoco.mj_forward(model, data)
@@ -127,12 +154,14 @@ class MujocoPlant:
             if model.nhistory:
                 mujoco.mj_forward(model, data)
         self._dead[:] = [False] * self.batch  # in place: the steppers hold this list
-        self._rng = np.random.default_rng(self.options.noise_seed)
 
     def disturb(self, d: float) -> None:
         """The external load d (u's units) as the generalized force ``I d`` in ``qfrc_applied``
         (``I`` the nominal inertia, as for u), held until changed; ``mj_resetData`` clears it."""
         force = self.inertia * float(d)
+        if self._threads:
+            self._threaded.disturb(force)
+            return
         for data in self._datas:
             data.qfrc_applied[self._ids.dof] = force
 
@@ -149,6 +178,8 @@ class MujocoPlant:
 
     def state(self) -> np.ndarray:
         """The true ``(qpos, qvel)`` of every copy (NaN for a copy MuJoCo had to reset)."""
+        if self._threads:
+            return self._threaded.state()
         q, dof = self._ids.qpos, self._ids.dof
         out = np.array([(qpos.item(q), qvel.item(dof)) for _, _, qpos, qvel in self._views])
         if True in self._dead:
@@ -158,11 +189,14 @@ class MujocoPlant:
     def read_sensors(self) -> np.ndarray:
         """``sensordata`` of the position and velocity sensors (plus noise, if configured)."""
         p, v = self._sadr
-        out = np.array([(data.item(p), data.item(v)) for _, data, _, _ in self._views])
+        threaded = self._threads
+        out = (self._threaded.readings() if threaded else
+               np.array([(data.item(p), data.item(v)) for _, data, _, _ in self._views]))
         if self._noisy:
             out += self.sensor_noise()
-        if True in self._dead:
-            out[np.asarray(self._dead)] = np.nan
+        dead = self._threaded.dead if threaded else (np.asarray(self._dead) if True in self._dead else None)
+        if dead is not None:
+            out[dead] = np.nan
         return out
 
     def sensor_noise(self) -> np.ndarray:
@@ -183,6 +217,10 @@ class MujocoPlant:
         """
         if not self._entered and self._force is not None:
             raise RuntimeError("use MujocoPlant in a 'with' block: its passive callback is installed there")
+        if self._threads:
+            substeps = whole_steps(h, self.timestep, f"{self.options.where}: step", "the model timestep")
+            self._threaded.step(np.broadcast_to(np.asarray(u, dtype=float).ravel(), (self.batch,)), substeps)
+            return
         steppers = self._steppers.get(h) or self._make_steppers(h)
         values = np.asarray(u, dtype=float).ravel().tolist()
         if len(values) != self.batch:
