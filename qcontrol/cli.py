@@ -20,7 +20,7 @@ from .assembly import runnable_backend
 from .attribution import attribution_lines
 from .check import add_check_parser, cmd_check
 from .errors import QcontrolInputError
-from .explain import divergence_lines, paper_line
+from .explain import divergence_lines, gain_period_lines, paper_line
 from .outputs import check_output_dir, check_output_file, prepare_output_dir, write_json
 from .plants import BACKENDS
 from .progress import ProgressLine
@@ -205,6 +205,7 @@ def format_summary(s: dict, sc: Scenario) -> str:
         f"{100 * s['saturated_fraction']:.1f}% of the control samples",
         f"  final {s['adaptive_state']}: [{', '.join(f'{v:.4g}' for v in s['final_eps_hat'])}]",
         _lemma2_line(s),
+        *gain_period_lines(s),
     ]
     if s["diverged"]:
         lines += divergence_lines(s, sc)

@@ -61,7 +61,20 @@ def summary(run: Trajectory | RunMetrics, scenario: str, backend: str) -> dict:
         "L_z": [float(v) for v in run.L_z],
         "L": float(run.L_z[-1]),
         **bound_constants(run.bound_names, values["bound_constants"]),
+        **law_diagnostics(run.law_diagnostics, values["diagnostics"]),
     }
+
+
+def law_diagnostics(diagnostics: tuple, reduced: dict[str, np.ndarray]) -> dict:
+    """The law's declared diagnostics as the summary reports them: ``<reduce>_<name>`` (e.g.
+    ``max_gain_period``), a number for a diagnostic of width 1, else a list; None where the run
+    had no finite value."""
+    out, first = {}, 0
+    for d in diagnostics:
+        values = [float(v) if np.isfinite(v) else None for v in reduced[d.reduce][first : first + d.width]]
+        out[d.summary_key] = values[0] if d.width == 1 else values
+        first += d.width
+    return out
 
 
 def bound_constants(names: tuple[str, ...], largest: np.ndarray) -> dict:

@@ -82,7 +82,7 @@ class ClosedLoop:
         self.divergence = Divergence(batch, grid.rows, grid.dt, state_bound, law.state_name)
         self.reference = ReferenceRows(reference, n, grid, whole=record == "full")
         context = SignalContext(law.coordinates, separation, plant.actuator, velocity_source,
-                                plant.actuator_limited)
+                                plant.actuator_limited, tuple(law.diagnostics))
         parts = RunParts(grid, law, self.reference, self.divergence, context, metrics, batch, n)
         self.record = (FullRecord(parts, observer, observe_every) if record == "full"
                        else MetricsRecord(parts, observer))

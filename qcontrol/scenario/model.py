@@ -13,6 +13,7 @@ from ..engine import MetricSettings
 from ..expr import Expression
 from ..plants.base import PlantTerms
 from ..reference import Reference
+from ..timegrid import TimeGrid
 
 
 @dataclass(frozen=True)
@@ -42,6 +43,12 @@ class SimulationConfig:
     backend: str
     state_bound: float
     velocity_source: str = "sensor"
+
+    @property
+    def period(self) -> float:
+        """The control period T the law holds u over: ``control_period`` as whole steps of ``dt``
+        (``dt`` when none is given)."""
+        return TimeGrid.of(self.duration, self.dt, self.control_period).hold * self.dt
 
 
 @dataclass(frozen=True)
@@ -91,8 +98,9 @@ class Scenario:
     @property
     def law_context(self) -> LawContext:
         """What the controller kind reads of the scenario (see :class:`LawContext`)."""
-        c = self.controller
-        return LawContext(self.source, self.order, c.delta, c.c, self.psi_expr, self.phi_expr, self.theta)
+        c, sim = self.controller, self.simulation
+        return LawContext(self.source, self.order, c.delta, c.c, self.psi_expr, self.phi_expr, self.theta,
+                          sim.dt, sim.period)
 
     @property
     def uncertain_terms(self) -> int:
