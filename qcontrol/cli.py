@@ -1,4 +1,4 @@
-"""The ``qcontrol`` command line: run, compare, reproduce, sweep, check (built on :mod:`qcontrol.api`).
+"""The ``qcontrol`` command line: run, compare, reproduce, sweep, region, check (on :mod:`qcontrol.api`).
 
 Exit status: 0 success; 1 the run diverged or a theory check failed; 2 bad input; 130 interrupted.
 Bad input is reported as one line on stderr, never as a traceback, and every input is checked
@@ -21,16 +21,17 @@ from .attribution import attribution_lines
 from .check import add_check_parser, cmd_check
 from .errors import QcontrolInputError
 from .explain import divergence_lines, gain_period_lines, paper_line
+from .metrics import LEMMA2_TOLERANCE
 from .outputs import check_output_dir, check_output_file, prepare_output_dir, write_json
 from .plants import BACKENDS
 from .progress import ProgressLine
 from .provenance import command_line
+from .region import add_region_parser, cmd_region
 from .resources import shipped_scenarios
 from .scenario import Scenario, load_scenario
 from .sweep import add_sweep_parser, cmd_sweep
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
-LEMMA2_TOLERANCE = 1e-9  # rounding slack on |e_zi| / L_zi <= 1
 
 
 class _Parser(argparse.ArgumentParser):
@@ -90,6 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_compare_parser(sub)
     _add_reproduce_parser(sub)
     add_sweep_parser(sub)
+    add_region_parser(sub)
     add_check_parser(sub, _add_scenario_options, _scenario_from_args)
     return parser
 
@@ -339,7 +341,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
 
 COMMANDS = {"run": cmd_run, "compare": cmd_compare, "reproduce": cmd_reproduce, "sweep": cmd_sweep,
-            "check": cmd_check}
+            "region": cmd_region, "check": cmd_check}
 
 
 def _one_line_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,

@@ -8,8 +8,10 @@ from .engine import RunMetrics, Trajectory
 from .engine.velocity import lemma2_applies
 from .error_rate import TABLE1_OMEGAS, error_rate, omega_key
 
-__all__ = ["TABLE1_OMEGAS", "backend_deviation", "error_rate", "finite_max_abs", "lemma2_max_ratio",
-           "omega_key", "summary"]
+LEMMA2_TOLERANCE = 1e-9  # rounding slack on |e_zi| / L_zi <= 1
+
+__all__ = ["LEMMA2_TOLERANCE", "TABLE1_OMEGAS", "backend_deviation", "error_rate", "finite_max_abs",
+           "lemma2_max_ratio", "omega_key", "summary"]
 
 
 def lemma2_max_ratio(e_z: np.ndarray, L_z: np.ndarray) -> float:
