@@ -25,11 +25,11 @@ from ..quantizer import Quantizer
 from ..reference import Reference
 from ..timegrid import TimeGrid
 from .divergence import Divergence
-from .records import OBSERVE_EVERY, FullRecord, MetricsRecord, Observer, RunParts
 from .reductions import MetricSettings
 from .reference_rows import ReferenceRows
 from .results import RunMetrics, Trajectory
-from .rows import NEVER, ArrayRows, FloatRows
+from .retention import OBSERVE_EVERY, FullRecord, MetricsRecord, Observer, RunParts
+from .row_buffer import NEVER, ArrayRows, FloatRows
 from .signals import Separation, SignalContext
 from .velocity import VELOCITY_SOURCES, differencing
 
@@ -37,7 +37,7 @@ ProgressCallback = Callable[[int, int], None]  # (row reached, last row)
 RECORD_MODES = ("full", "metrics")
 
 
-class Progress:
+class ProgressReports:
     """Reports ``(row, last row)`` to ``callback`` about every 1% of the run, and at its end."""
 
     def __init__(self, callback: ProgressCallback | None, rows: int) -> None:
@@ -91,7 +91,7 @@ class ClosedLoop:
         self.quantize = self.rows.quantizer(quantizer)
         if velocity_source == "difference":
             self.quantize = differencing(self.quantize, grid.hold, grid.hold * grid.dt, self.rows.floats)
-        self.progress = Progress(progress, grid.rows)
+        self.progress = ProgressReports(progress, grid.rows)
         self.loads = Loads(plant, loads)
 
     def next_event(self, k: int) -> int:

@@ -29,7 +29,7 @@ class PlantContext:
 
 
 @dataclass(frozen=True)
-class Scene:
+class SceneSource:
     """What a recording draws in 3-D: a MuJoCo model and the joint that x1 drives."""
 
     model: Any  # mujoco.MjModel
@@ -61,7 +61,7 @@ class Backend:
     parse: Callable[[Table, PlantContext], Any] | None
     build: Callable[[Sequence[PlantTerms], Any, float], Plant]
     structure: Callable[[PlantTerms, Any], Hashable]
-    scene: Callable[[Any, float], Scene | None]
+    scene: Callable[[Any, float], SceneSource | None]
     summary: str
     inertia: Callable[[Any, float], float] | None = None
 

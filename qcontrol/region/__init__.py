@@ -1,7 +1,7 @@
 """The region of attraction of control laws, measured on a grid of initial states
-(:mod:`.study`), and the command ``qcontrol region`` (:mod:`.command`)."""
+(:mod:`.study`) and written as region.csv, region.json and region.png (:func:`write_region`); the
+command ``qcontrol region`` is :mod:`qcontrol.cli.region_command`."""
 
-from .command import add_region_parser, cmd_region, write_region
 from .study import (
     BOX,
     OUTCOMES,
@@ -13,6 +13,7 @@ from .study import (
     measure_region,
     parse_grid,
     parse_law,
+    write_region,
 )
 
 __all__ = [
@@ -22,8 +23,6 @@ __all__ = [
     "Region",
     "RegionGrid",
     "RegionPoint",
-    "add_region_parser",
-    "cmd_region",
     "default_laws",
     "measure_region",
     "parse_grid",

@@ -23,7 +23,7 @@ from ..controller import LAW_KINDS
 from ..errors import QcontrolInputError
 from ..metrics import LEMMA2_TOLERANCE
 from ..scenario import Scenario, load_scenario
-from ..sweep.runs import Progress, plan, sweep_summaries
+from ..sweep.runs import RunsDone, plan, sweep_summaries
 
 if TYPE_CHECKING:
     from ..plots.region import RegionMap
@@ -285,7 +285,7 @@ def region_sets(sc: Scenario, grid: RegionGrid, laws: Sequence[LawSpec], overrid
 
 def measure_region(scenario: str | Path, grid: RegionGrid, laws: Sequence[LawSpec], backend: str = "ode",
                    overrides: Sequence[str] = (), unset: Sequence[str] = (), workers: int = 1,
-                   scheduler: str | None = None, progress: Progress | None = None) -> Region:
+                   scheduler: str | None = None, progress: RunsDone | None = None) -> Region:
     """Run every law from every point of ``grid`` (see the module docstring). Bad input (a law's
     settings, an override) raises :class:`QcontrolInputError` before any run."""
     import time
@@ -323,3 +323,14 @@ def csv_text(region: Region) -> str:
         writer.writerow([p.law, repr(p.x0[region.grid.axes[0]]), repr(p.x0[region.grid.axes[1]]),
                          *("" if v is None else repr(v) if isinstance(v, float) else v for v in values)])
     return buffer.getvalue()
+
+
+def write_region(region: Region, out: Path, provenance: dict) -> None:
+    """region.csv, region.json and region.png in ``out`` (made now), each written atomically."""
+    from ..outputs import prepare_output_dir, write_json, write_text
+    from ..plots.region import fig_region  # matplotlib: imported only when a figure is drawn
+
+    out = prepare_output_dir(out)
+    write_text(out / "region.csv", csv_text(region))
+    write_json(out / "region.json", region.record(provenance))
+    fig_region([region.maps()], OUTCOMES, out / "region.png", region.title())

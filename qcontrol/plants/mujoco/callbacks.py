@@ -7,14 +7,17 @@ first plant is restored after the last. A term of eq. (1) with no rigid-body cou
 RK4 calls the callback at each of its four stages, so MuJoCo and the ODE integrate the same
 vector field with the same scheme.
 
-MuJoCo's default warning handler appends to ``MUJOCO_LOG.TXT`` in the working folder. Importing
-this module replaces it for the whole process with :func:`collect_warnings`' sinks: a plant
-collects its run's warnings (a blow-up is reported as a divergence), and warnings outside any run
-(e.g. of the model check at load) are kept in :data:`UNCLAIMED_WARNINGS`, never written to disk.
+MuJoCo's default warning handler appends to ``MUJOCO_LOG.TXT`` in the working folder. While a
+:func:`collect_warnings` block is open (a plant's run, a model compiled or checked at load:
+:func:`kept_aside`) the handler is this module's: a plant collects its run's warnings (a blow-up is
+reported as a divergence), and warnings of the model checks are kept in
+:data:`UNCLAIMED_WARNINGS`, never written to disk. When the last block closes, the handler found
+before the first one is restored: importing this module changes nothing.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -30,6 +33,7 @@ _ENTRIES: dict[int, Callable[[], None]] = {}  # id(MjData) -> adds the non-nativ
 _PREVIOUS: list[Any] = []  # the passive callback that was installed before the dispatcher
 UNCLAIMED_WARNINGS: list[str] = []  # warnings while no run collects them (the last 100)
 _SINKS: list[list[str]] = []  # the innermost collecting run's list is last
+_PREVIOUS_WARNING: list[Any] = []  # the warning handler found when the first block opened
 
 
 def generalized_force(terms: Sequence[tuple[float, ScalarFn]], inertia: float) -> GeneralizedForce:
@@ -94,22 +98,34 @@ def passive_forces(datas: Sequence[mujoco.MjData], qadr: int, dof: int,
 
 
 def _warn(message: str) -> None:
-    """The process's MuJoCo warning handler: into the collecting run's list, else kept aside."""
-    if _SINKS:
-        _SINKS[-1].append(message)
-    else:
-        UNCLAIMED_WARNINGS.append(message)
+    """MuJoCo's warning handler while a block is open: into the innermost block's list."""
+    sink = _SINKS[-1] if _SINKS else UNCLAIMED_WARNINGS
+    sink.append(message)
+    if sink is UNCLAIMED_WARNINGS:
         del UNCLAIMED_WARNINGS[:-100]
 
 
 @contextmanager
 def collect_warnings(sink: list[str]) -> Iterator[None]:
-    """MuJoCo's warnings go to ``sink`` inside the block (nested blocks: the innermost)."""
+    """MuJoCo's warnings go to ``sink`` inside the block (nested blocks: the innermost); the
+    handler is installed by the first block and the previous one restored after the last."""
+    if not _SINKS:
+        _PREVIOUS_WARNING[:] = [mujoco.get_mju_user_warning()]
+        mujoco.set_mju_user_warning(_warn)
     _SINKS.append(sink)
     try:
         yield
-    finally:
-        _SINKS.remove(sink)
+    finally:  # by identity: two sinks may be equal lists
+        del _SINKS[max(i for i, open_sink in enumerate(_SINKS) if open_sink is sink)]
+        if not _SINKS:
+            mujoco.set_mju_user_warning(_PREVIOUS_WARNING[0] if _PREVIOUS_WARNING else None)
+            _PREVIOUS_WARNING.clear()
+
+
+def kept_aside() -> contextlib.AbstractContextManager[None]:
+    """A block whose MuJoCo warnings (compiling or checking a model outside any run) are kept in
+    :data:`UNCLAIMED_WARNINGS` (the last 100), not written to disk."""
+    return collect_warnings(UNCLAIMED_WARNINGS)
 
 
 def unstable(messages: Sequence[str]) -> bool:
@@ -123,5 +139,3 @@ def unstable(messages: Sequence[str]) -> bool:
     """
     return any("unstable" in m for m in messages)
 
-
-mujoco.set_mju_user_warning(_warn)

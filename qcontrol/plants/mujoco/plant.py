@@ -35,9 +35,9 @@ from ...errors import QcontrolInputError
 from ...expr import scalar_function
 from ...timegrid import whole_steps
 from ..base import IO, PlantTerms, array_io
-from .callbacks import collect_warnings, generalized_force, passive_forces, unstable
+from .callbacks import collect_warnings, generalized_force, kept_aside, passive_forces, unstable
 from .consistency import consistency_report
-from .model import compiled
+from .mjcf import compiled
 from .options import MujocoOptions
 
 _mj_step, _mj_sensor_pos, _mj_sensor_vel = mujoco.mj_step, mujoco.mj_sensorPos, mujoco.mj_sensorVel
@@ -89,7 +89,8 @@ class MujocoPlant:
         self._rng = np.random.default_rng(options.noise_seed)
         self._entered: list[Any] = []
         self.warnings: list[str] = []  # MuJoCo's warnings during the last run
-        self.consistency_report = consistency_report(built, options, terms, native, self._force)
+        with kept_aside():  # the model check's warnings, outside any run
+            self.consistency_report = consistency_report(built, options, terms, native, self._force)
 
     # ---- context manager: the process-global passive callback, and the run's warnings
     def __enter__(self) -> MujocoPlant:

@@ -12,14 +12,15 @@ import argparse
 from pathlib import Path
 
 from ..errors import QcontrolInputError
-from ..outputs import check_output_dir, prepare_output_dir, write_json, write_text
+from ..outputs import check_output_dir
 from ..plants import BACKENDS
 from ..progress import ProgressLine
 from ..provenance import command_line
+from ..region import BOX, default_laws, measure_region, parse_grid, parse_law, write_region
 from ..scenario import load_scenario
 from ..scenario.resolve import scenario_provenance
 from ..sweep.runs import SweepInterrupted
-from .study import BOX, OUTCOMES, Region, csv_text, default_laws, measure_region, parse_grid, parse_law
+from .arguments import EXIT_OK, add_scenario_options
 
 
 def add_region_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -34,7 +35,9 @@ def add_region_parser(subparsers: argparse._SubParsersAction) -> None:
         f"{BOX:g}, the largest working scale per direction, provenance) and DIR/region.png (a map per law). "
         "Exit status: 0 ok, 2 bad input, 130 interrupted.",
     )
-    p.add_argument("scenario", type=Path, help="scenario file (TOML) or a shipped scenario's name")
+    add_scenario_options(p, scenario_help="scenario file (TOML) or a shipped scenario's name",
+                         set_help="a fixed override for every run, e.g. simulation.control_period=0.005",
+                         unset_help="remove a key of the scenario file for every run")
     p.add_argument("--law", dest="laws", action="append", default=[], metavar="KIND[:KEY=VALUE,...]",
                    help="a law to map, e.g. proposed, proposed:hold=exact, baseline, or a registered kind "
                    "(repeatable; default: the scenario's law, and for the paper's law also hold=exact)")
@@ -43,14 +46,6 @@ def add_region_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--box", default="10", metavar="H | LO,HI | LO1,HI1,LO2,HI2",
                    help="the grid's extent: [-H, H] on both axes (default 10), or the bounds given")
     p.add_argument("--resolution", type=int, default=21, metavar="N", help="points per axis (default 21)")
-    p.add_argument("--dt", type=float, metavar="S", help="simulation step (and, unless the scenario sets "
-                   "one, control period) for every run")
-    p.add_argument("--duration", type=float, metavar="S",
-                   help="duration of every run (default: the scenario's)")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="a fixed override for every run, e.g. simulation.control_period=0.005")
-    p.add_argument("--unset", dest="unset", action="append", default=[], metavar="KEY",
-                   help="remove a key of the scenario file for every run")
     p.add_argument("--backend", choices=tuple(BACKENDS), default="ode",
                    help="plant backend (default ode: batched; mujoco on request)")
     p.add_argument("--workers", type=int, default=1, metavar="N", help="local worker processes (default 1)")
@@ -58,7 +53,6 @@ def add_region_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="send the runs to a running Dask scheduler (needs qcontrol[cluster])")
     p.add_argument("--out", type=Path, default=Path("region"), metavar="DIR",
                    help="output folder (default ./region)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(command_line=None)
 
 
@@ -97,14 +91,4 @@ def cmd_region(args: argparse.Namespace) -> int:
               f"{s['lemma2']} Lemma 2 violated of {s['points']}); max K T {kt}")
     print(f"  wrote {args.out / 'region.csv'}, {args.out / 'region.json'} and {args.out / 'region.png'} "
           f"({region.wall_time_s:.1f} s)")
-    return 0
-
-
-def write_region(region: Region, out: Path, provenance: dict) -> None:
-    """region.csv, region.json and region.png in ``out`` (made now), each written atomically."""
-    from ..plots.region import fig_region  # matplotlib: imported only when a figure is drawn
-
-    out = prepare_output_dir(out)
-    write_text(out / "region.csv", csv_text(region))
-    write_json(out / "region.json", region.record(provenance))
-    fig_region([region.maps()], OUTCOMES, out / "region.png", region.title())
+    return EXIT_OK

@@ -20,9 +20,10 @@ from ..progress import ProgressLine
 from ..provenance import command_line
 from ..scenario import load_scenario
 from ..scenario.resolve import scenario_provenance
-from .grid import grid_points, parse_grid
-from .runs import SweepInterrupted, plan, sweep_summaries
-from .table import csv_text, metric_columns, sweep_record, sweep_rows
+from ..sweep.grid import grid_points, parse_grid
+from ..sweep.runs import SweepInterrupted, plan, sweep_summaries
+from ..sweep.table import csv_text, metric_columns, sweep_record, sweep_rows
+from .arguments import EXIT_OK, add_scenario_options
 
 
 def add_sweep_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -36,15 +37,13 @@ def add_sweep_parser(subparsers: argparse._SubParsersAction) -> None:
         "multiples for more). Diverged runs are rows with diverged=True. Ctrl-C writes the finished rows. "
         "Exit status: 0 ok, 2 bad input, 130 interrupted.",
     )
-    p.add_argument("scenario", type=Path, help="scenario file (TOML) or a shipped scenario's name")
+    add_scenario_options(p, timing=False, scenario_help="scenario file (TOML) or a shipped scenario's name",
+                         set_help="a fixed override for every run, e.g. simulation.duration=2.0",
+                         unset_help="remove a key of the scenario file for every run, e.g. --unset "
+                         "reference.amplitude (repeatable; applied before --set and --grid)")
     p.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2,...",
                    help="a scenario key and its values, e.g. controller.kappa_margin=0.1,0.5,1.1 "
                    "(repeatable: the product of all grids is run)")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="a fixed override for every run, e.g. simulation.duration=2.0")
-    p.add_argument("--unset", dest="unset", action="append", default=[], metavar="KEY",
-                   help="remove a key of the scenario file for every run, e.g. --unset reference.amplitude "
-                   "(repeatable; applied before --set and --grid)")
     p.add_argument("--random-initial", type=int, default=0, metavar="N",
                    help="N random initial states x0 ~ U[-1, 1]^n per grid point")
     p.add_argument("--seed", type=int, default=0, metavar="S", help="seed of --random-initial (default 0)")
@@ -55,7 +54,6 @@ def add_sweep_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="send the runs to a running Dask scheduler (needs qcontrol[cluster])")
     p.add_argument("--out", type=Path, default=Path("sweep"), metavar="DIR",
                    help="output folder (default: ./sweep)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(command_line=None)  # the command line's main() names the command it runs
 
 
@@ -110,4 +108,4 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         print(f"  interrupted: wrote the {len(rows)} finished runs to {out / 'sweep.csv'}")
         raise KeyboardInterrupt
     print(f"  wrote {out / 'sweep.csv'}, {out / 'sweep.json'} and {out / 'sweep.png'}")
-    return 0
+    return EXIT_OK

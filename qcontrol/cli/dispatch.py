@@ -1,0 +1,69 @@
+"""The ``qcontrol`` command line: run, compare, reproduce, sweep, region, check (on :mod:`qcontrol.api`).
+
+Exit status: 0 success; 1 the run diverged or a theory check failed; 2 bad input; 130 interrupted.
+Bad input is reported as one line on stderr, never as a traceback, and every input is checked
+before any folder or file is made. Each command is one module of this package with its parser
+and its handler; they share the scenario options of :mod:`.arguments`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+import warnings
+from collections.abc import Sequence
+
+from .._version import __version__
+from ..errors import QcontrolInputError
+from ..provenance import command_line
+from .arguments import EXIT_BAD_INPUT, EXIT_INTERRUPTED, Parser
+from .check_command import add_check_parser, cmd_check
+from .compare_command import add_compare_parser, cmd_compare
+from .region_command import add_region_parser, cmd_region
+from .reproduce_command import add_reproduce_parser, cmd_reproduce
+from .run_command import add_run_parser, cmd_run
+from .sweep_command import add_sweep_parser, cmd_sweep
+
+COMMANDS = {"run": cmd_run, "compare": cmd_compare, "reproduce": cmd_reproduce, "sweep": cmd_sweep,
+            "region": cmd_region, "check": cmd_check}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = Parser(
+        prog="qcontrol",
+        description=(
+            "Adaptive backstepping control with quantized states (Sun et al., Electronics 2022, "
+            "11, 3160) on an ideal ODE plant or on MuJoCo physics."
+        ),
+        epilog="Exit status: 0 ok, 1 diverged or a theory check failed, 2 bad input, 130 interrupted.",
+    )
+    parser.add_argument("--version", action="version", version=f"qcontrol {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
+    sub.required = True
+    for add in (add_run_parser, add_compare_parser, add_reproduce_parser, add_sweep_parser, add_region_parser,
+                add_check_parser):
+        add(sub)
+    return parser
+
+
+def _one_line_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                      line: str | None = None) -> str:
+    """A warning as the command line prints it: one line, no source location."""
+    return f"qcontrol: warning: {message}\n"
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    args.command_line = command_line(argv)  # what the outputs' provenance names as the command
+    warnings.formatwarning = _one_line_warning
+    started = time.perf_counter()
+    try:
+        return COMMANDS[args.command](args)
+    except QcontrolInputError as exc:
+        print(f"qcontrol: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print(f"\nqcontrol: interrupted after {time.perf_counter() - started:.1f} s", file=sys.stderr)
+        return EXIT_INTERRUPTED
