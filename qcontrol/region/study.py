@@ -11,19 +11,21 @@ and on local workers).
 from __future__ import annotations
 
 import math
+import time
 import tomllib
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Hashable, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..assembly import batch_structure, runnable_backend
 from ..controller import LAW_KINDS
 from ..errors import QcontrolInputError
 from ..metrics import LEMMA2_TOLERANCE
 from ..scenario import Scenario, load_scenario
-from ..sweep.runs import RunsDone, plan, sweep_summaries
+from ..sweep.runs import CHUNK, RunsDone, plan, run_batch, sweep_summaries
 
 if TYPE_CHECKING:
     from ..plots.region import RegionMap
@@ -274,32 +276,69 @@ class Region:
         }
 
 
-def region_sets(sc: Scenario, grid: RegionGrid, laws: Sequence[LawSpec], overrides: Sequence[str] = ()
+def _x0_text(x: Sequence[float]) -> str:
+    return "plant.x0=[" + ", ".join(repr(v) for v in x) + "]"
+
+
+def region_sets(grid: RegionGrid, laws: Sequence[LawSpec], x0: Sequence[float], overrides: Sequence[str] = ()
                 ) -> tuple[list[tuple[LawSpec, tuple[float, ...]]], list[list[str]]]:
     """The (law, x(0)) of every run and its override set, laws first."""
-    runs = [(law, x) for law in laws for x in grid.starts(sc.x0)]
-    sets = [list(overrides) + law.overrides() + ["plant.x0=[" + ", ".join(repr(v) for v in x) + "]"]
-            for law, x in runs]
-    return runs, sets
+    runs = [(law, x) for law in laws for x in grid.starts(x0)]
+    return runs, [[*overrides, *law.overrides(), _x0_text(x)] for law, x in runs]
+
+
+def _in_process(path: str, runs: Sequence[tuple[LawSpec, tuple[float, ...]]], overrides: Sequence[str],
+                unset: Sequence[str], backend: str, progress: RunsDone | None) -> list[dict]:
+    """The summaries :func:`~qcontrol.sweep.sweep_summaries` gives for :func:`region_sets`, from
+    the very same batches (grouped by batch structure, cut into chunks of ``CHUNK`` in input
+    order), but with the scenario loaded once per law: a start differs from it only in x(0). (A
+    start's file read and checked again costs about as much as its 1 kHz, 2 s ODE run in a batch.)"""
+    loaded: dict[str, Scenario] = {}
+    groups: dict[Hashable, list[tuple[int, Scenario]]] = {}
+    for i, (law, x) in enumerate(runs):
+        if law.label not in loaded:
+            loaded[law.label] = load_scenario(path, [*overrides, *law.overrides()], list(unset))
+            runnable_backend(loaded[law.label], backend)
+        sc = loaded[law.label]
+        variant = replace(sc, x0=tuple(x), overrides=(*sc.overrides, _x0_text(x)))
+        groups.setdefault(batch_structure(variant, backend), []).append((i, variant))
+    results: list[dict | None] = [None] * len(runs)
+    done = 0
+    for members in groups.values():
+        for k in range(0, len(members), CHUNK):
+            chunk = members[k : k + CHUNK]
+            for (i, _), s in zip(chunk, run_batch([v for _, v in chunk], backend), strict=True):
+                results[i] = s
+            done += len(chunk)
+            if progress is not None:
+                progress(done, len(runs))
+    return results  # type: ignore[return-value]
 
 
 def measure_region(scenario: str | Path, grid: RegionGrid, laws: Sequence[LawSpec], backend: str = "ode",
                    overrides: Sequence[str] = (), unset: Sequence[str] = (), workers: int = 1,
                    scheduler: str | None = None, progress: RunsDone | None = None) -> Region:
-    """Run every law from every point of ``grid`` (see the module docstring). Bad input (a law's
-    settings, an override) raises :class:`QcontrolInputError` before any run."""
-    import time
-
+    """Run every law from every point of ``grid`` (see the module docstring): in this process, or
+    (``workers > 1``, ``scheduler``) through the sweep's executors; the same batches either way, so
+    the same numbers. Bad input (a law's settings, an override) raises
+    :class:`QcontrolInputError` before any run."""
     base = load_scenario(scenario, list(overrides), list(unset))
     if not laws:
         raise QcontrolInputError("no law to measure: give --law KIND at least once")
     labels = [law.label for law in laws]
     if len(set(labels)) != len(labels):
         raise QcontrolInputError(f"--law: a law is given twice ({', '.join(labels)}); give each once")
-    runs, sets = region_sets(base, grid, laws, overrides)
-    chunks = plan(base.source, sets, backend, unset)
+    if workers < 1:
+        raise QcontrolInputError(f"--workers {workers}: must be >= 1")
+    runs, sets = region_sets(grid, laws, base.x0, overrides)
     started = time.perf_counter()
-    summaries = sweep_summaries(base.source, sets, backend, workers, scheduler, progress, chunks, unset)
+    if workers == 1 and scheduler is None:
+        for law in laws:  # every law's settings checked before any run
+            runnable_backend(load_scenario(base.source, [*overrides, *law.overrides()], list(unset)), backend)
+        summaries = _in_process(base.source, runs, overrides, unset, backend, progress)
+    else:
+        chunks = plan(base.source, sets, backend, unset)
+        summaries = sweep_summaries(base.source, sets, backend, workers, scheduler, progress, chunks, unset)
     points = [RegionPoint(law.label, x, classify(s), s["diverged_time"], s["lemma2_max_ratio"],
                           s.get("max_gain_period"), s["max_abs_u"])
               for (law, x), s in zip(runs, summaries, strict=True)]
