@@ -44,7 +44,7 @@ def _edges(values: np.ndarray) -> np.ndarray:
     return np.concatenate([[2 * values[0] - mid[0]], mid, [2 * values[-1] - mid[-1]]])
 
 
-def _panel(ax, m: RegionMap, outcomes: Sequence[str], show_ylabel: bool) -> None:
+def _panel(ax, m: RegionMap, outcomes: Sequence[str], show_ylabel: bool, show_xlabel: bool) -> None:
     cmap = ListedColormap([OUTCOME_COLORS[o] for o in outcomes])
     norm = BoundaryNorm(np.arange(len(outcomes) + 1) - 0.5, len(outcomes))
     ax.pcolormesh(_edges(m.xs), _edges(m.ys), m.codes, cmap=cmap, norm=norm, shading="flat")
@@ -55,9 +55,10 @@ def _panel(ax, m: RegionMap, outcomes: Sequence[str], show_ylabel: bool) -> None
                            linestyle="--", linewidth=1.0))
     ax.plot([m.marker[0]], [m.marker[1]], marker="*", color="black", markersize=10, linestyle="none")
     ax.set_title(m.title, fontsize=8)
-    ax.set_xlabel(m.xlabel, fontsize=8)
+    if show_xlabel:
+        ax.set_xlabel(m.xlabel, fontsize=8)
     if show_ylabel:
-        ax.set_ylabel(m.ylabel, fontsize=8)
+        ax.set_ylabel(m.ylabel, fontsize=7)
     ax.set_xlim(_edges(m.xs)[[0, -1]])
     ax.set_ylim(_edges(m.ys)[[0, -1]])
     ax.tick_params(labelsize=7)
@@ -73,7 +74,7 @@ def fig_region(rows: Sequence[Sequence[RegionMap]], outcomes: Sequence[str], pat
     for i, maps in enumerate(rows):
         for j in range(cols):
             if j < len(maps):
-                _panel(axes[i, j], maps[j], outcomes, j == 0)
+                _panel(axes[i, j], maps[j], outcomes, j == 0, i == len(rows) - 1)
             else:
                 axes[i, j].set_visible(False)
     box = rows[0][0].box

@@ -240,8 +240,8 @@ class Region:
             out.append(RegionMap(
                 g.values(0), g.values(1), self.outcomes(law).T, gains.reshape(g.resolution, g.resolution).T,
                 (self.scenario.x0[a], self.scenario.x0[b]), BOX,
-                f"{law.label}, T = {period * 1e3:g} ms\n{s['failing_in_box']} of {s['points_in_box']} fail "
-                f"in |x_i| <= {BOX:g}", f"x{a + 1}(0)", f"{self.scenario.name}\nx{b + 1}(0)"))
+                f"{law.label}: {s['failing_in_box']} of {s['points_in_box']} fail in |x_i| <= {BOX:g}",
+                f"x{a + 1}(0)", f"{self.scenario.name}\nT = {period * 1e3:g} ms\nx{b + 1}(0)"))
         return out
 
     def title(self) -> str:
