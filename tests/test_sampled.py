@@ -199,3 +199,37 @@ def test_the_region_is_the_same_in_process_and_on_workers() -> None:
     there = measure_region(EX2, grid, laws, overrides=["simulation.duration=0.3"], workers=2)
     assert here.points == there.points and len(here.points) == 18
     assert {p.x0 for p in here.points} == {(a, b) for a in (-10.0, 0.0, 10.0) for b in (-2.0, 2.0, 6.0)}
+
+
+class _CertaintyEquivalence:
+    """u = alphabar_n (no robust term, no adaptation): a law registered from Python."""
+
+    state_size = 0
+
+    def __init__(self, c):
+        self.c = c
+
+    def initial_state(self):
+        return np.zeros(0)
+
+    def control(self, t, x_q, yd, state):
+        import qcontrol
+
+        return qcontrol.quantized_backstepping(self.c, x_q, yd)[1][-1]
+
+    def state_rate(self, t, x_q, yd, state):
+        return np.zeros(0)
+
+
+def test_a_law_registered_from_python_is_mapped_like_a_built_in_one(tmp_path: Path) -> None:
+    import qcontrol
+    from qcontrol.controller import LAW_KINDS
+
+    if "region_ce" not in LAW_KINDS:
+        qcontrol.register_law("region_ce", lambda table, n: _CertaintyEquivalence(table["c"]))
+    out = tmp_path / "r"
+    assert main(["region", str(EX2), "--law", "region_ce", "--law", "proposed", "--resolution", "3",
+                 "--duration", "0.2", "--out", str(out), "-q"]) == 0
+    laws = {law["law"]: law for law in json.loads((out / "region.json").read_text())["laws"]}
+    assert laws["region_ce"]["points"] == 9 and laws["region_ce"]["max_gain_period"] is None
+    assert laws["proposed"]["max_gain_period"] is not None
