@@ -49,8 +49,8 @@ PANELS: dict[str, PanelStyle] = {  # keyed by panel (a series path's parent), in
     "signals/adaptive": PanelStyle("adaptive estimates", "adaptive"),
     "theory/lemma2": PanelStyle("Lemma 2: |e_zi| / L_zi <= 1 at every step (the bound 1: red line)",
                                 "Lemma 2", (0.0, 1.1)),
-    "theory/law": PanelStyle("the law's diagnostics: gain_period = K T of law (44) (above 1 the sampled loop "
-                             "leaves the range where it behaves like the continuous-time law)", "Lemma 2"),
+    "theory/law": PanelStyle("law diagnostics: gain_period = K T of (44) (> 1: the held input overshoots)",
+                             "Lemma 2"),
     "signals/difference/y": PanelStyle("|y - y_twin|: MuJoCo against its ODE twin", "twin difference"),
     "signals/difference/u": PanelStyle("|u - u_twin|", "twin difference"),
 }
