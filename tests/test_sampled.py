@@ -233,3 +233,15 @@ def test_a_law_registered_from_python_is_mapped_like_a_built_in_one(tmp_path: Pa
     laws = {law["law"]: law for law in json.loads((out / "region.json").read_text())["laws"]}
     assert laws["region_ce"]["points"] == 9 and laws["region_ce"]["max_gain_period"] is None
     assert laws["proposed"]["max_gain_period"] is not None
+
+
+def test_the_law_diagnostics_land_in_the_saved_files(tmp_path: Path) -> None:
+    """--save writes the diagnostic under its own name, a column in CSV and an array in npz."""
+    out = tmp_path / "r"
+    short = ["run", str(EX2), "--backend", "ode", "--duration", "0.2", "-q"]
+    assert main([*short, "--save", str(tmp_path / "run.csv"), "--out", str(out)]) == 0
+    rows = list(csv.DictReader((tmp_path / "run.csv").open()))
+    column = np.array([float(r["gain_period"]) for r in rows])
+    assert column.max() == json.loads((out / "summary.json").read_text())["max_gain_period"]
+    assert main([*short, "--save", str(tmp_path / "run.npz")]) == 0
+    np.testing.assert_array_equal(np.load(tmp_path / "run.npz")["diagnostics"][:, 0], column)
