@@ -7,11 +7,12 @@ import numpy as np
 from .engine import RunMetrics, Trajectory
 from .engine.velocity import lemma2_applies
 from .error_rate import TABLE1_OMEGAS, error_rate, omega_key
+from .summary import Summary
 
 LEMMA2_TOLERANCE = 1e-9  # rounding slack on |e_zi| / L_zi <= 1
 
 __all__ = ["LEMMA2_TOLERANCE", "TABLE1_OMEGAS", "backend_deviation", "error_rate", "finite_max_abs",
-           "lemma2_max_ratio", "omega_key", "summary"]
+           "lemma2_max_ratio", "omega_key", "run_summary", "summary"]
 
 
 def lemma2_max_ratio(e_z: np.ndarray, L_z: np.ndarray) -> float:
@@ -29,7 +30,12 @@ def finite_max_abs(values: np.ndarray) -> float:
 
 
 def summary(run: Trajectory | RunMetrics, scenario: str, backend: str) -> dict:
-    """The ``summary.json`` object of a run (see the README's output contract).
+    """The ``summary.json`` object of a run: :func:`run_summary`'s :meth:`Summary.to_json`."""
+    return run_summary(run, scenario, backend).to_json()
+
+
+def run_summary(run: Trajectory | RunMetrics, scenario: str, backend: str) -> Summary:
+    """The :class:`~qcontrol.summary.Summary` of a run (see the README's output contract).
 
     The metrics are the reductions of the signal table, the same whether the run kept every row
     or only its metrics. The Lemma 2 check covers every instant before a divergence: the row that
@@ -40,31 +46,19 @@ def summary(run: Trajectory | RunMetrics, scenario: str, backend: str) -> dict:
     ratio is still reported, with ``lemma2_applies`` false.
     """
     values = run.reduced()
-    return {
-        "scenario": scenario,
-        "backend": backend,
-        "duration": run.duration,
-        "dt": run.dt,
-        "steps": run.steps,
-        "wall_time_s": run.wall_time_s,
-        "diverged": bool(run.diverged),
-        "diverged_time": run.diverged_time,
-        "divergence_reason": run.divergence_reason,
-        "error_rate": values["error_rate"],
-        "max_abs_z1_last_half": values["max_abs_z1_last_half"],
-        "max_abs_u": values["max_abs_u"],
-        "max_abs_u_applied": values["max_abs_u_applied"],
-        "saturated_fraction": values["saturated_fraction"],
-        "final_eps_hat": [float(v) for v in values["final_adaptive"]],
-        "adaptive_state": run.adaptive_name,
-        "lemma2_max_ratio": lemma2_max_ratio(values["e_z_max"][None, :], run.L_z),
-        "velocity_source": run.velocity_source,
-        "lemma2_applies": lemma2_applies(run.velocity_source),
-        "L_z": [float(v) for v in run.L_z],
-        "L": float(run.L_z[-1]),
+    return Summary(
+        scenario=scenario, backend=backend, duration=run.duration, dt=run.dt, steps=run.steps,
+        wall_time_s=run.wall_time_s, diverged=bool(run.diverged), diverged_time=run.diverged_time,
+        divergence_reason=run.divergence_reason, error_rate=values["error_rate"],
+        max_abs_z1_last_half=values["max_abs_z1_last_half"], max_abs_u=values["max_abs_u"],
+        max_abs_u_applied=values["max_abs_u_applied"], saturated_fraction=values["saturated_fraction"],
+        final_eps_hat=tuple(float(v) for v in values["final_adaptive"]), adaptive_state=run.adaptive_name,
+        lemma2_max_ratio=lemma2_max_ratio(values["e_z_max"][None, :], run.L_z),
+        velocity_source=run.velocity_source, lemma2_applies=lemma2_applies(run.velocity_source),
+        L_z=tuple(float(v) for v in run.L_z), L=float(run.L_z[-1]),
         **bound_constants(run.bound_names, values["bound_constants"]),
-        **law_diagnostics(run.law_diagnostics, values["diagnostics"]),
-    }
+        law_diagnostics=law_diagnostics(run.law_diagnostics, values["diagnostics"]),
+    )
 
 
 def law_diagnostics(diagnostics: tuple, reduced: dict[str, np.ndarray]) -> dict:
@@ -85,12 +79,12 @@ def bound_constants(names: tuple[str, ...], largest: np.ndarray) -> dict:
     bounded by its r on the run), and ``warnings`` says so in words. Both None/empty when the
     separation was not checked (a law without r, or a sweep's batch)."""
     if not names:
-        return {"bound_constants": None, "warnings": []}
+        return {"bound_constants": None, "warnings": ()}
     constants = {name: float(v) if np.isfinite(v) else None for name, v in zip(names, largest, strict=True)}
     warnings = [f"{name} is not bounded by its r on this run: |{name}| / r(x_q) was infinite or undefined "
                 "(eqs. (37)-(43) need |term(x)| <= constant * r(x_q) wherever |x - x_q| <= delta/2)"
                 for name, value in constants.items() if value is None]
-    return {"bound_constants": constants, "warnings": warnings}
+    return {"bound_constants": constants, "warnings": tuple(warnings)}
 
 
 def backend_deviation(physics: Trajectory, ideal: Trajectory) -> dict:

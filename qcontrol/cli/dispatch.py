@@ -12,7 +12,7 @@ import argparse
 import sys
 import time
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 from .._version import __version__
 from ..errors import QcontrolInputError
@@ -25,8 +25,19 @@ from .reproduce_command import add_reproduce_parser, cmd_reproduce
 from .run_command import add_run_parser, cmd_run
 from .sweep_command import add_sweep_parser, cmd_sweep
 
-COMMANDS = {"run": cmd_run, "compare": cmd_compare, "reproduce": cmd_reproduce, "sweep": cmd_sweep,
-            "region": cmd_region, "check": cmd_check}
+Register = Callable[[argparse._SubParsersAction], None]
+Handler = Callable[[argparse.Namespace], int]
+
+# Each command: the function that registers its parser (and options) and its handler. A new
+# command is one module with both, and one entry here.
+COMMANDS: dict[str, tuple[Register, Handler]] = {
+    "run": (add_run_parser, cmd_run),
+    "compare": (add_compare_parser, cmd_compare),
+    "reproduce": (add_reproduce_parser, cmd_reproduce),
+    "sweep": (add_sweep_parser, cmd_sweep),
+    "region": (add_region_parser, cmd_region),
+    "check": (add_check_parser, cmd_check),
+}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -41,9 +52,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"qcontrol {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     sub.required = True
-    for add in (add_run_parser, add_compare_parser, add_reproduce_parser, add_sweep_parser, add_region_parser,
-                add_check_parser):
-        add(sub)
+    for register, _ in COMMANDS.values():
+        register(sub)
     return parser
 
 
@@ -60,7 +70,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     warnings.formatwarning = _one_line_warning
     started = time.perf_counter()
     try:
-        return COMMANDS[args.command](args)
+        return COMMANDS[args.command][1](args)
     except QcontrolInputError as exc:
         print(f"qcontrol: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT

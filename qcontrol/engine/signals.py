@@ -49,7 +49,8 @@ class Separation:
     r: tuple[Expression, ...]
 
 
-def _as_commanded(u: np.ndarray) -> np.ndarray:
+def applied_as_commanded(u: np.ndarray) -> np.ndarray:
+    """The actuator of a plant that applies u as commanded."""
     return u
 
 
@@ -63,7 +64,7 @@ class SignalContext:
 
     coordinates: Backstepping
     separation: Separation | None = None
-    actuator: Callable[[np.ndarray], np.ndarray] = _as_commanded
+    actuator: Callable[[np.ndarray], np.ndarray] = applied_as_commanded
     velocity_source: str = "sensor"
     actuator_limited: bool = False
     diagnostics: tuple[Diagnostic, ...] = ()  # the law's own signals

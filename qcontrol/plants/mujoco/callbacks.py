@@ -18,16 +18,13 @@ before the first one is restored: importing this module changes nothing.
 from __future__ import annotations
 
 import contextlib
-import math
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
 
 import mujoco
 
-from ...expr import ScalarFn
-
-GeneralizedForce = Callable[[float, float], float]  # (qpos, qvel) -> generalized force
+from ...expr import FLOAT_REFUSED, Expression, scalar_function
 
 _ENTRIES: dict[int, Callable[[], None]] = {}  # id(MjData) -> adds the non-native terms to it
 _PREVIOUS: list[Any] = []  # the passive callback that was installed before the dispatcher
@@ -36,22 +33,32 @@ _SINKS: list[list[str]] = []  # the innermost collecting run's list is last
 _PREVIOUS_WARNING: list[Any] = []  # the warning handler found when the first block opened
 
 
-def generalized_force(terms: Sequence[tuple[float, ScalarFn]], inertia: float) -> GeneralizedForce:
-    """``(q, v) -> I * sum(coefficient * term(q, v))`` on plain floats, NaN where a term is
-    undefined (see :func:`qcontrol.expr.scalar_function`)."""
-    pairs = tuple((inertia * c, f) for c, f in terms)
+class GeneralizedForce:
+    """``force(q, v) = I * sum(coefficient * term(q, v))`` on plain floats: the terms of eq. (1)
+    MuJoCo's own physics does not produce, as a generalized force on the joint. Where ``math``
+    refuses a term (:data:`~qcontrol.expr.FLOAT_REFUSED`), the one fallback rule: numpy's answer
+    (:meth:`~qcontrol.expr.Expression.on_floats`)."""
 
-    def force(q: float, v: float) -> float:
+    def __init__(self, terms: Sequence[tuple[float, Expression]], inertia: float) -> None:
+        self.fast = tuple((inertia * c, scalar_function(e)) for c, e in terms)
+        self.safe = tuple((inertia * c, e.on_floats) for c, e in terms)
+
+    def at(self, q: float, v: float) -> float:
         xs = (q, v)
         total = 0.0
         try:
-            for c, f in pairs:
+            for c, f in self.fast:
                 total += c * f(xs)
-        except (ValueError, ZeroDivisionError, OverflowError):
-            return math.nan
+        except FLOAT_REFUSED:
+            return self._total(self.safe, xs)
         return total
 
-    return force
+    @staticmethod
+    def _total(pairs: tuple, xs: tuple[float, float]) -> float:
+        total = 0.0
+        for c, f in pairs:
+            total += c * f(xs)
+        return total
 
 
 def _dispatch(model: mujoco.MjModel, data: mujoco.MjData) -> None:
@@ -63,13 +70,17 @@ def _dispatch(model: mujoco.MjModel, data: mujoco.MjData) -> None:
         _PREVIOUS[0](model, data)
 
 
-def _applier(data: mujoco.MjData, qadr: int, dof: int, force: GeneralizedForce) -> Callable[[], None]:
-    qpos, qvel, qfrc = data.qpos, data.qvel, data.qfrc_passive  # views, made once
+class PassiveApplier:
+    """Adds the non-native terms to one MjData's ``qfrc_passive`` (the dispatcher calls
+    :meth:`apply` with MuJoCo's every evaluation of the passive forces)."""
 
-    def apply() -> None:
-        qfrc[dof] += force(qpos.item(qadr), qvel.item(dof))
+    def __init__(self, data: mujoco.MjData, qadr: int, dof: int, force: GeneralizedForce) -> None:
+        self.qpos, self.qvel, self.qfrc = data.qpos, data.qvel, data.qfrc_passive  # views, made once
+        self.qadr, self.dof, self.force = qadr, dof, force.at
 
-    return apply
+    def apply(self) -> None:
+        dof = self.dof
+        self.qfrc[dof] += self.force(self.qpos.item(self.qadr), self.qvel.item(dof))
 
 
 @contextmanager
@@ -86,7 +97,7 @@ def passive_forces(datas: Sequence[mujoco.MjData], qadr: int, dof: int,
     keys = []
     try:
         for data in datas:
-            _ENTRIES[id(data)] = _applier(data, qadr, dof, force)
+            _ENTRIES[id(data)] = PassiveApplier(data, qadr, dof, force).apply
             keys.append(id(data))
         yield
     finally:
