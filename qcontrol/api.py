@@ -49,7 +49,8 @@ class Result:
     saw), ``u`` the input held over ``[t_k, t_k + dt)`` ``(rows,)``, ``adaptive`` the law's state
     ``(rows, m)``, ``yd`` the reference and its n derivatives ``(rows, n + 1)``, ``z`` and ``zbar``
     the errors (7)-(8) and (31)-(33), ``e_z`` the Lemma 2 errors, ``bound_ratio`` the separation's
-    ratios; ``y = x[:, 0]`` and ``t``. A diverged run ends with the row that stopped it.
+    ratios, ``diagnostics`` the law's own signals (the paper's law: ``gain_period``, K T);
+    ``y = x[:, 0]`` and ``t``. A diverged run ends with the row that stopped it.
     """
 
     summary: dict[str, Any]
@@ -101,7 +102,8 @@ del _signal
 def columns(traj: Trajectory) -> list[tuple[str, np.ndarray]]:
     """The run's signals as named columns, in the order of the signal table: ``t``; ``x1 .. xn``;
     ``x_meas1 ..``; ``x_q1 ..``; ``u``; ``<adaptive name>_1 ..``; ``yd_0 .. yd_n`` (y_d and its
-    derivatives); ``z1 ..``; ``zbar1 ..``; ``e_z1 ..``; ``bound_ratio_<term> ..``."""
+    derivatives); ``z1 ..``; ``zbar1 ..``; ``e_z1 ..``; ``bound_ratio_<term> ..``;
+    the law's diagnostics by name (``gain_period``)."""
     out = [("t", traj.t)]
     for signal in SIGNALS:
         array = traj.signals[signal.name]
@@ -115,6 +117,8 @@ def columns(traj: Trajectory) -> list[tuple[str, np.ndarray]]:
                 name = f"{signal.name}_{i}"
             elif signal.width == "terms":
                 name = f"{signal.name}_{traj.bound_names[i]}"
+            elif signal.width == "diagnostics":
+                name = traj.diagnostic_columns[i]
             else:
                 name = f"{signal.name}{i + 1}"
             out.append((name, array[:, i]))

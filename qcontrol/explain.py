@@ -20,12 +20,22 @@ from .resources import resolve_file, shipped_scenarios
 from .scenario import Scenario
 
 README_SECTION = "README.md, section 'Reproducing the paper'"
-# The initial states from which the proposed law stayed bounded (and Lemma 2 held) in every one of
-# eight directions, the axes and the diagonals, on the ODE at dt = 1 ms over 10 s, as measured by
-# tools/global_claim.py: max_i |x_i(0)| up to this value. Keyed by scenario name and controller
-# kind; they hold for the files as shipped.
-MEASURED_REGION = {("example1", "proposed"): 9.6, ("example2", "proposed"): 2.0}
-MEASURED_DT = 1e-3
+GAIN_PERIOD_LIMIT = 1.0  # K T above this: the held input overshoots the continuous-time decay
+SAMPLED_WARNING = ("the sampled loop is outside the range where it behaves like the paper's "
+                   "continuous-time law")
+
+
+def gain_period_lines(s: Mapping) -> list[str]:
+    """The gain-period monitor of a law that declares one (``max_gain_period``): its value, and a
+    warning once K T > 1. Nothing for a law without it."""
+    if "max_gain_period" not in s:
+        return []
+    value = s["max_gain_period"]
+    shown = "n/a" if value is None else f"{value:.4g}"
+    lines = [f"  sampled loop: max K T = {shown} (the robust gain K of law (44) times the control period T)"]
+    if value is not None and value > GAIN_PERIOD_LIMIT:
+        lines.append(f"  warning: K T reached {value:.4g} > {GAIN_PERIOD_LIMIT:g}: {SAMPLED_WARNING}")
+    return lines
 
 
 def divergence_lines(s: Mapping, sc: Scenario) -> list[str]:
@@ -36,27 +46,17 @@ def divergence_lines(s: Mapping, sc: Scenario) -> list[str]:
     hint = law_kind(sc.controller.kind).divergence_hint
     if hint:
         helps[0] += f": {hint}"
-    region = _region_note(sc)
-    if region:
-        helps.append(region)
+    helps.append(_region_note(sc))
     lines.append("  what usually helps: " + "; ".join(helps))
     return lines
 
 
 def _region_note(sc: Scenario) -> str:
-    """How far x(0) lies outside the region tools/global_claim.py measured for this scenario."""
-    limit = MEASURED_REGION.get((sc.name, sc.controller.kind))
-    period = sc.simulation.control_period or sc.simulation.dt
-    if limit is None or not math.isclose(period, MEASURED_DT):
-        return ""
+    """The command that measures the region of initial states this law holds at this period."""
     size = max(abs(v) for v in sc.x0)
-    if size <= limit:
-        return (f"x(0) = {list(sc.x0)} lies within max |x_i(0)| <= {limit:g}, where tools/global_claim.py "
-                f"measured {sc.name} as shipped to stay bounded at dt = 1 ms: a changed setting made the "
-                "difference")
-    return (f"x(0) = {list(sc.x0)} has max |x_i(0)| = {size:g}, {size / limit:.3g} times the {limit:g} up "
-            f"to which tools/global_claim.py measured {sc.name} to stay bounded at dt = 1 ms in every "
-            "direction: start closer to the origin")
+    period = sc.simulation.period
+    return (f"x(0) = {list(sc.x0)} (max |x_i(0)| = {size:g}) may lie outside the region this law holds at "
+            f"T = {period:g} s: measure it with 'qcontrol region {sc.source}'")
 
 
 def _leaves(table: Mapping, prefix: str = "") -> dict[str, Any]:

@@ -9,8 +9,10 @@ from .engine.velocity import lemma2_applies
 from .error_rate import TABLE1_OMEGAS, error_rate, omega_key
 from .summary import Summary
 
-__all__ = ["TABLE1_OMEGAS", "backend_deviation", "error_rate", "finite_max_abs", "lemma2_max_ratio",
-           "omega_key", "run_summary", "summary"]
+LEMMA2_TOLERANCE = 1e-9  # rounding slack on |e_zi| / L_zi <= 1
+
+__all__ = ["LEMMA2_TOLERANCE", "TABLE1_OMEGAS", "backend_deviation", "error_rate", "finite_max_abs",
+           "lemma2_max_ratio", "omega_key", "run_summary", "summary"]
 
 
 def lemma2_max_ratio(e_z: np.ndarray, L_z: np.ndarray) -> float:
@@ -55,7 +57,20 @@ def run_summary(run: Trajectory | RunMetrics, scenario: str, backend: str) -> Su
         velocity_source=run.velocity_source, lemma2_applies=lemma2_applies(run.velocity_source),
         L_z=tuple(float(v) for v in run.L_z), L=float(run.L_z[-1]),
         **bound_constants(run.bound_names, values["bound_constants"]),
+        law_diagnostics=law_diagnostics(run.law_diagnostics, values["diagnostics"]),
     )
+
+
+def law_diagnostics(diagnostics: tuple, reduced: dict[str, np.ndarray]) -> dict:
+    """The law's declared diagnostics as the summary reports them: ``<reduce>_<name>`` (e.g.
+    ``max_gain_period``), a number for a diagnostic of width 1, else a list; None where the run
+    had no finite value."""
+    out, first = {}, 0
+    for d in diagnostics:
+        values = [float(v) if np.isfinite(v) else None for v in reduced[d.reduce][first : first + d.width]]
+        out[d.summary_key] = values[0] if d.width == 1 else values
+        first += d.width
+    return out
 
 
 def bound_constants(names: tuple[str, ...], largest: np.ndarray) -> dict:

@@ -24,8 +24,10 @@ class Summary:
     ``velocity_source``), the bounds ``L_z`` and ``L = L_zn``. The separation (37)-(43):
     ``bound_constants`` (term -> largest ``|term| / r(x_q)``, None where unbounded; None, and absent
     from ``summary.json``, when not checked: a law without bounding functions, a sweep's batch) and
-    ``warnings``. ``provenance`` and ``physics_warnings`` are present (not None) in
-    the summary of a single run written by ``qcontrol run`` or :func:`qcontrol.run`.
+    ``warnings``. ``law_diagnostics``: the law's own diagnostics as it declared them
+    (``max_gain_period`` for the paper's law: the largest K T over the control samples), written as
+    top-level keys ``<reduce>_<name>`` of ``summary.json``. ``provenance`` and ``physics_warnings``
+    are present (not None) in the summary of a single run written by ``qcontrol run`` or :func:`qcontrol.run`.
     """
 
     scenario: str
@@ -51,6 +53,7 @@ class Summary:
     L: float
     bound_constants: Mapping[str, float | None] | None = None
     warnings: tuple[str, ...] = ()
+    law_diagnostics: Mapping[str, Any] = field(default_factory=dict)
     provenance: Mapping[str, Any] | None = field(default=None, compare=False)
     physics_warnings: tuple[str, ...] | None = None
 
@@ -62,17 +65,21 @@ class Summary:
             value = getattr(self, f.name)
             if value is None and f.name in _OPTIONAL:
                 continue
+            if f.name == "law_diagnostics":  # flat: "max_gain_period": 0.011
+                out.update({key: _plain(v) for key, v in value.items()})
+                continue
             out[f.name] = _plain(value)
         return out
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> Summary:
         """The summary of a ``summary.json`` object (as :meth:`to_json` writes it)."""
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - known)
+        known = {f.name for f in fields(cls)} - {"law_diagnostics"}
+        diagnostics = {k: v for k, v in data.items() if k not in known and k.startswith(_DIAGNOSTIC_PREFIXES)}
+        unknown = sorted(set(data) - known - set(diagnostics))
         if unknown:
             raise ValueError(f"not a summary field: {', '.join(unknown)}")
-        values = dict(data)
+        values = {k: v for k, v in data.items() if k in known} | {"law_diagnostics": diagnostics}
         for name in ("final_eps_hat", "L_z", "warnings", "physics_warnings"):
             if values.get(name) is not None:
                 values[name] = tuple(values[name])
@@ -80,6 +87,7 @@ class Summary:
 
 
 _OPTIONAL = ("bound_constants", "provenance", "physics_warnings")
+_DIAGNOSTIC_PREFIXES = ("max_", "last_")  # a law diagnostic's key: <reduce>_<name>
 
 
 def _plain(value: Any) -> Any:

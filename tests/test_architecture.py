@@ -37,7 +37,7 @@ LAYERS = [
     {"assembly"},
     {"recording", "plots", "attribution"},
     {"render"},
-    {"sweep", "api", "explain"},
+    {"sweep", "api", "explain", "region"},
     {"reproduce"},
     {"cli", "_entry"},
 ]
@@ -214,9 +214,11 @@ def test_every_signal_is_an_attribute_of_a_trajectory_with_its_width() -> None:
     n, m, rows = sc.order, traj.adaptive.shape[1], len(traj.t)
     assert set(traj.signals) == {s.name for s in SIGNALS}
     assert traj.bound_names == ("phi1", "phi2", "phi3")  # the separation (37)-(43) of each phi_i
+    assert traj.diagnostic_columns == ("gain_period",)  # the paper's law declares K T
     for signal in SIGNALS:
         array = getattr(traj, signal.name)
-        expected = (rows,) if signal.width == "1" else (rows, signal.size(n, m, len(traj.bound_names)))
+        expected = (rows,) if signal.width == "1" else (
+            rows, signal.size(n, m, len(traj.bound_names), len(traj.diagnostic_columns)))
         assert array.shape == expected, signal.name
     np.testing.assert_array_equal(traj.y, traj.x[:, 0])
 
@@ -229,7 +231,7 @@ def test_recorded_derived_and_reduced_signals() -> None:
     assert needed(("e_z",)) == ("zbar", "e_z")
     assert {r.name for r in REDUCTIONS} == {"error_rate", "max_abs_z1_last_half", "max_abs_u", "e_z_max",
                                              "final_adaptive", "bound_constants", "max_abs_u_applied",
-                                             "saturated_fraction"}
+                                             "saturated_fraction", "diagnostics"}
 
 
 def test_a_metrics_run_keeps_the_reductions_of_the_full_record() -> None:

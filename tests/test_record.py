@@ -193,6 +193,8 @@ def test_signals_equal_the_run_bitwise(compare_recording):
         assert_scalars_exact(entities, f"signals/state/x{i + 1}/q", main.x_q[:, i], main.t)
     ratios = np.stack([main.e_z[:, i] / main.L_z[i] for i in range(2)], axis=1)
     assert_scalars_exact(entities, "theory/lemma2/ratios", ratios, main.t)
+    assert_scalars_exact(entities, "theory/law/gain_period", main.diagnostics[:, 0], main.t)  # K T
+    assert static_value(entities["theory/law/gain_period"], "SeriesLines:names") == ["gain_period"]
     legend = static_value(entities["theory/lemma2/ratios"], "SeriesLines:names")
     assert legend == ["|e_z1| / L_z1", "|e_z2| / L_z2"]
     assert_scalars_exact(entities, "signals/tracking/y_ode", ghost.y, ghost.t)
@@ -271,6 +273,7 @@ def test_expected_entities_and_static_content(compare_recording):
         "signals/state/x2/q",
         "theory/lemma2/ratios",
         "theory/lemma2/bound",
+        "theory/law/gain_period",
         "info/scenario",
         "info/constants",
         "info/version",

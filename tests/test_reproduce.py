@@ -15,7 +15,7 @@ FIGURES = [
     "fig5_outputs.png", "fig6_tracking_errors.png", "fig7_eps_hat.png", "fig8_input.png",
     "fig_example1_mujoco_vs_ode.png", "fig_example2_mujoco_vs_ode.png", "table1.png",
     "study_kappa.png", "study_r_scale.png", "study_plant_variants.png", "study_robustness.png",
-    "study_margins.png",
+    "study_margins.png", "study_region.png",
 ]
 OMEGAS = ["0.100", "0.125", "0.150", "0.175", "0.200"]
 
@@ -30,7 +30,7 @@ def reproduction(tmp_path_factory):
 def test_every_file_is_written(reproduction):
     names = {p.name for p in reproduction.iterdir()}
     expected = set(FIGURES) | {"table1.md", "table1.json", "studies.json", "robustness.json", "REPORT.md",
-                               "example1.rrd", "example2.rrd"}
+                               "example1.rrd", "example2.rrd", "region.json"}
     assert expected <= names
     assert not [n for n in names if n.endswith(".part")]
 
@@ -61,7 +61,8 @@ def test_table1_markdown_and_report(reproduction):
     report = (reproduction / "REPORT.md").read_text()
     needles = ("Not reproduced", "Lemma 2", "kappa - L", "scale of r", "MuJoCo vs ODE", "fig5_outputs.png",
                "## Robustness on realistic hardware", "study_robustness.png", "### Reading", "Saturation",
-               "Velocity from the encoder", "Friction")
+               "Velocity from the encoder", "Friction", "## The sampled loop: region of attraction",
+               "study_region.png", "The cost of safety")
     for needle in needles:
         assert needle in report
 
@@ -135,8 +136,26 @@ def test_robustness_json_holds_every_row(reproduction):
 def test_quick_reproduce_skips_the_robustness_study(tmp_path, capsys):
     out = tmp_path / "quick"
     assert main(["reproduce", "--quick", "--duration", "0.3", "--out", str(out)]) == 0
-    assert "no robustness study (--quick)" in capsys.readouterr().out
+    assert "no region or robustness study (--quick)" in capsys.readouterr().out
     assert (out / "table1.json").is_file() and (out / "REPORT.md").is_file()
     assert not (out / "robustness.json").exists() and not (out / "study_margins.png").exists()
     report = (out / "REPORT.md").read_text()
     assert "Not run here (`qcontrol reproduce --quick`)" in report
+
+
+def test_the_region_study_compares_the_three_laws_at_two_rates(reproduction):
+    """Both examples at 1 kHz and 2 kHz: the paper's law, its exact hold and the comparison law; the
+    exact hold fails nowhere in the box, the paper's law somewhere on Example 2, and from x(0) the
+    two holds give the same error rates to 4 decimals."""
+    study = json.loads((reproduction / "region.json").read_text())
+    assert "provenance" in study and study["resolution"] == 9
+    rows = {(r["example"], r["control_period"], r["law"]): r for r in study["rows"]}
+    assert len(rows) == 12
+    for example in ("example1", "example2"):
+        for period in (0.001, 0.0005):
+            paper, exact = rows[(example, period, "proposed")], rows[(example, period, "proposed:hold=exact")]
+            assert exact["failing_in_box"] == 0 and exact["points_in_box"] == 81
+            assert {w: round(v, 4) for w, v in paper["error_rate"].items()} == {
+                w: round(v, 4) for w, v in exact["error_rate"].items()}
+            assert rows[(example, period, "baseline")]["max_gain_period_from_x0"] is None
+    assert rows[("example2", 0.001, "proposed")]["failing_in_box"] > 0

@@ -12,7 +12,8 @@ from qcontrol.cli import main
 CONTRACT = ["scenario", "backend", "duration", "dt", "steps", "wall_time_s", "diverged", "diverged_time",
             "divergence_reason", "error_rate", "max_abs_z1_last_half", "max_abs_u", "max_abs_u_applied",
             "saturated_fraction", "final_eps_hat", "adaptive_state", "lemma2_max_ratio", "velocity_source",
-            "lemma2_applies", "L_z", "L", "bound_constants", "warnings", "provenance", "physics_warnings"]
+            "lemma2_applies", "L_z", "L", "bound_constants", "warnings", "max_gain_period", "provenance",
+            "physics_warnings"]  # max_gain_period: the paper's law's diagnostic (a law declares its own)
 
 
 def test_summary_json_is_to_json_and_reads_back(tmp_path, ex2):
@@ -24,6 +25,7 @@ def test_summary_json_is_to_json_and_reads_back(tmp_path, ex2):
     assert typed.to_json() == data
     assert json.dumps(typed.to_json(), indent=2) == json.dumps(data, indent=2)
     assert typed.steps == 200 and typed.L == typed.L_z[-1] and isinstance(typed.final_eps_hat, tuple)
+    assert typed.law_diagnostics == {"max_gain_period": data["max_gain_period"]}
     with pytest.raises(dataclasses.FrozenInstanceError):
         typed.steps = 3  # type: ignore[misc]
 

@@ -1,4 +1,4 @@
-"""The ``qcontrol`` command line: run, compare, reproduce, sweep, check (built on :mod:`qcontrol.api`).
+"""The ``qcontrol`` command line: run, compare, reproduce, sweep, region, check (on :mod:`qcontrol.api`).
 
 Exit status: 0 success; 1 the run diverged or a theory check failed; 2 bad input; 130 interrupted.
 Bad input is reported as one line on stderr, never as a traceback, and every input is checked
@@ -20,6 +20,7 @@ from ..provenance import command_line
 from .arguments import EXIT_BAD_INPUT, EXIT_INTERRUPTED, Parser
 from .check_command import add_check_parser, cmd_check
 from .compare_command import add_compare_parser, cmd_compare
+from .region_command import add_region_parser, cmd_region
 from .reproduce_command import add_reproduce_parser, cmd_reproduce
 from .run_command import add_run_parser, cmd_run
 from .sweep_command import add_sweep_parser, cmd_sweep
@@ -34,6 +35,7 @@ COMMANDS: dict[str, tuple[Register, Handler]] = {
     "compare": (add_compare_parser, cmd_compare),
     "reproduce": (add_reproduce_parser, cmd_reproduce),
     "sweep": (add_sweep_parser, cmd_sweep),
+    "region": (add_region_parser, cmd_region),
     "check": (add_check_parser, cmd_check),
 }
 

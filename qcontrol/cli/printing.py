@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import sys
 
-from ..explain import divergence_lines, paper_line
+from ..explain import divergence_lines, gain_period_lines, paper_line
+from ..metrics import LEMMA2_TOLERANCE
 from ..scenario import Scenario
 from ..summary import Summary
 from .arguments import EXIT_FAILED, EXIT_OK
-
-LEMMA2_TOLERANCE = 1e-9  # rounding slack on |e_zi| / L_zi <= 1
 
 
 def print_warnings(s: dict) -> None:
@@ -41,6 +40,7 @@ def format_summary(s: dict, sc: Scenario) -> str:
         f"{100 * f.saturated_fraction:.1f}% of the control samples",
         f"  final {f.adaptive_state}: [{', '.join(f'{v:.4g}' for v in f.final_eps_hat)}]",
         _lemma2_line(f),
+        *gain_period_lines(s),
     ]
     if f.diverged:
         lines += divergence_lines(s, sc)

@@ -105,6 +105,8 @@ def lemma2_L(c: Sequence[float], delta: float) -> float:
 class Backstepping:
     """Backstepping coordinates for gains ``c`` and a quantizer with bound ``max_error``."""
 
+    diagnostics: tuple = ()  # a law's own signals (:class:`~.law.Diagnostic`); none by default
+
     def __init__(self, c: Sequence[float], max_error: float) -> None:
         c = np.asarray(c, dtype=float)
         if c.ndim != 1 or c.size < 2:

@@ -9,7 +9,7 @@ law is one module with its class and its :class:`LawKind`, plus one :func:`regis
 from __future__ import annotations
 
 from collections.abc import Callable, Hashable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
@@ -19,6 +19,48 @@ from ..expr import Expression
 from ..quantizer import QuantizedReading
 from ..schema import KindKeys, Table
 from .backstepping import Advance, Backstepping, Columns, ControlOutput
+
+DIAGNOSTIC_REDUCTIONS = ("max", "last")
+
+# (x_q, yd, state) -> values: x_q a tuple of n columns, yd a tuple of n + 1 columns and state a
+# tuple of m columns, each ``(rows, batch)``; returns ``(rows, batch)`` for a width of 1, else
+# ``(rows, batch, width)``
+Evaluate = Callable[[Columns, Columns, Columns], np.ndarray]
+
+
+@dataclass(frozen=True)
+class Diagnostic:
+    """A signal a law declares beside the recorded ones: ``name``, ``width`` (columns), ``unit``,
+    how a run's summary reduces it over the control samples (``reduce``: ``"max"``, the largest
+    finite value, or ``"last"``, the value at the last sample kept; the summary key is
+    ``<reduce>_<name>``), what it means, and how it is computed from what the engine records at a
+    control sample (the quantized reading, the reference row and the law's state there:
+    ``evaluate(x_q, yd, state)``, for many rows at once after the loop recorded them).
+
+    Computing it from the record keeps the law's hot path untouched: a run gives the same
+    numbers with or without its diagnostics.
+    """
+
+    name: str
+    width: int
+    unit: str
+    reduce: str
+    meaning: str
+    evaluate: Evaluate = field(repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if not self.name.isidentifier():
+            raise QcontrolInputError(f"diagnostic name {self.name!r} must be letters, digits and _ only")
+        if not (isinstance(self.width, int) and self.width >= 1):
+            raise QcontrolInputError(f"diagnostic {self.name}: width must be a whole number >= 1")
+        if self.reduce not in DIAGNOSTIC_REDUCTIONS:
+            raise QcontrolInputError(f"diagnostic {self.name}: reduce must be one of "
+                                     f"{', '.join(DIAGNOSTIC_REDUCTIONS)}, got {self.reduce!r}")
+
+    @property
+    def summary_key(self) -> str:
+        """Its key in summary.json: ``max_gain_period`` for ``gain_period`` reduced by max."""
+        return f"{self.reduce}_{self.name}"
 
 
 class BatchLaw(Protocol):
@@ -35,6 +77,7 @@ class BatchLaw(Protocol):
     state_name: str  # names the adaptive state in outputs: "eps_hat", "theta_hat", ...
     state_size: int  # m >= 0 adaptive states
     copies: int | None  # the batch size that per-copy parameters fix, or None
+    diagnostics: tuple[Diagnostic, ...]  # the law's own signals (see :class:`Diagnostic`); may be ()
 
     @property
     def coordinates(self) -> Backstepping: ...
@@ -56,8 +99,11 @@ class BatchLaw(Protocol):
 @dataclass(frozen=True)
 class LawContext:
     """What a law's keys are checked against and what its builder may read of the scenario:
-    the common controller keys (``delta``, ``c``) and the plant's terms. The proposed law only
-    counts the terms; the comparison law (46) evaluates them at the quantized state."""
+    the common controller keys (``delta``, ``c``), the plant's terms, the simulation step ``dt``
+    and the control period ``control_period`` (``T``: the time u is held, a whole number of steps;
+    ``dt`` when the scenario gives none). The proposed law counts the terms and, with
+    ``hold = "exact"``, uses T; the comparison law (46) evaluates the terms at the quantized
+    state."""
 
     source: str
     order: int
@@ -66,6 +112,8 @@ class LawContext:
     psi: Expression | None
     phi: tuple[Expression, ...]
     theta: tuple[float, ...]
+    dt: float = 1e-3
+    control_period: float = 1e-3
 
     @property
     def uncertain_terms(self) -> int:

@@ -19,10 +19,11 @@ import numpy as np
 from ..errors import QcontrolInputError
 from ..expr import FLOAT_REFUSED, Expression, compile_expression, scalar_function
 from ..quantizer import QuantizedReading
-from ..schema import OPTIONAL, Key, KindKeys, Table, expressions, number, read_keys
+from ..schema import OPTIONAL, Key, KindKeys, Table, expressions, number, read_keys, string
 from .backstepping import (
     Advance,
     Backstepping,
+    Column,
     Columns,
     ControlOutput,
     Parameter,
@@ -32,7 +33,9 @@ from .backstepping import (
     parameter,
     stack,
 )
-from .law import LawContext, LawKind
+from .law import Diagnostic, LawContext, LawKind
+
+HOLDS = ("paper", "exact")  # how law (44) is held over a control period (see ProposedController)
 
 R_CHECK_SAMPLES = 2000  # quantized states at which every r_i is checked to be finite and >= 1
 R_CHECK_RANGE = 10.0  # ... drawn uniformly from [-R_CHECK_RANGE, R_CHECK_RANGE]^n (and the origin)
@@ -47,6 +50,7 @@ class _Law(NamedTuple):
     r_scale: Parameter | None  # None when r_scale == 1 everywhere
     rate: Parameter  # gamma sigma
     terms: tuple  # the bounding functions r evaluated on the reading's columns
+    expm1: Any  # math.expm1 for floats, numpy.expm1 for arrays (the exact hold's 1 - exp(-K T))
 
 
 class ProposedController(Backstepping):
@@ -58,6 +62,13 @@ class ProposedController(Backstepping):
 
     ``r`` are the bounding functions of eqs. (37)-(43), expressions over ``q1..qn``; each is
     multiplied by ``r_scale`` (any constant >= 1 keeps the bounds of (37)-(43) valid).
+
+    Written as ``u = alphabar_n - K zbar_n``, the robust term's gain is
+    ``K = s eps_hat^T r(x_q) / (kappa (kappa - L))``. ``hold`` says how u is held over the control
+    period ``period`` (T): ``"paper"`` applies (44) as printed; ``"exact"`` replaces K by
+    ``K_T = (1 - exp(-K T)) / T``, the gain whose held input maps ``zbar_n`` over one period as the
+    continuous-time robust term ``zbar_n' = -K zbar_n`` would (docs/math.md, 'Sampling the law').
+    Either way the law declares the diagnostic ``gain_period``, ``K T`` at every control sample.
     """
 
     state_name = "eps_hat"
@@ -72,8 +83,19 @@ class ProposedController(Backstepping):
         r: Sequence[Expression],
         r_scale: float = 1.0,
         expected_terms: int | None = None,
+        hold: str = "paper",
+        period: float = 1e-3,
     ) -> None:
         super().__init__(c, max_error)
+        if hold not in HOLDS:
+            raise QcontrolInputError(f"controller hold {hold!r}: use one of {', '.join(HOLDS)}")
+        if not (math.isfinite(period) and period > 0):
+            raise QcontrolInputError(f"controller period must be a finite number > 0, got {period!r}")
+        self.hold, self.period = hold, float(period)
+        self.diagnostics = (Diagnostic(
+            "gain_period", 1, "-", "max", "K T: the robust gain K of law (44) times the control period T; "
+            "above 1 the held input overshoots the continuous-time law's decay of zbar_n over one period",
+            self._gain_period),)
         gamma, sigma, r_scale = (parameter(k, v) for k, v in (("gamma", gamma), ("sigma", sigma),
                                                                 ("r_scale", r_scale)))
         kappa_array = np.asarray(kappa, dtype=float)
@@ -109,10 +131,10 @@ class ProposedController(Backstepping):
         gain = 1.0 / (kappa * (kappa - self.L))  # (44): u = -zbar_n s eps^T r / (kappa (kappa - L))
         scaled = not np.all(np.asarray(r_scale) == 1.0)
         on_arrays = _Law(kappa, gain, sigma, r_scale if scaled else None, rate,
-                         tuple(e.on_columns for e in self.r))
+                         tuple(e.on_columns for e in self.r), np.expm1)
         on_floats = None if self.copies not in (None, 1) else _Law(
             as_float(kappa), as_float(gain), as_float(sigma), as_float(r_scale) if scaled else None,
-            as_float(rate), tuple(scalar_function(e) for e in self.r))
+            as_float(rate), tuple(scalar_function(e) for e in self.r), math.expm1)
         return on_arrays, on_floats
 
     def initial_state(self, batch: int) -> np.ndarray:
@@ -121,6 +143,30 @@ class ProposedController(Backstepping):
 
     def constants(self) -> dict[str, Any]:
         return {"kappa": self.kappa, "gamma": self.gamma, "sigma": self.sigma, "r_scale": self.r_scale}
+
+    def robust_gain(self, q: Columns, yd: Sequence[Column], eps_hat: Columns) -> Column:
+        """``K = s eps_hat^T r(x_q) / (kappa (kappa - L))`` of law (44) over columns of any shape
+        (``(rows, batch)`` when evaluated on a record; per-copy constants broadcast on the last
+        axis)."""
+        law = self._on_arrays
+        zn = self.recursion(q, yd)[0][-1]
+        r = [term(q) for term in law.terms]
+        if law.r_scale is not None:
+            r = [ri * law.r_scale for ri in r]
+        s = zn * zn / law.kappa + self.L
+        return s * reduce(add, map(mul, eps_hat, r)) * law.gain
+
+    def _gain_period(self, q: Columns, yd: Columns, eps_hat: Columns) -> np.ndarray:
+        """The diagnostic ``gain_period``: ``K T``."""
+        return np.asarray(self.robust_gain(q, yd, eps_hat)) * self.period
+
+    def held_factor(self, gain_period: Column) -> Column:
+        """What the held robust term does to ``zbar_n`` over one period, ``1 - K_T T``: ``1 - K T``
+        for the paper's law (outside [0, 1] once K T > 1, a flip once K T > 2), ``exp(-K T)`` in
+        (0, 1] for the exact hold."""
+        if self.hold == "paper":
+            return 1.0 - gain_period
+        return np.exp(-np.asarray(gain_period))
 
     def control(self, reading: QuantizedReading, yd: Sequence[float],
                 eps_hat: np.ndarray | Columns, t: float = 0.0) -> ControlOutput:
@@ -150,7 +196,10 @@ class ProposedController(Backstepping):
         zn = zbar[-1]
         s = zn * zn / law.kappa + self.L
         robust = reduce(add, map(mul, eps_hat, r))  # eps_hat^T r(x_q), per copy, summed in order
-        u = alphabar[-1] - zn * s * robust * law.gain  # eq. (44)
+        if self.hold == "paper":
+            u = alphabar[-1] - zn * s * robust * law.gain  # eq. (44)
+        else:  # K_T = (1 - exp(-K T)) / T in place of K
+            u = alphabar[-1] - zn * (-law.expm1(-(s * robust * law.gain) * self.period) / self.period)
         sigma = law.sigma
         return output((u, zbar, [s * ri / sigma for ri in r], law.rate))
 
@@ -202,6 +251,9 @@ KEYS = KindKeys(
             meaning="bounding functions r_i(x_q) >= 1 of eqs. (37)-(43): one per phi_i, then one for psi",
             example='["1 + q2**2", "1 + 2*q2**2", "1"]'),
         Key("r_scale", number(positive=True), 1.0, meaning="constant factor >= 1 on every r_i"),
+        Key("hold", string(HOLDS), "paper",
+            meaning="how u is held over the control period T: \"paper\", law (44) as printed; \"exact\", the "
+            "robust gain K replaced by (1 - exp(-K T)) / T, bounded in the sampled loop (docs/math.md)"),
     ),
     meaning="the paper's law (44) with the adaptive law (45)",
     alternatives=(("kappa", "kappa_margin"),),
@@ -219,6 +271,7 @@ class ProposedSettings:
     r: tuple[str, ...]
     r_scale: float
     r_expr: tuple[Expression, ...] = field(default=(), repr=False, compare=False)
+    hold: str = "paper"
 
 
 def parse(table: Table, ctx: LawContext) -> ProposedSettings:
@@ -240,7 +293,8 @@ def parse(table: Table, ctx: LawContext) -> ProposedSettings:
     r_expr = tuple(compile_expression(e, q_names, f"{table.source}: {table.path(f'r[{i}]')}")
                    for i, e in enumerate(r))
     _check_bounding_functions(table, r_expr, ctx)
-    return ProposedSettings(kappa, v["kappa_margin"], v["gamma"], v["sigma"], r, v["r_scale"], r_expr)
+    return ProposedSettings(kappa, v["kappa_margin"], v["gamma"], v["sigma"], r, v["r_scale"], r_expr,
+                            v["hold"])
 
 
 def _kappa(table: Table, ctx: LawContext, kappa: float | None, margin: float | None) -> float:
@@ -294,6 +348,7 @@ def build(settings: Sequence[ProposedSettings], ctx: LawContext) -> ProposedCont
         kappa=_per_copy([s.kappa for s in settings]), gamma=_per_copy([s.gamma for s in settings]),
         sigma=_per_copy([s.sigma for s in settings]), r=settings[0].r_expr,
         r_scale=_per_copy([s.r_scale for s in settings]), expected_terms=ctx.uncertain_terms,
+        hold=settings[0].hold, period=ctx.control_period,
     )
 
 
@@ -302,12 +357,14 @@ def _per_copy(values: list[float]) -> float | np.ndarray:
 
 
 def structure(settings: ProposedSettings, ctx: LawContext) -> Hashable:
-    """Variants sharing a batch must share r; kappa, gamma, sigma and r_scale go per copy."""
-    return settings.r
+    """Variants sharing a batch must share r and the hold; kappa, gamma, sigma and r_scale go per
+    copy."""
+    return settings.r, settings.hold
 
 
 KIND = LawKind(
     "proposed", KEYS, parse, build, structure, bounds=lambda settings: settings.r_expr,
     divergence_hint="the law's gain grows with |x_q| (eq. (44)), so at a fixed sampling period a large "
-    "state destabilizes the sampled loop (docs/math.md, 'What the theorem promises')",
+    "state destabilizes the sampled loop once K T > 2 (docs/math.md, 'Sampling the law'); "
+    "[controller.proposed] hold = \"exact\" holds its robust term exactly",
 )

@@ -244,3 +244,35 @@ class BoundConstants(Reduction):
 
     def value(self, b: int) -> np.ndarray:
         return self.largest[b].copy()
+
+
+class DiagnosticValues(Reduction):
+    """A law's diagnostics over its control samples before a divergence: per column the largest
+    finite value (``"max"``) and the value at the last sample kept (``"last"``); the summary
+    reports the one each diagnostic declares (NaN where there is none)."""
+
+    name, signal = "diagnostics", "diagnostics"
+
+    def __init__(self, batch: int, width: int, duration: float, settings: MetricSettings) -> None:
+        super().__init__(batch, width, duration, settings)
+        self.largest = np.full((batch, width), -np.inf)
+        self.last = np.full((batch, width), np.nan)
+
+    def add(self, chunk: Chunk, values: np.ndarray) -> None:
+        if values.shape[-1] == 0:
+            return
+        samples = slice((-chunk.first) % chunk.hold, None, chunk.hold)  # the control samples' rows
+        at = values[samples]
+        counted = np.isfinite(at)
+        if not chunk.everyone:
+            counted &= chunk.before_divergence[samples][..., None]
+        top = np.where(counted, at, -np.inf).max(axis=0, initial=-np.inf)
+        np.maximum(self.largest, top, out=self.largest)
+        seen = counted.any(axis=0)
+        latest = at.shape[0] - 1 - np.argmax(counted[::-1], axis=0)
+        picked = np.take_along_axis(at, latest[None], axis=0)[0]
+        self.last = np.where(seen, picked, self.last)
+
+    def value(self, b: int) -> dict[str, np.ndarray]:
+        largest = np.where(np.isfinite(self.largest[b]), self.largest[b], np.nan)
+        return {"max": largest, "last": self.last[b].copy()}

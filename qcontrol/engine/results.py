@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from ..controller.law import Diagnostic
 from .reductions import Chunk, MetricSettings
 from .signals import REDUCTIONS, SIGNALS
 
@@ -32,6 +33,14 @@ class RunRecord:
     wall_time_s: float = 0.0
     metrics: MetricSettings = field(default_factory=MetricSettings)  # the error rate's omegas and samples
     bound_names: tuple[str, ...] = ()  # the terms whose separation (37)-(43) was checked
+    law_diagnostics: tuple[Diagnostic, ...] = ()  # what the law declared (the diagnostics signal's columns)
+
+    @property
+    def diagnostic_columns(self) -> tuple[str, ...]:
+        """The names of the diagnostics signal's columns: a diagnostic's name, or ``name_1 ..
+        name_w`` for one of width w."""
+        return tuple(d.name if d.width == 1 else f"{d.name}_{i + 1}"
+                     for d in self.law_diagnostics for i in range(d.width))
 
 
 @dataclass(kw_only=True)

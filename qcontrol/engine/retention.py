@@ -64,7 +64,8 @@ class _Record:
         self.divergence, self.context, self.metrics = parts.divergence, parts.context, parts.metrics
         self.batch, self.observer = parts.batch, observer
         self.buffer = RowBuffer(capacity, parts.batch, parts.n, parts.law.state_size)
-        self.widths = {s.name: s.size(parts.n, parts.law.state_size, self.context.terms) for s in SIGNALS}
+        self.widths = {s.name: s.size(parts.n, parts.law.state_size, self.context.terms,
+                                     self.context.diagnostic_width) for s in SIGNALS}
         self.started = 0.0  # the run's start (time.perf_counter), set by the loop
 
     def meta(self, b: int, now: float) -> dict[str, Any]:
@@ -76,7 +77,8 @@ class _Record:
                     actuator_limited=self.context.actuator_limited,
                     diverged=d.times[b] is not None, diverged_time=d.times[b],
                     divergence_reason=d.reasons[b], wall_time_s=now - self.started, metrics=self.metrics,
-                    bound_names=() if separation is None else separation.names)
+                    bound_names=() if separation is None else separation.names,
+                    law_diagnostics=self.context.diagnostics)
 
     def signals(self, first: int, stop: int, derived: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
         """The signals of run rows ``[first, stop)``: views of the buffer, the reference, and the

@@ -21,9 +21,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..controller.backstepping import Backstepping
+from ..controller.law import Diagnostic
 from ..expr import Expression
 from .reductions import (
     BoundConstants,
+    DiagnosticValues,
     ErrorRate,
     FinalValue,
     LargestAbs,
@@ -65,10 +67,15 @@ class SignalContext:
     actuator: Callable[[np.ndarray], np.ndarray] = applied_as_commanded
     velocity_source: str = "sensor"
     actuator_limited: bool = False
+    diagnostics: tuple[Diagnostic, ...] = ()  # the law's own signals
 
     @property
     def terms(self) -> int:
         return 0 if self.separation is None else len(self.separation.terms)
+
+    @property
+    def diagnostic_width(self) -> int:
+        return sum(d.width for d in self.diagnostics)
 
 
 Derive = Callable[[Block, SignalContext], np.ndarray]
@@ -122,12 +129,31 @@ def _quantization_error(block: Block, ctx: SignalContext) -> np.ndarray:
     return block["x_meas"] - block["x_q"]
 
 
+def _diagnostics(block: Block, ctx: SignalContext) -> np.ndarray:
+    """The law's declared diagnostics side by side, each evaluated from the reading, the reference
+    row and the law's state recorded at the row (exactly what the law saw at a control sample)."""
+    x_q = block["x_q"]
+    rows = x_q.shape[:-1]
+    out = np.empty(rows + (ctx.diagnostic_width,))
+    if not ctx.diagnostics:
+        return out
+    columns = tuple(tuple(np.moveaxis(block[name], -1, 0)) for name in ("x_q", "yd", "adaptive"))
+    first = 0
+    for diagnostic in ctx.diagnostics:
+        values = np.asarray(diagnostic.evaluate(*columns), dtype=float)
+        out[..., first : first + diagnostic.width] = np.broadcast_to(values.reshape(
+            values.shape[: len(rows)] + (diagnostic.width,)), rows + (diagnostic.width,))
+        first += diagnostic.width
+    return out
+
+
 @dataclass(frozen=True)
 class Signal:
     """One recorded signal.
 
     ``width``: ``"n"`` (one per state), ``"n+1"`` (y_d and its n derivatives), ``"m"`` (one per
     adaptive state), ``"terms"`` (one per uncertain term of eq. (1) whose bound is checked) or
+    ``"diagnostics"`` (one per column of the law's declared diagnostics) or
     ``"1"`` (a scalar: its arrays have no last axis). ``derive`` is None for
     the signals the loop records every row; a derivation may read the signals above it.
     ``shared``: one value for every copy of a batch (the reference, computed from the grid).
@@ -151,8 +177,8 @@ class Signal:
         """Recorded by the loop every row (not derived, not the reference)."""
         return self.derive is None and not self.shared
 
-    def size(self, n: int, m: int, terms: int = 0) -> int:
-        return {"n": n, "n+1": n + 1, "m": m, "1": 1, "terms": terms}[self.width]
+    def size(self, n: int, m: int, terms: int = 0, diagnostics: int = 0) -> int:
+        return {"n": n, "n+1": n + 1, "m": m, "1": 1, "terms": terms, "diagnostics": diagnostics}[self.width]
 
 
 SIGNALS: tuple[Signal, ...] = (
@@ -181,6 +207,9 @@ SIGNALS: tuple[Signal, ...] = (
     Signal("quantization_error", "n", "state", False,
            "quantization error x_meas - q(x_meas) of the reading the quantizer saw (|.| <= delta/2)",
            _quantization_error, reads=("x_meas", "x_q")),
+    Signal("diagnostics", "diagnostics", "law", True,
+           "the law's own diagnostics (e.g. gain_period, K T of law (44)), from the row's reading and state",
+           _diagnostics, reads=("x_q", "yd", "adaptive"), reductions=(DiagnosticValues,)),
 )
 RECORDED = tuple(s for s in SIGNALS if s.recorded)
 DERIVED = tuple(s for s in SIGNALS if s.derive is not None)

@@ -104,12 +104,19 @@ def _groups(signal: Signal, plot: Plot, run: Trajectory) -> list[tuple[int, ...]
     else:
         array = run.signals[signal.name]
         shown = tuple(range(1 if array.ndim == 1 else array.shape[1]))
-    return [(i,) for i in shown] if "{i}" in plot.path else [shown]
+    return [(i,) for i in shown] if "{i}" in plot.path or "{d}" in plot.path else [shown]
 
 
-def _panel(template: str, i: int, adaptive: str) -> Panel:
+def _names(run: Trajectory, i: int) -> dict[str, str | int]:
+    """What a plot's path and label may name: ``{i}`` the component's number from 1, ``{a}`` the
+    adaptive state's name, ``{d}`` the name of the law's diagnostic column i."""
+    columns = run.diagnostic_columns
+    return {"i": i + 1, "a": run.adaptive_name, "d": columns[i] if i < len(columns) else ""}
+
+
+def _panel(template: str, i: int, run: Trajectory) -> Panel:
     key = template.rsplit("/", 1)[0]
-    return Panel(key.format(i=i + 1, a=adaptive), key, i + 1 if "{i}" in key else 0)
+    return Panel(key.format(**_names(run, i)), key, i + 1 if "{i}" in key else 0)
 
 
 def _plots(run: Trajectory, twin_drawn_only: bool):
@@ -128,10 +135,10 @@ def run_series(run: Trajectory, label: str, role: str = "main", suffix: str = ""
     the twin-drawn plots at ``<path>_<suffix>``, thin and light for a twin, green otherwise."""
     series = []
     for signal, plot, shown in _plots(run, role != "main"):
-        first, name = shown[0], run.adaptive_name
-        path = plot.path.format(i=first + 1, a=name)
-        labels = tuple(plot.label.format(i=i + 1, a=name) for i in shown)
-        panel = _panel(plot.path, first, name)
+        first = shown[0]
+        path = plot.path.format(**_names(run, first))
+        labels = tuple(plot.label.format(**_names(run, i)) for i in shown)
+        panel = _panel(plot.path, first, run)
         values = _columns(signal, shown, plot.per_bound)
         if role == "main":
             colors = tuple(PALETTE[i % len(PALETTE)] if plot.color == "palette" else ROLE_COLORS[plot.color]
@@ -154,7 +161,7 @@ def guide_lines(run: Trajectory) -> list[GuideLine]:
     for _, plot, shown in _plots(run, False):
         if plot.guide is None:
             continue
-        panel = _panel(plot.path, shown[0], run.adaptive_name)
+        panel = _panel(plot.path, shown[0], run)
         if panel.origin not in seen:
             seen.add(panel.origin)
             guide = plot.guide
@@ -171,7 +178,7 @@ def differences(run: Trajectory, main_label: str, twin_label: str, suffix: str) 
         if plot.difference is None:
             continue
         (i,) = shown
-        text = plot.label.format(i=i + 1, a=run.adaptive_name)
+        text = plot.label.format(**_names(run, i))
         name = f"log10 |{text} ({main_label}) - {text} ({twin_label})|"
         values = _columns(signal, shown, plot.per_bound)
         found.append(Series(f"{plot.difference}/{suffix}", (name,), "", (BLUE,), signal.held, values,

@@ -37,8 +37,9 @@ HALF_STEP = Guide("band", ("+delta/2", "-delta/2"), _half_step)
 @dataclass(frozen=True)
 class Plot:
     """Where recordings draw a signal: one series per shown component, at ``path`` with the legend
-    ``label`` (``{i}`` is the component's number from 1, ``{a}`` the adaptive state's name; a path
-    without ``{i}`` holds all components as instances of one entity). The path's parent is the
+    ``label`` (``{i}`` is the component's number from 1, ``{a}`` the adaptive state's name, ``{d}``
+    the name of the law's diagnostic column; a path without ``{i}`` or ``{d}`` holds all components
+    as instances of one entity). The path's parent is the
     series' panel (one plot of the layout: ``signals/input`` holds ``u`` and
     whatever else is drawn there); a panel the layout does not know becomes a tab of its own.
     ``components``: the ones shown (None: all); ``per_bound``: divided by the Lemma 2 bound L_zi;
@@ -71,4 +72,5 @@ PLOTS: Mapping[str, tuple[Plot, ...]] = {
     "e_z": (Plot("theory/lemma2/ratios", "|e_z{i}| / L_z{i}", per_bound=True, guide=LEMMA2_BOUND,
                  color="palette"),),
     "quantization_error": (Plot("signals/quantization/x{i}/error", "x{i} - q(x{i})", guide=HALF_STEP),),
+    "diagnostics": (Plot("theory/law/{d}", "{d}", color="palette"),),
 }

@@ -6,6 +6,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from ..paper import METHOD_LABELS, OMEGA_KEYS, PAPER_TABLE1, PAPER_TABLE1_ROWS
+from .region_study import region_section
 from .robustness_report import robustness_section
 
 __all__ = ["METHOD_LABELS", "OMEGA_KEYS", "PAPER_TABLE1", "PAPER_TABLE1_ROWS", "ReportFacts",
@@ -94,6 +95,7 @@ class ReportFacts:
     z2_last_half: float  # max |z_2| over Example 2's last half
     kappa_plus_L: float
     robustness: Mapping | None = None  # robustness.json, when the study ran
+    region: Mapping | None = None  # the region study of the sampled loop, when it ran
 
     @property
     def runs(self) -> int:
@@ -106,8 +108,9 @@ def report_markdown(f: ReportFacts) -> str:
     robustness = (robustness_section(f.robustness) if f.robustness is not None else
                   ["## Robustness on realistic hardware", "",
                    "Not run here (`qcontrol reproduce --quick`): the full `qcontrol reproduce` runs it.", ""])
-    sections = (_header(f), _table1_section(f), _findings(f), _checks(f), _studies_section(f), robustness,
-                _figures(f))
+    region = region_section(f.region) if f.region is not None else []
+    sections = (_header(f), _table1_section(f), _findings(f), _checks(f), _studies_section(f), region,
+                robustness, _figures(f))
     return "\n".join(line for section in sections for line in section)
 
 

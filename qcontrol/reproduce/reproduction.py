@@ -4,7 +4,8 @@ Runs Example 1 and Example 2 (proposed law and the comparison law of reference [
 chosen backend, with the ideal ODE twin beside MuJoCo, then the sensitivity studies (kappa - L,
 a constant scale of r, plant variants) on the ODE backend, then the robustness study on realistic
 hardware (:mod:`qcontrol.robustness`, MuJoCo, in worker processes). Writes PNG figures,
-``table1.md``, ``table1.json``, ``studies.json``, ``robustness.json``, ``REPORT.md`` and one rerun
+``table1.md``, ``table1.json``, ``studies.json``, ``region.json`` (the sampled loop's region study,
+:mod:`.region_study`), ``robustness.json``, ``REPORT.md`` and one rerun
 recording per example into the output folder. Parameters come from the paper's Section 4
 (docs/math.md, 'The paper's examples'); nothing is fitted to Table 1.
 """
@@ -30,6 +31,7 @@ from ..resources import shipped_dir
 from ..scenario import Scenario, load_scenario
 from ..scenario.resolve import scenario_provenance, scenarios_provenance
 from ..sweep import sweep_summaries
+from .region_study import region_record, region_study, write_region_study
 from .report import PAPER_TABLE1, ReportFacts, report_markdown, table1, table1_markdown
 from .robustness_figures import fig_margins, fig_robustness
 from .robustness_study import EXAMPLES, default_workers, robustness_study
@@ -157,11 +159,17 @@ def reproduce(
     }
     studied = {name: rep.scenario(name) for name in ("example2", "example2-rigid")}
     write_json(o / "studies.json", studies | {"provenance": scenarios_provenance(studied, command)})
+    region = None if quick else region_study(rep.scenarios, rep.duration, log)
+    if region is not None:
+        write_region_study(region, o / "study_region.png")
+        examples = {name: rep.scenario(name) for name in ("example1", "example2")}
+        write_json(o / "region.json",
+                   region_record(region) | {"provenance": scenarios_provenance(examples, command)})
     robustness = None if quick else _robustness(o, rep, workers)
-    write_text(o / "REPORT.md", _report(rep, table, studies, deviations, ex1, ex2, robustness))
-    robust = "" if quick else "robustness.json, "
-    study = "no robustness study (--quick)" if quick else "then the robustness study"
-    log(f"wrote {o}: REPORT.md, table1.md, table1.json, studies.json, {robust}figures, recordings "
+    write_text(o / "REPORT.md", _report(rep, table, studies, deviations, ex1, ex2, robustness, region))
+    extra = "" if quick else "region.json, robustness.json, "
+    study = "no region or robustness study (--quick)" if quick else "then the region and robustness studies"
+    log(f"wrote {o}: REPORT.md, table1.md, table1.json, studies.json, {extra}figures, recordings "
         f"({len(rep.lemma2_ratios)} example and study runs, {study}; "
         f"{time.perf_counter() - rep.started:.1f} s)")
     return table
@@ -287,7 +295,7 @@ def _studies(rep: Reproduction) -> dict:
 
 
 def _report(rep: Reproduction, table: dict, studies: dict, deviations: dict, ex1: Run, ex2: Run,
-            robustness: dict | None) -> str:
+            robustness: dict | None, region: dict | None) -> str:
     """REPORT.md from the runs' facts (see :func:`qcontrol.report.report_markdown`)."""
     traj, c = ex2.traj, ex2.scenario.controller
     facts = ReportFacts(
@@ -295,6 +303,6 @@ def _report(rep: Reproduction, table: dict, studies: dict, deviations: dict, ex1
         seconds=time.perf_counter() - rep.started, lemma2_ratios=rep.lemma2_ratios, diverged=rep.diverged,
         table=table, studies=studies, deviations=deviations, example1=ex1.summary, example2=ex2.summary,
         z2_last_half=float(np.nanmax(np.abs(traj.z[traj.t >= traj.duration / 2, -1]))),
-        kappa_plus_L=c.settings.kappa + lemma2_L(c.c, c.delta), robustness=robustness,
+        kappa_plus_L=c.settings.kappa + lemma2_L(c.c, c.delta), robustness=robustness, region=region,
     )
     return report_markdown(facts)

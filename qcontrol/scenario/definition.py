@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..reference import Reference
+from ..timegrid import TimeGrid
 
 
 @dataclass(frozen=True)
@@ -36,3 +37,9 @@ class SimulationConfig:
     backend: str
     state_bound: float
     velocity_source: str = "sensor"
+
+    @property
+    def period(self) -> float:
+        """The control period T the law holds u over: ``control_period`` as whole steps of ``dt``
+        (``dt`` when none is given)."""
+        return TimeGrid.of(self.duration, self.dt, self.control_period).hold * self.dt

@@ -90,7 +90,9 @@ class Scenario:
     def law_context(self) -> LawContext:
         """What the controller kind reads of the scenario (see :class:`LawContext`)."""
         c = self.controller
-        return LawContext(self.source, self.order, c.delta, c.c, self.psi_expr, self.phi_expr, self.theta)
+        sim = self.simulation
+        return LawContext(self.source, self.order, c.delta, c.c, self.psi_expr, self.phi_expr, self.theta,
+                          sim.dt, sim.period)
 
     @property
     def psi(self) -> str | None:
@@ -279,9 +281,9 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
     meta = read_keys(Table(data.get("scenario", {}), source, "scenario", about.names), about.keys, {})
     plant = _plant_table(root)
     terms, x0 = _plant(plant)
-    controller = _controller(root.table("controller"), terms)
-    signal = _reference(root.table("reference"), terms.order)
     simulation = _simulation(root.table("simulation"))
+    controller = _controller(root.table("controller"), terms, simulation)
+    signal = _reference(root.table("reference"), terms.order)
     metrics = _metrics(root.table("metrics", default={}))
     backends = _backends(plant, terms, base_dir, simulation)
     disturbances = parse_disturbances(data.get("disturbance"), source)
@@ -329,10 +331,11 @@ def _chosen(table: Table, section: Section, sizes: dict[str, int] | None = None
     return common, kind_table(table, section.names, section.kinds, common["kind"])
 
 
-def _controller(table: Table, terms: PlantTerms) -> ControllerConfig:
+def _controller(table: Table, terms: PlantTerms, simulation: SimulationConfig) -> ControllerConfig:
     v, merged = _chosen(table, controller_section(), {"n": terms.order})
     kind = v["kind"]
-    ctx = LawContext(table.source, terms.order, v["delta"], v["c"], terms.psi, terms.phi, terms.theta)
+    ctx = LawContext(table.source, terms.order, v["delta"], v["c"], terms.psi, terms.phi, terms.theta,
+                     simulation.dt, simulation.period)
     return ControllerConfig(kind, v["delta"], v["c"], law_kind(kind).parse(merged, ctx))
 
 
