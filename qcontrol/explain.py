@@ -8,7 +8,6 @@ paper's numbers live in :mod:`qcontrol.paper`. Nothing here branches on a file n
 
 from __future__ import annotations
 
-import math
 import tomllib
 from collections.abc import Mapping
 from pathlib import Path
