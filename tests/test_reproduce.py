@@ -157,5 +157,5 @@ def test_the_region_study_compares_the_three_laws_at_two_rates(reproduction):
             assert exact["failing_in_box"] == 0 and exact["points_in_box"] == 81
             assert {w: round(v, 4) for w, v in paper["error_rate"].items()} == {
                 w: round(v, 4) for w, v in exact["error_rate"].items()}
-            assert rows[(example, period, "baseline")]["max_gain_period_from_x0"] is None
+            assert rows[(example, period, "comparison")]["max_gain_period_from_x0"] is None
     assert rows[("example2", 0.001, "proposed")]["failing_in_box"] > 0
