@@ -23,10 +23,9 @@ from typing import NamedTuple
 import numpy as np
 
 from ..errors import QcontrolInputError
-from ..quantizer import QuantizedReading
+from ..quantizer import Column, QuantizedReading
 
 Parameter = float | np.ndarray  # a scalar, or one value per copy of the batch (shape (batch,))
-Column = float | np.ndarray  # one value per copy: a (batch,) array, or a float for a batch of one
 Columns = tuple  # of Column: q_1 .. q_n, or the adaptive estimates
 
 
