@@ -15,7 +15,7 @@ from .backstepping import (
     lemma2_L,
 )
 from .comparison import ComparisonController
-from .law import LAW_KINDS, BatchLaw, LawContext, LawKind, law_kind, register_kind
+from .law import LAW_KINDS, BatchLaw, FloatColumns, LawContext, LawKind, law_kind, register_kind
 from .proposed import ProposedController
 
 for _kind in (proposed.KIND, comparison.KIND):
@@ -27,6 +27,7 @@ __all__ = [
     "ComparisonController",
     "BatchLaw",
     "ControlOutput",
+    "FloatColumns",
     "LawContext",
     "LawKind",
     "ProposedController",
