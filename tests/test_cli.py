@@ -234,3 +234,14 @@ def test_progress_is_shown_on_a_terminal_only(tmp_path, capsys, monkeypatch):
         line(done, 4)
     drawn = "".join(f"\rsweep: {100 * d // 4:3d}% ({d}/4 runs)" for d in range(5))
     assert terminal.getvalue() == drawn + "\n"
+
+
+def test_actuator_line_says_never_saturated_or_how_often(tmp_path, capsys):
+    common = ["run", str(EX2), "--duration", "1", "-q"]
+    assert main([*common, "--out", str(tmp_path / "free")]) == 0
+    free = capsys.readouterr().out
+    assert "never saturated" in free and "0.0%" not in free
+    assert main([*common, "--out", str(tmp_path / "cut"), "--set", "plant.mujoco.torque_limit=12.0"]) == 0
+    cut = capsys.readouterr().out
+    fraction = json.loads((tmp_path / "cut" / "summary.json").read_text())["saturated_fraction"]
+    assert 0.0 < fraction < 1.0 and f"saturated at {100 * fraction:.2g}% of the control samples" in cut

@@ -36,8 +36,7 @@ def format_summary(s: dict, sc: Scenario) -> str:
         f"scenario {f.scenario} on {f.backend}: {simulated} in {f.wall_time_s:.2f} s",
         f"  error rate: {rates}",
         f"  max |z1| over the last half: {f.max_abs_z1_last_half:.4g}    max |u|: {f.max_abs_u:.4g}",
-        f"  actuator: max |u applied|: {f.max_abs_u_applied:.4g}    saturated at "
-        f"{100 * f.saturated_fraction:.1f}% of the control samples",
+        f"  actuator: max |u applied|: {f.max_abs_u_applied:.4g}    {_saturation(f.saturated_fraction)}",
         f"  final {f.adaptive_state}: [{', '.join(f'{v:.4g}' for v in f.final_eps_hat)}]",
         _lemma2_line(f),
         *gain_period_lines(s),
@@ -45,6 +44,13 @@ def format_summary(s: dict, sc: Scenario) -> str:
     if f.diverged:
         lines += divergence_lines(s, sc)
     return "\n".join(lines)
+
+
+def _saturation(fraction: float) -> str:
+    """How often the actuator's limit cut the command; a run it never cut says so (not "at 0.0%")."""
+    if fraction == 0.0:
+        return "never saturated"
+    return f"saturated at {100 * fraction:.2g}% of the control samples"
 
 
 def _lemma2_line(f: Summary) -> str:

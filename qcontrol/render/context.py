@@ -15,8 +15,9 @@ from typing import Any
 
 from ..errors import QcontrolInputError
 
-INSTALL_HINT = ("install the system package libegl1 with libgl1-mesa-dri (Debian/Ubuntu: "
-                "apt-get install libegl1 libgl1-mesa-dri), or libosmesa6 and set MUJOCO_GL=osmesa")
+INSTALL_HINT = ("install the system packages libegl1, libegl-mesa0 and libgl1-mesa-dri (Debian/Ubuntu: "
+                "apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri), or libosmesa6 and set "
+                "MUJOCO_GL=osmesa")
 _LIBRARIES = {"egl": "EGL", "osmesa": "OSMesa"}
 
 

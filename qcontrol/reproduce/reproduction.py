@@ -44,7 +44,7 @@ PLANT_VARIANTS = (
     ("theta2 = +3.5", "example2", ("plant.theta=[-1.0, 3.5, -34.3]",)),
     ("rigid pendulum", "example2-rigid", ()),
 )
-BASELINE = ("controller.kind=comparison",)
+COMPARISON = ("controller.kind=comparison",)
 ROBUSTNESS_SCENARIOS = tuple(name for pair in EXAMPLES for name in pair)
 
 
@@ -144,7 +144,7 @@ def reproduce(
 
     log(f"Example 2 on {backend}: proposed and comparison law [20]")
     ex2, ex2_twin = rep.twins("example 2 proposed", rep.scenario("example2"))
-    base, base_twin = rep.twins("example 2 comparison", rep.scenario("example2", BASELINE))
+    base, base_twin = rep.twins("example 2 comparison", rep.scenario("example2", COMPARISON))
     _example2_figures(o, ex2, ex2_twin, base)
     _record(o / "example2.rrd", ex2, {"ode": ex2_twin, "comparison": base}, command)
 
@@ -214,7 +214,7 @@ def _validate(rep: Reproduction) -> None:
         BACKENDS[rep.backend].require(sc.backends.get(rep.backend), sc.source)
     for _, name, overrides in PLANT_VARIANTS:
         rep.scenario(name, overrides)
-        rep.scenario(name, (*overrides, *BASELINE))
+        rep.scenario(name, (*overrides, *COMPARISON))
     for name in ROBUSTNESS_SCENARIOS:  # the robustness study's plants, with their MuJoCo models
         sc = rep.scenario(name)
         BACKENDS["mujoco"].require(sc.backends.get("mujoco"), sc.source)
@@ -278,7 +278,7 @@ def _studies(rep: Reproduction) -> dict:
     )
     variants: dict[str, list] = {"labels": [], "summaries": []}
     for label, name, overrides in PLANT_VARIANTS:
-        for method, extra in (("proposed", ()), ("[20]", BASELINE)):
+        for method, extra in (("proposed", ()), ("[20]", COMPARISON)):
             variants["labels"].append(f"{label}\n{method}")
             variants["summaries"].append(rep.study(f"{label} {method}", name, [[*overrides, *extra]])[0])
     plots.fig_sensitivity(
