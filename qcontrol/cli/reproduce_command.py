@@ -20,10 +20,12 @@ def add_reproduce_parser(sub: argparse._SubParsersAction) -> None:
         "studies' figures and recordings. It runs, in order (times on an idle 2-core VM): (1) Example 1 "
         "and Example 2 with the proposed law and the comparison law of [20], each on MuJoCo with its ODE "
         "twin (about 5 s with the figures and recordings); (2) the sensitivity studies on the ODE: "
-        "kappa - L, the scale of r, the plant variants (21 runs, batched: about 3 s); (3) the robustness "
+        "kappa - L, the scale of r, the plant variants (21 runs, batched: about 3 s); (2b) the sampled "
+        "loop's region of attraction: both examples at 1 and 2 kHz, the paper's law, its exact hold and "
+        "the comparison law on a 9 x 9 grid of initial states (batched ODE: about 10 s); (3) the robustness "
         "study: 248 MuJoCo runs of the realistic arm and cart (each imperfection alone, 20 noise seeds, "
         "margins beyond the hardware, disturbances: about 25 s over two worker processes, 50 s of CPU; "
-        "longer on a shared machine). --quick skips (3) and runs 1 s horizons: a few seconds.",
+        "longer on a shared machine). --quick skips (2b) and (3) and runs 1 s horizons: a few seconds.",
     )
     rep.add_argument("--out", type=Path, default=Path("results"), metavar="DIR",
                      help="output folder (default: results)")
@@ -33,8 +35,9 @@ def add_reproduce_parser(sub: argparse._SubParsersAction) -> None:
                      help="horizon of every run (default: the paper's 10 s); the robustness study keeps its "
                      "248 runs: for a quick look use --quick")
     rep.add_argument("--quick", action="store_true",
-                     help="a first look in a few seconds: 1 s horizons (or --duration) and no robustness "
-                     "study (no robustness.json, study_robustness.png, study_margins.png)")
+                     help="a first look in a few seconds: 1 s horizons (or --duration), no region "
+                     "study and no robustness study (no region.json, study_region.png, robustness.json, "
+                     "study_robustness.png, study_margins.png)")
     rep.add_argument("--scenarios", type=Path, default=None, metavar="DIR",
                      help="folder holding example1.toml, example2.toml, example2-rigid.toml, "
                      "example2-arm.toml, example1-cart.toml")

@@ -108,7 +108,9 @@ def report_markdown(f: ReportFacts) -> str:
     robustness = (robustness_section(f.robustness) if f.robustness is not None else
                   ["## Robustness on realistic hardware", "",
                    "Not run here (`qcontrol reproduce --quick`): the full `qcontrol reproduce` runs it.", ""])
-    region = region_section(f.region) if f.region is not None else []
+    region = (region_section(f.region) if f.region is not None else
+              ["## The sampled loop: region of attraction (ODE backend; beyond the paper)", "",
+               "Not run here (`qcontrol reproduce --quick`): the full `qcontrol reproduce` runs it.", ""])
     sections = (_header(f), _table1_section(f), _findings(f), _checks(f), _studies_section(f), region,
                 robustness, _figures(f))
     return "\n".join(line for section in sections for line in section)
