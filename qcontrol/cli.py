@@ -1,14 +1,18 @@
 """The ``qcontrol`` command line: run, compare, reproduce, sweep, check (built on :mod:`qcontrol.api`).
 
-Exit status: 0 success; 1 the run diverged or a theory check failed; 2 bad input; 130 interrupted.
-Bad input is reported as one line on stderr, never as a traceback, and every input is checked
-before any folder or file is made.
+Exit status: 0 success; 1 the run diverged or a theory check failed; 2 bad input (outputs that
+cannot be written included: checked before the run); 3 an output could not be written during or
+after the run (no space left, an I/O error, no permission: the previous file is intact); 130
+interrupted (Ctrl-C); 143 terminated (SIGTERM). Bad input is reported as one line on stderr, never
+as a traceback, and every input is checked before any folder or file is made.
 """
 
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 import time
 import warnings
 from collections.abc import Sequence
@@ -19,9 +23,16 @@ from ._version import __version__
 from .assembly import runnable_backend
 from .attribution import attribution_lines
 from .check import add_check_parser, cmd_check
-from .errors import QcontrolInputError
+from .errors import QcontrolInputError, QcontrolOutputError, Terminated
 from .explain import divergence_lines, paper_line
-from .outputs import check_output_dir, check_output_file, prepare_output_dir, write_json
+from .outputs import (
+    check_distinct,
+    check_figure_file,
+    check_output_dir,
+    check_output_file,
+    prepare_output_dir,
+    write_json,
+)
 from .plants import BACKENDS
 from .progress import ProgressLine
 from .provenance import command_line
@@ -29,7 +40,11 @@ from .resources import shipped_scenarios
 from .scenario import Scenario, load_scenario
 from .sweep import add_sweep_parser, cmd_sweep
 
-EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_WRITE_FAILED = 0, 1, 2, 3
+EXIT_INTERRUPTED, EXIT_TERMINATED = 130, 143
+EXIT_STATUS = ("Exit status: 0 ok, 1 diverged or a theory check failed, 2 bad input (checked before the run, "
+               "outputs included), 3 an output could not be written (disk full, I/O error, no permission; "
+               "the previous file is kept), 130 interrupted, 143 terminated (SIGTERM).")
 LEMMA2_TOLERANCE = 1e-9  # rounding slack on |e_zi| / L_zi <= 1
 
 
@@ -80,7 +95,7 @@ def build_parser() -> argparse.ArgumentParser:
             "Adaptive backstepping control with quantized states (Sun et al., Electronics 2022, "
             "11, 3160) on an ideal ODE plant or on MuJoCo physics."
         ),
-        epilog="Exit status: 0 ok, 1 diverged or a theory check failed, 2 bad input, 130 interrupted.",
+        epilog=EXIT_STATUS,
     )
     parser.add_argument("--version", action="version", version=f"qcontrol {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
@@ -110,7 +125,7 @@ def _add_run_parser(sub: argparse._SubParsersAction) -> None:
                      "per component); keeps every row in memory, unlike a plain run")
     run.add_argument("--plot", type=Path, metavar="FILE",
                      help="draw the run (y and y_d, z1, u, the adaptive estimates, the Lemma 2 ratio) to "
-                     "FILE.png; keeps every row in memory, unlike a plain run")
+                     "FILE.png, .pdf or .svg; keeps every row in memory, unlike a plain run")
     _add_recording_options(run)
 
 
@@ -159,15 +174,25 @@ def _scenario_from_args(args: argparse.Namespace) -> Scenario:
     return load_scenario(args.scenario, overrides, args.unset)
 
 
-def _check_outputs(args: argparse.Namespace, files: dict[str, Path | None]) -> None:
-    """Check --out and the output ``files`` (option -> path) without creating anything; with
-    --spawn, make sure a viewer runs (one line and exit status 2 when there is no display: before
-    the run starts)."""
+def _check_outputs(args: argparse.Namespace, sc: Scenario, files: dict[str, Path | None],
+                   in_out: Sequence[str]) -> None:
+    """Check --out (and the files ``in_out`` it will hold) and the output ``files`` (option ->
+    path) without creating anything: each a regular file or a new name, no two the same, none the
+    scenario file, none where the folder goes; with --spawn, make sure a viewer runs (one line and
+    exit status 2 when there is no display: before the run starts)."""
+    given = {option: path for option, path in files.items() if path is not None}
+    for option, path in given.items():
+        if option == "--plot":
+            check_figure_file(path, option)
+        else:
+            check_output_file(path, option)
     if args.out is not None:
         check_output_dir(args.out)
-    for option, path in files.items():
-        if path is not None:
-            check_output_file(path, option)
+        for name in in_out:
+            fix = "remove it or choose another --out folder"
+            given[f"--out (its {name})"] = check_output_file(args.out / name, "--out", fix=fix)
+    check_distinct(given, {"scenario file": Path(sc.source)} if Path(sc.source).is_file() else {},
+                   {"--out": args.out} if args.out is not None else {})
     if args.spawn:
         from .recording.viewer import start_viewer
 
@@ -237,7 +262,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.save is not None and args.save.suffix not in api.SAVE_FORMATS:
         raise QcontrolInputError(f"--save {args.save}: unknown format {args.save.suffix!r}; "
                                  "give a .npz or .csv file")
-    _check_outputs(args, {"--rrd": args.rrd, "--save": args.save, "--plot": args.plot})
+    _check_outputs(args, sc, {"--rrd": args.rrd, "--save": args.save, "--plot": args.plot}, ["summary.json"])
     # a plain run keeps only its metrics (memory stays flat however long the run); --save and
     # --plot need every row
     record = "full" if args.save is not None or args.plot is not None else "metrics"
@@ -278,7 +303,7 @@ def _plot_run(result: api.Result, path: Path) -> Path:
 def cmd_compare(args: argparse.Namespace) -> int:
     sc = _scenario_from_args(args)
     api.require_twin(sc)  # before --spawn starts a viewer
-    _check_outputs(args, {"--rrd": args.rrd})
+    _check_outputs(args, sc, {"--rrd": args.rrd}, ["compare.json"])
     progress: dict[str, ProgressLine] = {}
 
     def progress_of(backend: str) -> ProgressLine:
@@ -347,20 +372,34 @@ def _one_line_warning(message: Warning | str, category: type[Warning], filename:
     return f"qcontrol: warning: {message}\n"
 
 
+def _terminate(signum: int, frame: object) -> None:
+    """SIGTERM: stop as Ctrl-C does (every output cleans up after itself), exit status 143."""
+    raise Terminated
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.command_line = command_line(argv)  # what the outputs' provenance names as the command
     warnings.formatwarning = _one_line_warning
     started = time.perf_counter()
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _terminate) if main_thread else None
     try:
         return COMMANDS[args.command](args)
     except QcontrolInputError as exc:
         print(f"qcontrol: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print(f"\nqcontrol: interrupted after {time.perf_counter() - started:.1f} s", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    except QcontrolOutputError as exc:
+        print(f"qcontrol: error: {exc.strerror or exc}", file=sys.stderr)
+        return EXIT_WRITE_FAILED
+    except KeyboardInterrupt as exc:
+        how = "terminated" if isinstance(exc, Terminated) else "interrupted"
+        print(f"\nqcontrol: {how} after {time.perf_counter() - started:.1f} s", file=sys.stderr)
+        return EXIT_TERMINATED if isinstance(exc, Terminated) else EXIT_INTERRUPTED
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

@@ -436,7 +436,7 @@ CATALOGUE: dict[str, Case] = {
     "out: summary.json is a folder": case(
         None,
         "summary.json",
-        "cannot write",
+        "is a folder, not a regular file",
         scenario=EX2,
         args=("--out", "{tmp}/taken", "--backend", "ode", "--duration", "0.01"),
         names_file=False,
@@ -472,7 +472,7 @@ def _assert_nothing_written(tmp_path: Path, out: Path) -> None:
     leftovers = [
         p
         for p in tmp_path.rglob("*")
-        if p.name.endswith(".part") or p.name.startswith(".summary") or p.name.startswith(".compare")
+        if p.name.endswith((".part", ".tmp")) or p.name.startswith((".summary", ".compare"))
     ]
     assert not leftovers, f"temporary files left: {leftovers}"
     for name in ("summary.json", "compare.json"):

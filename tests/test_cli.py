@@ -163,7 +163,7 @@ def test_compare_rrd_holds_both_runs(tmp_path, capsys):
     rrd = tmp_path / "rec" / "ex2.rrd"
     out = tmp_path / "cmp"
     assert main(["compare", str(EX2), "--rrd", str(rrd), "--out", str(out), "--duration", "1", "-q"]) == 0
-    assert rrd.is_file() and not list(rrd.parent.glob("*.part"))
+    assert rrd.is_file() and not list(rrd.parent.glob(".*.tmp"))
     entities = read_entities(rrd)
     for path in ("world/bodies/arm", "world/ode_ghost/arm", "world/target", "signals/tracking/y",
                  "signals/tracking/y_d", "signals/tracking/y_ode", "signals/input/u",
