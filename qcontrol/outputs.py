@@ -39,6 +39,7 @@ MAX_NAME_BYTES = 255  # one path component, as Linux, macOS and Windows file sys
 MAX_PATH_BYTES = 4096
 FIGURE_FORMATS = (".png", ".pdf", ".svg")  # what a figure's suffix may be (matplotlib writes each)
 _LIVE: set[Path] = set()  # temporaries made by this process and not yet moved or removed
+_STAGED: list[AtomicFile] | None = None  # files written inside staged(), moved into place at its end
 
 
 def check_name(path: str | Path, option: str) -> Path:
@@ -283,10 +284,48 @@ def _fsync_folder(folder: Path) -> None:
         os.close(fd)
 
 
+def finish(file: AtomicFile) -> Path:
+    """Move a complete file into place now or, inside :func:`staged`, with the others at its end."""
+    if _STAGED is None:
+        return file.commit()
+    _STAGED.append(file)
+    return file.path
+
+
+@contextmanager
+def staged() -> Iterator[None]:
+    """Write a set of files as one: every file finished inside the block keeps its temporary name
+    until the block ends cleanly; then each final name is checked (a regular file or free) and
+    only then are all moved into place. On an exception (Ctrl-C included) every one is removed,
+    so the folder keeps its previous files, none mixed with new ones. Inside another
+    :func:`staged` block the files join the outer set."""
+    global _STAGED
+    if _STAGED is not None:
+        yield
+        return
+    files: list[AtomicFile] = []
+    _STAGED = files
+    try:
+        yield
+        _STAGED = None
+        for file in files:
+            kind = path_kind(file.path)
+            if kind is not None:
+                raise QcontrolOutputError(errno.EEXIST, f"{shown(file.path)}: is {kind}, not a regular file; "
+                                          "none of the new files was put in place: remove it and run again")
+        while files:
+            files[0].commit()
+            files.pop(0)
+    finally:
+        _STAGED = None
+        for file in files:
+            file.discard()
+
+
 def write_file(path: str | Path, write: Callable[[IO[bytes]], Any]) -> Path:
     """Write a file atomically: ``write(file)`` fills the temporary file, which is then flushed,
-    fsynced and moved into place. A failed write is a :class:`QcontrolOutputError`; whatever
-    fails, the temporary is removed."""
+    fsynced and moved into place (:func:`finish`). A failed write is a
+    :class:`QcontrolOutputError`; whatever fails, the temporary is removed."""
     path = Path(path)
     file = AtomicFile(path)
     try:
@@ -294,13 +333,16 @@ def write_file(path: str | Path, write: Callable[[IO[bytes]], Any]) -> Path:
             write(handle)
             handle.flush()
             os.fsync(handle.fileno())
-        return file.commit()
+        return finish(file)
     except QcontrolOutputError:
+        file.discard()
         raise
     except OSError as exc:
+        file.discard()
         raise output_error(path, exc) from None
-    finally:
-        file.discard()  # nothing left once committed
+    except BaseException:
+        file.discard()
+        raise
 
 
 @contextmanager

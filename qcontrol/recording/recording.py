@@ -94,7 +94,7 @@ class Recording:
         self._layout_sent: tuple[frozenset[Panel], Camera | None] | None = None
         self.main_series: list[Series] = []  # the main run's, restyled once a twin is drawn on them
         self.main_label = "main"
-        self._flush_failed = False
+        self._flush_error: str | None = None  # the first failure to flush, reported at close
         self._open()
 
     @property
@@ -164,21 +164,22 @@ class Recording:
             self._stream = None
             if self._file is not None:
                 file, self._file = self._file, None
-                file.finish(complete)
+                file.finish(complete)  # a file that was not written whole raises here
+            if self._flush_error is not None:
+                warnings.warn(f"rerun could not flush the recording: {self._flush_error}", stacklevel=3)
 
     def flush(self, wait: bool = True) -> None:
         """Write everything logged so far: block until it is written, or (``wait=False``) start
         writing it and return, so that the run goes on while rerun encodes and writes on another
-        core. A failure (e.g. a viewer that went away) is reported once as a warning and does not
-        stop the run."""
+        core. A failure does not stop the run: a file that could not be written is reported when
+        the recording closes (it is checked then), any other failure (e.g. a viewer that went away)
+        as one warning then."""
         if self._stream is None:
             return
         try:
             self._stream.flush(timeout_sec=1e38 if wait else 0.0)
         except RuntimeError as exc:
-            if not self._flush_failed:
-                warnings.warn(f"rerun could not flush the recording: {exc}", stacklevel=2)
-            self._flush_failed = True
+            self._flush_error = self._flush_error or str(exc)
 
     # -- static content -------------------------------------------------------------------
 

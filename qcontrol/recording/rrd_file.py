@@ -16,7 +16,7 @@ import warnings
 from pathlib import Path
 
 from ..errors import QcontrolOutputError, shown
-from ..outputs import AtomicFile, output_error
+from ..outputs import AtomicFile, finish
 
 
 def quiet_rerun_logging() -> None:
@@ -65,16 +65,18 @@ class RrdFile:
         (what was written is kept as the partial name). Returns where the data is, if anywhere."""
         problem = rrd_problem(self.temporary)
         if complete and problem is None:
-            return self._file.commit()
+            return finish(self._file)
         folder = self.path.parent if str(self.path.parent) else Path(".")
         kept = self._file.keep_partial()
         where = (f"kept what was recorded as {shown(kept)}" if kept is not None
                  else "nothing was kept")
         if complete:
-            if not _space_left(folder):
-                raise output_error(self.path, OSError(errno.ENOSPC, "no space left")) from None
-            message = f"{shown(self.path)}: cannot write the recording ({problem}); {where}"
-            raise QcontrolOutputError(errno.EIO, f"{message}; {shown(self.path)} is unchanged")
+            full = not _space_left(folder)
+            cause = "no space left on the device" if full else problem
+            fix = "free some space or write elsewhere" if full else "check the disk or write elsewhere"
+            raise QcontrolOutputError(errno.ENOSPC if full else errno.EIO,
+                                      f"{shown(self.path)}: cannot write the recording ({cause}); {where}, "
+                                      f"{shown(self.path)} is unchanged; {fix}")
         warnings.warn(f"the run did not finish: {where}; {shown(self.path)} is unchanged", stacklevel=3)
         return kept
 

@@ -28,7 +28,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from ..assembly import batch_structure, run_variants
-from ..errors import QcontrolInputError
+from ..errors import QcontrolInputError, Terminated
 from ..metrics import summary
 from ..plants import BACKENDS
 from ..scenario import Scenario, load_scenario
@@ -42,9 +42,10 @@ Task = tuple[str, list[list[str]], str, list[str]]  # (path, override sets of a 
 class SweepInterrupted(KeyboardInterrupt):
     """Ctrl-C during a sweep: ``summaries`` holds the finished runs' summaries (None elsewhere)."""
 
-    def __init__(self, summaries: list[dict | None]) -> None:
+    def __init__(self, summaries: list[dict | None], terminated: bool = False) -> None:
         super().__init__()
         self.summaries = summaries
+        self.terminated = terminated  # SIGTERM rather than Ctrl-C
 
 
 def run_batch(scs: Sequence[Scenario], backend: str) -> list[dict]:
@@ -123,8 +124,8 @@ def sweep_summaries(
         else:
             for ids, task in zip(chunks, tasks, strict=True):
                 store(ids, _run_chunk(*task))
-    except KeyboardInterrupt:
-        raise SweepInterrupted(results) from None
+    except KeyboardInterrupt as stop:
+        raise SweepInterrupted(results, isinstance(stop, Terminated)) from None
     return results  # type: ignore[return-value]
 
 
