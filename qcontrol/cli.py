@@ -23,13 +23,14 @@ from ._version import __version__
 from .assembly import runnable_backend
 from .attribution import attribution_lines
 from .check import add_check_parser, cmd_check
-from .errors import QcontrolInputError, QcontrolOutputError, Terminated
+from .errors import QcontrolInputError, QcontrolOutputError, Terminated, shown
 from .explain import divergence_lines, paper_line
 from .outputs import (
     check_distinct,
     check_figure_file,
     check_output_dir,
     check_output_file,
+    path_kind,
     prepare_output_dir,
     write_json,
 )
@@ -45,6 +46,9 @@ EXIT_INTERRUPTED, EXIT_TERMINATED = 130, 143
 EXIT_STATUS = ("Exit status: 0 ok, 1 diverged or a theory check failed, 2 bad input (checked before the run, "
                "outputs included), 3 an output could not be written (disk full, I/O error, no permission; "
                "the previous file is kept), 130 interrupted, 143 terminated (SIGTERM).")
+MAX_REPRODUCE_DURATION = 3600.0  # s of simulated time per run: every run keeps its rows for the figures
+REPRODUCE_SCENARIOS = ("example1.toml", "example2.toml", "example2-rigid.toml", "example2-arm.toml",
+                       "example1-cart.toml")
 LEMMA2_TOLERANCE = 1e-9  # rounding slack on |e_zi| / L_zi <= 1
 
 
@@ -158,8 +162,7 @@ def _add_reproduce_parser(sub: argparse._SubParsersAction) -> None:
     rep.add_argument("--duration", type=float, metavar="S",
                      help="shorter horizon for a quick look (default: the paper's 10 s)")
     rep.add_argument("--scenarios", type=Path, default=None, metavar="DIR",
-                     help="folder holding example1.toml, example2.toml, example2-rigid.toml, "
-                     "example2-arm.toml, example1-cart.toml")
+                     help=f"folder holding {', '.join(REPRODUCE_SCENARIOS)} (default: the shipped ones)")
     rep.add_argument("--workers", type=int, default=None, metavar="N",
                      help="worker processes for the robustness study (default: the cores, at most 4)")
     rep.add_argument("-q", "--quiet", action="store_true", help="no progress output")
@@ -349,12 +352,22 @@ def _status(s: dict) -> int:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
+    """The command-line options are checked before the reproduction (and matplotlib) is imported."""
+    if args.duration is not None and not (0 < args.duration <= MAX_REPRODUCE_DURATION):
+        raise QcontrolInputError(f"--duration {args.duration!r}: must be a number of seconds > 0 and at most "
+                                 f"{MAX_REPRODUCE_DURATION:g}; e.g. --duration 2 for a quick look")
+    if args.workers is not None and args.workers < 1:
+        raise QcontrolInputError(f"--workers {args.workers}: must be >= 1; e.g. --workers 2 (more than the "
+                                 "cores are capped at the cores)")
+    if args.scenarios is not None:
+        kind = path_kind(args.scenarios)
+        if not args.scenarios.exists() or kind != "a folder":
+            what = "does not exist" if not args.scenarios.exists() else f"is {kind or 'a file'}"
+            raise QcontrolInputError(f"--scenarios {shown(args.scenarios)}: {what}; give the folder holding "
+                                     f"{', '.join(REPRODUCE_SCENARIOS)}")
+    check_output_dir(args.out)
     from .reproduce import SCENARIO_DIR, reproduce
 
-    if args.duration is not None and not (args.duration > 0):
-        raise QcontrolInputError(f"--duration must be > 0, got {args.duration!r}")
-    if args.workers is not None and args.workers < 1:
-        raise QcontrolInputError(f"--workers must be >= 1, got {args.workers}")
     scenarios = args.scenarios or SCENARIO_DIR
     log = (lambda line: None) if args.quiet else (lambda line: print(line, flush=True))
     reproduce(args.out, args.backend, args.duration, scenarios, log, command=args.command_line,

@@ -5,7 +5,9 @@ chosen backend, with the ideal ODE twin beside MuJoCo, then the sensitivity stud
 a constant scale of r, plant variants) on the ODE backend, then the robustness study on realistic
 hardware (:mod:`qcontrol.robustness`, MuJoCo, in worker processes). Writes PNG figures,
 ``table1.md``, ``table1.json``, ``studies.json``, ``robustness.json``, ``REPORT.md`` and one rerun
-recording per example into the output folder. Parameters come from the paper's Section 4
+recording per example into the output folder, all put in place together at the end
+(:func:`qcontrol.outputs.staged`): an interrupted or failed reproduction leaves the folder's
+previous files as they were, never a mix of old and new. Parameters come from the paper's Section 4
 (docs/math.md, 'The paper's examples'); nothing is fitted to Table 1.
 """
 
@@ -24,7 +26,7 @@ from .assembly import run_scenario
 from .controller import lemma2_L
 from .engine import Trajectory
 from .metrics import backend_deviation, summary
-from .outputs import check_output_dir, prepare_output_dir, write_json, write_text
+from .outputs import check_output_dir, prepare_output_dir, staged, write_json, write_text
 from .plants import BACKENDS
 from .report import PAPER_TABLE1, ReportFacts, report_markdown, table1, table1_markdown
 from .resources import shipped_dir
@@ -126,12 +128,23 @@ def reproduce(
     rep = Reproduction(check_output_dir(out), backend, duration, Path(scenarios), log, command=command)
     _validate(rep)
     o = prepare_output_dir(out)
-    log(f"Example 1 on {backend}")
+    with staged():  # every file is put in place at the end, together: the folder is never mixed
+        table = _write_all(rep, o, command, workers)
+    log(f"wrote {o}: REPORT.md, table1.md, table1.json, studies.json, robustness.json, figures, recordings "
+        f"({len(rep.lemma2_ratios)} example and study runs, then the robustness study; "
+        f"{time.perf_counter() - rep.started:.1f} s)")
+    return table
+
+
+def _write_all(rep: Reproduction, o: Path, command: str, workers: int | None) -> dict:
+    """The runs and their files, in order; Table 1 as written to table1.json."""
+    backend = rep.backend
+    rep.log(f"Example 1 on {backend}")
     ex1, ex1_twin = rep.twins("example 1", rep.scenario("example1"))
     _example1_figures(o, ex1, ex1_twin)
     _record(o / "example1.rrd", ex1, {"ode": ex1_twin}, command)
 
-    log(f"Example 2 on {backend}: proposed and comparison method [20]")
+    rep.log(f"Example 2 on {backend}: proposed and comparison method [20]")
     ex2, ex2_twin = rep.twins("example 2 proposed", rep.scenario("example2"))
     base, base_twin = rep.twins("example 2 comparison", rep.scenario("example2", BASELINE))
     _example2_figures(o, ex2, ex2_twin, base)
@@ -150,9 +163,6 @@ def reproduce(
     write_json(o / "studies.json", studies | {"provenance": scenarios_provenance(studied, command)})
     robustness = _robustness(o, rep, workers)
     write_text(o / "REPORT.md", _report(rep, table, studies, deviations, ex1, ex2, robustness))
-    log(f"wrote {o}: REPORT.md, table1.md, table1.json, studies.json, robustness.json, figures, recordings "
-        f"({len(rep.lemma2_ratios)} example and study runs, then the robustness study; "
-        f"{time.perf_counter() - rep.started:.1f} s)")
     return table
 
 
