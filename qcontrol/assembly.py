@@ -14,7 +14,7 @@ from .controller import BatchLaw, law_kind
 from .disturbance import Schedule, scaled_changes
 from .engine import Observer, ProgressCallback, RunMetrics, Separation, Trajectory, simulate
 from .errors import QcontrolInputError
-from .plants import BACKENDS, Plant, Scene
+from .plants import BACKENDS, Plant, SceneSource
 from .quantizer import UniformQuantizer
 from .reference import Reference
 from .scenario import Scenario
@@ -95,11 +95,12 @@ def batch_structure(sc: Scenario, backend: str | None = None) -> Hashable:
     )
 
 
-def scene(sc: Scenario) -> Scene | None:
+def scene(sc: Scenario) -> SceneSource | None:
     """What a recording of the scenario draws in 3-D, whichever backend runs it: the model of the
     first backend section that has one (an ODE run of Example 2 replays the MuJoCo pendulum)."""
     for name, options in sc.backends.items():
-        drawn = BACKENDS[name].scene(options, sc.simulation.dt)
+        backend = BACKENDS[name]
+        drawn = None if backend.scene is None else backend.scene(options, sc.simulation.dt)
         if drawn is not None:
             return drawn
     return None

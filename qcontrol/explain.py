@@ -3,7 +3,7 @@ and, for a scenario of the paper, what the paper reports for it and where the di
 explained.
 
 A scenario says which of the paper's examples it reproduces (``[scenario] paper_example``); the
-paper's numbers live in :mod:`qcontrol.report`. Nothing here branches on a file name.
+paper's numbers live in :mod:`qcontrol.paper`. Nothing here branches on a file name.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import math
 from collections.abc import Mapping
 
 from .controller import law_kind
-from .report import OMEGA_KEYS, PAPER_TABLE1, PAPER_TABLE1_ROWS
+from .paper import OMEGA_KEYS, PAPER_TABLE1, PAPER_TABLE1_ROWS
 from .scenario import Scenario
 
 README_SECTION = "README.md, section 'Reproducing the paper'"

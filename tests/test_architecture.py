@@ -29,10 +29,11 @@ LAYERS = [
     {"plants"},
     {"engine"},
     {"metrics", "scenario"},
+    {"paper"},
     {"assembly"},
-    {"recording", "plots", "report", "check", "robustness_report", "attribution"},
+    {"recording", "plots", "attribution"},
     {"sweep", "api", "explain"},
-    {"reproduce", "robustness"},
+    {"reproduce"},
     {"cli", "_entry"},
 ]
 
@@ -168,7 +169,7 @@ def test_keys_of_another_kind_are_refused_with_the_keys_that_apply(overrides: li
 
 
 def test_the_plant_uses_the_model_compiled_when_the_scenario_loaded() -> None:
-    from qcontrol.plants.mujoco.model import compiled
+    from qcontrol.plants.mujoco.mjcf import compiled
 
     sc = load_scenario(EX2)
     plant = build_plant(sc, "mujoco")

@@ -263,7 +263,8 @@ CATALOGUE: dict[str, Case] = {
         None, "controller.gamma: must be finite", scenario=EX2, args=("--set", "controller.gamma=inf")
     ),
     "nonfinite: --duration nan": case(
-        None, "simulation.duration: must be finite", scenario=EX2, args=("--duration", "nan")
+        None, "--duration nan: must be a positive number", scenario=EX2, args=("--duration", "nan"),
+        names_file=False,  # the value came from the command line: the option is named, not the file
     ),
     "nonfinite: expression constant 1e999": case(phi("x2 * 1e999"), "plant.phi[1]", "not finite"),
     "nonfinite: derivative of the reference": case(
@@ -412,7 +413,8 @@ CATALOGUE: dict[str, Case] = {
         None, "simulation.duration", "more than the limit", scenario=EX2, args=("--duration", "1e300")
     ),
     "steps: tiny dt": case(None, "more than the limit", scenario=EX2, args=("--dt", "1e-300")),
-    "steps: negative --dt": case(None, "simulation.dt: must be > 0", scenario=EX2, args=("--dt", "-0.001")),
+    "steps: negative --dt": case(None, "--dt -0.001: must be a positive number", scenario=EX2,
+                                 args=("--dt", "-0.001"), names_file=False),
     "steps: control period not a multiple": case(
         ex2("dt = 0.001", "dt = 0.001\ncontrol_period = 0.0015"),
         "simulation.control_period = 0.0015 s is not a whole number of steps",

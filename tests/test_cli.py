@@ -105,8 +105,8 @@ def test_bad_scenario_exit_2_one_line(tmp_path, capsys, case):
         (["run", str(EX2), "--set", "controller.kapa=1"], "controller.kapa: unknown key"),
         (["run", str(EX2), "--set", "controller.c=[1, 2, 3]"], "has 3 entries, expected 2"),
         (["run", str(ROOT / "scenarios" / "chain3.toml"), "--backend", "mujoco"], "[plant.mujoco]"),
-        (["run", str(EX2), "--duration", "-1"], "simulation.duration: must be > 0"),
-        (["run", str(EX2), "--dt", "0"], "simulation.dt: must be > 0"),
+        (["run", str(EX2), "--duration", "-1"], "--duration -1.0: must be a positive number of seconds"),
+        (["run", str(EX2), "--dt", "0"], "--dt 0.0: must be a positive number of seconds"),
         (["run", str(EX2), "--backend", "gpu"], "invalid choice"),
     ],
 )

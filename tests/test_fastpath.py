@@ -9,9 +9,10 @@ import pytest
 from qcontrol.assembly import build_controller, build_plant, build_quantizer, build_reference
 from qcontrol.controller import BaselineController, ProposedController
 from qcontrol.engine import simulate
+from qcontrol.engine.fastpath import float_quantizer
 from qcontrol.expr import compile_expression
 from qcontrol.plants.ode import ChainPlant
-from qcontrol.quantizer import QuantizedReading, UniformQuantizer, float_quantizer, quantize
+from qcontrol.quantizer import QuantizedReading, UniformQuantizer, quantize
 from qcontrol.scenario import load_scenario
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
@@ -176,3 +177,47 @@ def test_a_batch_of_one_stops_at_the_first_row_out_of_bounds(bound: float, with_
         assert one.error_rate == two.error_rate and one.max_abs_u == two.max_abs_u
         assert one.max_abs_z1_last_half == two.max_abs_z1_last_half or (
             np.isnan(one.max_abs_z1_last_half) and np.isnan(two.max_abs_z1_last_half))
+
+
+class _ArrayOnly:
+    """A plant with only the core of the Plant protocol, in array form (no float form, no load,
+    no actuator of its own): it must run at every batch size."""
+
+    def __init__(self, inner: ChainPlant) -> None:
+        self.inner, self.n, self.batch = inner, inner.n, inner.batch
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def reset(self, x0):
+        self.inner.reset(x0)
+
+    def observe(self):
+        x = self.inner.state()
+        return x, x.copy()
+
+    def step(self, u, h):
+        assert isinstance(u, np.ndarray) and u.shape == (self.batch,)
+        self.inner.step(u, h)
+
+    def close(self):
+        pass
+
+
+@pytest.mark.parametrize("batch", [1, 3])
+def test_a_plant_with_only_the_array_form_runs_at_every_batch_size(batch: int) -> None:
+    from qcontrol.plants import FloatStepping, Plant
+
+    sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=0.5"])
+    plant = _ArrayOnly(build_plant(sc, "ode", batch=batch))
+    assert isinstance(plant, Plant) and not isinstance(plant, FloatStepping)
+    runs = [simulate(p, build_controller(sc), build_quantizer(sc), build_reference(sc), sc.x0,
+                     sc.simulation.duration, sc.simulation.dt)
+            for p in (plant, build_plant(sc, "ode", batch=batch))]
+    for mine, native in zip(*runs, strict=True):
+        assert not mine.diverged and len(mine.t) == len(native.t) == 501
+        for field in ("x", "x_q", "u", "adaptive"):
+            np.testing.assert_array_equal(getattr(mine, field), getattr(native, field), err_msg=field)

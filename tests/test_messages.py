@@ -16,7 +16,7 @@ import pytest
 from qcontrol.cli import main
 from qcontrol.errors import QcontrolInputError
 from qcontrol.explain import MEASURED_REGION, README_SECTION
-from qcontrol.report import PAPER_TABLE1
+from qcontrol.paper import PAPER_TABLE1
 from qcontrol.scenario import load_scenario
 from qcontrol.timegrid import step_count
 

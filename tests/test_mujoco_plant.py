@@ -17,7 +17,7 @@ from qcontrol.plants import mujoco as mujoco_backend
 from qcontrol.plants.backends import PlantContext
 from qcontrol.plants.base import PlantTerms
 from qcontrol.plants.mujoco import callbacks as qmj
-from qcontrol.plants.mujoco.model import build_model
+from qcontrol.plants.mujoco.mjcf import build_model
 from qcontrol.plants.mujoco.options import MujocoOptions
 from qcontrol.plants.mujoco.plant import MujocoPlant
 from qcontrol.plants.ode import ChainPlant
@@ -403,5 +403,28 @@ def test_mujoco_warnings_are_kept_not_written_to_the_working_directory(tmp_path,
         assert np.isnan(plant.state()).all()
     assert plant.warnings and "unstable" in plant.warnings[0]
     assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
-    # outside a run, warnings are kept in memory too: nothing ever writes MUJOCO_LOG.TXT
-    assert mujoco.get_mju_user_warning() is qmj._warn
+    # after the run the handler found before it is back: importing or running changes nothing
+    # process-wide (the model checks at load keep their warnings in memory the same way)
+    assert mujoco.get_mju_user_warning() is None
+
+
+def test_the_warning_handler_is_installed_for_a_block_and_restored_after_it():
+    def previous(message: str) -> None:
+        pass
+
+    mujoco.set_mju_user_warning(previous)
+    try:
+        sink: list[str] = []
+        with qmj.collect_warnings(sink):
+            assert mujoco.get_mju_user_warning() is qmj._warn
+            with qmj.kept_aside():
+                assert mujoco.get_mju_user_warning() is qmj._warn
+            model = mujoco.MjModel.from_xml_string("<mujoco><worldbody><body><joint/><geom size='0.1'/>"
+                                                   "</body></worldbody></mujoco>")
+            data = mujoco.MjData(model)
+            data.qpos[0] = np.nan
+            mujoco.mj_step(model, data)  # MuJoCo warns of the bad qpos and resets the data
+        assert mujoco.get_mju_user_warning() is previous
+        assert len(sink) == 1 and "QPOS" in sink[0]
+    finally:
+        mujoco.set_mju_user_warning(None)

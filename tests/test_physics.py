@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from qcontrol.assembly import build_plant, build_reference, input_inertia, loads, run_scenario
-from qcontrol.cli import _status, main
+from qcontrol.cli import main
+from qcontrol.cli import status as _status
 from qcontrol.controller.backstepping import Backstepping, output
 from qcontrol.disturbance import Disturbance, Schedule
 from qcontrol.engine import simulate

@@ -3,7 +3,6 @@ default, its fixed camera, the collapsed time panel, the panels (made from the s
 
 from __future__ import annotations
 
-import dataclasses
 import re
 import subprocess
 from collections import defaultdict
@@ -15,9 +14,9 @@ import pytest
 from rerun.chunk import RrdReader
 from test_record import PENDULUM, RERUN_CLI, SLIDER, example2, read_entities, temporal
 
-from qcontrol.engine.signals import SIGNALS, Plot
-from qcontrol.recording import Recording, series
+from qcontrol.recording import Recording, styles
 from qcontrol.recording.camera import FIELD_OF_VIEW_Y, FRAME_MARGIN, TRAVEL_MARGIN, VIEW_WIDTH_PER_HEIGHT
+from qcontrol.recording.styles import Plot
 
 ROOT = Path(__file__).resolve().parents[1]
 COLLAPSED = 2  # rerun.blueprint.components.PanelState
@@ -165,8 +164,7 @@ def test_a_new_plot_lands_in_its_panel_or_a_tab_of_its_own(tmp_path, monkeypatch
     """A series added to the signal table under an existing panel (e.g. an applied torque beside
     the commanded u) is drawn in that panel's view; one under a new panel gets a view of its own."""
     extra = (Plot("signals/input/u_again", "u again"), Plot("signals/extra/u", "u again"))
-    table = tuple(dataclasses.replace(s, plots=s.plots + extra) if s.name == "u" else s for s in SIGNALS)
-    monkeypatch.setattr(series, "SIGNALS", table)
+    monkeypatch.setitem(styles.PLOTS, "u", styles.PLOTS["u"] + extra)
     path = tmp_path / "extra.rrd"
     with Recording(path) as rec:
         run = example2(0.1, rec.observer("ode"))

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from qcontrol.cli import main
+from qcontrol.paper import PAPER_TABLE1
 from qcontrol.plots import FIG_HEIGHT_PX, FIG_WIDTH_PX
-from qcontrol.report import PAPER_TABLE1
 
 FIGURES = [
     "fig1_output.png", "fig2_tracking_error.png", "fig3_xi_hat.png", "fig4_input.png",

@@ -8,8 +8,9 @@ from pathlib import Path
 
 import pytest
 
+from qcontrol.cli.sweep_command import add_sweep_parser, cmd_sweep
 from qcontrol.errors import QcontrolInputError
-from qcontrol.sweep import CSV_METRICS, add_sweep_parser, cmd_sweep, sweep_summaries
+from qcontrol.sweep import CSV_METRICS, sweep_summaries
 from qcontrol.sweep import runs as sweep
 
 EXAMPLE2 = Path(__file__).resolve().parent.parent / "scenarios" / "example2.toml"

@@ -4,9 +4,9 @@ parts of a run, each with one job: row buffers (:mod:`.rows`), divergence bookke
 (:mod:`.records`, :mod:`.reductions`) and what it returns (:mod:`.results`)."""
 
 from .loop import RECORD_MODES, ClosedLoop, ProgressCallback, simulate
-from .records import Observer
 from .reductions import MetricSettings
 from .results import RunMetrics, RunRecord, Trajectory
+from .retention import Observer
 from .signals import SIGNALS, Separation, Signal
 
 __all__ = [

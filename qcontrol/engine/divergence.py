@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .rows import RowBuffer
+from .row_buffer import RowBuffer
 
 
 class Divergence:

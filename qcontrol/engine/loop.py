@@ -20,24 +20,25 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from ..controller.law import BatchLaw
-from ..plants.base import Plant
+from ..plants.base import Actuated, Disturbable, Plant
 from ..quantizer import Quantizer
 from ..reference import Reference
 from ..timegrid import TimeGrid
 from .divergence import Divergence
-from .records import OBSERVE_EVERY, FullRecord, MetricsRecord, Observer, RunParts
+from .fastpath import FloatRows
 from .reductions import MetricSettings
 from .reference_rows import ReferenceRows
 from .results import RunMetrics, Trajectory
-from .rows import NEVER, ArrayRows, FloatRows
-from .signals import Separation, SignalContext
-from .velocity import VELOCITY_SOURCES, differencing
+from .retention import OBSERVE_EVERY, FullRecord, MetricsRecord, Observer, RunParts
+from .row_buffer import NEVER, ArrayRows
+from .signals import Separation, SignalContext, applied_as_commanded
+from .velocity import VELOCITY_SOURCES
 
 ProgressCallback = Callable[[int, int], None]  # (row reached, last row)
 RECORD_MODES = ("full", "metrics")
 
 
-class Progress:
+class ProgressReports:
     """Reports ``(row, last row)`` to ``callback`` about every 1% of the run, and at its end."""
 
     def __init__(self, callback: ProgressCallback | None, rows: int) -> None:
@@ -57,6 +58,8 @@ class Loads:
     rows where it changes: ``changes`` are ``(row, d)`` in row order, ``d`` in u's units."""
 
     def __init__(self, plant: Plant, changes: Sequence[tuple[int, float]]) -> None:
+        if changes and not isinstance(plant, Disturbable):
+            raise ValueError(f"{type(plant).__name__} takes no external load (it is not Disturbable)")
         self.plant, self.changes, self.applied = plant, list(changes), 0
 
     def next_event(self, k: int) -> int:
@@ -81,8 +84,10 @@ class ClosedLoop:
         self.plant, self.law, self.grid = plant, law, grid
         self.divergence = Divergence(batch, grid.rows, grid.dt, state_bound, law.state_name)
         self.reference = ReferenceRows(reference, n, grid, whole=record == "full")
-        context = SignalContext(law.coordinates, separation, plant.actuator, velocity_source,
-                                plant.actuator_limited)
+        actuated = isinstance(plant, Actuated)  # else u is applied as commanded
+        actuator = plant.actuator if actuated else applied_as_commanded
+        context = SignalContext(law.coordinates, separation, actuator, velocity_source,
+                                actuated and plant.actuator_limited)
         parts = RunParts(grid, law, self.reference, self.divergence, context, metrics, batch, n)
         self.record = (FullRecord(parts, observer, observe_every) if record == "full"
                        else MetricsRecord(parts, observer))
@@ -90,8 +95,8 @@ class ClosedLoop:
                                                                                state_bound)
         self.quantize = self.rows.quantizer(quantizer)
         if velocity_source == "difference":
-            self.quantize = differencing(self.quantize, grid.hold, grid.hold * grid.dt, self.rows.floats)
-        self.progress = Progress(progress, grid.rows)
+            self.quantize = self.rows.differenced(self.quantize, grid.hold, grid.hold * grid.dt)
+        self.progress = ProgressReports(progress, grid.rows)
         self.loads = Loads(plant, loads)
 
     def next_event(self, k: int) -> int:
@@ -123,7 +128,8 @@ class ClosedLoop:
         self.record.started = time.perf_counter()
         with plant, np.errstate(all="ignore"):
             plant.reset(np.broadcast_to(np.asarray(x0, dtype=float), (plant.batch, plant.n)))
-            observe, step = plant.io(dt)
+            io = rows.plant_io(plant, dt)
+            observe, step = io.observe, io.step
             due = self.next_event(-1)
             for k in range(grid.rows):
                 x, reading = observe()

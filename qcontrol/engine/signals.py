@@ -5,7 +5,9 @@ step (drawn as steps) or interpolated, what it means, and either that the loop r
 row or the function that derives it from recorded ones (for many rows at once, after the loop
 recorded them). The engine's row buffers, the fields of :class:`~qcontrol.engine.results.Trajectory`,
 the metrics of :class:`~qcontrol.engine.results.RunMetrics` (each signal's ``reductions``), the
-saved trajectory files and the rerun series are all made from this table.
+saved trajectory files and the rerun series are all made from this table. The table holds data
+only: how recordings draw a signal (entity paths, colours, panels, twins) is
+:data:`qcontrol.recording.styles.PLOTS`, keyed by the signal's name.
 
 Adding a signal is one row plus the function that computes it; a derived signal may read the
 signals above it in the table.
@@ -15,7 +17,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -34,9 +35,6 @@ from .reductions import (
     SmallestBound,
 )
 
-if TYPE_CHECKING:
-    from .results import RunRecord
-
 Block = Mapping[str, np.ndarray]  # signals of rows [first, stop): (rows, batch, width); y_d (rows, 1, n+1)
 
 
@@ -50,7 +48,8 @@ class Separation:
     r: tuple[Expression, ...]
 
 
-def _as_commanded(u: np.ndarray) -> np.ndarray:
+def applied_as_commanded(u: np.ndarray) -> np.ndarray:
+    """The actuator of a plant that applies u as commanded."""
     return u
 
 
@@ -64,7 +63,7 @@ class SignalContext:
 
     coordinates: Backstepping
     separation: Separation | None = None
-    actuator: Callable[[np.ndarray], np.ndarray] = _as_commanded
+    actuator: Callable[[np.ndarray], np.ndarray] = applied_as_commanded
     velocity_source: str = "sensor"
     actuator_limited: bool = False
 
@@ -84,11 +83,6 @@ def _z(block: Block, ctx: SignalContext) -> np.ndarray:
 def _zbar(block: Block, ctx: SignalContext) -> np.ndarray:
     """The quantized errors (31)-(33) from the quantized reading (what the controller computed)."""
     return ctx.coordinates.quantized_errors(block["x_q"], block["yd"])[0]
-
-
-def _can_clip(run: RunRecord) -> bool:
-    """Whether the run's actuator could clip u (else ``u applied`` is u and is not drawn twice)."""
-    return run.actuator_limited
 
 
 def _u_applied(block: Block, ctx: SignalContext) -> np.ndarray:
@@ -142,46 +136,6 @@ def _quantization_error(block: Block, ctx: SignalContext) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class Guide:
-    """Constant lines a recording draws in a plot's panel, the bound the plotted signal respects:
-    one entity ``name`` in the panel, one line per legend label, at ``levels``, a function of the
-    run's Lemma 2 bounds ``L_z`` (``L_z[0] = delta/2``, the quantizer's largest error)."""
-
-    name: str
-    labels: tuple[str, ...]
-    levels: Callable[[np.ndarray], tuple[float, ...]]
-
-
-LEMMA2_BOUND = Guide("bound", ("bound 1",), lambda L_z: (1.0,))
-HALF_STEP = Guide("band", ("+delta/2", "-delta/2"), lambda L_z: (float(L_z[0]), -float(L_z[0])))
-
-
-@dataclass(frozen=True)
-class Plot:
-    """Where recordings draw a signal: one series per shown component, at ``path`` with the legend
-    ``label`` (``{i}`` is the component's number from 1, ``{a}`` the adaptive state's name; a path
-    without ``{i}`` holds all components as instances of one entity). The path's parent is the
-    series' panel (one plot of the layout: ``signals/input`` holds ``u`` and
-    whatever else is drawn there); a panel the layout does not know becomes a tab of its own.
-    ``components``: the ones shown (None: all); ``per_bound``: divided by the Lemma 2 bound L_zi;
-    ``twin``: also drawn for a twin run (the ODE beside MuJoCo: MuJoCo wide, the twin thin on
-    top); ``difference``: the panel where a twin's ``|main - twin|`` of it is drawn; ``guide``: the
-    bound drawn as constant lines in the panel; ``color``: "main", "reference", "quantized",
-    "applied" or "palette" (one colour per component); ``when``: drawn only for runs it holds
-    for (None: always)."""
-
-    path: str
-    label: str
-    components: tuple[int, ...] | None = None
-    per_bound: bool = False
-    twin: bool = False
-    difference: str | None = None
-    guide: Guide | None = None
-    color: str = "main"
-    when: Callable[[RunRecord], bool] | None = None
-
-
-@dataclass(frozen=True)
 class Signal:
     """One recorded signal.
 
@@ -190,8 +144,9 @@ class Signal:
     ``"1"`` (a scalar: its arrays have no last axis). ``derive`` is None for
     the signals the loop records every row; a derivation may read the signals above it.
     ``shared``: one value for every copy of a batch (the reference, computed from the grid).
-    ``reductions``: what a metrics-only run keeps of it (the summary reads them); ``plots``:
-    where recordings draw it.
+    ``reductions``: what a metrics-only run keeps of it (the summary reads them). Where and how
+    recordings draw a signal is theirs to say (:data:`qcontrol.recording.styles.PLOTS`, keyed by
+    the signal's name).
     """
 
     name: str
@@ -202,7 +157,6 @@ class Signal:
     derive: Derive | None = None
     shared: bool = False
     reductions: tuple[type[Reduction], ...] = ()
-    plots: tuple[Plot, ...] = ()
     reads: tuple[str, ...] = ()  # a derived signal: the signals its derivation reads
 
     @property
@@ -215,34 +169,25 @@ class Signal:
 
 
 SIGNALS: tuple[Signal, ...] = (
-    Signal("x", "n", "state", False, "true state x_1..x_n of eq. (1) (never shown to the controller)",
-           plots=(Plot("signals/tracking/y", "y", (0,), twin=True, difference="signals/difference/y"),
-                   Plot("signals/state/x{i}/x", "x{i}"))),
+    Signal("x", "n", "state", False, "true state x_1..x_n of eq. (1) (never shown to the controller)"),
     Signal("x_meas", "n", "state", False, "sensor reading of x, before quantization"),
-    Signal("x_q", "n", "state", True, "quantized reading q(x_meas), eq. (3): all the controller sees",
-           plots=(Plot("signals/state/x{i}/q", "q(x{i})", color="quantized"),)),
+    Signal("x_q", "n", "state", True, "quantized reading q(x_meas), eq. (3): all the controller sees"),
     Signal("u", "1", "input", True, "input held over [t_k, t_k + dt): law (44), (46) or a user law",
-           reductions=(LargestAbs,),
-           plots=(Plot("signals/input/u", "u", twin=True, difference="signals/difference/u"),)),
+           reductions=(LargestAbs,)),
     Signal("u_applied", "1", "input", True, "input the actuator applied: u, clipped where the actuator "
-           "saturates (the plant's actuator)", _u_applied, reads=("u",), reductions=(LargestAbsApplied,),
-           plots=(Plot("signals/input/u_applied", "u applied", color="applied", when=_can_clip),)),
+           "saturates (the plant's actuator)", _u_applied, reads=("u",), reductions=(LargestAbsApplied,)),
     Signal("saturated", "1", "-", True, "1 where the actuator clipped the command u over the step, else 0",
            _saturated, reads=("u", "u_applied"), reductions=(SaturatedFraction,)),
     Signal("adaptive", "m", "adaptive", False, "adaptive estimates (eps_hat of (45), theta_hat of (46), ...)",
-           reductions=(FinalValue,), plots=(Plot("signals/adaptive/{a}", "{a}_{i}", color="palette"),)),
-    Signal("yd", "n+1", "y", False, "reference y_d and its derivatives y_d', ..., y_d^(n)", shared=True,
-           plots=(Plot("signals/tracking/y_d", "y_d", (0,), color="reference"),)),
+           reductions=(FinalValue,)),
+    Signal("yd", "n+1", "y", False, "reference y_d and its derivatives y_d', ..., y_d^(n)", shared=True),
     Signal("z", "n", "state", False, "errors z_i of eqs. (7)-(8), from the true state", _z,
-           reads=("x", "yd"), reductions=(ErrorRate, LastHalfLargestAbs),
-           plots=(Plot("signals/error/z1", "z1", (0,), twin=True),)),
+           reads=("x", "yd"), reductions=(ErrorRate, LastHalfLargestAbs)),
     Signal("zbar", "n", "state", False, "quantized errors zbar_i of eqs. (31)-(33)", _zbar,
            reads=("x_q", "yd")),
     Signal("e_z", "n", "state", False, "Lemma 2 errors |z_i(x_meas) - zbar_i| (bound L_zi)", _e_z,
            reads=("x_meas", "yd", "zbar"),
-           reductions=(Lemma2Largest,),
-           plots=(Plot("theory/lemma2/ratios", "|e_z{i}| / L_z{i}", per_bound=True, guide=LEMMA2_BOUND,
-                       color="palette"),)),
+           reductions=(Lemma2Largest,)),
     Signal("r", "terms", "r", False,
            "bounding functions r_i(x_q) of the separation (37)-(43) (phi_1..phi_l, then psi): >= 1 required",
            _r, reads=("x_q",), reductions=(SmallestBound,)),
@@ -251,14 +196,13 @@ SIGNALS: tuple[Signal, ...] = (
            _bound_ratio, reads=("x", "x_q", "r"), reductions=(BoundConstants,)),
     Signal("quantization_error", "n", "state", False,
            "quantization error x_meas - q(x_meas) of the reading the quantizer saw (|.| <= delta/2)",
-           _quantization_error, reads=("x_meas", "x_q"),
-           plots=(Plot("signals/quantization/x{i}/error", "x{i} - q(x{i})", guide=HALF_STEP),)),
+           _quantization_error, reads=("x_meas", "x_q")),
 )
 RECORDED = tuple(s for s in SIGNALS if s.recorded)
 DERIVED = tuple(s for s in SIGNALS if s.derive is not None)
 REDUCTIONS: tuple[type[Reduction], ...] = tuple(r for s in SIGNALS for r in s.reductions)
 assert tuple(s.name for s in RECORDED) == ("x", "x_meas", "x_q", "u", "adaptive"), (
-    "the loop records exactly these, in this order (see qcontrol.engine.rows)")
+    "the loop records exactly these, in this order (see qcontrol.engine.row_buffer)")
 
 
 def needed(names: tuple[str, ...]) -> tuple[str, ...]:

@@ -1,6 +1,6 @@
-"""Figures (paper Figs. 1-8, backend overlay, sensitivity studies, Table 1, robustness): :mod:`.runs`
-draws runs, :mod:`.studies` studies and tables, :mod:`.robustness` the robustness study,
-:mod:`.common` holds what they share.
+"""Figures (paper Figs. 1-8, backend overlay, sensitivity studies, Table 1): :mod:`.run_figures`
+draws runs, :mod:`.studies` studies and tables, :mod:`.common` holds what they share (the
+robustness study's figures belong to :mod:`qcontrol.reproduce.robustness_figures`).
 
 Every function draws one matplotlib figure on the Agg canvas (never pyplot's global state, never
 a display), writes it as a PNG of exactly ``FIG_WIDTH_PX x FIG_HEIGHT_PX`` pixels and returns the
@@ -26,8 +26,7 @@ from .common import (
     PAPER_TITLES,
     Units,
 )
-from .robustness import fig_margins, fig_robustness
-from .runs import (
+from .run_figures import (
     DEFAULT_METHOD_LABELS,
     fig_adaptive,
     fig_backend_overlay,
@@ -56,9 +55,7 @@ __all__ = [
     "fig_compare_error",
     "fig_compare_output",
     "fig_input",
-    "fig_margins",
     "fig_output",
-    "fig_robustness",
     "fig_run",
     "fig_sensitivity",
     "fig_table1",

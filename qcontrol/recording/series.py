@@ -1,5 +1,5 @@
-"""The time series of a recording, made from the signal table's plots
-(:data:`qcontrol.engine.signals.SIGNALS`).
+"""The time series of a recording, made from the signal table
+(:data:`qcontrol.engine.signals.SIGNALS`) drawn as :data:`.styles.PLOTS` says.
 
 Series layout (``{L}`` a ghost run's label, ``{a}`` the adaptive state's name, ``i`` from 1)::
 
@@ -30,7 +30,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..engine import SIGNALS, Trajectory
-from ..engine.signals import Plot, Signal
+from ..engine.signals import Signal
+from .styles import PLOTS, Plot
 
 TIMELINE = "sim_time"
 Rows = slice | np.ndarray  # the rows of a run a series is read at
@@ -114,8 +115,8 @@ def _panel(template: str, i: int, adaptive: str) -> Panel:
 def _plots(run: Trajectory, twin_drawn_only: bool):
     """(signal, plot, components) of every entity the table draws for a run."""
     for signal in SIGNALS:
-        for plot in signal.plots:
-            if (twin_drawn_only and not plot.twin) or (plot.when is not None and not plot.when(run)):
+        for plot in PLOTS.get(signal.name, ()):
+            if (twin_drawn_only and not plot.twin) or (plot.only_if_clipping and not run.actuator_limited):
                 continue
             for shown in _groups(signal, plot, run):
                 yield signal, plot, shown

@@ -9,19 +9,37 @@ of every body (and, for the main run, of the target marker) every 10 ms of simul
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from ..engine import Trajectory
 from .scene import Scene
-from .series import RED, TIMELINE, GuideLine, Series, differences, guide_lines, run_series
+from .series import RED, TIMELINE, GuideLine, Panel, Series, differences, guide_lines, run_series
 
 if TYPE_CHECKING:
     import rerun as rr
 
-    from .recording import Recording
+
+class StreamTarget(Protocol):
+    """What a run's streamer uses of its recording (:class:`~.recording.Recording` is one): the
+    open stream, flushing, the camera's view of the motion, the layout's panels, and the main
+    run's series and label (a twin restyles the first and names the second in its differences)."""
+
+    main_series: list[Series]
+    main_label: str
+
+    @property
+    def stream(self) -> Any: ...  # rr.RecordingStream, or None once closed
+
+    def flush(self, wait: bool = True) -> None: ...
+
+    def see_motion(self, positions: np.ndarray) -> None: ...
+
+    def update_layout(self, final: bool = False) -> None: ...
+
+    def add_panels(self, panels: list[Panel]) -> None: ...
 
 
 def time_nanoseconds(t: ArrayLike) -> np.ndarray:
@@ -65,7 +83,7 @@ def log_style(stream: rr.RecordingStream, series: Series) -> None:
 class RunStreamer:
     """The observer of one run (``role``: "main", "twin" or "comparison"); see the module docstring."""
 
-    def __init__(self, recording: Recording, label: str, suffix: str, role: str, scene: Scene | None,
+    def __init__(self, recording: StreamTarget, label: str, suffix: str, role: str, scene: Scene | None,
                  world: str, twin_of: Trajectory | None) -> None:
         self.recording = recording
         self.label = label
@@ -79,7 +97,7 @@ class RunStreamer:
         self.differences: list[Series] = []
 
     def __call__(self, start: int, stop: int, runs: list[Trajectory]) -> None:
-        stream = self.recording._stream
+        stream = self.recording.stream
         if stream is None or not runs:
             return
         run = runs[0]
@@ -118,7 +136,7 @@ class RunStreamer:
         the main run's series it is drawn on (wide) and adds its differences."""
         import rerun as rr
 
-        stream, recording = self.recording._stream, self.recording
+        stream, recording = self.recording.stream, self.recording
         self.series = run_series(run, self.label, self.role, self.suffix)
         for s in self.series:
             log_style(stream, s)
@@ -151,7 +169,7 @@ class RunStreamer:
             against[same] = d.values(main, index[same])
             with np.errstate(invalid="ignore"):
                 gap = np.abs(against - d.values(run, rows))
-            self.recording._stream.send_columns(d.path, indexes=[times],
+            self.recording.stream.send_columns(d.path, indexes=[times],
                                                 columns=rr.Scalars.columns(scalars=gap))
 
     def _send_poses(self, run: Trajectory, rows: slice) -> None:
@@ -159,7 +177,7 @@ class RunStreamer:
         fall on the pose grid (:func:`pose_rows`)."""
         import rerun as rr
 
-        stream, scene = self.recording._stream, self.scene
+        stream, scene = self.recording.stream, self.scene
         picked = pose_rows(rows, run.dt)
         if not len(picked):
             return

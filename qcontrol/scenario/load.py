@@ -1,4 +1,4 @@
-"""Scenario files: TOML -> validated :class:`~qcontrol.scenario.model.Scenario`.
+"""Scenario files: TOML -> a validated :class:`Scenario`.
 
 A scenario is data: the plant (order, psi, phi, theta, x0, and a model per backend), the
 controller (kind, delta, gains and the kind's own settings), the reference, and the simulation
@@ -13,23 +13,24 @@ from __future__ import annotations
 import copy
 import tomllib
 from collections.abc import Mapping, Sequence
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..controller.law import LawContext, law_kind
-from ..disturbance import parse_disturbances
+from ..disturbance import Disturbance, parse_disturbances
 from ..engine import MetricSettings
 from ..errors import QcontrolInputError
-from ..expr import compile_expression
+from ..expr import Expression, compile_expression
 from ..plants.backends import BACKENDS, PlantContext
 from ..plants.base import PlantTerms
 from ..reference import REFERENCE_KINDS
 from ..resources import scenario_path, shipped_scenarios
 from ..schema import Section, Table, kind_table, read_keys, show_key
 from ..timegrid import TimeGrid
+from .definition import ControllerConfig, ReferenceConfig, SimulationConfig
 from .keys import (
     MAX_STEPS,
     METRICS,
@@ -41,9 +42,62 @@ from .keys import (
     scenario_section,
     simulation_section,
 )
-from .model import ControllerConfig, ReferenceConfig, Scenario, SimulationConfig
 
 Overrides = Sequence[str] | Mapping[str, Any]  # "key=value" strings (the value read as TOML), or a dict
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A validated scenario. Expressions are compiled once (``psi_expr``, ``phi_expr``); each
+    ``[plant.<backend>]`` section is parsed into ``backends[name]`` by its backend; the
+    ``[[disturbance]]`` list into ``disturbances``."""
+
+    name: str
+    description: str
+    source: str  # where it came from (file path or "<string>")
+    text: str  # the TOML text as read
+    overrides: tuple[str | tuple[str, Any], ...]  # as given: "key=value" strings or (key, value) pairs
+    order: int
+    psi: str | None
+    phi: tuple[str, ...]
+    theta: tuple[float, ...]
+    x0: tuple[float, ...]
+    controller: ControllerConfig
+    reference: ReferenceConfig
+    simulation: SimulationConfig
+    backends: dict[str, Any] = field(default_factory=dict)
+    disturbances: tuple[Disturbance, ...] = ()
+    metrics: MetricSettings = field(default_factory=MetricSettings)
+    data: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)  # the TOML after overrides
+    base_dir: Path = field(default=Path("."), repr=False, compare=False)  # paths in it are relative to it
+    psi_expr: Expression | None = field(default=None, repr=False)
+    phi_expr: tuple[Expression, ...] = field(default=(), repr=False)
+    unset: tuple[str, ...] = ()  # keys removed from the file (--unset) before the overrides
+    paper_example: int | None = None  # the paper's example this scenario reproduces, if any
+
+    def with_overrides(self, overrides: Mapping[str, Any] | Sequence[str]) -> Scenario:
+        """A new scenario: this one's file with its overrides and then ``overrides`` (a dict
+        ``{"controller.kappa_margin": 0.1}`` or ``"key=value"`` strings) applied. Scenarios are
+        immutable: this one is unchanged."""
+        return parse_scenario(self.text, source=self.source, base_dir=self.base_dir,
+                              overrides=(*self.overrides, *_as_given(overrides)), default_name=self.name,
+                              unset=self.unset)
+
+    @property
+    def terms(self) -> PlantTerms:
+        """The right-hand side of eq. (1) as the plants are built from it."""
+        return PlantTerms(self.order, self.psi_expr, self.phi_expr, self.theta)
+
+    @property
+    def law_context(self) -> LawContext:
+        """What the controller kind reads of the scenario (see :class:`LawContext`)."""
+        c = self.controller
+        return LawContext(self.source, self.order, c.delta, c.c, self.psi_expr, self.phi_expr, self.theta)
+
+    @property
+    def uncertain_terms(self) -> int:
+        """Entries of eps, eqs. (37)-(43): one per phi_i, plus one for psi."""
+        return len(self.phi) + (self.psi is not None)
 
 
 def load_scenario(path: str | Path, overrides: Overrides = (), unset: Sequence[str] = ()) -> Scenario:

@@ -13,7 +13,7 @@ import tomli_w
 from ..plants.backends import BACKENDS
 from ..provenance import provenance, sha256
 from ..resources import resolve_file, shipped_label
-from .model import Scenario
+from .load import Scenario
 
 
 def resolved_toml(sc: Scenario) -> str:

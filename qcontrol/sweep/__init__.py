@@ -1,7 +1,7 @@
 """Parameter sweeps: many variants of one scenario, batched (:mod:`.runs`), from grids of values
-(:mod:`.grid`), tabulated (:mod:`.table`); the command ``qcontrol sweep`` (:mod:`.command`)."""
+(:mod:`.grid`), tabulated (:mod:`.table`); the command ``qcontrol sweep`` is
+:mod:`qcontrol.cli.sweep_command`."""
 
-from .command import add_sweep_parser, cmd_sweep
 from .grid import grid_points, parse_grid
 from .runs import CHUNK, SweepInterrupted, plan, run_batch, sweep_summaries
 from .table import CSV_METRICS, csv_text, sweep_rows
@@ -10,8 +10,6 @@ __all__ = [
     "CHUNK",
     "CSV_METRICS",
     "SweepInterrupted",
-    "add_sweep_parser",
-    "cmd_sweep",
     "csv_text",
     "grid_points",
     "parse_grid",

@@ -34,8 +34,8 @@ from ..workers import worker_count, worker_pool
 
 CHUNK = 250  # runs per batch: fixed, so every executor runs the same batches
 DASK_CONNECT_TIMEOUT = 10.0  # seconds to reach a --scheduler
-Progress = Callable[[int, int], None]  # (runs done, runs in total)
-Task = tuple[str, list[list[str]], str, list[str]]  # (path, override sets of a chunk, backend, unset)
+RunsDone = Callable[[int, int], None]  # (runs done, runs in total)
+ChunkJob = tuple[str, list[list[str]], str, list[str]]  # (path, override sets of a chunk, backend, unset)
 
 
 class SweepInterrupted(KeyboardInterrupt):
@@ -85,7 +85,7 @@ def sweep_summaries(
     backend: str = "ode",
     workers: int = 1,
     scheduler: str | None = None,
-    progress: Progress | None = None,
+    progress: RunsDone | None = None,
     chunks: list[list[int]] | None = None,
     unset: Sequence[str] = (),
 ) -> list[dict]:
@@ -128,7 +128,7 @@ def sweep_summaries(
     return results  # type: ignore[return-value]
 
 
-def _on_workers(workers: int, chunks: list[list[int]], tasks: list[Task],
+def _on_workers(workers: int, chunks: list[list[int]], tasks: list[ChunkJob],
                 store: Callable[[list[int], list[dict]], None]) -> None:
     """The chunks on local worker processes (copies of this one: registered laws included)."""
     pool = worker_pool(workers)
@@ -142,7 +142,7 @@ def _on_workers(workers: int, chunks: list[list[int]], tasks: list[Task],
         pool.join()
 
 
-def _on_dask(address: str, tasks: list[Task]) -> list[list[dict]]:
+def _on_dask(address: str, tasks: list[ChunkJob]) -> list[list[dict]]:
     """Run the chunks on an existing Dask cluster (optional extra ``cluster``)."""
     try:
         from distributed import Client

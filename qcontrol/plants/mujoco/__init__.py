@@ -12,7 +12,7 @@ from collections.abc import Hashable, Sequence
 from typing import TYPE_CHECKING
 
 from ...schema import Table
-from ..backends import Backend, PlantContext, Scene
+from ..backends import Backend, PlantContext, SceneSource
 from ..base import PlantTerms
 from .options import SECTION, MujocoOptions
 from .options import parse as parse_options
@@ -24,7 +24,7 @@ if TYPE_CHECKING:
 def parse(table: Table, ctx: PlantContext) -> MujocoOptions:
     """The options, and the model compiled with the scenario's dt: wrong element names and compile
     errors are reported when the scenario loads (the plant reuses the compiled model)."""
-    from .model import compiled
+    from .mjcf import compiled
 
     options = parse_options(table, ctx.terms, ctx.base_dir)
     compiled(options, ctx.dt)
@@ -44,20 +44,21 @@ def structure(terms: PlantTerms, options: MujocoOptions) -> Hashable:
     return terms.order, psi, tuple(p.source for p in terms.phi), terms.theta, options
 
 
-def scene(options: MujocoOptions, dt: float) -> Scene:
-    from .model import build_model
+def scene(options: MujocoOptions, dt: float) -> SceneSource:
+    from .mjcf import build_model
 
-    return Scene(build_model(options, dt), options.joint)
+    return SceneSource(build_model(options, dt), options.joint)
 
 
 def inertia(options: MujocoOptions, dt: float) -> float:
     """The nominal joint inertia I (``mj_fullM``, realism options off): u's gain to a torque."""
-    from .model import compiled
+    from .mjcf import compiled
 
     return compiled(options, dt).inertia
 
 
-BACKEND = Backend("mujoco", SECTION, parse, build, structure, scene,
-                  "MuJoCo physics of an MJCF model (order 2: one joint)", inertia)
+BACKEND = Backend(name="mujoco", build=build, structure=structure,
+                  summary="MuJoCo physics of an MJCF model (order 2: one joint)",
+                  section=SECTION, parse=parse, scene=scene, inertia=inertia)
 
 __all__ = ["BACKEND", "MujocoOptions"]

@@ -7,47 +7,58 @@ first plant is restored after the last. A term of eq. (1) with no rigid-body cou
 RK4 calls the callback at each of its four stages, so MuJoCo and the ODE integrate the same
 vector field with the same scheme.
 
-MuJoCo's default warning handler appends to ``MUJOCO_LOG.TXT`` in the working folder. Importing
-this module replaces it for the whole process with :func:`collect_warnings`' sinks: a plant
-collects its run's warnings (a blow-up is reported as a divergence), and warnings outside any run
-(e.g. of the model check at load) are kept in :data:`UNCLAIMED_WARNINGS`, never written to disk.
+MuJoCo's default warning handler appends to ``MUJOCO_LOG.TXT`` in the working folder. While a
+:func:`collect_warnings` block is open (a plant's run, a model compiled or checked at load:
+:func:`kept_aside`) the handler is this module's: a plant collects its run's warnings (a blow-up is
+reported as a divergence), and warnings of the model checks are kept in
+:data:`UNCLAIMED_WARNINGS`, never written to disk. When the last block closes, the handler found
+before the first one is restored: importing this module changes nothing.
 """
 
 from __future__ import annotations
 
-import math
+import contextlib
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
 
 import mujoco
 
-from ...expr import ScalarFn
-
-GeneralizedForce = Callable[[float, float], float]  # (qpos, qvel) -> generalized force
+from ...expr import FLOAT_REFUSED, Expression, scalar_function
 
 _ENTRIES: dict[int, Callable[[], None]] = {}  # id(MjData) -> adds the non-native terms to it
 _PREVIOUS: list[Any] = []  # the passive callback that was installed before the dispatcher
 UNCLAIMED_WARNINGS: list[str] = []  # warnings while no run collects them (the last 100)
 _SINKS: list[list[str]] = []  # the innermost collecting run's list is last
+_PREVIOUS_WARNING: list[Any] = []  # the warning handler found when the first block opened
 
 
-def generalized_force(terms: Sequence[tuple[float, ScalarFn]], inertia: float) -> GeneralizedForce:
-    """``(q, v) -> I * sum(coefficient * term(q, v))`` on plain floats, NaN where a term is
-    undefined (see :func:`qcontrol.expr.scalar_function`)."""
-    pairs = tuple((inertia * c, f) for c, f in terms)
+class GeneralizedForce:
+    """``force(q, v) = I * sum(coefficient * term(q, v))`` on plain floats: the terms of eq. (1)
+    MuJoCo's own physics does not produce, as a generalized force on the joint. Where ``math``
+    refuses a term (:data:`~qcontrol.expr.FLOAT_REFUSED`), the one fallback rule: numpy's answer
+    (:meth:`~qcontrol.expr.Expression.on_floats`)."""
 
-    def force(q: float, v: float) -> float:
+    def __init__(self, terms: Sequence[tuple[float, Expression]], inertia: float) -> None:
+        self.fast = tuple((inertia * c, scalar_function(e)) for c, e in terms)
+        self.safe = tuple((inertia * c, e.on_floats) for c, e in terms)
+
+    def at(self, q: float, v: float) -> float:
         xs = (q, v)
         total = 0.0
         try:
-            for c, f in pairs:
+            for c, f in self.fast:
                 total += c * f(xs)
-        except (ValueError, ZeroDivisionError, OverflowError):
-            return math.nan
+        except FLOAT_REFUSED:
+            return self._total(self.safe, xs)
         return total
 
-    return force
+    @staticmethod
+    def _total(pairs: tuple, xs: tuple[float, float]) -> float:
+        total = 0.0
+        for c, f in pairs:
+            total += c * f(xs)
+        return total
 
 
 def _dispatch(model: mujoco.MjModel, data: mujoco.MjData) -> None:
@@ -59,13 +70,17 @@ def _dispatch(model: mujoco.MjModel, data: mujoco.MjData) -> None:
         _PREVIOUS[0](model, data)
 
 
-def _applier(data: mujoco.MjData, qadr: int, dof: int, force: GeneralizedForce) -> Callable[[], None]:
-    qpos, qvel, qfrc = data.qpos, data.qvel, data.qfrc_passive  # views, made once
+class PassiveApplier:
+    """Adds the non-native terms to one MjData's ``qfrc_passive`` (the dispatcher calls
+    :meth:`apply` with MuJoCo's every evaluation of the passive forces)."""
 
-    def apply() -> None:
-        qfrc[dof] += force(qpos.item(qadr), qvel.item(dof))
+    def __init__(self, data: mujoco.MjData, qadr: int, dof: int, force: GeneralizedForce) -> None:
+        self.qpos, self.qvel, self.qfrc = data.qpos, data.qvel, data.qfrc_passive  # views, made once
+        self.qadr, self.dof, self.force = qadr, dof, force.at
 
-    return apply
+    def apply(self) -> None:
+        dof = self.dof
+        self.qfrc[dof] += self.force(self.qpos.item(self.qadr), self.qvel.item(dof))
 
 
 @contextmanager
@@ -82,7 +97,7 @@ def passive_forces(datas: Sequence[mujoco.MjData], qadr: int, dof: int,
     keys = []
     try:
         for data in datas:
-            _ENTRIES[id(data)] = _applier(data, qadr, dof, force)
+            _ENTRIES[id(data)] = PassiveApplier(data, qadr, dof, force).apply
             keys.append(id(data))
         yield
     finally:
@@ -94,22 +109,34 @@ def passive_forces(datas: Sequence[mujoco.MjData], qadr: int, dof: int,
 
 
 def _warn(message: str) -> None:
-    """The process's MuJoCo warning handler: into the collecting run's list, else kept aside."""
-    if _SINKS:
-        _SINKS[-1].append(message)
-    else:
-        UNCLAIMED_WARNINGS.append(message)
+    """MuJoCo's warning handler while a block is open: into the innermost block's list."""
+    sink = _SINKS[-1] if _SINKS else UNCLAIMED_WARNINGS
+    sink.append(message)
+    if sink is UNCLAIMED_WARNINGS:
         del UNCLAIMED_WARNINGS[:-100]
 
 
 @contextmanager
 def collect_warnings(sink: list[str]) -> Iterator[None]:
-    """MuJoCo's warnings go to ``sink`` inside the block (nested blocks: the innermost)."""
+    """MuJoCo's warnings go to ``sink`` inside the block (nested blocks: the innermost); the
+    handler is installed by the first block and the previous one restored after the last."""
+    if not _SINKS:
+        _PREVIOUS_WARNING[:] = [mujoco.get_mju_user_warning()]
+        mujoco.set_mju_user_warning(_warn)
     _SINKS.append(sink)
     try:
         yield
-    finally:
-        _SINKS.remove(sink)
+    finally:  # by identity: two sinks may be equal lists
+        del _SINKS[max(i for i, open_sink in enumerate(_SINKS) if open_sink is sink)]
+        if not _SINKS:
+            mujoco.set_mju_user_warning(_PREVIOUS_WARNING[0] if _PREVIOUS_WARNING else None)
+            _PREVIOUS_WARNING.clear()
+
+
+def kept_aside() -> contextlib.AbstractContextManager[None]:
+    """A block whose MuJoCo warnings (compiling or checking a model outside any run) are kept in
+    :data:`UNCLAIMED_WARNINGS` (the last 100), not written to disk."""
+    return collect_warnings(UNCLAIMED_WARNINGS)
 
 
 def unstable(messages: Sequence[str]) -> bool:
@@ -123,5 +150,3 @@ def unstable(messages: Sequence[str]) -> bool:
     """
     return any("unstable" in m for m in messages)
 
-
-mujoco.set_mju_user_warning(_warn)

@@ -17,7 +17,7 @@ import numpy as np
 from ...errors import QcontrolInputError
 from ..base import PlantTerms
 from .callbacks import GeneralizedForce, passive_forces
-from .model import CompiledModel
+from .mjcf import CompiledModel
 from .options import MujocoOptions
 
 SAMPLES = 300

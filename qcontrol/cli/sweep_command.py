@@ -28,9 +28,10 @@ from ..progress import ProgressLine
 from ..provenance import command_line
 from ..scenario import load_scenario
 from ..scenario.resolve import scenario_provenance
-from .grid import check_size, grid_points, parse_grid
-from .runs import SweepInterrupted, plan, sweep_summaries
-from .table import csv_text, metric_columns, sweep_record, sweep_rows
+from ..sweep.grid import check_size, grid_points, parse_grid
+from ..sweep.runs import SweepInterrupted, plan, sweep_summaries
+from ..sweep.table import csv_text, metric_columns, sweep_record, sweep_rows
+from .arguments import EXIT_OK, add_scenario_options
 
 OUTPUTS = ("sweep.csv", "sweep.json", "sweep.png")
 
@@ -48,17 +49,15 @@ def add_sweep_parser(subparsers: argparse._SubParsersAction) -> None:
         "DIR/sweep.partial.csv and sweep.partial.json, leaving a complete sweep's files as they were. "
         "Exit status: 0 ok, 2 bad input, 3 an output could not be written, 130 interrupted, 143 terminated.",
     )
-    p.add_argument("scenario", type=Path, help="scenario file (TOML) or a shipped scenario's name")
+    add_scenario_options(p, timing=False, scenario_help="scenario file (TOML) or a shipped scenario's name",
+                         set_help="a fixed override for every run, e.g. simulation.duration=2.0",
+                         unset_help="remove a key of the scenario file for every run, e.g. --unset "
+                         "reference.amplitude (repeatable; applied before --set and --grid)")
     p.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2,...",
                    help="a scenario key and its values, e.g. controller.kappa_margin=0.1,0.5,1.1 "
                    "(repeatable: the product of all grids is run); values are split at the commas "
                    "outside brackets and quotes: plant.x0=[0.1,0.2],[0.3,0.4] or "
                    "plant.psi='\"min(x1, x2)\"','\"x1\"'")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="a fixed override for every run, e.g. simulation.duration=2.0")
-    p.add_argument("--unset", dest="unset", action="append", default=[], metavar="KEY",
-                   help="remove a key of the scenario file for every run, e.g. --unset reference.amplitude "
-                   "(repeatable; applied before --set and --grid)")
     p.add_argument("--random-initial", type=int, default=0, metavar="N",
                    help="N random initial states x0 ~ U[-1, 1]^n per grid point (at most 1000000 runs "
                    "in all)")
@@ -71,7 +70,6 @@ def add_sweep_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="send the runs to a running Dask scheduler (needs qcontrol[cluster])")
     p.add_argument("--out", type=Path, default=Path("sweep"), metavar="DIR",
                    help="output folder (default: ./sweep)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(command_line=None)  # the command line's main() names the command it runs
 
 
@@ -134,4 +132,4 @@ def cmd_sweep(args: argparse.Namespace) -> int:
               f"({out / OUTPUTS[0]} and the others are unchanged)")
         raise interrupted
     print(f"  wrote {csv_path}, {json_path} and {png_path}")
-    return 0
+    return EXIT_OK

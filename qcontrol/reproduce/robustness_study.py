@@ -27,11 +27,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .assembly import run_scenario, scene
-from .metrics import finite_max_abs
-from .scenario import Scenario, load_scenario
-from .sweep import run_batch
-from .workers import worker_count, worker_pool
+from ..assembly import run_scenario, scene
+from ..metrics import finite_max_abs
+from ..scenario import Scenario, load_scenario
+from ..sweep import run_batch
+from ..workers import worker_count, worker_pool
 
 SEEDS = tuple(range(1, 21))  # sensor-noise seeds of every row with noise on
 LAWS = (("proposed", ()), ("comparison", ("controller.kind=baseline",)))
@@ -72,7 +72,7 @@ DISTURBANCES = (
 
 
 @dataclass(frozen=True)
-class Task:
+class StudyJob:
     """One run of the study: a scenario file, its overrides and the backend (picklable)."""
 
     path: str
@@ -80,7 +80,7 @@ class Task:
     backend: str
 
 
-def _summary(task: Task) -> dict:
+def _summary(task: StudyJob) -> dict:
     """Worker entry point: the summary of one run (metrics only)."""
     return run_batch([load_scenario(task.path, list(task.overrides))], task.backend)[0]
 
@@ -94,7 +94,7 @@ class Errors:
     diverged: bool
 
 
-def _errors(task: Task) -> Errors:
+def _errors(task: StudyJob) -> Errors:
     """Worker entry point: the tracking error of one run (full record)."""
     run = run_scenario(load_scenario(task.path, list(task.overrides)), task.backend)
     return Errors(run.t, run.z[:, 0].copy(), bool(run.diverged))
@@ -172,10 +172,10 @@ def _physics_free(overrides: Sequence[str]) -> tuple[str, ...]:
 class Plan:
     """Every task of the study, each run once, and how the rows find their summaries."""
 
-    tasks: list[Task]
-    index: dict[Task, int]
+    tasks: list[StudyJob]
+    index: dict[StudyJob, int]
 
-    def add(self, task: Task) -> Task:
+    def add(self, task: StudyJob) -> StudyJob:
         if task not in self.index:
             self.index[task] = len(self.tasks)
             self.tasks.append(task)
@@ -201,15 +201,16 @@ def robustness_study(scenarios: Path, duration: float | None, workers: int,
                 rows.append({"example": ideal, "imperfection": label, "law": law, "scenario": Path(path).stem,
                              "overrides": list(sets[0][: len(overrides)]),
                              "seeds": list(SEEDS) if noisy else None,
-                             "mujoco": [plan.add(Task(path, s, "mujoco")) for s in sets],
-                             "ode": [plan.add(Task(path, _physics_free(sets[0]), "ode"))]})
+                             "mujoco": [plan.add(StudyJob(path, s, "mujoco")) for s in sets],
+                             "ode": [plan.add(StudyJob(path, _physics_free(sets[0]), "ode"))]})
             for label, unit, values, templates in MARGINS[ideal]:
                 for v in values:
                     overrides = tuple(t.format(v=v) for t in templates)
                     margins.append({"example": ideal, "imperfection": label, "unit": unit, "value": v,
                                     "law": law, "overrides": list(overrides),
-                                    "mujoco": [plan.add(Task(ideal_path, (*overrides, *law_overrides, *extra),
-                                                             "mujoco"))]})
+                                    "mujoco": [plan.add(StudyJob(ideal_path,
+                                                                 (*overrides, *law_overrides, *extra),
+                                                                 "mujoco"))]})
         if ideal == "example2":
             disturbances += _disturbance_cases(ideal_path, real_path, real.simulation.duration, extra)
     workers = worker_count(workers, len(plan.tasks))
@@ -244,12 +245,13 @@ def _disturbance_cases(ideal_path: str, real_path: str, duration: float,
                     overrides = (template.format(t=start), *law_overrides, *extra)
                     cases.append({"plant": plant, "scenario": Path(path).stem, "disturbance": kind,
                                   "law": law, "backend": backend, "start": start, "overrides": [overrides[0]],
-                                  "delta": delta, "task": Task(path, overrides, backend),
-                                  "quiet": Task(path, ("disturbance=[]", *law_overrides, *extra), backend)})
+                                  "delta": delta, "task": StudyJob(path, overrides, backend),
+                                  "quiet": StudyJob(path, ("disturbance=[]", *law_overrides, *extra),
+                                                    backend)})
     return cases
 
 
-def _execute(tasks: list[Task], full: list[Task], workers: int) -> tuple[list[dict], list[Errors]]:
+def _execute(tasks: list[StudyJob], full: list[StudyJob], workers: int) -> tuple[list[dict], list[Errors]]:
     """Every task's summary and every full run's tracking error, in order."""
     if workers <= 1:
         return [_summary(t) for t in tasks], [_errors(t) for t in full]

@@ -14,20 +14,15 @@ written; on success one line says what was checked (exit status 0).
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable
 
-from .assembly import build_controller, build_plant, runnable_backend
-from .plants import BACKENDS
-from .scenario import Scenario
-
-EXIT_OK = 0
+from ..assembly import build_controller, build_plant, runnable_backend
+from ..plants import BACKENDS
+from ..scenario import Scenario
+from .arguments import EXIT_OK, add_scenario_options, scenario_from_args
 
 
-def add_check_parser(subparsers: argparse._SubParsersAction,
-                     add_scenario_options: Callable[[argparse.ArgumentParser], None],
-                     load: Callable[[argparse.Namespace], Scenario]) -> None:
-    """Register ``qcontrol check`` with the scenario options every running command takes and the
-    command line's ``load`` (the scenario with --set, --unset, --duration and --dt applied)."""
+def add_check_parser(subparsers: argparse._SubParsersAction) -> None:
+    """Register ``qcontrol check`` with the scenario options every running command takes."""
     p = subparsers.add_parser(
         "check",
         help="validate a scenario (keys, expressions, MJCF consistency) without running it",
@@ -38,12 +33,11 @@ def add_check_parser(subparsers: argparse._SubParsersAction,
     add_scenario_options(p)
     p.add_argument("--backend", choices=tuple(BACKENDS),
                    help="the backend to check for (default: the scenario's)")
-    p.set_defaults(load=load)
 
 
 def cmd_check(args: argparse.Namespace) -> int:
     """Validate the scenario and build its law and each backend's plant; print one line."""
-    sc = args.load(args)
+    sc = scenario_from_args(args)
     backend = runnable_backend(sc, args.backend)
     build_controller(sc)
     built = [_plant_note(sc, name) for name in _backends_to_build(sc, backend)]

@@ -20,20 +20,21 @@ from pathlib import Path
 
 import numpy as np
 
-from . import plots
-from .api import observer_for, recording_for
-from .assembly import run_scenario
-from .controller import lemma2_L
-from .engine import Trajectory
-from .metrics import backend_deviation, summary
-from .outputs import check_output_dir, prepare_output_dir, staged, write_json, write_text
-from .plants import BACKENDS
+from .. import plots
+from ..api import observer_for, recording_for
+from ..assembly import run_scenario
+from ..controller import lemma2_L
+from ..engine import Trajectory
+from ..metrics import backend_deviation, summary
+from ..outputs import check_output_dir, prepare_output_dir, staged, write_json, write_text
+from ..plants import BACKENDS
+from ..resources import shipped_dir
+from ..scenario import Scenario, load_scenario
+from ..scenario.resolve import scenario_provenance, scenarios_provenance
+from ..sweep import sweep_summaries
 from .report import PAPER_TABLE1, ReportFacts, report_markdown, table1, table1_markdown
-from .resources import shipped_dir
-from .robustness import EXAMPLES, default_workers, robustness_study
-from .scenario import Scenario, load_scenario
-from .scenario.resolve import scenario_provenance, scenarios_provenance
-from .sweep import sweep_summaries
+from .robustness_figures import fig_margins, fig_robustness
+from .robustness_study import EXAMPLES, default_workers, robustness_study
 
 SCENARIO_DIR = shipped_dir("scenarios")
 KAPPA_MARGINS = (0.05, 0.1, 0.2, 0.3, 0.5, 0.75, 1.1, 1.5, 2.0)
@@ -192,8 +193,8 @@ def _robustness(o: Path, rep: Reproduction, workers: int | None) -> dict:
     hardware = {name: rep.scenario(name) for name in ROBUSTNESS_SCENARIOS}
     provenance = scenarios_provenance(hardware, rep.command)
     write_json(o / "robustness.json", robustness | {"provenance": provenance})
-    plots.fig_robustness(robustness, o / "study_robustness.png")
-    plots.fig_margins(robustness, o / "study_margins.png")
+    fig_robustness(robustness, o / "study_robustness.png")
+    fig_margins(robustness, o / "study_margins.png")
     return robustness
 
 

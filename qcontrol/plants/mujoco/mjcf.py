@@ -25,6 +25,7 @@ import mujoco
 import numpy as np
 
 from ...errors import QcontrolInputError
+from .callbacks import kept_aside
 from .options import MujocoOptions
 
 INTEGRATORS = {
@@ -79,10 +80,11 @@ def build_model(options: MujocoOptions, timestep: float | None = None) -> mujoco
 
 @lru_cache(maxsize=64)
 def _compiled(options: MujocoOptions, timestep: float | None, content_sha256: str) -> CompiledModel:
-    model, ids = _compile(options, timestep)
-    nominal = model if not (options.armature or options.rod_mass) else _compile(options.nominal(),
-                                                                                timestep)[0]
-    return CompiledModel(model, ids, joint_inertia(nominal))
+    with kept_aside():  # MuJoCo's warnings while compiling: never to MUJOCO_LOG.TXT
+        model, ids = _compile(options, timestep)
+        nominal = model if not (options.armature or options.rod_mass) else _compile(options.nominal(),
+                                                                                    timestep)[0]
+        return CompiledModel(model, ids, joint_inertia(nominal))
 
 
 def _fail(options: MujocoOptions) -> Fail:

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 from matplotlib.axes import Axes
 
-from ..robustness_report import E, show_amount
-from .common import COLORS, new_figure, save
+from ..plots.common import COLORS, new_figure, save
+from .robustness_report import E, show_amount
 
 LAW_COLORS = {"proposed": COLORS[0], "comparison": COLORS[1]}
 EXAMPLE_TITLES = {"example2": "Example 2, the arm", "example1": "Example 1, the cart"}

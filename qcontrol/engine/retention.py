@@ -1,6 +1,6 @@
 """What a run keeps: every row (:class:`FullRecord`) or only its metrics (:class:`MetricsRecord`).
 
-Both receive the loop's rows through a :class:`~qcontrol.engine.rows.RowBuffer`, derive the
+Both receive the loop's rows through a :class:`~qcontrol.engine.row_buffer.RowBuffer`, derive the
 signals the loop does not record (z, zbar, e_z: :func:`~qcontrol.engine.signals.derive`) for many
 rows at once, hand finished rows to an observer (a recording streams them to disk while the run
 goes on), and tell the loop at which rows they need it to stop and call :meth:`at`.
@@ -20,7 +20,7 @@ from .divergence import Divergence
 from .reductions import Chunk, MetricSettings
 from .reference_rows import ReferenceRows
 from .results import RunMetrics, Trajectory
-from .rows import NEVER, RowBuffer
+from .row_buffer import NEVER, RowBuffer
 from .signals import DERIVED, REDUCTIONS, SIGNALS, SignalContext, derive, needed
 
 # observer(start_row, stop_row, runs): rows [start_row, stop_row) of every run are final and may

@@ -5,19 +5,11 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from .metrics import TABLE1_OMEGAS, omega_key
+from ..paper import METHOD_LABELS, OMEGA_KEYS, PAPER_TABLE1, PAPER_TABLE1_ROWS
 from .robustness_report import robustness_section
 
-OMEGA_KEYS = [omega_key(w) for w in TABLE1_OMEGAS]
-
-# Sun et al. (2022), Table 1: error rate E(omega) on Example 2 (M = 1302 samples over T = 10 s).
-PAPER_TABLE1: dict[str, dict[str, float]] = {
-    "proposed": dict(zip(OMEGA_KEYS, (0.0253, 0.0223, 0.0200, 0.0177, 0.0161), strict=True)),
-    "comparison": dict(zip(OMEGA_KEYS, (0.9570, 0.9339, 0.9132, 0.8925, 0.8679), strict=True)),
-}
-METHOD_LABELS = {"proposed": "proposed (44)-(45)", "comparison": "comparison [20], eq. (46)"}
-# The row of Table 1 that a run of each controller kind is compared with.
-PAPER_TABLE1_ROWS = {"proposed": "proposed", "baseline": "comparison"}
+__all__ = ["METHOD_LABELS", "OMEGA_KEYS", "PAPER_TABLE1", "PAPER_TABLE1_ROWS", "ReportFacts",
+           "report_markdown", "table1", "table1_markdown"]
 
 
 def table1(ours: Mapping[str, Mapping[str, Mapping[str, float]]]) -> dict:

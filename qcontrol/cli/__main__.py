@@ -1,0 +1,7 @@
+"""``python -m qcontrol.cli``: the ``qcontrol`` command."""
+
+import sys
+
+from .dispatch import main
+
+sys.exit(main())

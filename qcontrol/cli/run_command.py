@@ -1,0 +1,85 @@
+"""``qcontrol run``: one closed loop, its printed summary, and summary.json, the trajectory file,
+the figure and the recording it was asked for."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from .. import api
+from ..assembly import runnable_backend
+from ..errors import QcontrolInputError
+from ..outputs import prepare_output_dir, write_json
+from ..plants import BACKENDS
+from .arguments import (
+    add_recording_options,
+    add_scenario_options,
+    check_outputs,
+    progress_line,
+    scenario_from_args,
+)
+from .printing import format_summary, print_paper_line, print_warnings, status
+
+
+def add_run_parser(sub: argparse._SubParsersAction) -> None:
+    """Register ``qcontrol run`` (its handler is :func:`cmd_run`)."""
+    run = sub.add_parser(
+        "run",
+        help="run one scenario and print a summary",
+        description="Run one closed loop: plant -> sensors -> quantizer -> controller -> actuator. "
+        "Prints a summary; with --out writes DIR/summary.json.",
+    )
+    add_scenario_options(run)
+    run.add_argument("--backend", choices=tuple(BACKENDS), help="plant backend (default: the scenario's)")
+    run.add_argument("--out", type=Path, metavar="DIR", help="write DIR/summary.json")
+    run.add_argument("--save", type=Path, metavar="FILE",
+                     help="write the run's signals to FILE.npz (an array per signal) or FILE.csv (a column "
+                     "per component); keeps every row in memory, unlike a plain run")
+    run.add_argument("--plot", type=Path, metavar="FILE",
+                     help="draw the run (y and y_d, z1, u, the adaptive estimates, the Lemma 2 ratio) to "
+                     "FILE.png, .pdf or .svg; keeps every row in memory, unlike a plain run")
+    add_recording_options(run)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    sc = scenario_from_args(args)
+    backend = runnable_backend(sc, args.backend)
+    if args.save is not None and args.save.suffix not in api.SAVE_FORMATS:
+        raise QcontrolInputError(f"--save {args.save}: unknown format {args.save.suffix!r}; "
+                                 "give a .npz or .csv file")
+    check_outputs(args, sc, {"--rrd": args.rrd, "--save": args.save, "--plot": args.plot}, ("summary.json",))
+    # a plain run keeps only its metrics (memory stays flat however long the run); --save and
+    # --plot need every row
+    record = "full" if args.save is not None or args.plot is not None else "metrics"
+    progress = progress_line(sc, backend, args)
+    result = api.run(sc, backend, rrd=args.rrd, spawn=args.spawn, record=record, progress=progress,
+                     command=args.command_line)
+    progress.finish()
+    s = result.summary
+    print(format_summary(s, sc))
+    print_paper_line(s, sc)
+    print_warnings(s)
+    if args.out is not None:
+        out = prepare_output_dir(args.out)
+        write_json(out / "summary.json", s)
+        print(f"  wrote {out / 'summary.json'}")
+    if args.save is not None:
+        print(f"  wrote {result.save(args.save)}")
+    if args.plot is not None:
+        print(f"  wrote {_plot_run(result, args.plot)}")
+    if args.rrd is not None:
+        print(f"  wrote {args.rrd} (open it with: rerun {args.rrd})")
+    return status(s)
+
+
+def _plot_run(result: api.Result, path: Path) -> Path:
+    from ..plots import fig_run
+
+    s = result.summary
+    notes = [f"{s['scenario']} on {s['backend']}, {s['duration']:g} s, dt = {s['dt']:g} s"]
+    notes += [f"E({k}) = {v:.4f}" for k, v in s["error_rate"].items()]
+    notes += [f"max |z1|, last half = {s['max_abs_z1_last_half']:.4g}", f"max |u| = {s['max_abs_u']:.4g}",
+              f"Lemma 2 ratio = {s['lemma2_max_ratio']:.6f}"]
+    if s["diverged"]:
+        notes.append(f"diverged at t = {s['diverged_time']:g} s")
+    return fig_run(result.trajectory, path, f"{s['scenario']} ({s['backend']})", notes=notes)

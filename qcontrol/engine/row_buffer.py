@@ -1,0 +1,101 @@
+"""Where the loop puts each row it records: the buffer of recorded signals, and its writer for a
+batch in array form (:class:`ArrayRows`; a batch of one has its float form,
+:class:`~.fastpath.FloatRows`). Both offer the loop the same things: the initial adaptive state,
+the quantizer, the differenced velocity and the plant's observe and step in their form, ``keep``
+(one row), and ``flush``, ``untested`` and ``next_event`` (at the loop's rare rows).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from functools import partial
+
+import numpy as np
+
+from ..controller.law import BatchLaw
+from ..plants.base import Plant
+from ..quantizer import QuantizedReading, Quantizer, quantize
+from .signals import RECORDED
+from .velocity import ArrayDifferencing
+
+NEVER = 1 << 62  # a row no run reaches
+
+
+class RowBuffer:
+    """Arrays of the recorded signals for ``capacity`` rows of ``batch`` copies:
+    ``arrays[name]`` has shape ``(capacity, batch, width)`` (``(capacity, batch)`` for a scalar);
+    buffer row ``j`` holds run row ``base + j`` (a metrics-only run reuses the buffer chunk after
+    chunk)."""
+
+    def __init__(self, capacity: int, batch: int, n: int, m: int) -> None:
+        self.base = 0
+        self.arrays = {
+            s.name: np.full((capacity, batch) if s.width == "1" else (capacity, batch, s.size(n, m)), np.nan)
+            for s in RECORDED
+        }
+
+    def rows(self, first: int, stop: int) -> dict[str, np.ndarray]:
+        """Views of run rows ``[first, stop)`` of every recorded signal."""
+        held = slice(first - self.base, stop - self.base)
+        return {name: array[held] for name, array in self.arrays.items()}
+
+
+class ArrayRows:
+    """A batch: each row written into the buffer's arrays as it comes, and tested at once (cheap
+    while the row is in the cache); only a row that fails the test is examined copy by copy."""
+
+    floats = False
+
+    def __init__(self, buffer: RowBuffer, state_bound: float) -> None:
+        self.buffer = buffer
+        self.state_bound = state_bound
+        self._x, self._x_meas, self._x_q, self._u, self._adaptive = (buffer.arrays[s.name] for s in RECORDED)
+        self._suspect = -1  # the last row that failed the quick test
+
+    def initial_state(self, law: BatchLaw) -> tuple[np.ndarray, ...]:
+        return tuple(np.ascontiguousarray(law.initial_state(self._u.shape[1]).T))
+
+    def quantizer(self, quantizer: Quantizer) -> Callable[[np.ndarray], QuantizedReading]:
+        return partial(quantize, quantizer)
+
+    def differenced(self, quantize: Callable[[np.ndarray], QuantizedReading], hold: int, period: float
+                    ) -> Callable[[np.ndarray], QuantizedReading]:
+        return ArrayDifferencing(quantize, hold, period).quantize
+
+    def plant_io(self, plant: Plant, h: float) -> ArrayIO:
+        return ArrayIO(plant, h)
+
+    def keep(self, k: int, x: np.ndarray, meas: np.ndarray, reading: QuantizedReading, u: np.ndarray,
+             adaptive: tuple) -> bool:
+        """Row ``k``; True when some copy may have diverged there (NaN fails either test)."""
+        j = k - self.buffer.base
+        self._x[j], self._x_meas[j], self._x_q[j], self._u[j] = x, meas, reading.values, u
+        for i, a in enumerate(adaptive):
+            self._adaptive[j, :, i] = a
+        if np.abs(self._x[j]).max() <= self.state_bound and math.isfinite(self._adaptive[j].sum()):
+            return False
+        self._suspect = k
+        return True
+
+    def flush(self, k: int) -> None:
+        """Nothing to do: rows are written as they come."""
+
+    def untested(self, k: int) -> tuple[int, int]:
+        """Row ``k`` if it failed the quick test, else nothing."""
+        return (k, k + 1) if self._suspect == k else (k, k)
+
+    def next_event(self, k: int) -> int:
+        """Never: a batch needs no scheduled rows of its own."""
+        return NEVER
+
+
+class ArrayIO:
+    """The plant's own observe, and its step with the run's step length ``h``."""
+
+    def __init__(self, plant: Plant, h: float) -> None:
+        self.plant, self.h = plant, h
+        self.observe = plant.observe
+
+    def step(self, u: np.ndarray) -> None:
+        self.plant.step(u, self.h)
