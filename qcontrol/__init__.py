@@ -7,7 +7,8 @@ quantizer -> controller -> plant (ODE or MuJoCo) -> closed-loop engine -> record
 The Python API (see the README's "Python API"):
 
 * :func:`load_scenario` -> :class:`Scenario` (immutable; ``sc.with_overrides({...})``)
-* :func:`run` -> :class:`Result` (``summary``, the signals ``t, x, x_q, u, y, yd, z, adaptive``,
+* :func:`run` -> :class:`Result` (``summary``, as JSON; ``typed_summary``, a frozen
+  :class:`Summary` whose ``to_json()`` is that summary; the signals ``t, x, x_q, u, y, yd, z, adaptive``,
   ``save``); :func:`compare` -> :class:`Comparison` (``summary``, ``mujoco``, ``ode``)
 * :class:`Law` and :func:`register_law`: a control law of your own, selected by
   ``controller.kind``; :func:`check_keys`, :func:`quantized_backstepping` and
@@ -19,6 +20,7 @@ from .api import Comparison, Result, compare, lemma2_bounds, quantized_backstepp
 from .controller.user import Law, check_keys, register_law
 from .errors import QcontrolInputError
 from .scenario import Scenario, load_scenario
+from .summary import Summary
 
 __all__ = [
     "Comparison",
@@ -26,6 +28,7 @@ __all__ = [
     "QcontrolInputError",
     "Result",
     "Scenario",
+    "Summary",
     "__version__",
     "check_keys",
     "compare",

@@ -34,6 +34,7 @@ from .metrics import backend_deviation, summary
 from .outputs import check_output_file, clean, prepare_output_dir, write_file, write_text
 from .scenario import Scenario
 from .scenario.resolve import scenario_provenance
+from .summary import Summary
 
 SAVE_FORMATS = (".npz", ".csv")
 
@@ -55,6 +56,11 @@ class Result:
     scenario: Scenario
     backend: str
     record: Trajectory | RunMetrics
+
+    @property
+    def typed_summary(self) -> Summary:
+        """:attr:`summary` as a frozen, typed :class:`~qcontrol.summary.Summary`."""
+        return Summary.from_json(self.summary)
 
     @property
     def trajectory(self) -> Trajectory:

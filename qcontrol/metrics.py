@@ -7,9 +7,10 @@ import numpy as np
 from .engine import RunMetrics, Trajectory
 from .engine.velocity import lemma2_applies
 from .error_rate import TABLE1_OMEGAS, error_rate, omega_key
+from .summary import Summary
 
 __all__ = ["TABLE1_OMEGAS", "backend_deviation", "error_rate", "finite_max_abs", "lemma2_max_ratio",
-           "omega_key", "summary"]
+           "omega_key", "run_summary", "summary"]
 
 
 def lemma2_max_ratio(e_z: np.ndarray, L_z: np.ndarray) -> float:
@@ -27,7 +28,12 @@ def finite_max_abs(values: np.ndarray) -> float:
 
 
 def summary(run: Trajectory | RunMetrics, scenario: str, backend: str) -> dict:
-    """The ``summary.json`` object of a run (see the README's output contract).
+    """The ``summary.json`` object of a run: :func:`run_summary`'s :meth:`Summary.to_json`."""
+    return run_summary(run, scenario, backend).to_json()
+
+
+def run_summary(run: Trajectory | RunMetrics, scenario: str, backend: str) -> Summary:
+    """The :class:`~qcontrol.summary.Summary` of a run (see the README's output contract).
 
     The metrics are the reductions of the signal table, the same whether the run kept every row
     or only its metrics. The Lemma 2 check covers every instant before a divergence: the row that
@@ -38,30 +44,18 @@ def summary(run: Trajectory | RunMetrics, scenario: str, backend: str) -> dict:
     ratio is still reported, with ``lemma2_applies`` false.
     """
     values = run.reduced()
-    return {
-        "scenario": scenario,
-        "backend": backend,
-        "duration": run.duration,
-        "dt": run.dt,
-        "steps": run.steps,
-        "wall_time_s": run.wall_time_s,
-        "diverged": bool(run.diverged),
-        "diverged_time": run.diverged_time,
-        "divergence_reason": run.divergence_reason,
-        "error_rate": values["error_rate"],
-        "max_abs_z1_last_half": values["max_abs_z1_last_half"],
-        "max_abs_u": values["max_abs_u"],
-        "max_abs_u_applied": values["max_abs_u_applied"],
-        "saturated_fraction": values["saturated_fraction"],
-        "final_eps_hat": [float(v) for v in values["final_adaptive"]],
-        "adaptive_state": run.adaptive_name,
-        "lemma2_max_ratio": lemma2_max_ratio(values["e_z_max"][None, :], run.L_z),
-        "velocity_source": run.velocity_source,
-        "lemma2_applies": lemma2_applies(run.velocity_source),
-        "L_z": [float(v) for v in run.L_z],
-        "L": float(run.L_z[-1]),
+    return Summary(
+        scenario=scenario, backend=backend, duration=run.duration, dt=run.dt, steps=run.steps,
+        wall_time_s=run.wall_time_s, diverged=bool(run.diverged), diverged_time=run.diverged_time,
+        divergence_reason=run.divergence_reason, error_rate=values["error_rate"],
+        max_abs_z1_last_half=values["max_abs_z1_last_half"], max_abs_u=values["max_abs_u"],
+        max_abs_u_applied=values["max_abs_u_applied"], saturated_fraction=values["saturated_fraction"],
+        final_eps_hat=tuple(float(v) for v in values["final_adaptive"]), adaptive_state=run.adaptive_name,
+        lemma2_max_ratio=lemma2_max_ratio(values["e_z_max"][None, :], run.L_z),
+        velocity_source=run.velocity_source, lemma2_applies=lemma2_applies(run.velocity_source),
+        L_z=tuple(float(v) for v in run.L_z), L=float(run.L_z[-1]),
         **bound_constants(run.bound_names, values["bound_constants"], values["smallest_r"]),
-    }
+    )
 
 
 def bound_constants(names: tuple[str, ...], largest: np.ndarray, smallest_r: np.ndarray) -> dict:
@@ -72,7 +66,7 @@ def bound_constants(names: tuple[str, ...], largest: np.ndarray, smallest_r: np.
     went below 1 at some row (``smallest_r``: each r_i's smallest value), ``r_below_one`` maps
     its term to that value and a warning says so; the key is there only then."""
     if not names:
-        return {"bound_constants": None, "warnings": []}
+        return {"bound_constants": None, "warnings": ()}
     constants = {name: float(v) if np.isfinite(v) else None for name, v in zip(names, largest, strict=True)}
     warnings = [f"{name} is not bounded by its r on this run: |{name}| / r(x_q) was infinite or undefined "
                 "(eqs. (37)-(43) need |term(x)| <= constant * r(x_q) wherever |x - x_q| <= delta/2)"
@@ -81,7 +75,7 @@ def bound_constants(names: tuple[str, ...], largest: np.ndarray, smallest_r: np.
     warnings += [f"the bounding function r of {name} went below 1 on this run (down to {value:.4g}): eqs. "
                  "(37)-(43) need r_i(x_q) >= 1 wherever the run goes; make r larger there, e.g. 1 + ..."
                  for name, value in below.items()]
-    return {"bound_constants": constants, "warnings": warnings} | ({"r_below_one": below} if below else {})
+    return {"bound_constants": constants, "warnings": tuple(warnings), "r_below_one": below or None}
 
 
 def backend_deviation(physics: Trajectory, ideal: Trajectory) -> dict:

@@ -13,6 +13,8 @@ import numpy as np
 
 from .errors import QcontrolInputError
 
+Column = float | np.ndarray  # one value per copy: a (batch,) array, or a float for a batch of one
+
 
 class Quantizer(Protocol):
     """Anything that maps readings to quantized readings, elementwise, with a known bound.

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import EX1, EX2, ROOT
 
 import qcontrol
 from qcontrol.api import columns
@@ -21,8 +22,6 @@ from qcontrol.engine import SIGNALS
 from qcontrol.errors import QcontrolInputError
 from qcontrol.sweep import sweep_summaries
 
-ROOT = Path(__file__).resolve().parents[1]
-EX1, EX2 = ROOT / "scenarios" / "example1.toml", ROOT / "scenarios" / "example2.toml"
 SHORT = {"simulation.duration": 1.0}
 
 

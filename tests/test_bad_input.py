@@ -19,14 +19,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
+from conftest import EX1, EX2, ROOT, SCENARIOS
 from test_messages import assert_toml_hints
 
 from qcontrol.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
-SCENARIOS = ROOT / "scenarios"
-EX1 = SCENARIOS / "example1.toml"
-EX2 = SCENARIOS / "example2.toml"
 CHAIN3 = SCENARIOS / "chain3.toml"
 CANARY = "PWNED"  # a file the malicious expressions would create if anything were executed
 

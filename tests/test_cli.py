@@ -7,12 +7,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import EX1, EX2, ROOT
 
 from qcontrol.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
-EX1 = ROOT / "scenarios" / "example1.toml"
-EX2 = ROOT / "scenarios" / "example2.toml"
 SUMMARY_KEYS = {
     "scenario", "backend", "duration", "dt", "steps", "wall_time_s", "diverged", "error_rate",
     "max_abs_z1_last_half", "max_abs_u", "final_eps_hat", "lemma2_max_ratio",

@@ -1,10 +1,10 @@
 """A batch of one runs on plain floats, a larger batch on numpy columns: both go through the same
 controller code (qcontrol.controller), so they must give the same numbers."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import SCENARIOS
 
 from qcontrol.assembly import build_controller, build_plant, build_quantizer, build_reference
 from qcontrol.controller import BaselineController, ProposedController
@@ -15,7 +15,6 @@ from qcontrol.plants.ode import ChainPlant
 from qcontrol.quantizer import QuantizedReading, UniformQuantizer, quantize
 from qcontrol.scenario import load_scenario
 
-SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
 Q2, X2 = ["q1", "q2"], ["x1", "x2"]
 PHI = ["x2", "x2**2*cos(x1)", "sin(x1)"]
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from conftest import EX2, ROOT
 
 from qcontrol.cli import main
 from qcontrol.controller import LAW_KINDS, baseline
@@ -21,8 +22,6 @@ from qcontrol.scenario import load_scenario
 from qcontrol.scenario.document import scenarios_markdown, toml_value
 from qcontrol.schema import OPTIONAL, REQUIRED, Key
 
-ROOT = Path(__file__).resolve().parents[1]
-EX2 = ROOT / "scenarios" / "example2.toml"
 CHAIN3 = ROOT / "scenarios" / "chain3.toml"
 SINE_KEYS = ("reference.amplitude", "reference.frequency")  # what example2's [reference] holds
 

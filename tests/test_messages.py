@@ -12,6 +12,7 @@ import tomllib
 from pathlib import Path
 
 import pytest
+from conftest import EX1, EX2, ROOT
 
 from qcontrol.cli import main
 from qcontrol.errors import QcontrolInputError
@@ -20,9 +21,6 @@ from qcontrol.paper import PAPER_TABLE1
 from qcontrol.scenario import load_scenario
 from qcontrol.timegrid import step_count
 
-ROOT = Path(__file__).resolve().parents[1]
-EX1 = ROOT / "scenarios" / "example1.toml"
-EX2 = ROOT / "scenarios" / "example2.toml"
 CHAIN3 = ROOT / "scenarios" / "chain3.toml"
 
 

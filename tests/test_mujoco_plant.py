@@ -8,6 +8,7 @@ import pathlib
 import mujoco
 import numpy as np
 import pytest
+from conftest import ROOT, SCENARIOS
 
 from qcontrol.controller import ProposedController
 from qcontrol.engine import simulate
@@ -25,8 +26,6 @@ from qcontrol.quantizer import UniformQuantizer
 from qcontrol.reference import Sine
 from qcontrol.schema import Table
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-SCENARIOS = ROOT / "scenarios"
 X, Q = ["x1", "x2"], ["q1", "q2"]
 
 SLIDER = {"model": "../models/slider.xml", "joint": "slide", "position_sensor": "position",

@@ -12,15 +12,12 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import EX2, ROOT, SCENARIOS
 
 from qcontrol.cli import main
 from qcontrol.errors import QcontrolInputError
 from qcontrol.recording import viewer
 
-ROOT = Path(__file__).resolve().parents[1]
-SCENARIOS = ROOT / "scenarios"
-EX1 = SCENARIOS / "example1.toml"
-EX2 = SCENARIOS / "example2.toml"
 CHAIN3 = SCENARIOS / "chain3.toml"
 
 

@@ -11,6 +11,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
+from conftest import ROOT
 from rerun.chunk import RrdReader
 from test_record import PENDULUM, RERUN_CLI, SLIDER, example2, read_entities, temporal
 
@@ -18,7 +19,6 @@ from qcontrol.recording import Recording, styles
 from qcontrol.recording.camera import FIELD_OF_VIEW_Y, FRAME_MARGIN, TRAVEL_MARGIN, VIEW_WIDTH_PER_HEIGHT
 from qcontrol.recording.styles import Plot
 
-ROOT = Path(__file__).resolve().parents[1]
 COLLAPSED = 2  # rerun.blueprint.components.PanelState
 
 

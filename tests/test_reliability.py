@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import EX1, EX2
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
@@ -33,9 +34,6 @@ from qcontrol.errors import QcontrolInputError, QcontrolOutputError
 from qcontrol.outputs import atomic_path, partial_path, write_json
 from qcontrol.scenario import load_scenario
 
-ROOT = Path(__file__).resolve().parents[1]
-EX1 = ROOT / "scenarios" / "example1.toml"
-EX2 = ROOT / "scenarios" / "example2.toml"
 LEMMA2_TOLERANCE = 1e-9
 ARRAYS = ("t", "x", "x_meas", "x_q", "yd", "z", "zbar", "e_z", "u", "adaptive", "L_z")
 

@@ -7,13 +7,13 @@ import struct
 from pathlib import Path
 
 import pytest
+from conftest import EX2 as EXAMPLE2
 
 from qcontrol.cli.sweep_command import add_sweep_parser, cmd_sweep
 from qcontrol.errors import QcontrolInputError
 from qcontrol.sweep import CSV_METRICS, sweep_summaries
 from qcontrol.sweep import runs as sweep
 
-EXAMPLE2 = Path(__file__).resolve().parent.parent / "scenarios" / "example2.toml"
 SHORT = "simulation.duration=1.0"
 
 

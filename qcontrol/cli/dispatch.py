@@ -17,7 +17,7 @@ import sys
 import threading
 import time
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 from .._version import __version__
 from ..errors import QcontrolInputError, QcontrolOutputError, Terminated
@@ -36,8 +36,18 @@ from .reproduce_command import add_reproduce_parser, cmd_reproduce
 from .run_command import add_run_parser, cmd_run
 from .sweep_command import add_sweep_parser, cmd_sweep
 
-COMMANDS = {"run": cmd_run, "compare": cmd_compare, "reproduce": cmd_reproduce, "sweep": cmd_sweep,
-            "check": cmd_check}
+Register = Callable[[argparse._SubParsersAction], None]
+Handler = Callable[[argparse.Namespace], int]
+
+# Each command: the function that registers its parser (and options) and its handler. A new
+# command is one module with both, and one entry here.
+COMMANDS: dict[str, tuple[Register, Handler]] = {
+    "run": (add_run_parser, cmd_run),
+    "compare": (add_compare_parser, cmd_compare),
+    "reproduce": (add_reproduce_parser, cmd_reproduce),
+    "sweep": (add_sweep_parser, cmd_sweep),
+    "check": (add_check_parser, cmd_check),
+}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -52,8 +62,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"qcontrol {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     sub.required = True
-    for add in (add_run_parser, add_compare_parser, add_reproduce_parser, add_sweep_parser, add_check_parser):
-        add(sub)
+    for register, _ in COMMANDS.values():
+        register(sub)
     return parser
 
 
@@ -77,7 +87,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _terminate) if main_thread else None
     try:
-        return COMMANDS[args.command](args)
+        return COMMANDS[args.command][1](args)
     except QcontrolInputError as exc:
         print(f"qcontrol: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT

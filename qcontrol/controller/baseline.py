@@ -102,12 +102,19 @@ class BaselineController(Backstepping):
 
     @staticmethod
     def advancer(h: float, floats: bool) -> Advance:
-        """:meth:`advance` over a fixed ``h`` in column form, as a function made once per run."""
+        """:meth:`advance` over a fixed ``h`` in column form, made once per run."""
+        return RateAdvance(h).advance
 
-        def advance(state: Columns, out: ControlOutput) -> Columns:
-            return tuple([e + h * t for e, t in zip(state, out.target)])  # noqa: B905 (equal lengths)
 
-        return advance
+class RateAdvance:
+    """``theta_hat`` over one step ``h`` at the rate held since the sample: ``e <- e + h rate``."""
+
+    def __init__(self, h: float) -> None:
+        self.h = h
+
+    def advance(self, state: Columns, out: ControlOutput) -> Columns:
+        h = self.h
+        return tuple([e + h * t for e, t in zip(state, out.target)])  # noqa: B905 (equal lengths)
 
 
 # --------------------------------------------------------------------------------------------

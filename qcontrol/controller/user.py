@@ -97,19 +97,27 @@ class UserLaw(Backstepping):
 
     def advancer(self, h: float, floats: bool) -> Callable[[Columns, _Sample], Columns]:
         """One classical RK4 step of ``h`` of ``state' = state_rate(t_k, x_q, yd, state)``."""
+        return UserRK4(self, h, floats).advance
 
-        def advance(state: Columns, sample: _Sample) -> Columns:
-            if not self.state_size:
-                return state
-            s = stack(state, len(sample.x_q))
-            k1 = self._rates(sample, s)
-            k2 = self._rates(sample, s + 0.5 * h * k1)
-            k3 = self._rates(sample, s + 0.5 * h * k2)
-            k4 = self._rates(sample, s + h * k3)
-            s = s + h / 6.0 * (k1 + 2.0 * (k2 + k3) + k4)
-            return tuple(s[0].tolist()) if floats else tuple(np.ascontiguousarray(s.T))
 
-        return advance
+class UserRK4:
+    """The state of a batch of user laws over one step ``h``: classical RK4 of its ``state_rate``
+    with the sample (``t_k``, ``x_q``, ``yd``) held; floats back for a batch of one."""
+
+    def __init__(self, law: UserLaw, h: float, floats: bool) -> None:
+        self.law, self.h, self.floats = law, h, floats
+
+    def advance(self, state: Columns, sample: _Sample) -> Columns:
+        law, h = self.law, self.h
+        if not law.state_size:
+            return state
+        s = stack(state, len(sample.x_q))
+        k1 = law._rates(sample, s)
+        k2 = law._rates(sample, s + 0.5 * h * k1)
+        k3 = law._rates(sample, s + 0.5 * h * k2)
+        k4 = law._rates(sample, s + h * k3)
+        s = s + h / 6.0 * (k1 + 2.0 * (k2 + k3) + k4)
+        return tuple(s[0].tolist()) if self.floats else tuple(np.ascontiguousarray(s.T))
 
 
 def _state_size(law: object) -> int:
@@ -162,16 +170,30 @@ def register_law(kind: str, factory: LawFactory, *, state_name: str = "state") -
     """
     if not isinstance(kind, str) or not kind.isidentifier():
         raise QcontrolInputError(f"register_law: kind {kind!r} must be a name such as \"ce\"; choose another")
-    def parse(table: Table, ctx: LawContext) -> UserSettings:
-        settings = UserSettings(_freeze({"kind": kind, "delta": ctx.delta, "c": list(ctx.c)} | table.data))
-        _call(factory, settings, ctx, table)
+    user = UserKind(kind, factory, state_name)
+    register_kind(LawKind(kind, None, user.parse, user.build, user.structure))  # refuses a taken name
+
+
+class UserKind:
+    """A controller kind made by :func:`register_law`: its table checked by the factory when a
+    scenario loads, one law per copy built when it runs; variants of it always share a batch."""
+
+    def __init__(self, kind: str, factory: LawFactory, state_name: str) -> None:
+        self.kind, self.factory, self.state_name = kind, factory, state_name
+
+    def parse(self, table: Table, ctx: LawContext) -> UserSettings:
+        given = {"kind": self.kind, "delta": ctx.delta, "c": list(ctx.c)} | table.data
+        settings = UserSettings(_freeze(given))
+        _call(self.factory, settings, ctx, table)
         return settings
 
-    def build(settings: Sequence[UserSettings], ctx: LawContext) -> UserLaw:
-        laws = [_call(factory, s, ctx, None) for s in settings]
-        return UserLaw(laws, ctx.c, ctx.max_error, state_name)
+    def build(self, settings: Sequence[UserSettings], ctx: LawContext) -> UserLaw:
+        laws = [_call(self.factory, s, ctx, None) for s in settings]
+        return UserLaw(laws, ctx.c, ctx.max_error, self.state_name)
 
-    register_kind(LawKind(kind, None, parse, build, lambda settings, ctx: None))  # refuses a taken name
+    @staticmethod
+    def structure(settings: UserSettings, ctx: LawContext) -> Hashable:
+        return None
 
 
 def _call(factory: LawFactory, settings: UserSettings, ctx: LawContext, table: Table | None) -> Law:

@@ -21,10 +21,10 @@ from typing import Any
 import numpy as np
 
 from ..expr import FLOAT_REFUSED, Expression, ScalarFn, scalar_function
+from ..quantizer import Column
 from .backends import Backend
 from .base import PlantTerms
 
-Column = float | np.ndarray  # one value per copy: a (batch,) array, or a float for a batch of one
 Uncertainty = Callable[[list[Column]], Column]  # psi + theta^T phi on the state's columns
 
 

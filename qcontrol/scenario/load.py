@@ -60,8 +60,6 @@ class Scenario:
     text: str  # the TOML text as read
     overrides: tuple[str | tuple[str, Any], ...]  # as given: "key=value" strings or (key, value) pairs
     order: int
-    psi: str | None
-    phi: tuple[str, ...]
     theta: tuple[float, ...]
     x0: tuple[float, ...]
     controller: ControllerConfig
@@ -97,9 +95,19 @@ class Scenario:
         return LawContext(self.source, self.order, c.delta, c.c, self.psi_expr, self.phi_expr, self.theta)
 
     @property
+    def psi(self) -> str | None:
+        """The text of psi(x) as given (None: no psi)."""
+        return None if self.psi_expr is None else self.psi_expr.source
+
+    @property
+    def phi(self) -> tuple[str, ...]:
+        """The texts of phi_1(x) .. phi_l(x) as given."""
+        return tuple(p.source for p in self.phi_expr)
+
+    @property
     def uncertain_terms(self) -> int:
-        """Entries of eps, eqs. (37)-(43): one per phi_i, plus one for psi."""
-        return len(self.phi) + (self.psi is not None)
+        """Entries of eps, eqs. (37)-(43) (:attr:`LawContext.uncertain_terms`)."""
+        return self.law_context.uncertain_terms
 
 
 def load_scenario(path: str | Path, overrides: Overrides = (), unset: Sequence[str] = ()) -> Scenario:
@@ -255,8 +263,7 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
     scenario = Scenario(
         name=meta["name"], description=meta["description"], source=source, text=text, overrides=overrides,
         data=copy.deepcopy(data), base_dir=base_dir,
-        order=terms.order, psi=None if terms.psi is None else terms.psi.source,
-        phi=tuple(p.source for p in terms.phi), theta=terms.theta, x0=x0, controller=controller,
+        order=terms.order, theta=terms.theta, x0=x0, controller=controller,
         reference=signal, simulation=simulation, backends=backends, disturbances=disturbances,
         psi_expr=terms.psi, phi_expr=terms.phi, metrics=metrics, paper_example=meta["paper_example"],
     )

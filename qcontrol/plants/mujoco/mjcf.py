@@ -20,7 +20,7 @@ import pathlib
 import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import lru_cache, partial
 from typing import Any
 
 import mujoco
@@ -91,10 +91,12 @@ def _compiled(options: MujocoOptions, timestep: float | None, content_sha256: st
 
 
 def _fail(options: MujocoOptions) -> Fail:
-    def fail(key: str, problem: str, fix: str) -> QcontrolInputError:
-        return QcontrolInputError(f"{options.where}.{key}: {problem}; {fix}")
+    """``fail(key, problem, fix)``: the one-line error of a key of the options' section."""
+    return partial(_error_at, options.where)
 
-    return fail
+
+def _error_at(where: str, key: str, problem: str, fix: str) -> QcontrolInputError:
+    return QcontrolInputError(f"{where}.{key}: {problem}; {fix}")
 
 
 def _one_line(text: object) -> str:

@@ -1,0 +1,92 @@
+"""A run's summary as a typed, frozen record: :class:`Summary`, whose :meth:`~Summary.to_json` is
+``summary.json`` (the README's output contract) and :meth:`~Summary.from_json` reads it back."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+
+@dataclass(frozen=True, kw_only=True)
+class Summary:
+    """What a closed-loop run reports (the fields of ``summary.json``, in its order).
+
+    ``scenario`` and ``backend`` name the run; ``duration`` (s), ``dt`` (s) and ``steps`` its grid
+    and how far it got; ``wall_time_s`` what it cost. ``diverged`` with ``diverged_time`` (s, or
+    None) and ``divergence_reason`` say whether and why it stopped. The metrics: ``error_rate``,
+    Table 1's E(omega) keyed ``"0.100"`` .. ``"0.200"``; ``max_abs_z1_last_half`` (the ultimate
+    bound of Theorem 1's tracking error); ``max_abs_u`` and ``max_abs_u_applied`` (the command
+    and what the actuator applied); ``saturated_fraction`` (of the control samples);
+    ``final_eps_hat``, the adaptive estimates at the end (named ``adaptive_state``: eps_hat of
+    (45), theta_hat of (46), ...). Lemma 2: ``lemma2_max_ratio`` = max over time and i of
+    ``|e_zi| / L_zi`` (<= 1 holds), ``lemma2_applies`` (false when x2 is differenced,
+    ``velocity_source``), the bounds ``L_z`` and ``L = L_zn``. The separation (37)-(43):
+    ``bound_constants`` (term -> largest ``|term| / r(x_q)``, None where unbounded; None when not
+    checked) and ``warnings``; ``r_below_one`` (term -> smallest ``r_i(x_q)``), present only when a
+    bounding function went below 1 during the run. ``provenance`` and ``physics_warnings`` are
+    present (not None) in the summary of a single run written by ``qcontrol run`` or
+    :func:`qcontrol.run`.
+    """
+
+    scenario: str
+    backend: str
+    duration: float
+    dt: float
+    steps: int
+    wall_time_s: float
+    diverged: bool
+    diverged_time: float | None
+    divergence_reason: str
+    error_rate: Mapping[str, float]
+    max_abs_z1_last_half: float
+    max_abs_u: float
+    max_abs_u_applied: float
+    saturated_fraction: float
+    final_eps_hat: tuple[float, ...]
+    adaptive_state: str
+    lemma2_max_ratio: float
+    velocity_source: str
+    lemma2_applies: bool
+    L_z: tuple[float, ...]
+    L: float
+    bound_constants: Mapping[str, float | None] | None
+    warnings: tuple[str, ...] = ()
+    r_below_one: Mapping[str, float] | None = None
+    provenance: Mapping[str, Any] | None = field(default=None, compare=False)
+    physics_warnings: tuple[str, ...] | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """``summary.json``'s object: every field in order, lists for tuples, the optional ones
+        only when present."""
+        out: dict[str, Any] = {}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if value is None and f.name in _OPTIONAL:
+                continue
+            out[f.name] = _plain(value)
+        return out
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> Summary:
+        """The summary of a ``summary.json`` object (as :meth:`to_json` writes it)."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"not a summary field: {', '.join(unknown)}")
+        values = dict(data)
+        for name in ("final_eps_hat", "L_z", "warnings", "physics_warnings"):
+            if values.get(name) is not None:
+                values[name] = tuple(values[name])
+        return cls(**values)
+
+
+_OPTIONAL = ("r_below_one", "provenance", "physics_warnings")
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, Mapping):
+        return {k: _plain(v) for k, v in value.items()}
+    return value
