@@ -123,7 +123,7 @@ def prepare_output_dir(path: str | Path, option: str = "--out") -> Path:
     return path
 
 
-def check_output_file(path: str | Path, option: str, example: str = "run.rrd",
+def check_output_file(path: str | Path, option: str, example: str | None = None,
                       fix: str | None = None) -> Path:
     """Check, without creating anything, that an output file can be written: its name is a
     regular file or free (not a folder, a device, a FIFO, a socket, a link loop) and its folder
@@ -131,7 +131,7 @@ def check_output_file(path: str | Path, option: str, example: str = "run.rrd",
     path = check_name(path, option)
     kind = path_kind(path)
     if kind is not None:
-        fix = fix or f"give a file name such as {example}"
+        fix = fix or f"give a file name such as {example or 'run' + (path.suffix or '.rrd')}"
         raise QcontrolInputError(f"{option} {shown(path)}: is {kind}, not a regular file; qcontrol writes "
                                  f"only regular files: {fix}")
     check_output_dir(path.parent if str(path.parent) else Path("."), option)

@@ -85,7 +85,7 @@ def test_a_special_file_at_an_output_name_is_refused_and_kept(tmp_path, capsys, 
     path.rename(target)
     before = os.lstat(target)
     assert main(["run", str(EX2), *SHORT, option, str(target)]) == 2
-    _one_line(capsys, option, words, "not a regular file")
+    _one_line(capsys, option, words, "not a regular file", f"such as run{target.suffix}")
     after = os.lstat(target)
     assert (after.st_mode, after.st_ino, after.st_rdev) == (before.st_mode, before.st_ino, before.st_rdev)
     assert not _temporaries(tmp_path)
