@@ -220,3 +220,46 @@ def test_a_plant_with_only_the_array_form_runs_at_every_batch_size(batch: int) -
         assert not mine.diverged and len(mine.t) == len(native.t) == 501
         for field in ("x", "x_q", "u", "adaptive"):
             np.testing.assert_array_equal(getattr(mine, field), getattr(native, field), err_msg=field)
+
+
+class _ArrayOnlyLaw:
+    """The paper's law seen through the array form of BatchLaw only (no FloatColumns): it must
+    run at every batch size, a batch of one through the engine's adapter."""
+
+    def __init__(self, inner) -> None:
+        self.inner = inner
+        self.state_name, self.state_size, self.copies = inner.state_name, inner.state_size, inner.copies
+        self.coordinates = inner.coordinates
+        self.forms: set[str] = set()
+
+    def initial_state(self, batch):
+        return self.inner.initial_state(batch)
+
+    def control(self, reading, yd, state, t=0.0):
+        assert not reading.floats and all(isinstance(e, np.ndarray) for e in (*reading.columns, *state))
+        self.forms.add(f"array{len(reading.values)}")
+        return self.inner.control(reading, yd, state, t)
+
+    def advancer(self, h):
+        return self.inner.advancer(h)
+
+    def constants(self):
+        return self.inner.constants()
+
+
+@pytest.mark.parametrize("batch", [1, 3])
+def test_a_law_with_only_the_array_form_runs_at_every_batch_size(batch: int) -> None:
+    from qcontrol.controller import FloatColumns
+
+    sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=0.5"])
+    law = _ArrayOnlyLaw(build_controller(sc))
+    assert not isinstance(law, FloatColumns) and isinstance(build_controller(sc), FloatColumns)
+    runs = [simulate(build_plant(sc, "ode", batch=batch), lw, build_quantizer(sc), build_reference(sc),
+                     sc.x0, sc.simulation.duration, sc.simulation.dt)
+            for lw in (law, build_controller(sc))]
+    assert law.forms == {f"array{batch}"}
+    for mine, native in zip(*runs, strict=True):
+        assert not mine.diverged and len(mine.t) == len(native.t) == 501
+        for field in ("x", "x_q", "u", "adaptive"):
+            np.testing.assert_allclose(getattr(mine, field), getattr(native, field), rtol=1e-12, atol=1e-14,
+                                       err_msg=field)

@@ -40,7 +40,7 @@ class VirtualControlLaw(Backstepping):
         zbar, alphabar = self.recursion(reading.columns, yd)  # eqs. (31)-(34), on floats or arrays
         return output((alphabar[-1] - self.gain * zbar[-1], zbar, (), 0.0))
 
-    def advancer(self, h: float, floats: bool):
+    def advancer(self, h: float):  # the array form only: the engine's float path adapts it
         return NoState().advance
 
     def constants(self) -> dict:

@@ -15,7 +15,7 @@ from .backstepping import (
     lemma2_L,
 )
 from .baseline import BaselineController
-from .law import LAW_KINDS, BatchLaw, LawContext, LawKind, law_kind, register_kind
+from .law import LAW_KINDS, BatchLaw, FloatColumns, LawContext, LawKind, law_kind, register_kind
 from .proposed import ProposedController
 
 for _kind in (proposed.KIND, baseline.KIND):
@@ -27,6 +27,7 @@ __all__ = [
     "BaselineController",
     "BatchLaw",
     "ControlOutput",
+    "FloatColumns",
     "LawContext",
     "LawKind",
     "ProposedController",

@@ -98,12 +98,14 @@ class BaselineController(Backstepping):
         if isinstance(state, np.ndarray):
             grown = self.advance(tuple(state.T), out._replace(target=tuple(out.target.T)), h)
             return stack(grown, len(state))
-        return self.advancer(h, floats=not isinstance(out.u, np.ndarray))(state, out)
+        return self.advancer(h)(state, out)
 
     @staticmethod
-    def advancer(h: float, floats: bool) -> Advance:
-        """:meth:`advance` over a fixed ``h`` in column form, made once per run."""
+    def advancer(h: float) -> Advance:
+        """:meth:`advance` over a fixed ``h`` in column form (arrays or floats), made once per run."""
         return RateAdvance(h).advance
+
+    float_advancer = advancer  # the same lines on floats (:class:`~.law.FloatColumns`)
 
 
 class RateAdvance:

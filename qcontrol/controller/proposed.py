@@ -161,12 +161,18 @@ class ProposedController(Backstepping):
         if isinstance(state, np.ndarray):
             eps = self.advance(tuple(state.T), out._replace(target=tuple(out.target.T)), h)
             return stack(eps, len(state))
-        return self.advancer(h, floats=not isinstance(out.u, np.ndarray))(state, out)
+        return (self.advancer(h) if isinstance(out.u, np.ndarray) else self.float_advancer(h))(state, out)
 
-    def advancer(self, h: float, floats: bool) -> Advance:
+    def advancer(self, h: float) -> Advance:
         """:meth:`advance` over a fixed ``h`` in column form, as a function ``(state, out) ->
         state`` made once per run: ``exp(-gamma sigma h)`` is computed here, not every step."""
-        law = self._on_floats if floats else self._on_arrays
+        return self._decay_advance(self._on_arrays, h)
+
+    def float_advancer(self, h: float) -> Advance:
+        """:meth:`advancer` for a batch of one on floats (:class:`~.law.FloatColumns`)."""
+        return self._decay_advance(self._on_floats, h)
+
+    def _decay_advance(self, law: _Law | None, h: float) -> Advance:
         if law is None:
             raise ValueError(f"the controller has per-copy parameters for {self.copies} copies, not one")
         decay = np.exp(-np.asarray(law.rate) * h)

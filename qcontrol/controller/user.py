@@ -9,8 +9,8 @@ the reference and the time of the last sample held (the same zero-order hold as 
 engine records the law's errors z, zbar and the Lemma 2 check in the backstepping coordinates of
 the scenario's ``c`` and ``delta``, as for the built-in laws.
 
-This path calls Python per copy and per step (a few microseconds a call); the built-in laws keep
-their float fast path.
+The adapter implements the array form only (a batch of one runs through it as a batch of one
+array); it calls Python per copy and per step, so it is slower than the built-in laws.
 """
 
 from __future__ import annotations
@@ -85,7 +85,7 @@ class UserLaw(Backstepping):
         states = stack(state, len(x_q))
         u = np.array([float(self._law(b).control(t, x_q[b].copy(), yd_row.copy(), states[b].copy()))
                       for b in range(len(x_q))])
-        return _Sample(float(u[0]) if reading.floats else u, t, x_q, yd_row)
+        return _Sample(u, t, x_q, yd_row)
 
     def _law(self, b: int) -> Law:
         return self.laws[b] if len(self.laws) > 1 else self.laws[0]
@@ -95,17 +95,17 @@ class UserLaw(Backstepping):
                                                             states[b].copy()), dtype=float).reshape(-1)
                          for b in range(len(states))]).reshape(states.shape)
 
-    def advancer(self, h: float, floats: bool) -> Callable[[Columns, _Sample], Columns]:
+    def advancer(self, h: float) -> Callable[[Columns, _Sample], Columns]:
         """One classical RK4 step of ``h`` of ``state' = state_rate(t_k, x_q, yd, state)``."""
-        return UserRK4(self, h, floats).advance
+        return UserRK4(self, h).advance
 
 
 class UserRK4:
     """The state of a batch of user laws over one step ``h``: classical RK4 of its ``state_rate``
-    with the sample (``t_k``, ``x_q``, ``yd``) held; floats back for a batch of one."""
+    with the sample (``t_k``, ``x_q``, ``yd``) held."""
 
-    def __init__(self, law: UserLaw, h: float, floats: bool) -> None:
-        self.law, self.h, self.floats = law, h, floats
+    def __init__(self, law: UserLaw, h: float) -> None:
+        self.law, self.h = law, h
 
     def advance(self, state: Columns, sample: _Sample) -> Columns:
         law, h = self.law, self.h
@@ -117,7 +117,7 @@ class UserRK4:
         k3 = law._rates(sample, s + 0.5 * h * k2)
         k4 = law._rates(sample, s + h * k3)
         s = s + h / 6.0 * (k1 + 2.0 * (k2 + k3) + k4)
-        return tuple(s[0].tolist()) if self.floats else tuple(np.ascontiguousarray(s.T))
+        return tuple(np.ascontiguousarray(s.T))
 
 
 def _state_size(law: object) -> int:

@@ -11,7 +11,10 @@ choice is made for a run and where the float form of the engine's own parts live
 * :class:`FloatDifferencing`: the encoder's differenced velocity (:mod:`.velocity`) on floats;
 * :func:`float_io`: the plant's :class:`~qcontrol.plants.base.FloatStepping` form if it has one,
   else its array form seen as floats (:class:`ArrayPlantAsFloats`), so a plant that implements
-  only the array form runs at every batch size.
+  only the array form runs at every batch size;
+* :meth:`FloatRows.law`: the law's :class:`~qcontrol.controller.law.FloatColumns` form if it has
+  one, else its array form seen as floats (:class:`ArrayLawAsFloats`), so a law that implements
+  only the array form runs at every batch size too.
 
 The one fallback rule: where ``math`` refuses an evaluation that numpy answers with NaN or Inf
 (:data:`qcontrol.expr.FLOAT_REFUSED`), numpy's answer is taken. The laws' formulas are written once
@@ -24,11 +27,12 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..controller.law import BatchLaw
+from ..controller.backstepping import Advance, Columns
+from ..controller.law import BatchLaw, FloatColumns
 from ..expr import FLOAT_REFUSED
 from ..plants.base import FloatIO, FloatStepping, Plant
 from ..quantizer import QuantizedReading, Quantizer, UniformQuantizer
@@ -105,14 +109,38 @@ def float_io(plant: Plant, h: float) -> FloatIO:
     return plant.float_io(h) if isinstance(plant, FloatStepping) else ArrayPlantAsFloats(plant, h)
 
 
+class FloatOutput(NamedTuple):
+    """What :class:`ArrayLawAsFloats` gives the loop: ``u`` as a float, and the law's own output
+    (array form), which its advance reads."""
+
+    u: float
+    held: Any
+
+
+class ArrayLawAsFloats:
+    """A law with only the array form, driven on one copy's floats: the reading and the adaptive
+    state become one-row arrays, ``u`` and the advanced state floats again."""
+
+    def __init__(self, law: BatchLaw, h: float) -> None:
+        self.law, self.array_advance = law, law.advancer(h)
+
+    def control(self, reading: QuantizedReading, yd: Sequence[float], state: Columns,
+                t: float = 0.0) -> FloatOutput:
+        out = self.law.control(QuantizedReading(reading.values, reading.max_error), yd,
+                               tuple([np.array([e]) for e in state]), t)
+        return FloatOutput(float(np.asarray(out.u).reshape(-1)[0]), out)
+
+    def advance(self, state: Columns, out: FloatOutput) -> Columns:
+        advanced = self.array_advance(tuple([np.array([e]) for e in state]), out.held)
+        return tuple([float(np.asarray(e).reshape(-1)[0]) for e in advanced])
+
+
 class FloatRows:
     """A batch of one on plain floats: each row is one tuple (x, x_meas, x_q, u, adaptive, in the
     order of the signal table), written to the buffer at :meth:`flush`, at least every
     :data:`FLUSH_ROWS` rows, and tested for divergence there (a per-step test cost about 1 us of
     a 25 us MuJoCo step). The run may go on for up to that many rows after it diverged; those
     rows do not count. Offers the loop what :class:`~.row_buffer.ArrayRows` offers, in float form."""
-
-    floats = True
 
     def __init__(self, buffer: RowBuffer) -> None:
         self.buffer = buffer
@@ -137,6 +165,13 @@ class FloatRows:
 
     def plant_io(self, plant: Plant, h: float) -> FloatIO:
         return float_io(plant, h)
+
+    def law(self, law: BatchLaw, h: float) -> tuple[Callable[..., Any], Advance]:
+        """``(control, advance)`` of one copy on floats: the law's float form, or its array form."""
+        if isinstance(law, FloatColumns):
+            return law.control, law.float_advancer(h)
+        adapter = ArrayLawAsFloats(law, h)
+        return adapter.control, adapter.advance
 
     def keep(self, k: int, x: list[float], meas: list[float], reading: QuantizedReading, u: float,
              adaptive: tuple) -> None:

@@ -115,8 +115,8 @@ class ClosedLoop:
     def run(self) -> list[Trajectory] | list[RunMetrics]:
         """The closed loop, row by row: observe -> quantize -> control -> record -> step -> advance."""
         plant, grid, rows = self.plant, self.grid, self.rows
-        quantize, control, reference_at, keep = self.quantize, self.law.control, self.reference.at, rows.keep
-        advance = self.law.advancer(grid.dt, rows.floats)
+        quantize, reference_at, keep = self.quantize, self.reference.at, rows.keep
+        control, advance = rows.law(self.law, grid.dt)
         hold, dt = grid.hold, grid.dt
         adaptive = rows.initial_state(self.law)
         self.record.started = time.perf_counter()

@@ -10,9 +10,11 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from functools import partial
+from typing import Any
 
 import numpy as np
 
+from ..controller.backstepping import Advance
 from ..controller.law import BatchLaw
 from ..plants.base import Plant
 from ..quantizer import QuantizedReading, Quantizer, quantize
@@ -45,8 +47,6 @@ class ArrayRows:
     """A batch: each row written into the buffer's arrays as it comes, and tested at once (cheap
     while the row is in the cache); only a row that fails the test is examined copy by copy."""
 
-    floats = False
-
     def __init__(self, buffer: RowBuffer, state_bound: float) -> None:
         self.buffer = buffer
         self.state_bound = state_bound
@@ -65,6 +65,10 @@ class ArrayRows:
 
     def plant_io(self, plant: Plant, h: float) -> ArrayIO:
         return ArrayIO(plant, h)
+
+    def law(self, law: BatchLaw, h: float) -> tuple[Callable[..., Any], Advance]:
+        """``(control, advance)`` of the batch: the law's array form."""
+        return law.control, law.advancer(h)
 
     def keep(self, k: int, x: np.ndarray, meas: np.ndarray, reading: QuantizedReading, u: np.ndarray,
              adaptive: tuple) -> bool:
