@@ -31,7 +31,7 @@ from .controller import lemma2_bounds as _lemma2_bounds
 from .engine import SIGNALS, ProgressCallback, RunMetrics, Trajectory
 from .errors import QcontrolInputError
 from .metrics import backend_deviation, summary
-from .outputs import atomic_path, check_output_file, clean, prepare_output_dir, write_text
+from .outputs import check_output_file, clean, prepare_output_dir, write_file, write_text
 from .scenario import Scenario
 from .scenario.resolve import scenario_provenance
 from .summary import Summary
@@ -88,9 +88,8 @@ class Result:
         prepare_output_dir(path.parent if str(path.parent) else Path("."), "save")
         if path.suffix == ".csv":
             return write_text(path, _csv_text(traj))
-        with atomic_path(path) as tmp, open(tmp, "wb") as file:
-            np.savez(file, t=traj.t, summary=np.array(json.dumps(clean(self.summary))), **traj.signals)
-        return path
+        meta = np.array(json.dumps(clean(self.summary)))
+        return write_file(path, lambda file: np.savez(file, t=traj.t, summary=meta, **traj.signals))
 
 
 for _signal in SIGNALS:

@@ -56,7 +56,7 @@ def run_summary(run: Trajectory | RunMetrics, scenario: str, backend: str) -> Su
         lemma2_max_ratio=lemma2_max_ratio(values["e_z_max"][None, :], run.L_z),
         velocity_source=run.velocity_source, lemma2_applies=lemma2_applies(run.velocity_source),
         L_z=tuple(float(v) for v in run.L_z), L=float(run.L_z[-1]),
-        **bound_constants(run.bound_names, values["bound_constants"]),
+        **bound_constants(run.bound_names, values["bound_constants"], values["smallest_r"]),
         law_diagnostics=law_diagnostics(run.law_diagnostics, values["diagnostics"]),
     )
 
@@ -73,19 +73,25 @@ def law_diagnostics(diagnostics: tuple, reduced: dict[str, np.ndarray]) -> dict:
     return out
 
 
-def bound_constants(names: tuple[str, ...], largest: np.ndarray) -> dict:
+def bound_constants(names: tuple[str, ...], largest: np.ndarray, smallest_r: np.ndarray) -> dict:
     """The separation (37)-(43) as the run measured it: ``bound_constants`` maps each term to the
     largest ``|term| / r(x_q)`` seen (None where it was infinite or undefined: the term is not
-    bounded by its r on the run), and ``warnings`` says so in words. ``bound_constants`` is None,
-    and absent from ``summary.json``, when the separation was not checked: a law without bounding
-    functions r (the comparison law), or a sweep's batch."""
+    bounded by its r on the run), and ``warnings`` says so in words. Both None/empty
+    (``bound_constants`` absent from ``summary.json``) when the separation was not checked (a law
+    without r, or a sweep's batch). Where a bounding function went below 1 at some row
+    (``smallest_r``: each r_i's smallest value), ``r_below_one`` maps its term to that value and a
+    warning says so; the key is there only then."""
     if not names:
         return {"bound_constants": None, "warnings": ()}
     constants = {name: float(v) if np.isfinite(v) else None for name, v in zip(names, largest, strict=True)}
     warnings = [f"{name} is not bounded by its r on this run: |{name}| / r(x_q) was infinite or undefined "
                 "(eqs. (37)-(43) need |term(x)| <= constant * r(x_q) wherever |x - x_q| <= delta/2)"
                 for name, value in constants.items() if value is None]
-    return {"bound_constants": constants, "warnings": tuple(warnings)}
+    below = {name: float(v) for name, v in zip(names, smallest_r, strict=True) if v < 1}
+    warnings += [f"the bounding function r of {name} went below 1 on this run (down to {value:.4g}): eqs. "
+                 "(37)-(43) need r_i(x_q) >= 1 wherever the run goes; make r larger there, e.g. 1 + ..."
+                 for name, value in below.items()]
+    return {"bound_constants": constants, "warnings": tuple(warnings), "r_below_one": below or None}
 
 
 def backend_deviation(physics: Trajectory, ideal: Trajectory) -> dict:

@@ -24,10 +24,12 @@ class Summary:
     ``velocity_source``), the bounds ``L_z`` and ``L = L_zn``. The separation (37)-(43):
     ``bound_constants`` (term -> largest ``|term| / r(x_q)``, None where unbounded; None, and absent
     from ``summary.json``, when not checked: a law without bounding functions, a sweep's batch) and
-    ``warnings``. ``law_diagnostics``: the law's own diagnostics as it declared them
-    (``max_gain_period`` for the paper's law: the largest K T over the control samples), written as
-    top-level keys ``<reduce>_<name>`` of ``summary.json``. ``provenance`` and ``physics_warnings``
-    are present (not None) in the summary of a single run written by ``qcontrol run`` or :func:`qcontrol.run`.
+    ``warnings``; ``r_below_one`` (term -> smallest ``r_i(x_q)``), present only when a bounding
+    function went below 1 during the run. ``law_diagnostics``: the law's own diagnostics as it
+    declared them (``max_gain_period`` for the paper's law: the largest K T over the control
+    samples), written as top-level keys ``<reduce>_<name>`` of ``summary.json``. ``provenance`` and
+    ``physics_warnings`` are present (not None) in the summary of a single run written by
+    ``qcontrol run`` or :func:`qcontrol.run`.
     """
 
     scenario: str
@@ -54,6 +56,7 @@ class Summary:
     bound_constants: Mapping[str, float | None] | None = None
     warnings: tuple[str, ...] = ()
     law_diagnostics: Mapping[str, Any] = field(default_factory=dict)
+    r_below_one: Mapping[str, float] | None = None
     provenance: Mapping[str, Any] | None = field(default=None, compare=False)
     physics_warnings: tuple[str, ...] | None = None
 
@@ -86,7 +89,7 @@ class Summary:
         return cls(**values)
 
 
-_OPTIONAL = ("bound_constants", "provenance", "physics_warnings")
+_OPTIONAL = ("bound_constants", "r_below_one", "provenance", "physics_warnings")
 _DIAGNOSTIC_PREFIXES = ("max_", "last_")  # a law diagnostic's key: <reduce>_<name>
 
 

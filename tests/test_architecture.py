@@ -29,7 +29,7 @@ from qcontrol.scenario import load_scenario
 # Each layer may import only from the layers before it (docs/architecture.md, "Modules").
 LAYERS = [
     {"_version", "errors", "schema", "timegrid", "expr", "progress", "outputs", "error_rate", "resources",
-     "provenance", "compiled"},
+     "provenance", "compiled", "workers"},
     {"quantizer", "reference", "disturbance"},
     {"controller"},
     {"plants"},
@@ -245,7 +245,7 @@ def test_recorded_derived_and_reduced_signals() -> None:
     assert needed(("e_z",)) == ("zbar", "e_z")
     assert {r.name for r in REDUCTIONS} == {"error_rate", "max_abs_z1_last_half", "max_abs_u", "e_z_max",
                                              "final_adaptive", "bound_constants", "max_abs_u_applied",
-                                             "saturated_fraction", "diagnostics"}
+                                             "saturated_fraction", "diagnostics", "smallest_r"}
 
 
 def test_a_metrics_run_keeps_the_reductions_of_the_full_record() -> None:

@@ -260,7 +260,8 @@ CATALOGUE: dict[str, Case] = {
         None, "controller.gamma: must be finite", scenario=EX2, args=("--set", "controller.gamma=inf")
     ),
     "nonfinite: --duration nan": case(
-        None, "simulation.duration: must be finite", scenario=EX2, args=("--duration", "nan")
+        None, "--duration nan: must be a positive number", scenario=EX2, args=("--duration", "nan"),
+        names_file=False,  # the value came from the command line: the option is named, not the file
     ),
     "nonfinite: expression constant 1e999": case(phi("x2 * 1e999"), "plant.phi[1]", "not finite"),
     "nonfinite: derivative of the reference": case(
@@ -409,7 +410,8 @@ CATALOGUE: dict[str, Case] = {
         None, "simulation.duration", "more than the limit", scenario=EX2, args=("--duration", "1e300")
     ),
     "steps: tiny dt": case(None, "more than the limit", scenario=EX2, args=("--dt", "1e-300")),
-    "steps: negative --dt": case(None, "simulation.dt: must be > 0", scenario=EX2, args=("--dt", "-0.001")),
+    "steps: negative --dt": case(None, "--dt -0.001: must be a positive number", scenario=EX2,
+                                 args=("--dt", "-0.001"), names_file=False),
     "steps: control period not a multiple": case(
         ex2("dt = 0.001", "dt = 0.001\ncontrol_period = 0.0015"),
         "simulation.control_period = 0.0015 s is not a whole number of steps",
@@ -433,7 +435,7 @@ CATALOGUE: dict[str, Case] = {
     "out: summary.json is a folder": case(
         None,
         "summary.json",
-        "cannot write",
+        "is a folder, not a regular file",
         scenario=EX2,
         args=("--out", "{tmp}/taken", "--backend", "ode", "--duration", "0.01"),
         names_file=False,
@@ -469,7 +471,7 @@ def _assert_nothing_written(tmp_path: Path, out: Path) -> None:
     leftovers = [
         p
         for p in tmp_path.rglob("*")
-        if p.name.endswith(".part") or p.name.startswith(".summary") or p.name.startswith(".compare")
+        if p.name.endswith((".part", ".tmp")) or p.name.startswith((".summary", ".compare"))
     ]
     assert not leftovers, f"temporary files left: {leftovers}"
     for name in ("summary.json", "compare.json"):

@@ -103,8 +103,8 @@ def test_bad_scenario_exit_2_one_line(tmp_path, capsys, case):
         (["run", str(EX2), "--set", "controller.kapa=1"], "controller.kapa: unknown key"),
         (["run", str(EX2), "--set", "controller.c=[1, 2, 3]"], "has 3 entries, expected 2"),
         (["run", str(ROOT / "scenarios" / "chain3.toml"), "--backend", "mujoco"], "[plant.mujoco]"),
-        (["run", str(EX2), "--duration", "-1"], "simulation.duration: must be > 0"),
-        (["run", str(EX2), "--dt", "0"], "simulation.dt: must be > 0"),
+        (["run", str(EX2), "--duration", "-1"], "--duration -1.0: must be a positive number of seconds"),
+        (["run", str(EX2), "--dt", "0"], "--dt 0.0: must be a positive number of seconds"),
         (["run", str(EX2), "--backend", "gpu"], "invalid choice"),
     ],
 )
@@ -161,7 +161,7 @@ def test_compare_rrd_holds_both_runs(tmp_path, capsys):
     rrd = tmp_path / "rec" / "ex2.rrd"
     out = tmp_path / "cmp"
     assert main(["compare", str(EX2), "--rrd", str(rrd), "--out", str(out), "--duration", "1", "-q"]) == 0
-    assert rrd.is_file() and not list(rrd.parent.glob("*.part"))
+    assert rrd.is_file() and not list(rrd.parent.glob(".*.tmp"))
     entities = read_entities(rrd)
     for path in ("world/bodies/arm", "world/ode_ghost/arm", "world/target", "signals/tracking/y",
                  "signals/tracking/y_d", "signals/tracking/y_ode", "signals/input/u",

@@ -94,7 +94,7 @@ def test_reproduce_creates_nothing_on_bad_input(here: Path, capsys: pytest.Captu
     """The finding: `--scenarios /nonexistent --out runs/bad3` left an empty runs/bad3/. A folder
     missing only the last scenario the reproduction uses is refused before anything is made."""
     _refused_and_nothing_made(here, capsys, ["reproduce", "--scenarios", "/nonexistent", "--out", "runs/bad3",
-                                             "-q"], "/nonexistent/example1.toml", "not found")
+                                             "-q"], "--scenarios /nonexistent", "does not exist")
     partial = here / "partial"
     partial.mkdir()
     for name in ("example1.toml", "example2.toml"):

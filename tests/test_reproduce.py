@@ -32,7 +32,7 @@ def test_every_file_is_written(reproduction):
     expected = set(FIGURES) | {"table1.md", "table1.json", "studies.json", "robustness.json", "REPORT.md",
                                "example1.rrd", "example2.rrd", "region.json"}
     assert expected <= names
-    assert not [n for n in names if n.endswith(".part")]
+    assert not [n for n in names if n.endswith((".part", ".tmp"))]
 
 
 def test_table1_json(reproduction):

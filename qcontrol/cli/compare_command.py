@@ -39,7 +39,7 @@ def add_compare_parser(sub: argparse._SubParsersAction) -> None:
 def cmd_compare(args: argparse.Namespace) -> int:
     sc = scenario_from_args(args)
     api.require_twin(sc)  # before --spawn starts a viewer
-    check_outputs(args, {"--rrd": args.rrd})
+    check_outputs(args, sc, {"--rrd": args.rrd, "--video": args.video}, ("compare.json",))
     check_rendering(args, sc)
     progress: dict[str, ProgressLine] = {}
 

@@ -1,23 +1,35 @@
 """The ``qcontrol`` command line: run, compare, reproduce, sweep, region, check (on :mod:`qcontrol.api`).
 
-Exit status: 0 success; 1 the run diverged or a theory check failed; 2 bad input; 130 interrupted.
-Bad input is reported as one line on stderr, never as a traceback, and every input is checked
-before any folder or file is made. Each command is one module of this package with its parser
-and its handler; they share the scenario options of :mod:`.arguments`.
+Exit status: 0 success; 1 the run diverged or a theory check failed; 2 bad input (outputs that
+cannot be written included: checked before the run); 3 an output could not be written during or
+after the run (no space left, an I/O error, no permission: the previous file is intact); 130
+interrupted (Ctrl-C); 143 terminated (SIGTERM). Bad input is reported as one line on stderr, never
+as a traceback, and every input is checked before any folder or file is made. Each command is one
+module of this package with its parser and its handler; they share the scenario options of
+:mod:`.arguments`.
 """
 
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 import time
 import warnings
 from collections.abc import Callable, Sequence
 
 from .._version import __version__
-from ..errors import QcontrolInputError
+from ..errors import QcontrolInputError, QcontrolOutputError, Terminated
 from ..provenance import command_line
-from .arguments import EXIT_BAD_INPUT, EXIT_INTERRUPTED, Parser
+from .arguments import (
+    EXIT_BAD_INPUT,
+    EXIT_INTERRUPTED,
+    EXIT_STATUS,
+    EXIT_TERMINATED,
+    EXIT_WRITE_FAILED,
+    Parser,
+)
 from .check_command import add_check_parser, cmd_check
 from .compare_command import add_compare_parser, cmd_compare
 from .region_command import add_region_parser, cmd_region
@@ -47,7 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
             "Adaptive backstepping control with quantized states (Sun et al., Electronics 2022, "
             "11, 3160) on an ideal ODE plant or on MuJoCo physics."
         ),
-        epilog="Exit status: 0 ok, 1 diverged or a theory check failed, 2 bad input, 130 interrupted.",
+        epilog=EXIT_STATUS,
     )
     parser.add_argument("--version", action="version", version=f"qcontrol {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
@@ -63,17 +75,31 @@ def _one_line_warning(message: Warning | str, category: type[Warning], filename:
     return f"qcontrol: warning: {message}\n"
 
 
+def _terminate(signum: int, frame: object) -> None:
+    """SIGTERM: stop as Ctrl-C does (every output cleans up after itself), exit status 143."""
+    raise Terminated
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.command_line = command_line(argv)  # what the outputs' provenance names as the command
     warnings.formatwarning = _one_line_warning
     started = time.perf_counter()
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _terminate) if main_thread else None
     try:
         return COMMANDS[args.command][1](args)
     except QcontrolInputError as exc:
         print(f"qcontrol: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print(f"\nqcontrol: interrupted after {time.perf_counter() - started:.1f} s", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    except QcontrolOutputError as exc:
+        print(f"qcontrol: error: {exc.strerror or exc}", file=sys.stderr)
+        return EXIT_WRITE_FAILED
+    except KeyboardInterrupt as exc:
+        how = "terminated" if isinstance(exc, Terminated) else "interrupted"
+        print(f"\nqcontrol: {how} after {time.perf_counter() - started:.1f} s", file=sys.stderr)
+        return EXIT_TERMINATED if isinstance(exc, Terminated) else EXIT_INTERRUPTED
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, previous)

@@ -6,9 +6,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..errors import QcontrolInputError
+from ..errors import QcontrolInputError, shown
+from ..outputs import check_output_dir, path_kind
 from ..plants import BACKENDS
 from .arguments import EXIT_OK
+
+MAX_DURATION = 3600.0  # s of simulated time per run: every run keeps its rows for the figures
+SCENARIO_FILES = ("example1.toml", "example2.toml", "example2-rigid.toml", "example2-arm.toml",
+                  "example1-cart.toml")
 
 
 def add_reproduce_parser(sub: argparse._SubParsersAction) -> None:
@@ -39,20 +44,28 @@ def add_reproduce_parser(sub: argparse._SubParsersAction) -> None:
                      "study and no robustness study (no region.json, study_region.png, robustness.json, "
                      "study_robustness.png, study_margins.png)")
     rep.add_argument("--scenarios", type=Path, default=None, metavar="DIR",
-                     help="folder holding example1.toml, example2.toml, example2-rigid.toml, "
-                     "example2-arm.toml, example1-cart.toml")
+                     help=f"folder holding {', '.join(SCENARIO_FILES)} (default: the shipped ones)")
     rep.add_argument("--workers", type=int, default=None, metavar="N",
                      help="worker processes for the robustness study (default: the cores, at most 4)")
     rep.add_argument("-q", "--quiet", action="store_true", help="no progress output")
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
+    """The command-line options are checked before the reproduction (and matplotlib) is imported."""
+    if args.duration is not None and not (0 < args.duration <= MAX_DURATION):
+        raise QcontrolInputError(f"--duration {args.duration!r}: must be a number of seconds > 0 and at most "
+                                 f"{MAX_DURATION:g}; e.g. --duration 2 for a quick look")
+    if args.workers is not None and args.workers < 1:
+        raise QcontrolInputError(f"--workers {args.workers}: must be >= 1; e.g. --workers 2 (more than the "
+                                 "cores are capped at the cores)")
+    if args.scenarios is not None and path_kind(args.scenarios) != "a folder":
+        kind = path_kind(args.scenarios) or "a file"
+        what = "does not exist" if not args.scenarios.exists() else f"is {kind}"
+        raise QcontrolInputError(f"--scenarios {shown(args.scenarios)}: {what}; give the folder holding "
+                                 f"{', '.join(SCENARIO_FILES)}")
+    check_output_dir(args.out)
     from ..reproduce import SCENARIO_DIR, reproduce  # matplotlib and the studies: only for this command
 
-    if args.duration is not None and not (args.duration > 0):
-        raise QcontrolInputError(f"--duration must be > 0, got {args.duration!r}")
-    if args.workers is not None and args.workers < 1:
-        raise QcontrolInputError(f"--workers must be >= 1, got {args.workers}")
     scenarios = args.scenarios or SCENARIO_DIR
     log = (lambda line: None) if args.quiet else (lambda line: print(line, flush=True))
     reproduce(args.out, args.backend, args.duration, scenarios, log, command=args.command_line,

@@ -38,7 +38,7 @@ def add_run_parser(sub: argparse._SubParsersAction) -> None:
                      "per component); keeps every row in memory, unlike a plain run")
     run.add_argument("--plot", type=Path, metavar="FILE",
                      help="draw the run (y and y_d, z1, u, the adaptive estimates, the Lemma 2 ratio) to "
-                     "FILE.png; keeps every row in memory, unlike a plain run")
+                     "FILE.png, .pdf or .svg; keeps every row in memory, unlike a plain run")
     add_recording_options(run)
     add_rendering_options(run)
 
@@ -49,7 +49,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.save is not None and args.save.suffix not in api.SAVE_FORMATS:
         raise QcontrolInputError(f"--save {args.save}: unknown format {args.save.suffix!r}; "
                                  "give a .npz or .csv file")
-    check_outputs(args, {"--rrd": args.rrd, "--save": args.save, "--plot": args.plot})
+    outputs = {"--rrd": args.rrd, "--save": args.save, "--plot": args.plot, "--video": args.video}
+    check_outputs(args, sc, outputs, ("summary.json",))
     check_rendering(args, sc)
     # a plain run keeps only its metrics (memory stays flat however long the run); --save, --plot
     # and --video need every row

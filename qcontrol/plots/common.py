@@ -14,7 +14,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from ..engine import Trajectory
-from ..outputs import atomic_path
+from ..outputs import FIGURE_FORMATS, write_file
 
 FIG_WIDTH_PX = 1200
 """Width of every PNG written here, in pixels."""
@@ -77,12 +77,13 @@ def new_figure(rows: int = 1, cols: int = 1, **subplot_kw) -> tuple[Figure, np.n
 
 
 def save(fig: Figure, path: str | os.PathLike) -> Path:
-    """Write ``fig`` as a PNG to ``path`` atomically (missing folders are created)."""
+    """Write ``fig`` to ``path`` atomically, as PNG, PDF or SVG by its suffix (PNG for any other
+    suffix; the command line refuses those before the run); missing folders are created."""
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(target) as tmp:
-        fig.savefig(tmp, format="png", dpi=FIG_DPI)
-    return target
+    suffix = target.suffix.lower()
+    kind = suffix[1:] if suffix in FIGURE_FORMATS else "png"
+    return write_file(target, lambda handle: fig.savefig(handle, format=kind, dpi=FIG_DPI))
 
 
 def unit(unit: str) -> str:

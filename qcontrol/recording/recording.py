@@ -16,11 +16,12 @@ run starts and again only when it changes: a twin run adds its difference panels
 that travels beyond what its camera framed gets a camera that frames the whole run when the
 recording is closed.
 
-File handling: data goes to ``<path>.part`` while the recording is open. On *any* exit of the
-``with`` block (clean, exception, ``KeyboardInterrupt``) the stream is flushed and closed and the
-file renamed to ``path``: what was recorded up to the last chunk is kept, no temporary file is
-left behind. Only a killed process leaves the ``.part`` file (readable up to its last chunk but
-one at least).
+File handling (:mod:`.rrd_file`): data goes to a temporary file of its own beside ``path``
+(``.NAME.<random>.tmp``) while the recording is open. When the ``with`` block ends cleanly the
+stream is flushed and closed, the file is checked (it reads back, footer included) and moved to
+``path``. On an exception (an error, ``KeyboardInterrupt``, SIGTERM) what was recorded up to the
+last chunk is kept as ``NAME.partial.rrd`` and ``path`` is left as it was. Only a killed process
+leaves its temporary file (readable up to its last chunk but one at least).
 """
 
 from __future__ import annotations
@@ -37,9 +38,10 @@ import numpy as np
 
 from ..engine import Observer, Trajectory
 from ..errors import QcontrolInputError
-from ..outputs import AtomicFile, clean
+from ..outputs import clean
 from .camera import TRAVEL_MARGIN, Camera, fixed_camera
 from .layout import default_blueprint
+from .rrd_file import RrdFile, quiet_rerun_logging
 from .scene import Scene
 from .series import GREEN, LIGHT, RED, Panel, Series
 from .streamer import RunStreamer
@@ -51,11 +53,6 @@ if TYPE_CHECKING:
 
 _COMPARISON_ALPHA = 90
 _MAIN_RUN_TAKEN = "a main (non-ghost) run is already being recorded into this file"
-
-
-def temporary_path(path: Path) -> Path:
-    """The name a recording is written under until it is closed: ``<path>.part``."""
-    return path.with_name(path.name + ".part")
 
 
 def _label_suffix(label: str) -> str:
@@ -82,7 +79,7 @@ class Recording:
             raise ValueError("a recording needs a file (path) or a viewer (spawn=True)")
         self.path = None if path is None else Path(path)
         self.spawn = spawn
-        self._file: AtomicFile | None = None
+        self._file: RrdFile | None = None
         self.application_id = application_id
         self._stream: rr.RecordingStream | None = None
         self._main_taken = False
@@ -99,7 +96,7 @@ class Recording:
         self._spans: dict[Panel, tuple[float, float]] = {}  # each panel's finite values so far
         self.main_series: list[Series] = []  # the main run's, restyled once a twin is drawn on them
         self.main_label = "main"
-        self._flush_failed = False
+        self._flush_error: str | None = None  # the first failure to flush, reported at close
         self._open()
 
     @property
@@ -113,14 +110,20 @@ class Recording:
         modules that log more than runs (e.g. :mod:`.disturbances`)."""
         return self._stream
 
+    @property
+    def temporary(self) -> Path | None:
+        """The file rerun writes while the recording is open (None without a file)."""
+        return None if self._file is None else self._file.temporary
+
     def _open(self) -> None:
+        quiet_rerun_logging()
         import rerun as rr
 
         stream = rr.RecordingStream(self.application_id)
         sinks: list[Any] = []
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._file = AtomicFile(self.path, temporary=temporary_path(self.path))
+            self._file = RrdFile(self.path)
             sinks.append(rr.FileSink(str(self._file.temporary)))
         if self.spawn:
             try:
@@ -142,34 +145,43 @@ class Recording:
     def __exit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
-        self.close()
+        self.close(complete=exc_type is None)
 
-    def close(self) -> None:
-        """Flush and close the stream, then rename the file to its final name (idempotent)."""
+    def close(self, complete: bool = True) -> None:
+        """Flush and close the stream; a ``complete`` recording's file is checked and moved to its
+        final name, any other is kept under its partial name (see the module docstring; idempotent)."""
         if self._stream is None:
+            if self._file is not None:  # nowhere to write after all (no sink): nothing to keep
+                self._file.discard()
+                self._file = None
             return
         try:
             self.update_layout(final=True)
             self.flush()
             self._stream.disconnect()  # closes the file: writes rerun's footer
+        except BaseException:
+            complete = False
+            raise
         finally:
             self._stream = None
-            if self._file is not None and self._file.temporary.exists():
-                self._file.commit()
+            if self._file is not None:
+                file, self._file = self._file, None
+                file.finish(complete)  # a file that was not written whole raises here
+            if self._flush_error is not None:
+                warnings.warn(f"rerun could not flush the recording: {self._flush_error}", stacklevel=3)
 
     def flush(self, wait: bool = True) -> None:
         """Write everything logged so far: block until it is written, or (``wait=False``) start
         writing it and return, so that the run goes on while rerun encodes and writes on another
-        core. A failure (e.g. a viewer that went away) is reported once as a warning and does not
-        stop the run."""
+        core. A failure does not stop the run: a file that could not be written is reported when
+        the recording closes (it is checked then), any other failure (e.g. a viewer that went away)
+        as one warning then."""
         if self._stream is None:
             return
         try:
             self._stream.flush(timeout_sec=1e38 if wait else 0.0)
         except RuntimeError as exc:
-            if not self._flush_failed:
-                warnings.warn(f"rerun could not flush the recording: {exc}", stacklevel=2)
-            self._flush_failed = True
+            self._flush_error = self._flush_error or str(exc)
 
     # -- static content -------------------------------------------------------------------
 

@@ -6,7 +6,9 @@ a constant scale of r, plant variants) on the ODE backend, then the robustness s
 hardware (:mod:`qcontrol.robustness`, MuJoCo, in worker processes). Writes PNG figures,
 ``table1.md``, ``table1.json``, ``studies.json``, ``region.json`` (the sampled loop's region study,
 :mod:`.region_study`), ``robustness.json``, ``REPORT.md`` and one rerun
-recording per example into the output folder. Parameters come from the paper's Section 4
+recording per example into the output folder, all put in place together at the end
+(:func:`qcontrol.outputs.staged`): an interrupted or failed reproduction leaves the folder's
+previous files as they were, never a mix of old and new. Parameters come from the paper's Section 4
 (docs/math.md, 'The paper's examples'); nothing is fitted to Table 1.
 """
 
@@ -25,7 +27,7 @@ from ..assembly import run_scenario
 from ..controller import lemma2_L
 from ..engine import Trajectory
 from ..metrics import backend_deviation, summary
-from ..outputs import check_output_dir, prepare_output_dir, write_json, write_text
+from ..outputs import check_output_dir, prepare_output_dir, staged, write_json, write_text
 from ..plants import BACKENDS
 from ..resources import shipped_dir
 from ..scenario import Scenario, load_scenario
@@ -137,12 +139,25 @@ def reproduce(
     rep = Reproduction(check_output_dir(out), backend, duration, Path(scenarios), log, command=command)
     _validate(rep)
     o = prepare_output_dir(out)
-    log(f"Example 1 on {backend}")
+    with staged():  # every file is put in place at the end, together: the folder is never mixed
+        table = _write_all(rep, o, command, workers, quick)
+    extra = "" if quick else "region.json, robustness.json, "
+    study = "no region or robustness study (--quick)" if quick else "then the region and robustness studies"
+    log(f"wrote {o}: REPORT.md, table1.md, table1.json, studies.json, {extra}figures, recordings "
+        f"({len(rep.lemma2_ratios)} example and study runs, {study}; "
+        f"{time.perf_counter() - rep.started:.1f} s)")
+    return table
+
+
+def _write_all(rep: Reproduction, o: Path, command: str, workers: int | None, quick: bool) -> dict:
+    """The runs and their files, in order; Table 1 as written to table1.json."""
+    backend = rep.backend
+    rep.log(f"Example 1 on {backend}")
     ex1, ex1_twin = rep.twins("example 1", rep.scenario("example1"))
     _example1_figures(o, ex1, ex1_twin)
     _record(o / "example1.rrd", ex1, {"ode": ex1_twin}, command)
 
-    log(f"Example 2 on {backend}: proposed and comparison law [20]")
+    rep.log(f"Example 2 on {backend}: proposed and comparison law [20]")
     ex2, ex2_twin = rep.twins("example 2 proposed", rep.scenario("example2"))
     base, base_twin = rep.twins("example 2 comparison", rep.scenario("example2", COMPARISON))
     _example2_figures(o, ex2, ex2_twin, base)
@@ -159,7 +174,7 @@ def reproduce(
     }
     studied = {name: rep.scenario(name) for name in ("example2", "example2-rigid")}
     write_json(o / "studies.json", studies | {"provenance": scenarios_provenance(studied, command)})
-    region = None if quick else region_study(rep.scenarios, rep.duration, log)
+    region = None if quick else region_study(rep.scenarios, rep.duration, rep.log)
     if region is not None:
         write_region_study(region, o / "study_region.png")
         examples = {name: rep.scenario(name) for name in ("example1", "example2")}
@@ -167,11 +182,6 @@ def reproduce(
                    region_record(region) | {"provenance": scenarios_provenance(examples, command)})
     robustness = None if quick else _robustness(o, rep, workers)
     write_text(o / "REPORT.md", _report(rep, table, studies, deviations, ex1, ex2, robustness, region))
-    extra = "" if quick else "region.json, robustness.json, "
-    study = "no region or robustness study (--quick)" if quick else "then the region and robustness studies"
-    log(f"wrote {o}: REPORT.md, table1.md, table1.json, studies.json, {extra}figures, recordings "
-        f"({len(rep.lemma2_ratios)} example and study runs, {study}; "
-        f"{time.perf_counter() - rep.started:.1f} s)")
     return table
 
 

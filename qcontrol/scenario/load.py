@@ -22,8 +22,9 @@ import numpy as np
 from ..controller.law import KIND_ALIASES, LawContext, law_kind
 from ..disturbance import Disturbance, parse_disturbances
 from ..engine import MetricSettings
-from ..errors import KeyNotForKind, QcontrolInputError
+from ..errors import KeyNotForKind, QcontrolInputError, shown
 from ..expr import Expression, compile_expression
+from ..outputs import check_name, path_kind
 from ..plants.backends import BACKENDS, PlantContext
 from ..plants.base import PlantTerms
 from ..reference import REFERENCE_KINDS
@@ -42,6 +43,7 @@ from .keys import (
     scenario_section,
     simulation_section,
 )
+from .limits import check_limits
 
 Overrides = Sequence[str] | Mapping[str, Any]  # "key=value" strings (the value read as TOML), or a dict
 
@@ -114,17 +116,18 @@ def load_scenario(path: str | Path, overrides: Overrides = (), unset: Sequence[s
     """Read and validate a scenario file (or a shipped scenario by name, e.g. ``"example2"``),
     removing the ``unset`` keys and applying the overrides first: ``"key=value"`` strings as on the
     command line (``--set``), or a dict ``{"controller.kappa_margin": 0.1}``."""
-    path = scenario_path(path)
-    if path.is_dir():
-        raise QcontrolInputError(f"{path}: is a folder, not a scenario file; pass a .toml scenario")
+    path = scenario_path(check_name(path, "scenario"))
+    kind = path_kind(path)
+    if kind is not None:
+        raise QcontrolInputError(f"{shown(path)}: is {kind}, not a scenario file; pass a .toml scenario file")
     if not path.is_file():
         shipped = ", ".join(shipped_scenarios()) or "none"
-        raise QcontrolInputError(f"{path}: scenario file not found; pass the path of a .toml scenario or the "
-                                 f"name of a shipped one ({shipped})")
+        raise QcontrolInputError(f"{shown(path)}: scenario file not found; pass the path of a .toml scenario "
+                                 f"or the name of a shipped one ({shipped})")
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
-        raise QcontrolInputError(f"{path}: cannot read the scenario ({exc}); check the file") from None
+        raise QcontrolInputError(f"{shown(path)}: cannot read the scenario ({exc}); check the file") from None
     return parse_scenario(text, source=str(path), base_dir=path.parent, overrides=overrides,
                           default_name=path.stem, unset=unset)
 
@@ -143,6 +146,10 @@ def parse_scenario(
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise QcontrolInputError(f"{source}: malformed TOML ({exc}); fix the syntax") from None
+    except (RecursionError, ValueError):  # ValueError: an integer literal of thousands of digits
+        raise QcontrolInputError(f"{source}: arrays or tables nested too deep, or a number too long, to "
+                                 "read; no key takes such a value: flatten or shorten it") from None
+    check_limits(data, source)
     for key in unset:
         remove_key(data, key, source)
     given = _as_given(overrides)
@@ -250,7 +257,7 @@ def apply_override(data: dict, item: str) -> None:
     raw = raw.strip()
     try:
         value = tomllib.loads(f"v = {raw}")["v"]
-    except tomllib.TOMLDecodeError:
+    except (tomllib.TOMLDecodeError, RecursionError, ValueError):
         value = raw
     set_key(data, key, value, f"--set {item!r}")
 
@@ -268,6 +275,7 @@ def set_key(data: dict, key: str, value: Any, label: str) -> None:
                 f"{label}: {part!r} is a value, not a table; set {'.'.join(parts[:-1])} directly"
             )
         node = child
+    check_limits(value, label, key)
     node[parts[-1]] = value
 
 
