@@ -12,7 +12,7 @@ import argparse
 from pathlib import Path
 
 from ..errors import QcontrolInputError
-from ..outputs import check_output_dir
+from ..outputs import check_output_dir, check_output_file
 from ..plants import BACKENDS
 from ..progress import ProgressLine
 from ..provenance import command_line
@@ -71,6 +71,8 @@ def cmd_region(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise QcontrolInputError(f"--workers {args.workers}: must be >= 1")
     check_output_dir(args.out)
+    for name in ("region.csv", "region.json", "region.png"):
+        check_output_file(args.out / name, "--out", fix="remove it or choose another --out folder")
     overrides = _overrides(args)
     base = load_scenario(args.scenario, overrides, args.unset)
     grid = parse_grid(base, args.axes, args.box, args.resolution)
