@@ -181,7 +181,7 @@ def _members(protocol: type) -> set[str]:
     (Quantizer, {"max_error", "__call__"}),
     (FloatIO, {"observe", "step"}),
     (BatchLaw, {"state_name", "state_size", "copies", "coordinates", "initial_state", "control", "advancer",
-                "constants"}),
+                "constants", "diagnostics"}),
     (FloatColumns, {"float_advancer"}),
     (Law, {"state_size", "initial_state", "control", "state_rate"}),
 ])
