@@ -229,7 +229,7 @@ class _ArrayOnlyLaw:
     def __init__(self, inner) -> None:
         self.inner = inner
         self.state_name, self.state_size, self.copies = inner.state_name, inner.state_size, inner.copies
-        self.coordinates = inner.coordinates
+        self.coordinates, self.diagnostics = inner.coordinates, inner.diagnostics
         self.forms: set[str] = set()
 
     def initial_state(self, batch):
