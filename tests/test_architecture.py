@@ -17,10 +17,12 @@ import pytest
 from conftest import EX2, PACKAGE, ROOT
 
 from qcontrol.assembly import build_plant, run_scenario
+from qcontrol.controller import BatchLaw, FloatColumns
+from qcontrol.controller.user import Law
 from qcontrol.engine import SIGNALS, ClosedLoop
 from qcontrol.engine.signals import DERIVED, RECORDED, REDUCTIONS, needed
 from qcontrol.errors import QcontrolInputError
-from qcontrol.plants import Actuated, Backend, Disturbable, FloatStepping, PhysicsReport, Plant
+from qcontrol.plants import Actuated, Backend, Disturbable, FloatIO, FloatStepping, PhysicsReport, Plant
 from qcontrol.quantizer import Quantizer
 from qcontrol.scenario import load_scenario
 
@@ -177,6 +179,11 @@ def _members(protocol: type) -> set[str]:
     (PhysicsReport, {"warnings", "consistency_report"}),
     (FloatStepping, {"float_io"}),
     (Quantizer, {"max_error", "__call__"}),
+    (FloatIO, {"observe", "step"}),
+    (BatchLaw, {"state_name", "state_size", "copies", "coordinates", "initial_state", "control", "advancer",
+                "constants"}),
+    (FloatColumns, {"float_advancer"}),
+    (Law, {"state_size", "initial_state", "control", "state_rate"}),
 ])
 def test_the_protocols_stay_narrow(protocol: type, members: set[str]) -> None:
     assert _members(protocol) == members
@@ -187,6 +194,13 @@ def test_a_backend_is_built_with_keywords_and_needs_four() -> None:
     required = {name for name, f in fields.items() if f.default is dataclasses.MISSING}
     assert required == {"name", "build", "structure", "summary"}
     assert all(f.kw_only for f in fields.values())
+
+
+def test_the_float_path_is_explained_in_one_module() -> None:
+    """Why a batch of one runs on floats is said once, where the float path is chosen."""
+    explaining = sorted(str(path.relative_to(PACKAGE)) for path in PACKAGE.rglob("*.py")
+                        if "microsecond" in path.read_text())
+    assert explaining == ["engine/fastpath.py"]
 
 
 def test_no_attribute_probing_in_the_package() -> None:
