@@ -23,7 +23,8 @@ def add_reproduce_parser(sub: argparse._SubParsersAction) -> None:
         "kappa - L, the scale of r, the plant variants (21 runs, batched: about 3 s); (3) the robustness "
         "study: 248 MuJoCo runs of the realistic arm and cart (each imperfection alone, 20 noise seeds, "
         "margins beyond the hardware, disturbances: about 25 s over two worker processes, 50 s of CPU; "
-        "longer on a shared machine). --quick skips (3) and runs 1 s horizons: a few seconds.",
+        "longer on a shared machine). --quick skips (3) and runs 1 s horizons: about 12 s on a shared 2-core "
+        "VM, most of it writing the figures.",
     )
     rep.add_argument("--out", type=Path, default=Path("results"), metavar="DIR",
                      help="output folder (default: results)")
@@ -33,7 +34,7 @@ def add_reproduce_parser(sub: argparse._SubParsersAction) -> None:
                      help="horizon of every run (default: the paper's 10 s); the robustness study keeps its "
                      "248 runs: for a quick look use --quick")
     rep.add_argument("--quick", action="store_true",
-                     help="a first look in a few seconds: 1 s horizons (or --duration) and no robustness "
+                     help="a first look in about 12 s: 1 s horizons (or --duration) and no robustness "
                      "study (no robustness.json, study_robustness.png, study_margins.png)")
     rep.add_argument("--scenarios", type=Path, default=None, metavar="DIR",
                      help="folder holding example1.toml, example2.toml, example2-rigid.toml, "
