@@ -36,7 +36,7 @@ from ..controller.law import BatchLaw, FloatColumns
 from ..expr import FLOAT_REFUSED
 from ..plants.base import FloatIO, FloatStepping, Plant
 from ..quantizer import QuantizedReading, Quantizer, UniformQuantizer
-from .row_buffer import RowBuffer
+from .row_buffer import ArrayRows, RowBuffer
 from .signals import RECORDED
 
 Quantize = Callable[[Any], QuantizedReading]
@@ -197,3 +197,10 @@ class FloatRows:
     def next_event(self, k: int) -> int:
         """The next row at which the pending rows must be flushed."""
         return ((k + 1) // FLUSH_ROWS + 1) * FLUSH_ROWS - 1
+
+
+def rows_for(buffer: RowBuffer, batch: int, state_bound: float) -> FloatRows | ArrayRows:
+    """The loop's rows for a run, the one place the form is chosen: floats for a batch of one,
+    ``(batch,)`` columns otherwise. Each offers the loop the quantizer, the plant's and the law's
+    observe/step/control/advance in its form."""
+    return FloatRows(buffer) if batch == 1 else ArrayRows(buffer, state_bound)

@@ -26,11 +26,11 @@ from ..quantizer import Quantizer
 from ..reference import Reference
 from ..timegrid import TimeGrid
 from .divergence import Divergence
-from .fastpath import FloatRows
+from .fastpath import rows_for
 from .reference_rows import ReferenceRows
 from .results import RunMetrics, Trajectory
 from .retention import FullRecord, MetricsRecord, RunParts
-from .row_buffer import NEVER, ArrayRows
+from .row_buffer import NEVER
 from .signals import SignalContext, applied_as_commanded
 from .spec import ProgressCallback, RunSpec
 
@@ -85,8 +85,7 @@ class ClosedLoop:
         parts = RunParts(grid, law, self.reference, self.divergence, context, spec.metrics, batch, n)
         self.record = (FullRecord(parts, spec.observer, spec.observe_every) if spec.record == "full"
                        else MetricsRecord(parts, spec.observer))
-        self.rows = FloatRows(self.record.buffer) if batch == 1 else ArrayRows(self.record.buffer,
-                                                                               spec.state_bound)
+        self.rows = rows_for(self.record.buffer, batch, spec.state_bound)
         self.quantize = self.rows.quantizer(spec.quantizer)
         if spec.velocity_source == "difference":
             self.quantize = self.rows.differenced(self.quantize, grid.hold, grid.hold * grid.dt)
