@@ -30,7 +30,8 @@ def add_reproduce_parser(sub: argparse._SubParsersAction) -> None:
         "the comparison law on a 9 x 9 grid of initial states (batched ODE: about 10 s); (3) the robustness "
         "study: 248 MuJoCo runs of the realistic arm and cart (each imperfection alone, 20 noise seeds, "
         "margins beyond the hardware, disturbances: about 25 s over two worker processes, 50 s of CPU; "
-        "longer on a shared machine). --quick skips (2b) and (3) and runs 1 s horizons: a few seconds.",
+        "longer on a shared machine). --quick skips (2b) and (3) and runs 1 s horizons: about 12 s on a "
+        "shared 2-core VM, most of it writing the figures.",
     )
     rep.add_argument("--out", type=Path, default=Path("results"), metavar="DIR",
                      help="output folder (default: results)")
@@ -40,7 +41,7 @@ def add_reproduce_parser(sub: argparse._SubParsersAction) -> None:
                      help="horizon of every run (default: the paper's 10 s); the robustness study keeps its "
                      "248 runs: for a quick look use --quick")
     rep.add_argument("--quick", action="store_true",
-                     help="a first look in a few seconds: 1 s horizons (or --duration), no region "
+                     help="a first look in about 12 s: 1 s horizons (or --duration), no region "
                      "study and no robustness study (no region.json, study_region.png, robustness.json, "
                      "study_robustness.png, study_margins.png)")
     rep.add_argument("--scenarios", type=Path, default=None, metavar="DIR",
