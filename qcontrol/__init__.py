@@ -8,14 +8,16 @@ The Python API (see the README's "Python API"):
 
 * :func:`load_scenario` -> :class:`Scenario` (immutable; ``sc.with_overrides({...})``)
 * :func:`run` -> :class:`Result` (``summary``, the signals ``t, x, x_q, u, y, yd, z, adaptive``,
-  ``save``); :func:`compare` -> :class:`Comparison` (``summary``, ``mujoco``, ``ode``)
+  ``save``, ``plot``); :func:`compare` -> :class:`Comparison` (``summary``, ``mujoco``, ``ode``);
+  :func:`sweep` -> the sweep's table (a dict per run). ``qcontrol.sweep`` is this function; the
+  package of the same name stays importable (``from qcontrol.sweep import ...``).
 * :class:`Law` and :func:`register_law`: a control law of your own, selected by
   ``controller.kind``; :func:`check_keys`, :func:`quantized_backstepping` and
   :func:`lemma2_bounds` help write one.
 """
 
 from ._version import __version__
-from .api import Comparison, Result, compare, lemma2_bounds, quantized_backstepping, run
+from .api import Comparison, Result, compare, lemma2_bounds, quantized_backstepping, run, sweep
 from .controller.user import Law, check_keys, register_law
 from .errors import QcontrolInputError
 from .scenario import Scenario, load_scenario
@@ -34,4 +36,5 @@ __all__ = [
     "quantized_backstepping",
     "register_law",
     "run",
+    "sweep",
 ]

@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import csv
 import io
+import itertools
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -34,6 +35,8 @@ from .metrics import backend_deviation, summary
 from .outputs import atomic_path, check_output_file, clean, prepare_output_dir, write_text
 from .scenario import Scenario
 from .scenario.resolve import scenario_provenance
+from .sweep.runs import run_variants_batched
+from .sweep.table import sweep_rows
 
 SAVE_FORMATS = (".npz", ".csv")
 
@@ -85,6 +88,21 @@ class Result:
         with atomic_path(path) as tmp, open(tmp, "wb") as file:
             np.savez(file, t=traj.t, summary=np.array(json.dumps(clean(self.summary))), **traj.signals)
         return path
+
+    def plot(self, path: str | Path) -> Path:
+        """Draw the run's figure (y and y_d, the errors, u, the law's state; the figure
+        ``qcontrol run --plot`` draws) to ``path`` (.png, .pdf or .svg); returns the path."""
+        from .plots import fig_run  # matplotlib: imported only when a figure is drawn
+
+        path = check_output_file(path, "plot")
+        s = self.summary
+        notes = [f"{s['scenario']} on {s['backend']}, {s['duration']:g} s, dt = {s['dt']:g} s"]
+        notes += [f"E({k}) = {v:.4f}" for k, v in s["error_rate"].items()]
+        notes += [f"max |z1|, last half = {s['max_abs_z1_last_half']:.4g}", f"max |u| = {s['max_abs_u']:.4g}",
+                  f"Lemma 2 ratio = {s['lemma2_max_ratio']:.6f}"]
+        if s["diverged"]:
+            notes.append(f"diverged at t = {s['diverged_time']:g} s")
+        return fig_run(self.trajectory, path, f"{s['scenario']} ({s['backend']})", notes=notes)
 
 
 for _signal in SIGNALS:
@@ -199,6 +217,36 @@ def compare(scenario: Scenario, *, rrd: str | Path | None = None, spawn: bool = 
         "physics_warnings": list(plant.warnings), "provenance": provenance,
     }
     return Comparison(result, runs["mujoco"], runs["ode"])
+
+
+def sweep(scenario: Scenario, grid: Mapping[str, Sequence[Any]], *, backend: str | None = None) -> list[dict]:
+    """Run every point of the product of ``grid`` (``{"controller.kappa_margin": [0.1, 0.5],
+    "controller.kind": ["proposed", "baseline"]}``: each key a scenario key, its values as
+    ``with_overrides`` takes them) on ``backend`` (None: the scenario's), batched as
+    ``qcontrol sweep`` batches them, in this process. Returns the table ``qcontrol sweep`` writes
+    to sweep.csv: one dict per run, the grid's keys (the values as given), then the error rate per
+    omega (``error_rate_0.100``, ...), ``max_abs_z1_last_half``, ``max_abs_u``, ``diverged``,
+    ``diverged_time`` and ``lemma2_max_ratio``."""
+    check_scenario(scenario, "sweep")
+    if not isinstance(grid, Mapping) or not grid:
+        raise QcontrolInputError(f"sweep: grid must be a non-empty dict {{key: [values]}}, got {grid!r}")
+    for key, values in grid.items():
+        listed = isinstance(values, Sequence) and not isinstance(values, (str, bytes)) and len(values) > 0
+        if not isinstance(key, str) or not listed:
+            raise QcontrolInputError(f"sweep: grid[{key!r}] must be a non-empty list of values, "
+                                     f"got {values!r}")
+    backend = runnable_backend(scenario, backend)
+    points = [dict(zip(grid, combo, strict=True)) for combo in itertools.product(*grid.values())]
+    variants = [scenario.with_overrides(point) for point in points]
+    return sweep_rows(points, run_variants_batched(variants, backend))
+
+
+def check_scenario(scenario: object, function: str) -> Scenario:
+    """``scenario`` if it is a :class:`Scenario`, else a one-line refusal naming ``function``."""
+    if not isinstance(scenario, Scenario):
+        raise QcontrolInputError(f"{function}: expected a Scenario (from qcontrol.load_scenario), got "
+                                 f"{type(scenario).__name__}")
+    return scenario
 
 
 def require_twin(scenario: Scenario) -> None:

@@ -55,7 +55,7 @@ def summary(run: Trajectory | RunMetrics, scenario: str, backend: str) -> dict:
         "max_abs_u": values["max_abs_u"],
         "max_abs_u_applied": values["max_abs_u_applied"],
         "saturated_fraction": values["saturated_fraction"],
-        "final_eps_hat": [float(v) for v in values["final_adaptive"]],
+        "final_eps_hat": [float(v) for v in values["final_adaptive"]],  # alias of final_<adaptive_state>
         "adaptive_state": run.adaptive_name,
         "lemma2_max_ratio": lemma2_max_ratio(values["e_z_max"][None, :], run.L_z),
         "velocity_source": run.velocity_source,
@@ -64,7 +64,14 @@ def summary(run: Trajectory | RunMetrics, scenario: str, backend: str) -> dict:
         "L": float(run.L_z[-1]),
         **bound_constants(run.bound_names, values["bound_constants"]),
         **law_diagnostics(run.law_diagnostics, values["diagnostics"]),
-    }
+    } | final_state(run.adaptive_name, values["final_adaptive"])
+
+
+def final_state(name: str, final: np.ndarray) -> dict:
+    """The law's state at the end of the run under the law's own name: ``final_theta_hat`` for
+    the comparison law, ``final_eps_hat`` for the paper's law (where it is also the older key
+    ``final_eps_hat``, kept for every law as an alias of this one)."""
+    return {f"final_{name}": [float(v) for v in final]}
 
 
 def law_diagnostics(diagnostics: tuple, reduced: dict[str, np.ndarray]) -> dict:

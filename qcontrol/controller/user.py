@@ -25,7 +25,7 @@ from ..errors import QcontrolInputError
 from ..quantizer import QuantizedReading
 from ..schema import Table
 from .backstepping import Backstepping, Columns, stack
-from .law import LawContext, LawKind, register_kind
+from .law import LawContext, LawKind, check_kind_name, register_kind
 
 
 @runtime_checkable
@@ -151,17 +151,27 @@ def _thaw(value: Any) -> Any:
     return value
 
 
-def register_law(kind: str, factory: LawFactory, *, state_name: str = "state") -> None:
+def register_law(kind: str, factory: LawFactory, *, state_name: str = "state", replace: bool = False) -> None:
     """Make ``controller.kind = "<kind>"`` select a law built by ``factory(table, n)``.
 
     ``table`` is the scenario's ``[controller]`` table as a dict (``kind``, ``delta``, ``c`` and
     the law's own keys, from ``[controller.<kind>]`` and from ``[controller]``); ``n`` is the plant
     order. The factory checks the keys it uses (:func:`check_keys` refuses unknown ones with the
     usual one-line message) and returns a :class:`Law`; it is called once when a scenario loads
-    (to check it) and once per copy of every run. ``state_name`` names the law's state in outputs.
+    (to check it) and once per copy of every run. ``state_name`` names the law's state in outputs
+    (the summary's ``final_<state_name>``). ``kind`` is letters, digits, ``_`` and ``-``, starting
+    with a letter or ``_``. ``replace=True`` replaces a law registered before under the same
+    name (editing a law in a notebook); the built-in kinds are never replaced.
     """
-    if not isinstance(kind, str) or not kind.isidentifier():
-        raise QcontrolInputError(f"register_law: kind {kind!r} must be a name such as \"ce\"; choose another")
+    check_kind_name(kind, "register_law")
+    if not callable(factory):
+        raise QcontrolInputError(f"register_law: factory for {kind!r} must be callable as factory(table, n), "
+                                 f"got {type(factory).__name__}")
+    if not isinstance(state_name, str) or not state_name.isidentifier():
+        raise QcontrolInputError(f"register_law: state_name {state_name!r} must be letters, digits and _, "
+                                 "starting with a letter or _")
+    if not isinstance(replace, bool):
+        raise QcontrolInputError(f"register_law: replace must be True or False, got {replace!r}")
     def parse(table: Table, ctx: LawContext) -> UserSettings:
         settings = UserSettings(_freeze({"kind": kind, "delta": ctx.delta, "c": list(ctx.c)} | table.data))
         _call(factory, settings, ctx, table)
@@ -171,7 +181,7 @@ def register_law(kind: str, factory: LawFactory, *, state_name: str = "state") -
         laws = [_call(factory, s, ctx, None) for s in settings]
         return UserLaw(laws, ctx.c, ctx.max_error, state_name)
 
-    register_kind(LawKind(kind, None, parse, build, lambda settings, ctx: None))  # refuses a taken name
+    register_kind(LawKind(kind, None, parse, build, lambda settings, ctx: None), replace=replace)
 
 
 def _call(factory: LawFactory, settings: UserSettings, ctx: LawContext, table: Table | None) -> Law:

@@ -1,0 +1,113 @@
+"""The public API around laws: qcontrol.sweep's table equals the command's sweep.csv, Result.plot
+draws --plot's figure, register_law(replace=True) and hyphenated kinds, the summary's final state
+under the law's own name, and misuse of the API refused in one line."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import qcontrol
+from qcontrol.cli import main
+from qcontrol.errors import QcontrolInputError
+
+ROOT = Path(__file__).resolve().parents[1]
+EX1 = ROOT / "scenarios" / "example1.toml"
+SHORT = {"simulation.duration": 0.5}
+
+
+class Proportional:
+    """u = alpha_n of the backstepping (no robust term) times a gain: stateless."""
+
+    state_size = 0
+
+    def __init__(self, c: list[float], gain: float) -> None:
+        self.c, self.gain = c, gain
+
+    def initial_state(self) -> np.ndarray:
+        return np.zeros(0)
+
+    def control(self, t: float, x_q: np.ndarray, yd: np.ndarray, state: np.ndarray) -> float:
+        return self.gain * float(qcontrol.quantized_backstepping(self.c, x_q, yd)[1][-1])
+
+    def state_rate(self, t: float, x_q: np.ndarray, yd: np.ndarray, state: np.ndarray) -> np.ndarray:
+        return np.zeros(0)
+
+
+def test_sweep_returns_the_table_the_command_writes(tmp_path: Path) -> None:
+    sc = qcontrol.load_scenario(EX1, SHORT)
+    rows = qcontrol.sweep(sc, grid={"controller.delta": [0.05, 0.1],
+                                    "controller.kind": ["proposed", "baseline"]}, backend="ode")
+    assert [(r["controller.delta"], r["controller.kind"]) for r in rows] == [
+        (0.05, "proposed"), (0.05, "baseline"), (0.1, "proposed"), (0.1, "baseline")]
+    assert main(["sweep", str(EX1), "--set", "simulation.duration=0.5", "--grid",
+                 "controller.delta=0.05,0.1", "--grid", "controller.kind=proposed,baseline",
+                 "--backend", "ode", "--out", str(tmp_path / "sw"), "--quiet"]) == 0
+    with open(tmp_path / "sw" / "sweep.csv") as file:
+        written = list(csv.DictReader(file))
+    for row, line in zip(rows, written, strict=True):
+        assert repr(row["error_rate_0.100"]) == line["error_rate_0.100"]
+        assert repr(row["lemma2_max_ratio"]) == line["lemma2_max_ratio"]
+    assert rows[0]["max_abs_z1_last_half"] != rows[2]["max_abs_z1_last_half"]  # delta really varied
+
+
+def test_qcontrol_sweep_is_the_function_and_the_package_stays_importable() -> None:
+    import qcontrol.sweep.runs  # noqa: F401  (importing a submodule must not rebind qcontrol.sweep)
+    from qcontrol.sweep import sweep_summaries
+
+    assert callable(qcontrol.sweep) and qcontrol.sweep is qcontrol.api.sweep and callable(sweep_summaries)
+
+
+@pytest.mark.parametrize(("call", "message"), [
+    (lambda: qcontrol.sweep("example1", grid={"controller.kappa_margin": [0.1]}),
+     "sweep: expected a Scenario (from qcontrol.load_scenario), got str"),
+    (lambda: qcontrol.sweep(qcontrol.load_scenario(EX1), grid={"controller.kappa_margin": 0.1}),
+     "sweep: grid['controller.kappa_margin'] must be a non-empty list of values, got 0.1"),
+    (lambda: qcontrol.sweep(qcontrol.load_scenario(EX1), grid={}),
+     "sweep: grid must be a non-empty dict {key: [values]}, got {}"),
+    (lambda: qcontrol.register_law("bad name", Proportional),
+     "register_law: kind 'bad name' must be letters, digits, _ and -, starting with a letter or _"),
+    (lambda: qcontrol.register_law("k_none", None),
+     "register_law: factory for 'k_none' must be callable as factory(table, n), got NoneType"),
+    (lambda: qcontrol.register_law("proposed", Proportional),
+     "controller kind 'proposed' is built in and cannot be replaced; choose another name"),
+])
+def test_api_misuse_is_refused_in_one_line(call, message: str) -> None:
+    with pytest.raises(QcontrolInputError) as err:
+        call()
+    assert str(err.value).startswith(message) and "\n" not in str(err.value)
+
+
+def test_register_law_replace_and_a_hyphenated_kind() -> None:
+    qcontrol.register_law("held-p", lambda table, n: Proportional(table["c"], 1.0))
+    sc = qcontrol.load_scenario(EX1, SHORT | {"controller.kind": "held-p"})
+    first = qcontrol.run(sc, backend="ode").summary
+    with pytest.raises(QcontrolInputError, match="already registered; choose another name or pass replace"):
+        qcontrol.register_law("held-p", lambda table, n: Proportional(table["c"], 2.0))
+    qcontrol.register_law("held-p", lambda table, n: Proportional(table["c"], 2.0), replace=True)
+    second = qcontrol.run(qcontrol.load_scenario(EX1, SHORT | {"controller.kind": "held-p"}), backend="ode")
+    assert second.summary["max_abs_u"] > first["max_abs_u"]  # the edited law ran, without a restart
+    assert second.summary["final_state"] == [] and second.summary["final_eps_hat"] == []
+
+
+def test_the_summary_names_the_final_state_by_the_laws_name() -> None:
+    base = qcontrol.run(qcontrol.load_scenario(EX1, SHORT | {"controller.kind": "baseline"}), backend="ode")
+    s = base.summary
+    assert s["adaptive_state"] == "theta_hat"
+    assert s["final_theta_hat"] == s["final_eps_hat"] == [float(v) for v in base.adaptive[-1]]
+    paper = qcontrol.run(qcontrol.load_scenario(EX1, SHORT), backend="ode").summary
+    assert paper["adaptive_state"] == "eps_hat" and "final_eps_hat" in paper
+
+
+def test_result_plot_draws_the_run_figure(tmp_path: Path) -> None:
+    res = qcontrol.run(qcontrol.load_scenario(EX1, SHORT), backend="ode")
+    out = res.plot(tmp_path / "run.png")
+    assert out == tmp_path / "run.png" and out.stat().st_size > 10_000
+    assert main(["run", str(EX1), "--set", "simulation.duration=0.5", "--backend", "ode",
+                 "--plot", str(tmp_path / "cli.png")]) == 0
+    assert (tmp_path / "cli.png").stat().st_size > 10_000
+    with pytest.raises(QcontrolInputError, match="is a folder"):
+        res.plot(tmp_path)
