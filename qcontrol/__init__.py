@@ -13,11 +13,13 @@ The Python API (see the README's "Python API"):
   package of the same name stays importable (``from qcontrol.sweep import ...``).
 * :class:`Law` and :func:`register_law`: a control law of your own, selected by
   ``controller.kind``; :func:`check_keys`, :func:`quantized_backstepping` and
-  :func:`lemma2_bounds` help write one.
+  :func:`lemma2_bounds` help write one; :func:`load_law_module` runs a file that registers laws
+  (``--law-module``), :func:`load_law_plugins` the installed plugins (entry points ``qcontrol.laws``).
 """
 
 from ._version import __version__
 from .api import Comparison, Result, compare, lemma2_bounds, quantized_backstepping, run, sweep
+from .controller.plugins import load_law_module, load_law_plugins
 from .controller.user import Law, check_keys, register_law
 from .errors import QcontrolInputError
 from .scenario import Scenario, load_scenario
@@ -32,6 +34,8 @@ __all__ = [
     "check_keys",
     "compare",
     "lemma2_bounds",
+    "load_law_module",
+    "load_law_plugins",
     "load_scenario",
     "quantized_backstepping",
     "register_law",

@@ -13,8 +13,10 @@ import sys
 import time
 import warnings
 from collections.abc import Sequence
+from pathlib import Path
 
 from .._version import __version__
+from ..controller.plugins import load_law_module, load_law_plugins
 from ..errors import QcontrolInputError
 from ..provenance import command_line
 from .arguments import EXIT_BAD_INPUT, EXIT_INTERRUPTED, Parser
@@ -39,6 +41,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Exit status: 0 ok, 1 diverged or a theory check failed, 2 bad input, 130 interrupted.",
     )
     parser.add_argument("--version", action="version", version=f"qcontrol {__version__}")
+    parser.set_defaults(law_modules=[])  # the commands without scenario options load no law file
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     sub.required = True
     for add in (add_run_parser, add_compare_parser, add_reproduce_parser, add_sweep_parser, add_region_parser,
@@ -53,6 +56,14 @@ def _one_line_warning(message: Warning | str, category: type[Warning], filename:
     return f"qcontrol: warning: {message}\n"
 
 
+def load_laws(files: Sequence[Path]) -> None:
+    """Before any scenario is read: the installed law plugins (entry-point group ``qcontrol.laws``),
+    then the ``--law-module`` files in the order given."""
+    load_law_plugins()
+    for file in files:
+        load_law_module(file)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -60,6 +71,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     warnings.formatwarning = _one_line_warning
     started = time.perf_counter()
     try:
+        load_laws(args.law_modules)
         return COMMANDS[args.command](args)
     except QcontrolInputError as exc:
         print(f"qcontrol: error: {exc}", file=sys.stderr)

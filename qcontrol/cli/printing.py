@@ -35,7 +35,7 @@ def format_summary(s: dict, sc: Scenario) -> str:
         f"  max |z1| over the last half: {s['max_abs_z1_last_half']:.4g}    max |u|: {s['max_abs_u']:.4g}",
         f"  actuator: max |u applied|: {s['max_abs_u_applied']:.4g}    saturated at "
         f"{100 * s['saturated_fraction']:.1f}% of the control samples",
-        f"  final {s['adaptive_state']}: [{', '.join(f'{v:.4g}' for v in s['final_eps_hat'])}]",
+        f"  final {s['adaptive_state']}: [{', '.join(f'{v:.4g}' for v in final_state(s))}]",
         _lemma2_line(s),
         *gain_period_lines(s),
     ]
@@ -72,3 +72,8 @@ def status(s: dict) -> int:
         print("qcontrol: check failed: a Lemma 2 bound was exceeded", file=sys.stderr)
         return EXIT_FAILED
     return EXIT_OK
+
+
+def final_state(s: dict) -> list[float]:
+    """The law's final state as the summary names it (``final_<adaptive_state>``)."""
+    return s["final_" + s["adaptive_state"]]
