@@ -166,6 +166,13 @@ def run(scenario: Scenario, backend: str | None = None, *, rrd: str | Path | Non
     ``spawn`` streams it to a rerun viewer. ``command`` is what the provenance names as the
     command (default: this call).
     """
+    check_scenario(scenario, "run")
+    _check_arguments("run", backend=(backend, str, True), rrd=(rrd, (str, Path), True),
+                     spawn=(spawn, bool, False), command=(command, str, True))
+    if record not in ("full", "metrics"):
+        raise QcontrolInputError(f"run: record must be \"full\" or \"metrics\", got {record!r}")
+    if progress is not None and not callable(progress):
+        raise QcontrolInputError(f"run: progress must be a callable or None, got {type(progress).__name__}")
     backend = runnable_backend(scenario, backend)
     command = command or _call("run", scenario, backend=backend, rrd=None if rrd is None else str(rrd))
     provenance = scenario_provenance(scenario, command)
@@ -195,6 +202,9 @@ def compare(scenario: Scenario, *, rrd: str | Path | None = None, spawn: bool = 
     """Run the scenario on its MuJoCo model and on the ODE with the same step and hold, and
     measure how far they drift apart (``max_abs_dx``, ``max_abs_dy``, ``max_abs_du``, ...).
     ``progress(backend)`` may give a progress callback per run."""
+    check_scenario(scenario, "compare")
+    _check_arguments("compare", rrd=(rrd, (str, Path), True), spawn=(spawn, bool, False),
+                     command=(command, str, True))
     require_twin(scenario)
     command = command or _call("compare", scenario, rrd=None if rrd is None else str(rrd))
     provenance = scenario_provenance(scenario, command)
@@ -228,6 +238,7 @@ def sweep(scenario: Scenario, grid: Mapping[str, Sequence[Any]], *, backend: str
     omega (``error_rate_0.100``, ...), ``max_abs_z1_last_half``, ``max_abs_u``, ``diverged``,
     ``diverged_time`` and ``lemma2_max_ratio``."""
     check_scenario(scenario, "sweep")
+    _check_arguments("sweep", backend=(backend, str, True))
     if not isinstance(grid, Mapping) or not grid:
         raise QcontrolInputError(f"sweep: grid must be a non-empty dict {{key: [values]}}, got {grid!r}")
     for key, values in grid.items():
@@ -247,6 +258,17 @@ def check_scenario(scenario: object, function: str) -> Scenario:
         raise QcontrolInputError(f"{function}: expected a Scenario (from qcontrol.load_scenario), got "
                                  f"{type(scenario).__name__}")
     return scenario
+
+
+def _check_arguments(function: str, **given: tuple[Any, type | tuple[type, ...], bool]) -> None:
+    """Each argument ``name=(value, types, may_be_none)`` of the types it must have, else one line."""
+    for name, (value, types, optional) in given.items():
+        if (value is None and optional) or (isinstance(value, types) and not (types is not bool
+                                                                               and isinstance(value, bool))):
+            continue
+        wanted = " or ".join(t.__name__ for t in (types if isinstance(types, tuple) else (types,)))
+        raise QcontrolInputError(f"{function}: {name} must be {wanted}{' or None' if optional else ''}, "
+                                 f"got {type(value).__name__} {value!r}")
 
 
 def require_twin(scenario: Scenario) -> None:

@@ -74,6 +74,17 @@ def test_qcontrol_sweep_is_the_function_and_the_package_stays_importable() -> No
      "register_law: factory for 'k_none' must be callable as factory(table, n), got NoneType"),
     (lambda: qcontrol.register_law("proposed", Proportional),
      "controller kind 'proposed' is built in and cannot be replaced; choose another name"),
+    (lambda: qcontrol.run("example1"), "run: expected a Scenario (from qcontrol.load_scenario), got str"),
+    (lambda: qcontrol.run(qcontrol.load_scenario(EX1), backend=3),
+     "run: backend must be str or None, got int 3"),
+    (lambda: qcontrol.run(qcontrol.load_scenario(EX1), record="all"),
+     'run: record must be "full" or "metrics", got \'all\''),
+    (lambda: qcontrol.compare(None),
+     "compare: expected a Scenario (from qcontrol.load_scenario), got NoneType"),
+    (lambda: qcontrol.load_scenario(3), "load_scenario: path must be a file path (str or Path)"),
+    (lambda: qcontrol.load_scenario(EX1, "controller.delta=1"),
+     'load_scenario: overrides must be a dict {"key": value} or a list of "key=value" strings'),
+    (lambda: qcontrol.load_scenario(EX1).with_overrides(5), "with_overrides: overrides must be a dict"),
 ])
 def test_api_misuse_is_refused_in_one_line(call, message: str) -> None:
     with pytest.raises(QcontrolInputError) as err:
@@ -192,3 +203,52 @@ def test_an_installed_plugin_package_registers_its_law(tmp_path: Path) -> None:
                           capture_output=True, text=True, env=env)
     assert done.returncode == 0, done.stderr
     assert "final integral" in done.stdout
+
+
+# ---------------------------------------------------------------------------------------------
+# API input checked like file input
+
+
+def test_a_scenario_is_read_only() -> None:
+    sc = qcontrol.load_scenario(EX1)
+    with pytest.raises(TypeError):
+        sc.data["controller"]["delta"] = 0.5  # type: ignore[index]
+    with pytest.raises(TypeError):
+        sc.backends["ode"] = None  # type: ignore[index]
+    assert "delta = 0.1" in qcontrol.api.scenario_provenance(sc, "x")["resolved_scenario"]
+
+
+class _Bad(Proportional):
+    """A law whose output ``field`` is replaced by ``value``."""
+
+    def __init__(self, table: dict, field: str, value: object) -> None:
+        super().__init__(table["c"], 1.0)
+        self.field, self.value, self.state_size = field, value, 1
+
+    def initial_state(self) -> object:
+        return self.value if self.field == "initial_state" else np.zeros(1)
+
+    def control(self, t: float, x_q: np.ndarray, yd: np.ndarray, state: np.ndarray) -> object:
+        return self.value if self.field == "control" else 0.0
+
+    def state_rate(self, t: float, x_q: np.ndarray, yd: np.ndarray, state: np.ndarray) -> object:
+        return self.value if self.field == "state_rate" else np.zeros(1)
+
+
+K = "controller kind 'bad-out': "
+
+
+@pytest.mark.parametrize(("field", "value", "message"), [
+    ("control", "1.5", K + "control() must return a real number u, got str '1.5'; fix the law"),
+    ("control", float("nan"), K + "control() returned nan at the first control sample"),
+    ("initial_state", [0.0, 0.0], K + "initial_state() must return shape (1,) (the law's state_size), "
+                                      "got shape (2,)"),
+    ("state_rate", [float("inf")], K + "state_rate() returned a value that is not finite"),
+    ("state_rate", None, K + "state_rate() must return an array of 1 real numbers, got NoneType None"),
+])
+def test_a_laws_outputs_are_checked_naming_the_law_and_field(field: str, value: object, message: str) -> None:
+    qcontrol.register_law("bad-out", lambda table, n: _Bad(table, field, value), replace=True)
+    sc = qcontrol.load_scenario(EX1, SHORT | {"controller.kind": "bad-out"})
+    with pytest.raises(QcontrolInputError) as err:
+        qcontrol.run(sc, backend="ode")
+    assert str(err.value).startswith(message) and "\n" not in str(err.value)
