@@ -14,7 +14,8 @@ The Python API (see the README's "Python API"):
 * :class:`Law` and :func:`register_law`: a control law of your own, selected by
   ``controller.kind``; :func:`check_keys`, :func:`quantized_backstepping` and
   :func:`lemma2_bounds` help write one; :func:`load_law_module` runs a file that registers laws
-  (``--law-module``), :func:`load_law_plugins` the installed plugins (entry points ``qcontrol.laws``).
+  (``--law-module``), :func:`load_law_plugins` the installed plugins (entry points ``qcontrol.laws``);
+  :func:`expression` compiles a math expression as scenarios do (for a law's bounding function r).
 """
 
 from ._version import __version__
@@ -22,6 +23,7 @@ from .api import Comparison, Result, compare, lemma2_bounds, quantized_backstepp
 from .controller.plugins import load_law_module, load_law_plugins
 from .controller.user import Law, check_keys, register_law
 from .errors import QcontrolInputError
+from .expr import expression
 from .scenario import Scenario, load_scenario
 
 __all__ = [
@@ -33,6 +35,7 @@ __all__ = [
     "__version__",
     "check_keys",
     "compare",
+    "expression",
     "lemma2_bounds",
     "load_law_module",
     "load_law_plugins",

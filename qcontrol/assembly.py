@@ -14,6 +14,7 @@ from .controller import BatchLaw, law_kind
 from .disturbance import Schedule, scaled_changes
 from .engine import Observer, ProgressCallback, RunMetrics, Separation, Trajectory, simulate
 from .errors import QcontrolInputError
+from .expr import Expression
 from .plants import BACKENDS, Plant, SceneSource
 from .quantizer import UniformQuantizer
 from .reference import Reference
@@ -153,7 +154,14 @@ def run_variants(
     return simulate(plant, build_law(variants), build_quantizer(first), build_reference(first), x0,
                     sim.duration, sim.dt, control_period=sim.control_period, state_bound=sim.state_bound,
                     progress=progress, observer=observer, record=record, metrics=first.metrics,
-                    separation=separation, loads=loads(first), velocity_source=sim.velocity_source)
+                    separation=separation, loads=loads(first), velocity_source=sim.velocity_source,
+                    terms=named_terms(first))
+
+
+def named_terms(sc: Scenario) -> list[tuple[str, Expression]]:
+    """The plant's expressions of eq. (1) by their scenario keys, ``plant.phi[1]`` .. ``plant.psi``."""
+    named = [(f"plant.phi[{i + 1}]", phi) for i, phi in enumerate(sc.phi_expr)]
+    return named + ([("plant.psi", sc.psi_expr)] if sc.psi_expr is not None else [])
 
 
 def run_scenario(

@@ -12,6 +12,7 @@ import math
 from collections.abc import Mapping
 
 from .controller import law_kind
+from .engine.divergence import DOMAIN_ERROR
 from .paper import OMEGA_KEYS, PAPER_TABLE1, PAPER_TABLE1_ROWS
 from .scenario import Scenario
 
@@ -38,6 +39,8 @@ def divergence_lines(s: Mapping, sc: Scenario) -> list[str]:
     """Two lines for a diverged run: when and why it stopped, and what usually helps."""
     lines = [f"  DIVERGED: stopped at t = {s['diverged_time']:g} s of {sc.simulation.duration:g} s: "
              f"{s['divergence_reason']}"]
+    if s["divergence_reason"].endswith(DOMAIN_ERROR):  # a term's domain, which no step size fixes
+        return lines
     helps = ["a smaller --dt or simulation.control_period"]
     hint = law_kind(sc.controller.kind).divergence_hint
     if hint:

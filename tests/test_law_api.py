@@ -252,3 +252,32 @@ def test_a_laws_outputs_are_checked_naming_the_law_and_field(field: str, value: 
     with pytest.raises(QcontrolInputError) as err:
         qcontrol.run(sc, backend="ode")
     assert str(err.value).startswith(message) and "\n" not in str(err.value)
+
+
+# ---------------------------------------------------------------------------------------------
+# the public expression compiler, cbrt and spow, and a NaN reported with its term
+
+
+def test_the_public_expression_compiler_on_arrays_and_floats() -> None:
+    r = qcontrol.expression("1 + q2**2", variables=("q1", "q2"))
+    np.testing.assert_array_equal(r(np.array([[0.0, 1.0], [0.0, 2.0]])), [2.0, 5.0])
+    assert r.on_floats([0.0, 3.0]) == 10.0
+    root = qcontrol.expression("cbrt(x1) + spow(x2, 1/3)")
+    assert root.on_floats([-8.0, -27.0]) == pytest.approx(-5.0, abs=1e-12)
+    assert float(root(np.array([-8.0, -27.0]))) == pytest.approx(-5.0, abs=1e-12)
+    assert np.isnan(qcontrol.expression("x2**(1/3)").on_floats([0.0, -27.0]))  # why spow exists
+    with pytest.raises(QcontrolInputError, match="^expression: unknown function '__import__'"):
+        qcontrol.expression("__import__('os')")
+    with pytest.raises(QcontrolInputError, match="^expression: variables must be a list of names"):
+        qcontrol.expression("x1", variables="x1")
+
+
+def test_a_nan_from_an_expressions_domain_names_the_term(capsys: pytest.CaptureFixture) -> None:
+    assert main(["run", str(EX1), "--backend", "ode", "--duration", "2", "-q",
+                 "--set", 'plant.psi="0.1*x2**(1/3)"']) == 1
+    out = capsys.readouterr().out
+    assert "plant.psi = '0.1*x2**(1/3)' is NaN at x1 = " in out and "x2 = -" in out
+    assert "write cbrt(x) or spow(x, p)" in out and "a smaller --dt" not in out
+    fixed = qcontrol.run(qcontrol.load_scenario(EX1, {"plant.psi": "0.1*spow(x2, 1/3)",
+                                                       "simulation.duration": 2.0}), backend="ode")
+    assert not fixed.summary["diverged"]

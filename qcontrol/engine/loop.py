@@ -20,6 +20,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from ..controller.law import BatchLaw
+from ..expr import Expression
 from ..plants.base import Plant
 from ..quantizer import Quantizer
 from ..reference import Reference
@@ -76,10 +77,10 @@ class ClosedLoop:
                  grid: TimeGrid, state_bound: float, progress: ProgressCallback | None,
                  observer: Observer | None, observe_every: int, record: str, metrics: MetricSettings,
                  separation: Separation | None, loads: Sequence[tuple[int, float]] = (),
-                 velocity_source: str = "sensor") -> None:
+                 velocity_source: str = "sensor", terms: Sequence[tuple[str, Expression]] = ()) -> None:
         n, batch = plant.n, plant.batch
         self.plant, self.law, self.grid = plant, law, grid
-        self.divergence = Divergence(batch, grid.rows, grid.dt, state_bound, law.state_name)
+        self.divergence = Divergence(batch, grid.rows, grid.dt, state_bound, law.state_name, terms)
         self.reference = ReferenceRows(reference, n, grid, whole=record == "full")
         context = SignalContext(law.coordinates, separation, plant.actuator, velocity_source,
                                 plant.actuator_limited, tuple(law.diagnostics))
@@ -157,6 +158,7 @@ def simulate(
     separation: Separation | None = None,
     loads: Sequence[tuple[int, float]] = (),
     velocity_source: str = "sensor",
+    terms: Sequence[tuple[str, Expression]] = (),
 ) -> list[Trajectory] | list[RunMetrics]:
     """Run the closed loop for every copy in ``plant``'s batch; one :class:`Trajectory` each.
 
@@ -172,7 +174,9 @@ def simulate(
     run (eqs. (37)-(43); default: not checked). ``loads``: ``(row, d)`` where the external load
     changes (:meth:`Plant.disturb`, u's units; see :mod:`qcontrol.disturbance`).
     ``velocity_source``: ``"sensor"``, or ``"difference"`` for an x2 differenced from the
-    quantized position over the control period (:mod:`.velocity`).
+    quantized position over the control period (:mod:`.velocity`). ``terms``: the plant's
+    expressions by name (``("plant.psi", psi)``), evaluated where a copy turned NaN to say which
+    term went out of its domain.
     """
     if record not in RECORD_MODES:
         raise ValueError(f"record must be one of {RECORD_MODES}, got {record!r}")
@@ -183,5 +187,5 @@ def simulate(
                          f"the plant {plant.batch}")
     grid = TimeGrid.of(duration, dt, control_period)
     loop = ClosedLoop(plant, law, quantizer, reference, grid, state_bound, progress, observer, observe_every,
-                      record, metrics or MetricSettings(), separation, loads, velocity_source)
+                      record, metrics or MetricSettings(), separation, loads, velocity_source, terms)
     return loop.run(x0)
