@@ -281,3 +281,21 @@ def test_a_nan_from_an_expressions_domain_names_the_term(capsys: pytest.CaptureF
     fixed = qcontrol.run(qcontrol.load_scenario(EX1, {"plant.psi": "0.1*spow(x2, 1/3)",
                                                        "simulation.duration": 2.0}), backend="ode")
     assert not fixed.summary["diverged"]
+
+
+def test_a_sweep_over_kinds_draws_categories_not_a_trend() -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from qcontrol.plots.sweeps import _line, _Points
+
+    rows = [{"controller.kind": kind, "max_abs_u": u, "diverged": False}
+            for kind, u in (("proposed", 3.0), ("baseline", 2.0), ("proposed", 4.0))]
+    points = _Points(rows, ["controller.kind"])
+    for categories, style in ((True, "None"), (False, "-")):
+        fig, ax = plt.subplots()
+        _line(ax, points, ["proposed", "baseline"], np.arange(2.0), "max_abs_u", "max |u|", "C0", categories)
+        assert {line.get_linestyle() for line in ax.lines} == {style}  # no line joins two kinds
+        plt.close(fig)
