@@ -299,3 +299,37 @@ def test_a_sweep_over_kinds_draws_categories_not_a_trend() -> None:
         _line(ax, points, ["proposed", "baseline"], np.arange(2.0), "max_abs_u", "max |u|", "C0", categories)
         assert {line.get_linestyle() for line in ax.lines} == {style}  # no line joins two kinds
         plt.close(fig)
+
+
+# ---------------------------------------------------------------------------------------------
+# several laws side by side
+
+
+def test_compare_laws_equals_the_single_runs_and_records_every_law(tmp_path: Path) -> None:
+    sc = qcontrol.load_scenario(EX1, SHORT)
+    cmp = qcontrol.compare_laws(sc, ["proposed", "baseline"], backend="ode", rrd=tmp_path / "laws.rrd")
+    assert [row["kind"] for row in cmp.table] == ["proposed", "baseline"]
+    for row in cmp.table:
+        alone = qcontrol.run(sc.with_overrides({"controller.kind": row["kind"]}), backend="ode").summary
+        assert row["error_rate_0.100"] == alone["error_rate"]["0.100"]
+        assert row["max_abs_u"] == alone["max_abs_u"]
+    assert cmp.runs["baseline"].summary["adaptive_state"] == "theta_hat"
+    assert (tmp_path / "laws.rrd").stat().st_size > 10_000
+    assert cmp.plot(tmp_path / "laws.png").stat().st_size > 10_000
+    with pytest.raises(QcontrolInputError, match=r"^compare_laws: kinds \['proposed', 'nope'\] must be"):
+        qcontrol.compare_laws(sc, ["proposed", "nope"])
+
+
+def test_the_laws_command_with_a_law_module(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    laws = tmp_path / "mylaws.py"
+    laws.write_text(LAW_FILE.replace("{kind}", "cli-law"))
+    assert main(["laws", str(EX1), "--law-module", str(laws), "--law", "proposed", "--law", "cli-law",
+                 "--backend", "ode", "--duration", "0.5", "--out", str(tmp_path / "out")]) == 0
+    out = capsys.readouterr().out
+    assert "  proposed " in out and "  cli-law " in out
+    import json
+
+    record = json.loads((tmp_path / "out" / "laws.json").read_text())
+    assert [row["kind"] for row in record["table"]] == ["proposed", "cli-law"]
+    assert "final_integral" in record["runs"]["cli-law"]
+    assert (tmp_path / "out" / "laws.png").is_file()

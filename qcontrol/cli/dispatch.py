@@ -22,13 +22,14 @@ from ..provenance import command_line
 from .arguments import EXIT_BAD_INPUT, EXIT_INTERRUPTED, Parser
 from .check_command import add_check_parser, cmd_check
 from .compare_command import add_compare_parser, cmd_compare
+from .laws_command import add_laws_parser, cmd_laws
 from .region_command import add_region_parser, cmd_region
 from .reproduce_command import add_reproduce_parser, cmd_reproduce
 from .run_command import add_run_parser, cmd_run
 from .sweep_command import add_sweep_parser, cmd_sweep
 
 COMMANDS = {"run": cmd_run, "compare": cmd_compare, "reproduce": cmd_reproduce, "sweep": cmd_sweep,
-            "region": cmd_region, "check": cmd_check}
+            "region": cmd_region, "check": cmd_check, "laws": cmd_laws}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -44,8 +45,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.set_defaults(law_modules=[])  # the commands without scenario options load no law file
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     sub.required = True
-    for add in (add_run_parser, add_compare_parser, add_reproduce_parser, add_sweep_parser, add_region_parser,
-                add_check_parser):
+    for add in (add_run_parser, add_compare_parser, add_laws_parser, add_reproduce_parser, add_sweep_parser,
+                add_region_parser, add_check_parser):
         add(sub)
     return parser
 
