@@ -33,6 +33,7 @@ LAYERS = [
     {"assembly"},
     {"recording", "plots", "attribution"},
     {"sweep", "api", "explain", "region"},
+    {"law_comparison"},
     {"reproduce"},
     {"cli", "_entry"},
 ]
