@@ -7,7 +7,8 @@ quantizer -> controller -> plant (ODE or MuJoCo) -> closed-loop engine -> record
 The Python API (see the README's "Python API"):
 
 * :func:`load_scenario` -> :class:`Scenario` (immutable; ``sc.with_overrides({...})``)
-* :func:`run` -> :class:`Result` (``summary``, the signals ``t, x, x_q, u, y, yd, z, adaptive``,
+* :func:`run` -> :class:`Result` (``summary``, as JSON; ``typed_summary``, a frozen
+  :class:`Summary` whose ``to_json()`` is that summary; the signals ``t, x, x_q, u, y, yd, z, adaptive``,
   ``save``, ``plot``); :func:`compare` -> :class:`Comparison` (``summary``, ``mujoco``, ``ode``);
   :func:`compare_laws` -> :class:`LawComparison` (several laws side by side: ``table``,
   ``runs``, ``plot``); :func:`sweep` -> the sweep's table (a dict per run). ``qcontrol.sweep``
@@ -27,6 +28,7 @@ from .errors import QcontrolInputError
 from .expr import expression
 from .law_comparison import LawComparison, compare_laws
 from .scenario import Scenario, load_scenario
+from .summary import Summary
 
 __all__ = [
     "Comparison",
@@ -35,6 +37,7 @@ __all__ = [
     "QcontrolInputError",
     "Result",
     "Scenario",
+    "Summary",
     "__version__",
     "check_keys",
     "compare",

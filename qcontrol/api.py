@@ -32,9 +32,10 @@ from .controller import lemma2_bounds as _lemma2_bounds
 from .engine import SIGNALS, ProgressCallback, RunMetrics, Trajectory
 from .errors import QcontrolInputError
 from .metrics import backend_deviation, summary
-from .outputs import atomic_path, check_output_file, clean, prepare_output_dir, write_text
+from .outputs import check_output_file, clean, prepare_output_dir, write_file, write_text
 from .scenario import Scenario
 from .scenario.resolve import scenario_provenance
+from .summary import Summary
 from .sweep.runs import run_variants_batched
 from .sweep.table import sweep_rows
 
@@ -61,6 +62,11 @@ class Result:
     record: Trajectory | RunMetrics
 
     @property
+    def typed_summary(self) -> Summary:
+        """:attr:`summary` as a frozen, typed :class:`~qcontrol.summary.Summary`."""
+        return Summary.from_json(self.summary)
+
+    @property
     def trajectory(self) -> Trajectory:
         if not isinstance(self.record, Trajectory):
             raise ValueError("this run kept only its metrics; run it with record=\"full\" to get its signals")
@@ -85,9 +91,8 @@ class Result:
         prepare_output_dir(path.parent if str(path.parent) else Path("."), "save")
         if path.suffix == ".csv":
             return write_text(path, _csv_text(traj))
-        with atomic_path(path) as tmp, open(tmp, "wb") as file:
-            np.savez(file, t=traj.t, summary=np.array(json.dumps(clean(self.summary))), **traj.signals)
-        return path
+        meta = np.array(json.dumps(clean(self.summary)))
+        return write_file(path, lambda file: np.savez(file, t=traj.t, summary=meta, **traj.signals))
 
     def plot(self, path: str | Path) -> Path:
         """Draw the run's figure (y and y_d, the errors, u, the law's state; the figure
@@ -158,17 +163,19 @@ def _call(name: str, sc: Scenario, **kw: Any) -> str:
 
 def run(scenario: Scenario, backend: str | None = None, *, rrd: str | Path | None = None,
         spawn: bool = False, record: str = "full", progress: ProgressCallback | None = None,
-        command: str | None = None) -> Result:
+        command: str | None = None, camera_view: bool = False) -> Result:
     """Run the scenario's closed loop on ``backend`` (None: the scenario's ``simulation.backend``).
 
     ``record="full"`` keeps every row (the Result's arrays); ``"metrics"`` only the summary, in
     memory that does not grow with the run. ``rrd`` writes a rerun recording while it runs,
-    ``spawn`` streams it to a rerun viewer. ``command`` is what the provenance names as the
-    command (default: this call).
+    ``spawn`` streams it to a rerun viewer; with ``camera_view`` the recording also holds
+    MuJoCo's own rendering of the run beside its 3-D view (the run keeps every row for it).
+    ``command`` is what the provenance names as the command (default: this call).
     """
     check_scenario(scenario, "run")
     _check_arguments("run", backend=(backend, str, True), rrd=(rrd, (str, Path), True),
-                     spawn=(spawn, bool, False), command=(command, str, True))
+                     spawn=(spawn, bool, False), command=(command, str, True),
+                     camera_view=(camera_view, bool, False))
     if record not in ("full", "metrics"):
         raise QcontrolInputError(f"run: record must be \"full\" or \"metrics\", got {record!r}")
     if progress is not None and not callable(progress):
@@ -179,8 +186,10 @@ def run(scenario: Scenario, backend: str | None = None, *, rrd: str | Path | Non
     plant = build_plant(scenario, backend)
     with recording_for(rrd, spawn, scenario, provenance) as rec:
         observer = None if rec is None else observer_for(rec, scenario, backend)
-        traj = run_scenario(scenario, backend, plant=plant, observer=observer, record=record,
-                            progress=progress)
+        traj = run_scenario(scenario, backend, plant=plant, observer=observer,
+                            record="full" if camera_view and rec is not None else record, progress=progress)
+        if camera_view and rec is not None:
+            _log_camera_view(rec, scenario, traj)
     result = summary(traj, scenario.name, backend) | {"provenance": provenance}
     result["physics_warnings"] = list(plant.warnings)
     return Result(result, scenario, backend, traj)
@@ -198,13 +207,13 @@ class Comparison:
 
 def compare(scenario: Scenario, *, rrd: str | Path | None = None, spawn: bool = False,
             progress: Callable[[str], ProgressCallback | None] | None = None,
-            command: str | None = None) -> Comparison:
+            command: str | None = None, camera_view: bool = False) -> Comparison:
     """Run the scenario on its MuJoCo model and on the ODE with the same step and hold, and
     measure how far they drift apart (``max_abs_dx``, ``max_abs_dy``, ``max_abs_du``, ...).
     ``progress(backend)`` may give a progress callback per run."""
     check_scenario(scenario, "compare")
     _check_arguments("compare", rrd=(rrd, (str, Path), True), spawn=(spawn, bool, False),
-                     command=(command, str, True))
+                     command=(command, str, True), camera_view=(camera_view, bool, False))
     require_twin(scenario)
     command = command or _call("compare", scenario, rrd=None if rrd is None else str(rrd))
     provenance = scenario_provenance(scenario, command)
@@ -217,6 +226,8 @@ def compare(scenario: Scenario, *, rrd: str | Path | None = None, spawn: bool = 
             traj = run_scenario(scenario, backend, plant=plant if backend == "mujoco" else None,
                                 observer=observer, progress=progress(backend) if progress else None)
             runs[backend] = Result(summary(traj, scenario.name, backend), scenario, backend, traj)
+        if camera_view and rec is not None:
+            _log_camera_view(rec, scenario, runs["mujoco"].record, runs["ode"].record)
     result = {
         "scenario": scenario.name, "integrator": scenario.backends["mujoco"].integrator,
         "dt": scenario.simulation.dt, **backend_deviation(runs["mujoco"].record, runs["ode"].record),
@@ -231,7 +242,7 @@ def compare(scenario: Scenario, *, rrd: str | Path | None = None, spawn: bool = 
 
 def sweep(scenario: Scenario, grid: Mapping[str, Sequence[Any]], *, backend: str | None = None) -> list[dict]:
     """Run every point of the product of ``grid`` (``{"controller.kappa_margin": [0.1, 0.5],
-    "controller.kind": ["proposed", "baseline"]}``: each key a scenario key, its values as
+    "controller.kind": ["proposed", "comparison"]}``: each key a scenario key, its values as
     ``with_overrides`` takes them) on ``backend`` (None: the scenario's), batched as
     ``qcontrol sweep`` batches them, in this process. Returns the table ``qcontrol sweep`` writes
     to sweep.csv: one dict per run, the grid's keys (the values as given), then the error rate per
@@ -271,6 +282,70 @@ def _check_arguments(function: str, **given: tuple[Any, type | tuple[type, ...],
                                  f"got {type(value).__name__} {value!r}")
 
 
+def check_video(scenario: Scenario, path: str | Path, fps: float = 30.0, camera: str | None = None,
+                size: tuple[int, int] | None = None) -> Any:
+    """Check, before a run, that its video can be made (:func:`video`): the scenario has a MuJoCo
+    model with a camera, the format is known, the encoder is installed, an offscreen OpenGL context
+    opens. One line (:class:`QcontrolInputError`) otherwise. Returns the checked request."""
+    drawn = scene(scenario)
+    if drawn is None:
+        raise QcontrolInputError(f"--video: {scenario.source} has no MuJoCo model to render; add a "
+                                 "[plant.mujoco] table, or leave out --video")
+    from .render import check_video_request, require_offscreen_gl
+    from .render.frames import camera_id
+
+    camera_id(drawn.model, camera, str(scenario.source))
+    request = check_video_request(path, fps, camera, size)
+    try:
+        import imageio_ffmpeg  # noqa: F401
+    except ImportError:
+        raise QcontrolInputError("--video needs the video extra (the ffmpeg encoder): "
+                                 "pip install 'qcontrol[video]'") from None
+    require_offscreen_gl()
+    return request
+
+
+def video(result: Result, path: str | Path, *, fps: float = 30.0, camera: str | None = None,
+          size: tuple[int, int] | None = None, twin: Result | None = None,
+          progress: ProgressCallback | None = None) -> Path:
+    """Render a run (kept with ``record="full"``) as MuJoCo draws it, to ``path`` (.mp4 or .gif):
+    ``fps`` frames per second of simulated time, from the model's camera ``camera`` (None: its
+    first), ``size`` (width, height) pixels (None: 640 x 480 for MP4, 400 x 300 for GIF), with
+    t, q(x1) and u overlaid; ``twin`` (a comparison's ODE run) is drawn as a
+    translucent ghost. Only reads the trajectories: the runs' numbers do not change."""
+    from .render import write_video
+
+    request = check_video(result.scenario, path, fps, camera, size)
+    drawn = scene(result.scenario)
+    return write_video(request, result.trajectory, drawn.model, drawn.joint, str(result.scenario.source),
+                       None if twin is None else twin.trajectory, progress)
+
+
+def _log_camera_view(rec: Any, sc: Scenario, traj: Trajectory, twin: Trajectory | None = None) -> None:
+    """MuJoCo's rendering of a finished run (and its twin's ghost) into the recording ``rec``."""
+    from .render.video import camera_view_frames
+
+    drawn = scene(sc)
+    if drawn is None:
+        raise QcontrolInputError(f"--camera-view: {sc.source} has no MuJoCo model to render")
+    name, times, jpegs = camera_view_frames(traj, drawn.model, drawn.joint, str(sc.source), twin=twin)
+    rec.log_camera_frames(name, times, jpegs)
+
+
+def check_camera_view(scenario: Scenario) -> None:
+    """Before a run: that its recording can hold MuJoCo's rendering (a model with a camera, an
+    offscreen OpenGL context); one line otherwise."""
+    from .render import require_offscreen_gl
+    from .render.frames import camera_id
+
+    drawn = scene(scenario)
+    if drawn is None:
+        raise QcontrolInputError(f"--camera-view: {scenario.source} has no MuJoCo model to render; add a "
+                                 "[plant.mujoco] table, or leave out --camera-view")
+    camera_id(drawn.model, None, str(scenario.source))
+    require_offscreen_gl()
+
+
 def require_twin(scenario: Scenario) -> None:
     """Refuse, in one line, a scenario :func:`compare` cannot run: one without a MuJoCo model."""
     if "mujoco" not in scenario.backends:
@@ -301,7 +376,7 @@ def recording_for(rrd: str | Path | None, spawn: bool, sc: Scenario, provenance:
 
 def observer_for(rec: Any, sc: Scenario, label: str, twin_of: Trajectory | None = None,
                  ghost: bool | None = None) -> Any:
-    """The recording's observer of a run labelled ``label`` (its backend, or e.g. "baseline");
+    """The recording's observer of a run labelled ``label`` (its backend, or e.g. "comparison");
     with ``twin_of`` the run is drawn as that main run's twin (thin lines on its wide ones, an
     outline body, the differences); ``ghost`` (default: whether it is a twin) draws another run
     beside the main one."""

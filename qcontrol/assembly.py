@@ -12,7 +12,7 @@ from typing import Any
 
 from .controller import BatchLaw, law_kind
 from .disturbance import Schedule, scaled_changes
-from .engine import Observer, ProgressCallback, RunMetrics, Separation, Trajectory, simulate
+from .engine import Observer, ProgressCallback, RunMetrics, RunSpec, Separation, Trajectory, simulate
 from .errors import QcontrolInputError
 from .expr import Expression
 from .plants import BACKENDS, Plant, SceneSource
@@ -100,7 +100,8 @@ def scene(sc: Scenario) -> SceneSource | None:
     """What a recording of the scenario draws in 3-D, whichever backend runs it: the model of the
     first backend section that has one (an ODE run of Example 2 replays the MuJoCo pendulum)."""
     for name, options in sc.backends.items():
-        drawn = BACKENDS[name].scene(options, sc.simulation.dt)
+        backend = BACKENDS[name]
+        drawn = None if backend.scene is None else backend.scene(options, sc.simulation.dt)
         if drawn is not None:
             return drawn
     return None
@@ -145,17 +146,24 @@ def run_variants(
 ) -> list[Trajectory] | list[RunMetrics]:
     """Closed-loop runs of variants that share :func:`batch_structure`, as one batch."""
     first = variants[0]
-    sim = first.simulation
     plant = plant if plant is not None else build_plants(variants, backend)
     x0 = [v.x0 for v in variants]
     # the separation (37)-(43) is checked along single runs (a sweep's batch skips it: it would
     # cost about a quarter of the plant's own evaluations)
     separation = build_separation(first) if len(variants) == 1 else None
-    return simulate(plant, build_law(variants), build_quantizer(first), build_reference(first), x0,
-                    sim.duration, sim.dt, control_period=sim.control_period, state_bound=sim.state_bound,
-                    progress=progress, observer=observer, record=record, metrics=first.metrics,
-                    separation=separation, loads=loads(first), velocity_source=sim.velocity_source,
-                    terms=named_terms(first))
+    return simulate(run_spec(first, plant, build_law(variants), x0, separation, record, progress, observer))
+
+
+def run_spec(sc: Scenario, plant: Plant, law: BatchLaw, x0: Sequence, separation: Separation | None,
+             record: str = "full", progress: ProgressCallback | None = None,
+             observer: Observer | None = None) -> RunSpec:
+    """The specification of a run of the scenario's closed loop with this plant and law."""
+    sim = sc.simulation
+    return RunSpec(plant=plant, law=law, quantizer=build_quantizer(sc), reference=build_reference(sc), x0=x0,
+                   grid=TimeGrid.of(sim.duration, sim.dt, sim.control_period), state_bound=sim.state_bound,
+                   record=record, metrics=sc.metrics, separation=separation, loads=loads(sc),
+                   velocity_source=sim.velocity_source, terms=named_terms(sc), progress=progress,
+                   observer=observer)
 
 
 def named_terms(sc: Scenario) -> list[tuple[str, Expression]]:

@@ -54,11 +54,13 @@ class Disturbance:
         return f"{self.kind} {force} over [{self.start:g}, {self.end:g}) s"
 
 
-START = Key("start", number(nonnegative=True), unit="s", meaning="when it begins (simulated time)",
-            example="5.0")
+MAX_TIME = 1e9  # s: the latest start and the longest push a disturbance may have (far beyond any run)
+START = Key("start", number(nonnegative=True, maximum=MAX_TIME), unit="s",
+            meaning="when it begins (simulated time)", example="5.0")
 IMPULSE_KEYS = (
     START,
-    Key("duration", number(positive=True), unit="s", meaning="how long the force acts", example="0.05"),
+    Key("duration", number(positive=True, maximum=MAX_TIME), unit="s", meaning="how long the force acts",
+        example="0.05"),
     Key("force", number(), unit="N m or N", example="20.0",
         meaning="the generalized force on the joint while it acts (its integral is force * duration)"),
 )

@@ -8,12 +8,15 @@ paper's numbers live in :mod:`qcontrol.paper`. Nothing here branches on a file n
 
 from __future__ import annotations
 
-import math
+import tomllib
 from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
 
 from .controller import law_kind
 from .engine.divergence import DOMAIN_ERROR
 from .paper import OMEGA_KEYS, PAPER_TABLE1, PAPER_TABLE1_ROWS
+from .resources import resolve_file, shipped_scenarios
 from .scenario import Scenario
 
 README_SECTION = "README.md, section 'Reproducing the paper'"
@@ -58,11 +61,71 @@ def _region_note(sc: Scenario) -> str:
             f"T = {period:g} s: measure it with 'qcontrol region {sc.source}'")
 
 
+def _leaves(table: Mapping, prefix: str = "") -> dict[str, Any]:
+    """A scenario's values by dotted key (``controller.delta``); lists and arrays of tables are values."""
+    out: dict[str, Any] = {}
+    for key, value in table.items():
+        if isinstance(value, Mapping):
+            out |= _leaves(value, f"{prefix}{key}.")
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+def _setting(data: Mapping, base_dir: Path, kind: str) -> dict[str, Any]:
+    """What decides the numbers of a run of controller ``kind``: every value but the scenario's
+    texts, the backend (both run the paper's model), the kind (it picks the row of Table 1) and the
+    sections of the other kinds; file paths resolved."""
+    setting = {}
+    for key, value in _leaves(data).items():
+        parts = key.split(".")
+        if parts[0] == "scenario" or key in ("simulation.backend", "controller.kind"):
+            continue
+        if parts[0] == "controller" and len(parts) > 2 and parts[1] != kind:
+            continue
+        if parts[-1] == "model" and isinstance(value, str):
+            value = resolve_file(value, base_dir)
+        setting[key] = value
+    return setting
+
+
+def paper_setting_differences(sc: Scenario) -> list[str]:
+    """How a run of a paper scenario leaves the paper's setting, as ``key = value (file: value)``:
+    against the shipped file of the same name (the paper's setting as qcontrol reads it), else the
+    shipped ``example<n>``. Empty when the run is in the paper's setting."""
+    shipped = shipped_scenarios()
+    path = shipped.get(sc.name)
+    reference = tomllib.loads(path.read_text()) if path is not None else {}
+    if reference.get("scenario", {}).get("paper_example") != sc.paper_example:
+        path = shipped[f"example{sc.paper_example}"]
+        reference = tomllib.loads(path.read_text())
+    kind = sc.controller.kind
+    paper, run = _setting(reference, path.parent, kind), _setting(sc.data, sc.base_dir, kind)
+    differences = []
+    for key in sorted(set(paper) | set(run)):
+        if paper.get(key) != run.get(key):
+            ours = "unset" if key not in run else _shown(run[key])
+            theirs = "unset" if key not in paper else _shown(paper[key])
+            differences.append(f"{key} = {ours} ({path.name}: {theirs})")
+    return differences
+
+
+def _shown(value: Any) -> str:
+    return value.name if isinstance(value, Path) else repr(value)
+
+
 def paper_line(s: Mapping, sc: Scenario) -> str | None:
     """One line with what the paper reports for this scenario, or None for a scenario that does
-    not reproduce one of the paper's examples."""
+    not reproduce one of the paper's examples. A run that leaves the paper's setting (another
+    delta, reference, horizon, sign of psi, ...) gets no paper numbers but what differs."""
     if sc.paper_example is None:
         return None
+    differences = paper_setting_differences(sc)
+    if differences:
+        shown = "; ".join(differences[:4]) + (f"; and {len(differences) - 4} more" if len(differences) > 4
+                                               else "")
+        return (f"  paper: no numbers to compare: this run leaves the setting of the paper's Example "
+                f"{sc.paper_example} in {shown}")
     if sc.paper_example == 1:
         return ("  paper: Example 1 is shown in Figs. 1-4 without numbers (qcontrol reproduce draws ours "
                 f"beside them); see {README_SECTION}")
@@ -70,5 +133,4 @@ def paper_line(s: Mapping, sc: Scenario) -> str | None:
     if row is None:
         return f"  paper: Table 1 has no row for controller kind {sc.controller.kind!r}; see {README_SECTION}"
     rates = "  ".join(f"E({w})={PAPER_TABLE1[row][w]:.4f}" for w in OMEGA_KEYS)
-    horizon = "" if math.isclose(s["duration"], 10.0) else f" (over T = 10 s; this run: {s['duration']:g} s)"
-    return f"  paper, Table 1, {row} law: {rates}{horizon}; why ours differs: {README_SECTION}"
+    return f"  paper, Table 1, {row} law: {rates}; why ours differs: {README_SECTION}"

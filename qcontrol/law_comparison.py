@@ -44,7 +44,7 @@ class LawComparison:
 
 def compare_laws(scenario: Scenario, kinds: Sequence[str], *, backend: str | None = None,
                  rrd: str | Path | None = None, command: str | None = None) -> LawComparison:
-    """Run the scenario once per controller kind in ``kinds`` (``["proposed", "baseline",
+    """Run the scenario once per controller kind in ``kinds`` (``["proposed", "comparison",
     "mine"]``; each with ``controller.kind`` set, its settings from ``[controller.<kind>]``) on
     one backend; ``rrd`` records every law, the first as the main run and the others as twins."""
     check_scenario(scenario, "compare_laws")

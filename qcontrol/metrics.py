@@ -7,11 +7,12 @@ import numpy as np
 from .engine import RunMetrics, Trajectory
 from .engine.velocity import lemma2_applies
 from .error_rate import TABLE1_OMEGAS, error_rate, omega_key
+from .summary import Summary
 
 LEMMA2_TOLERANCE = 1e-9  # rounding slack on |e_zi| / L_zi <= 1
 
 __all__ = ["LEMMA2_TOLERANCE", "TABLE1_OMEGAS", "backend_deviation", "error_rate", "finite_max_abs",
-           "lemma2_max_ratio", "omega_key", "summary"]
+           "lemma2_max_ratio", "omega_key", "run_summary", "summary"]
 
 
 def lemma2_max_ratio(e_z: np.ndarray, L_z: np.ndarray) -> float:
@@ -29,7 +30,12 @@ def finite_max_abs(values: np.ndarray) -> float:
 
 
 def summary(run: Trajectory | RunMetrics, scenario: str, backend: str) -> dict:
-    """The ``summary.json`` object of a run (see the README's output contract).
+    """The ``summary.json`` object of a run: :func:`run_summary`'s :meth:`Summary.to_json`."""
+    return run_summary(run, scenario, backend).to_json()
+
+
+def run_summary(run: Trajectory | RunMetrics, scenario: str, backend: str) -> Summary:
+    """The :class:`~qcontrol.summary.Summary` of a run (see the README's output contract).
 
     The metrics are the reductions of the signal table, the same whether the run kept every row
     or only its metrics. The Lemma 2 check covers every instant before a divergence: the row that
@@ -40,38 +46,21 @@ def summary(run: Trajectory | RunMetrics, scenario: str, backend: str) -> dict:
     ratio is still reported, with ``lemma2_applies`` false.
     """
     values = run.reduced()
-    return {
-        "scenario": scenario,
-        "backend": backend,
-        "duration": run.duration,
-        "dt": run.dt,
-        "steps": run.steps,
-        "wall_time_s": run.wall_time_s,
-        "diverged": bool(run.diverged),
-        "diverged_time": run.diverged_time,
-        "divergence_reason": run.divergence_reason,
-        "error_rate": values["error_rate"],
-        "max_abs_z1_last_half": values["max_abs_z1_last_half"],
-        "max_abs_u": values["max_abs_u"],
-        "max_abs_u_applied": values["max_abs_u_applied"],
-        "saturated_fraction": values["saturated_fraction"],
-        "final_eps_hat": [float(v) for v in values["final_adaptive"]],  # alias of final_<adaptive_state>
-        "adaptive_state": run.adaptive_name,
-        "lemma2_max_ratio": lemma2_max_ratio(values["e_z_max"][None, :], run.L_z),
-        "velocity_source": run.velocity_source,
-        "lemma2_applies": lemma2_applies(run.velocity_source),
-        "L_z": [float(v) for v in run.L_z],
-        "L": float(run.L_z[-1]),
-        **bound_constants(run.bound_names, values["bound_constants"]),
-        **law_diagnostics(run.law_diagnostics, values["diagnostics"]),
-    } | final_state(run.adaptive_name, values["final_adaptive"])
-
-
-def final_state(name: str, final: np.ndarray) -> dict:
-    """The law's state at the end of the run under the law's own name: ``final_theta_hat`` for
-    the comparison law, ``final_eps_hat`` for the paper's law (where it is also the older key
-    ``final_eps_hat``, kept for every law as an alias of this one)."""
-    return {f"final_{name}": [float(v) for v in final]}
+    final = tuple(float(v) for v in values["final_adaptive"])
+    return Summary(
+        scenario=scenario, backend=backend, duration=run.duration, dt=run.dt, steps=run.steps,
+        wall_time_s=run.wall_time_s, diverged=bool(run.diverged), diverged_time=run.diverged_time,
+        divergence_reason=run.divergence_reason, error_rate=values["error_rate"],
+        max_abs_z1_last_half=values["max_abs_z1_last_half"], max_abs_u=values["max_abs_u"],
+        max_abs_u_applied=values["max_abs_u_applied"], saturated_fraction=values["saturated_fraction"],
+        final_eps_hat=final, adaptive_state=run.adaptive_name,  # final_eps_hat: alias of final_state
+        lemma2_max_ratio=lemma2_max_ratio(values["e_z_max"][None, :], run.L_z),
+        velocity_source=run.velocity_source, lemma2_applies=lemma2_applies(run.velocity_source),
+        L_z=tuple(float(v) for v in run.L_z), L=float(run.L_z[-1]),
+        **bound_constants(run.bound_names, values["bound_constants"], values["smallest_r"]),
+        law_diagnostics=law_diagnostics(run.law_diagnostics, values["diagnostics"]),
+        final_state=final,
+    )
 
 
 def law_diagnostics(diagnostics: tuple, reduced: dict[str, np.ndarray]) -> dict:
@@ -86,18 +75,25 @@ def law_diagnostics(diagnostics: tuple, reduced: dict[str, np.ndarray]) -> dict:
     return out
 
 
-def bound_constants(names: tuple[str, ...], largest: np.ndarray) -> dict:
+def bound_constants(names: tuple[str, ...], largest: np.ndarray, smallest_r: np.ndarray) -> dict:
     """The separation (37)-(43) as the run measured it: ``bound_constants`` maps each term to the
     largest ``|term| / r(x_q)`` seen (None where it was infinite or undefined: the term is not
-    bounded by its r on the run), and ``warnings`` says so in words. Both None/empty when the
-    separation was not checked (a law without r, or a sweep's batch)."""
+    bounded by its r on the run), and ``warnings`` says so in words. Both None/empty
+    (``bound_constants`` absent from ``summary.json``) when the separation was not checked (a law
+    without r, or a sweep's batch). Where a bounding function went below 1 at some row
+    (``smallest_r``: each r_i's smallest value), ``r_below_one`` maps its term to that value and a
+    warning says so; the key is there only then."""
     if not names:
-        return {"bound_constants": None, "warnings": []}
+        return {"bound_constants": None, "warnings": ()}
     constants = {name: float(v) if np.isfinite(v) else None for name, v in zip(names, largest, strict=True)}
     warnings = [f"{name} is not bounded by its r on this run: |{name}| / r(x_q) was infinite or undefined "
                 "(eqs. (37)-(43) need |term(x)| <= constant * r(x_q) wherever |x - x_q| <= delta/2)"
                 for name, value in constants.items() if value is None]
-    return {"bound_constants": constants, "warnings": warnings}
+    below = {name: float(v) for name, v in zip(names, smallest_r, strict=True) if v < 1}
+    warnings += [f"the bounding function r of {name} went below 1 on this run (down to {value:.4g}): eqs. "
+                 "(37)-(43) need r_i(x_q) >= 1 wherever the run goes; make r larger there, e.g. 1 + ..."
+                 for name, value in below.items()]
+    return {"bound_constants": constants, "warnings": tuple(warnings), "r_below_one": below or None}
 
 
 def backend_deviation(physics: Trajectory, ideal: Trajectory) -> dict:

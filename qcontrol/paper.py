@@ -14,4 +14,4 @@ PAPER_TABLE1: dict[str, dict[str, float]] = {
 }
 METHOD_LABELS = {"proposed": "proposed (44)-(45)", "comparison": "comparison [20], eq. (46)"}
 # The row of Table 1 that a run of each controller kind is compared with.
-PAPER_TABLE1_ROWS = {"proposed": "proposed", "baseline": "comparison"}
+PAPER_TABLE1_ROWS = {"proposed": "proposed", "comparison": "comparison"}

@@ -6,13 +6,14 @@ reading before the controller is called.
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Protocol
 
 import numpy as np
 
 from .errors import QcontrolInputError
+
+Column = float | np.ndarray  # one value per copy: a (batch,) array, or a float for a batch of one
 
 
 class Quantizer(Protocol):
@@ -25,9 +26,6 @@ class Quantizer(Protocol):
     max_error: float
 
     def __call__(self, x: np.ndarray) -> np.ndarray: ...
-
-    def on_floats(self, values: Sequence[float]) -> tuple[float, ...]:
-        """``__call__`` on the plain floats of one copy's reading (the engine's batch of one)."""
 
 
 class UniformQuantizer:
@@ -46,14 +44,6 @@ class UniformQuantizer:
     def __call__(self, x: np.ndarray) -> np.ndarray:
         return self.delta * np.floor(np.asarray(x, dtype=float) / self.delta + 0.5)
 
-    def on_floats(self, values: Sequence[float]) -> tuple[float, ...]:
-        """:meth:`__call__` on plain floats, bit for bit (``floor`` is exact either way)."""
-        d = self.delta
-        try:
-            return tuple([d * math.floor(v / d + 0.5) for v in values])
-        except (ValueError, OverflowError):  # NaN or Inf: numpy's answer
-            return tuple(self(np.array(values)).tolist())
-
     def __repr__(self) -> str:
         return f"UniformQuantizer(delta={self.delta!r})"
 
@@ -67,7 +57,8 @@ class QuantizedReading:
 
     Two views of the same numbers: ``values`` with shape ``(batch, n)``, and ``columns``, one
     value per state ``q_1 .. q_n``, each a ``(batch,)`` array, or a plain float for a reading of
-    one copy made by :func:`float_quantizer` (``floats`` is then true). The controller's formulas
+    one copy made by the engine's float path (:mod:`qcontrol.engine.fastpath`; ``floats`` is then
+    true). The controller's formulas
     work on columns; the array of a reading of floats is made when first asked for.
     """
 
@@ -92,14 +83,3 @@ class QuantizedReading:
 def quantize(quantizer: Quantizer, readings: np.ndarray) -> QuantizedReading:
     """Apply ``quantizer`` to sensor ``readings`` (shape ``(batch, n)``)."""
     return QuantizedReading(quantizer(readings), quantizer.max_error)
-
-
-def float_quantizer(quantizer: Quantizer) -> Callable[[Sequence[float]], QuantizedReading]:
-    """``quantize`` for the readings of one copy, plain floats ``x_1 .. x_n``: a function made once
-    per run."""
-    on_floats, max_error = quantizer.on_floats, quantizer.max_error
-
-    def quantize_floats(readings: Sequence[float]) -> QuantizedReading:
-        return QuantizedReading(None, max_error, on_floats(readings))
-
-    return quantize_floats

@@ -20,7 +20,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from .errors import QcontrolInputError
+from .errors import KeyNotForKind, QcontrolInputError
 
 REQUIRED: Any = object()  # the default of a key that must be given
 OPTIONAL: Any = object()  # the default of a key that may be left out and then has no value
@@ -77,9 +77,15 @@ class Table:
         return default
 
     def number(self, key: str, default: Any = REQUIRED, *, positive: bool = False,
-               nonnegative: bool = False) -> float:
+               nonnegative: bool = False, maximum: float | None = None) -> float:
         value = self.get(key, default)
-        return value if value is None else self.check_number(key, value, positive, nonnegative)
+        if value is None:
+            return value
+        value = self.check_number(key, value, positive, nonnegative)
+        if maximum is not None and value > maximum:
+            raise self.error(key, f"must be at most {maximum:g}, got {value:g}",
+                             f"use a value <= {maximum:g}")
+        return value
 
     def check_number(self, key: str, value: Any, positive: bool = False, nonnegative: bool = False) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -104,12 +110,15 @@ class Table:
                              f"give exactly {length} number(s)")
         return tuple(self.check_number(f"{key}[{i}]", v, positive) for i, v in enumerate(value))
 
-    def integer(self, key: str, default: Any = REQUIRED, minimum: int | None = None) -> int:
+    def integer(self, key: str, default: Any = REQUIRED, minimum: int | None = None,
+                maximum: int | None = None) -> int:
         value = self.get(key, default)
         if isinstance(value, bool) or not isinstance(value, int):
             raise self.error(key, f"must be a whole number, got {type_name(value)} {value!r}", "write e.g. 2")
         if minimum is not None and value < minimum:
             raise self.error(key, f"must be >= {minimum}, got {value}", f"use a value >= {minimum}")
+        if maximum is not None and value > maximum:
+            raise self.error(key, f"must be at most {maximum}, got {value}", f"use a value <= {maximum}")
         return value
 
     def string(self, key: str, default: Any = REQUIRED, choices: Sequence[str] | None = None) -> str:
@@ -160,14 +169,17 @@ class ValueType:
     path: bool = False  # a file path, relative to the scenario file's folder
 
 
-def number(*, positive: bool = False, nonnegative: bool = False) -> ValueType:
+def number(*, positive: bool = False, nonnegative: bool = False, maximum: float | None = None) -> ValueType:
     text = "number > 0" if positive else "number >= 0" if nonnegative else "number"
-    return ValueType(text, lambda t, k, d, s: t.number(k, d, positive=positive, nonnegative=nonnegative))
+    text += f", at most {maximum:g}" if maximum is not None else ""
+    return ValueType(text, lambda t, k, d, s: t.number(k, d, positive=positive, nonnegative=nonnegative,
+                                                       maximum=maximum))
 
 
-def integer(minimum: int | None = None) -> ValueType:
+def integer(minimum: int | None = None, maximum: int | None = None) -> ValueType:
     text = "whole number" + (f" >= {minimum}" if minimum is not None else "")
-    return ValueType(text, lambda t, k, d, s: t.integer(k, d, minimum))
+    text += f", at most {maximum}" if maximum is not None else ""
+    return ValueType(text, lambda t, k, d, s: t.integer(k, d, minimum, maximum))
 
 
 def string(choices: Sequence[str] | None = None) -> ValueType:
@@ -298,8 +310,9 @@ def kind_table(table: Table, common: Sequence[str], kinds: Mapping[str, KindKeys
         if key in common or key in kinds:
             continue
         if chosen is not None and key not in chosen.names:
-            raise table.error(key, _not_for_kind(key, kind, kinds), _keys_that_apply(table, common, kind,
-                                                                                     chosen, kinds, key))
+            problem = table.error(key, _not_for_kind(key, kind, kinds),
+                                  _keys_that_apply(table, common, kind, chosen, kinds, key))
+            raise KeyNotForKind(str(problem), table.path(key))
         group = _group(chosen, key)
         for alternative in group:  # a direct key replaces its whole group of the sub-table
             merged.pop(alternative, None)

@@ -1,9 +1,43 @@
-"""Shared test set-up: nothing may write under the real HOME (the rerun SDK keeps analytics there)."""
+"""Shared test set-up: the repository's paths and shipped scenarios (as constants, ``from conftest
+import EX2``, and as fixtures), and nothing may write under the real HOME (the rerun SDK keeps
+analytics there)."""
 
 import os
 import tempfile
+from pathlib import Path
+
+import pytest
 
 _HOME = tempfile.mkdtemp(prefix="qcontrol-test-home-")
 os.environ["HOME"] = _HOME
 os.environ.setdefault("RERUN_TELEMETRY_ENABLED", "false")
 os.environ.setdefault("MPLBACKEND", "Agg")
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "qcontrol"
+# compiled code is cached beside pytest's own cache, so later sessions load it instead of compiling
+os.environ.setdefault("QCONTROL_CACHE_DIR", str(ROOT / ".pytest_cache" / "qcontrol-compiled"))
+SCENARIOS = ROOT / "scenarios"
+MODELS = ROOT / "models"
+EX1 = SCENARIOS / "example1.toml"
+EX2 = SCENARIOS / "example2.toml"
+
+
+@pytest.fixture
+def ex1() -> Path:
+    """Example 1's scenario file (the cart of eq. (47))."""
+    return EX1
+
+
+@pytest.fixture
+def ex2() -> Path:
+    """Example 2's scenario file (the pendulum of eq. (48))."""
+    return EX2
+
+
+@pytest.fixture
+def short_example2():
+    """Example 2 loaded with a 0.2 s horizon: a real closed loop in a fraction of a second."""
+    from qcontrol.scenario import load_scenario
+
+    return load_scenario(EX2, ["simulation.duration=0.2"])

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import EX1, EX2, ROOT
 
 import qcontrol
 from qcontrol.api import columns
@@ -21,8 +22,6 @@ from qcontrol.engine import SIGNALS
 from qcontrol.errors import QcontrolInputError
 from qcontrol.sweep import sweep_summaries
 
-ROOT = Path(__file__).resolve().parents[1]
-EX1, EX2 = ROOT / "scenarios" / "example1.toml", ROOT / "scenarios" / "example2.toml"
 SHORT = {"simulation.duration": 1.0}
 
 
@@ -93,9 +92,9 @@ def test_the_resolved_scenario_reruns_to_the_same_summary(tmp_path: Path) -> Non
 def test_scenarios_are_immutable_and_with_overrides_makes_a_new_one() -> None:
     sc = qcontrol.load_scenario("example2")  # a shipped scenario by name
     other = sc.with_overrides({"controller.kind": "baseline"})
-    assert sc.controller.kind == "proposed" and other.controller.kind == "baseline"
+    assert sc.controller.kind == "proposed" and other.controller.kind == "comparison"  # its former name
     assert other.overrides == (("controller.kind", "baseline"),)
-    with pytest.raises(QcontrolInputError, match="does not apply to kind 'baseline'"):
+    with pytest.raises(QcontrolInputError, match="does not apply to kind 'comparison'"):
         sc.with_overrides({"controller.kappa_margin": 0.1}).with_overrides({"controller.kind": "baseline"})
 
 
@@ -114,10 +113,11 @@ def test_provenance_names_versions_and_the_scenario_file() -> None:
 
 
 def test_a_file_of_ones_own_is_named_by_its_path_and_may_use_a_shipped_model(tmp_path: Path) -> None:
-    """Outside the shipped folder the provenance names the absolute path; the shipped model named
-    as ``qcontrol:models/...`` is the same file as the relative path the shipped scenario uses."""
+    """Outside the shipped folder the provenance names the absolute path; a copy of a shipped
+    scenario keeps working there: it names its model ``qcontrol:models/...``."""
     mine = tmp_path / "mine.toml"
-    mine.write_text(EX2.read_text().replace('"../models/pendulum.xml"', '"qcontrol:models/pendulum.xml"'))
+    assert '"qcontrol:models/pendulum.xml"' in EX2.read_text()
+    mine.write_text(EX2.read_text())
     ours = qcontrol.run(qcontrol.load_scenario(mine, SHORT), backend="mujoco").summary
     shipped = qcontrol.run(qcontrol.load_scenario(EX2, SHORT), backend="mujoco").summary
     assert ours["provenance"]["scenario_file"] == str(mine.resolve())

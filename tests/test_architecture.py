@@ -1,37 +1,44 @@
-"""The architecture's contracts: imports go one way, the signal table makes the results, kinded tables
-take the chosen kind's keys, a MuJoCo model is compiled once, and the loop stays on one screen."""
+"""The architecture's contracts: imports go one way and form no cycle, importing has no side
+effect, the hot packages hold objects rather than closures, the protocols stay narrow, the signal
+table makes the results, kinded tables take the chosen kind's keys, a MuJoCo model is compiled
+once, and the loop stays on one screen."""
 
 from __future__ import annotations
 
 import ast
+import dataclasses
 import inspect
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import EX2, PACKAGE, ROOT
 
 from qcontrol.assembly import build_plant, run_scenario
+from qcontrol.controller import BatchLaw, FloatColumns
+from qcontrol.controller.user import Law
 from qcontrol.engine import SIGNALS, ClosedLoop
 from qcontrol.engine.signals import DERIVED, RECORDED, REDUCTIONS, needed
 from qcontrol.errors import QcontrolInputError
+from qcontrol.plants import Actuated, Backend, Disturbable, FloatIO, FloatStepping, PhysicsReport, Plant
+from qcontrol.quantizer import Quantizer
 from qcontrol.scenario import load_scenario
-
-ROOT = Path(__file__).resolve().parents[1]
-PACKAGE = ROOT / "qcontrol"
-EX2 = ROOT / "scenarios" / "example2.toml"
 
 # Each layer may import only from the layers before it (docs/architecture.md, "Modules").
 LAYERS = [
     {"_version", "errors", "schema", "timegrid", "expr", "progress", "outputs", "error_rate", "resources",
-     "provenance"},
+     "provenance", "compiled", "workers"},
     {"quantizer", "reference", "disturbance"},
     {"controller"},
     {"plants"},
     {"engine"},
-    {"metrics", "scenario"},
+    {"metrics", "scenario", "summary"},
     {"paper"},
     {"assembly"},
     {"recording", "plots", "attribution"},
+    {"render"},
     {"sweep", "api", "explain", "region"},
     {"law_comparison"},
     {"reproduce"},
@@ -71,6 +78,130 @@ def test_imports_go_one_way() -> None:
             if _layer(target) > _layer(own):
                 upward.append(f"{path.relative_to(ROOT)} imports {target}")
     assert not upward, upward
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _import_graph() -> dict[str, set[str]]:
+    """Module -> the qcontrol modules it imports anywhere (top level, functions, TYPE_CHECKING),
+    without the edges to its own enclosing packages (Python imports those first anyway)."""
+    modules = {_module_name(p): p for p in PACKAGE.rglob("*.py")}
+    graph = {}
+    for name, path in modules.items():
+        package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
+        found = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom):
+                base = package[: len(package) - node.level + 1] if node.level else []
+                target = ".".join([*base, *(node.module.split(".") if node.module else [])])
+                for alias in node.names:
+                    found.add(f"{target}.{alias.name}" if f"{target}.{alias.name}" in modules else target)
+            elif isinstance(node, ast.Import):
+                found.update(alias.name for alias in node.names)
+        graph[name] = {m for m in found if m in modules and m != name and not name.startswith(m + ".")}
+    return graph
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    found: list[list[str]] = []
+
+    def visit(node: str) -> None:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        for nxt in graph[node]:
+            if nxt not in index:
+                visit(nxt)
+                low[node] = min(low[node], low[nxt])
+            elif nxt in stack:
+                low[node] = min(low[node], index[nxt])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                top = stack.pop()
+                component.append(top)
+                if top == node:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for node in sorted(graph):
+        if node not in index:
+            visit(node)
+    return found
+
+
+def test_no_import_cycles_of_any_kind() -> None:
+    assert not _cycles(_import_graph())
+
+
+def test_the_cycle_finder_finds_a_cycle() -> None:
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+
+
+def test_importing_the_package_changes_nothing_process_wide() -> None:
+    """Importing every plant (MuJoCo's callbacks included) installs no MuJoCo hook: the warning
+    handler and the passive callback are installed by the blocks that use them."""
+    code = ("import mujoco, qcontrol, qcontrol.cli, qcontrol.plants.mujoco.plant, qcontrol.recording; "
+            "assert mujoco.get_mju_user_warning() is None and mujoco.get_mjcb_passive() is None")
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
+
+
+HOT_PACKAGES = ("engine", "plants", "controller")
+
+
+def test_no_nested_functions_in_the_hot_packages() -> None:
+    """engine/, plants/ and controller/ hold named objects, not closures (a lambda counts)."""
+    nested = []
+    for package in HOT_PACKAGES:
+        for path in sorted((PACKAGE / package).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+                    nested += [f"{path.relative_to(ROOT)}:{inner.lineno}" for inner in ast.walk(node)
+                               if inner is not node and isinstance(inner, (ast.FunctionDef, ast.Lambda))]
+    assert not nested, nested
+
+
+def _members(protocol: type) -> set[str]:
+    own = set(vars(protocol)) | set(getattr(protocol, "__annotations__", {}))
+    return {m for m in own if not m.startswith("_") or m in ("__enter__", "__exit__", "__call__")}
+
+
+@pytest.mark.parametrize(("protocol", "members"), [
+    (Plant, {"n", "batch", "reset", "observe", "step", "close", "__enter__", "__exit__"}),
+    (Disturbable, {"disturb"}),
+    (Actuated, {"actuator", "actuator_limited"}),
+    (PhysicsReport, {"warnings", "consistency_report"}),
+    (FloatStepping, {"float_io"}),
+    (Quantizer, {"max_error", "__call__"}),
+    (FloatIO, {"observe", "step"}),
+    (BatchLaw, {"state_name", "state_size", "copies", "coordinates", "initial_state", "control", "advancer",
+                "constants", "diagnostics"}),
+    (FloatColumns, {"float_advancer"}),
+    (Law, {"state_size", "initial_state", "control", "state_rate"}),
+])
+def test_the_protocols_stay_narrow(protocol: type, members: set[str]) -> None:
+    assert _members(protocol) == members
+
+
+def test_a_backend_is_built_with_keywords_and_needs_four() -> None:
+    fields = {f.name: f for f in dataclasses.fields(Backend)}
+    required = {name for name, f in fields.items() if f.default is dataclasses.MISSING}
+    assert required == {"name", "build", "structure", "summary"}
+    assert all(f.kw_only for f in fields.values())
+
+
+def test_the_float_path_is_explained_in_one_module() -> None:
+    """Why a batch of one runs on floats is said once, where the float path is chosen."""
+    explaining = sorted(str(path.relative_to(PACKAGE)) for path in PACKAGE.rglob("*.py")
+                        if "microsecond" in path.read_text())
+    assert explaining == ["engine/fastpath.py"]
 
 
 def test_no_attribute_probing_in_the_package() -> None:
@@ -115,7 +246,7 @@ def test_recorded_derived_and_reduced_signals() -> None:
     assert needed(("e_z",)) == ("zbar", "e_z")
     assert {r.name for r in REDUCTIONS} == {"error_rate", "max_abs_z1_last_half", "max_abs_u", "e_z_max",
                                              "final_adaptive", "bound_constants", "max_abs_u_applied",
-                                             "saturated_fraction", "diagnostics"}
+                                             "saturated_fraction", "diagnostics", "smallest_r"}
 
 
 def test_a_metrics_run_keeps_the_reductions_of_the_full_record() -> None:
@@ -144,17 +275,18 @@ def test_a_direct_key_replaces_its_alternative_in_the_sub_table() -> None:
 
 
 def test_switching_kind_takes_the_other_kinds_sub_table() -> None:
-    sc = load_scenario(EX2, ["controller.kind=baseline", "controller.gain=2.0"])
-    assert sc.controller.kind == "baseline" and sc.controller.settings.gain == 2.0
-    assert sc.controller.settings.theta == "adaptive"  # from [controller.baseline]
+    sc = load_scenario(EX2, ["controller.kind=comparison", "controller.gain=2.0"])
+    assert sc.controller.kind == "comparison" and sc.controller.settings.gain == 2.0
+    assert sc.controller.settings.theta == "adaptive"  # from [controller.comparison]
 
 
 @pytest.mark.parametrize(("overrides", "fragments"), [
     (["controller.gain=2.0"],
-     ["controller.gain", "does not apply to kind 'proposed'", "setting of kind 'baseline'", "kappa_margin"]),
-    (["controller.kind=baseline", "controller.gamma=2.0"],
-     ["controller.gamma", "kind 'baseline'", "gain, theta"]),
-    (["controller.baseline.gian=2.0"], ["controller.baseline.gian: unknown key", "gain, theta"]),
+     ["controller.gain", "does not apply to kind 'proposed'", "setting of kind 'comparison'",
+      "kappa_margin"]),
+    (["controller.kind=comparison", "controller.gamma=2.0"],
+     ["controller.gamma", "kind 'comparison'", "gain, theta"]),
+    (["controller.comparison.gian=2.0"], ["controller.comparison.gian: unknown key", "gain, theta"]),
     (["controller.proposed=1"], ["controller.proposed", "must be a table"]),
 ])
 def test_keys_of_another_kind_are_refused_with_the_keys_that_apply(overrides: list[str],

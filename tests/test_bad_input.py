@@ -19,21 +19,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
+from conftest import EX1, EX2, ROOT, SCENARIOS
 from test_messages import assert_toml_hints
 
 from qcontrol.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
-SCENARIOS = ROOT / "scenarios"
-EX1 = SCENARIOS / "example1.toml"
-EX2 = SCENARIOS / "example2.toml"
 CHAIN3 = SCENARIOS / "chain3.toml"
 CANARY = "PWNED"  # a file the malicious expressions would create if anything were executed
 
 
 def _text(base: Path) -> str:
     """A scenario's text, loadable from any folder (absolute MJCF path)."""
-    return base.read_text(encoding="utf-8").replace('"../models/', f'"{ROOT}/models/')
+    return base.read_text(encoding="utf-8").replace('"qcontrol:models/', f'"{ROOT}/models/')
 
 
 def _edit(base: Path, old: str, new: str) -> str:
@@ -172,7 +169,7 @@ CATALOGUE: dict[str, Case] = {
     "type: controller kind": case(
         ex2('kind = "proposed"', 'kind = "pid"'),
         "controller.kind: 'pid' is not allowed",
-        "proposed, baseline",
+        "proposed, comparison",
     ),
     "type: backend is a boolean": case(
         ex2('backend = "mujoco"', "backend = true"), "simulation.backend: must be a string"
@@ -215,9 +212,9 @@ CATALOGUE: dict[str, Case] = {
     "sign: zero state bound": case(
         ex2("dt = 0.001", "dt = 0.001\nstate_bound = 0"), "simulation.state_bound: must be > 0"
     ),
-    "sign: baseline gain": case(
-        ex2('kind = "proposed"', 'kind = "baseline"').replace("gain = 1.0", "gain = 0.0"),
-        "controller.baseline.gain: must be > 0",
+    "sign: comparison gain": case(
+        ex2('kind = "proposed"', 'kind = "comparison"').replace("gain = 1.0", "gain = 0.0"),
+        "controller.comparison.gain: must be > 0",
     ),
     "sign: negative MJCF mass parameter": case(
         _edit(SCENARIOS / "example2-rigid.toml", "mass = 1.0", "mass = -1.0"),
@@ -263,7 +260,8 @@ CATALOGUE: dict[str, Case] = {
         None, "controller.gamma: must be finite", scenario=EX2, args=("--set", "controller.gamma=inf")
     ),
     "nonfinite: --duration nan": case(
-        None, "simulation.duration: must be finite", scenario=EX2, args=("--duration", "nan")
+        None, "--duration nan: must be a positive number", scenario=EX2, args=("--duration", "nan"),
+        names_file=False,  # the value came from the command line: the option is named, not the file
     ),
     "nonfinite: expression constant 1e999": case(phi("x2 * 1e999"), "plant.phi[1]", "not finite"),
     "nonfinite: derivative of the reference": case(
@@ -412,7 +410,8 @@ CATALOGUE: dict[str, Case] = {
         None, "simulation.duration", "more than the limit", scenario=EX2, args=("--duration", "1e300")
     ),
     "steps: tiny dt": case(None, "more than the limit", scenario=EX2, args=("--dt", "1e-300")),
-    "steps: negative --dt": case(None, "simulation.dt: must be > 0", scenario=EX2, args=("--dt", "-0.001")),
+    "steps: negative --dt": case(None, "--dt -0.001: must be a positive number", scenario=EX2,
+                                 args=("--dt", "-0.001"), names_file=False),
     "steps: control period not a multiple": case(
         ex2("dt = 0.001", "dt = 0.001\ncontrol_period = 0.0015"),
         "simulation.control_period = 0.0015 s is not a whole number of steps",
@@ -436,7 +435,7 @@ CATALOGUE: dict[str, Case] = {
     "out: summary.json is a folder": case(
         None,
         "summary.json",
-        "cannot write",
+        "is a folder, not a regular file",
         scenario=EX2,
         args=("--out", "{tmp}/taken", "--backend", "ode", "--duration", "0.01"),
         names_file=False,
@@ -472,7 +471,7 @@ def _assert_nothing_written(tmp_path: Path, out: Path) -> None:
     leftovers = [
         p
         for p in tmp_path.rglob("*")
-        if p.name.endswith(".part") or p.name.startswith(".summary") or p.name.startswith(".compare")
+        if p.name.endswith((".part", ".tmp")) or p.name.startswith((".summary", ".compare"))
     ]
     assert not leftovers, f"temporary files left: {leftovers}"
     for name in ("summary.json", "compare.json"):

@@ -1,10 +1,11 @@
 """Batched runs equal single runs: per-copy controller parameters, per-copy theta and x0 (ODE),
 and MuJoCo batches; ``record="metrics"`` gives the summaries of the full record."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import EX2 as EXAMPLE2
+from conftest import SCENARIOS
 
 from qcontrol.assembly import build_law, build_plant, build_quantizer, build_reference, run_scenario
 from qcontrol.engine import simulate
@@ -13,8 +14,6 @@ from qcontrol.plants.ode import ChainPlant
 from qcontrol.scenario import load_scenario
 from qcontrol.sweep import run_batch, sweep_summaries
 
-SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
-EXAMPLE2 = SCENARIOS / "example2.toml"
 SHORT = ["simulation.duration=1.5"]
 VARIANTS = [  # several parameter sets in one batch
     [],

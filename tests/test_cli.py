@@ -7,12 +7,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import EX1, EX2, ROOT
 
 from qcontrol.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
-EX1 = ROOT / "scenarios" / "example1.toml"
-EX2 = ROOT / "scenarios" / "example2.toml"
 SUMMARY_KEYS = {
     "scenario", "backend", "duration", "dt", "steps", "wall_time_s", "diverged", "error_rate",
     "max_abs_z1_last_half", "max_abs_u", "final_eps_hat", "lemma2_max_ratio",
@@ -52,7 +50,7 @@ def _write(tmp_path: Path, text: str) -> Path:
 
 def _variant(old: str, new: str) -> str:
     """Example 2 with one edit, loadable from any folder (absolute MJCF path)."""
-    text = EX2.read_text().replace('"../models/', f'"{ROOT}/models/')
+    text = EX2.read_text().replace('"qcontrol:models/', f'"{ROOT}/models/')
     assert old in text
     return text.replace(old, new)
 
@@ -105,8 +103,8 @@ def test_bad_scenario_exit_2_one_line(tmp_path, capsys, case):
         (["run", str(EX2), "--set", "controller.kapa=1"], "controller.kapa: unknown key"),
         (["run", str(EX2), "--set", "controller.c=[1, 2, 3]"], "has 3 entries, expected 2"),
         (["run", str(ROOT / "scenarios" / "chain3.toml"), "--backend", "mujoco"], "[plant.mujoco]"),
-        (["run", str(EX2), "--duration", "-1"], "simulation.duration: must be > 0"),
-        (["run", str(EX2), "--dt", "0"], "simulation.dt: must be > 0"),
+        (["run", str(EX2), "--duration", "-1"], "--duration -1.0: must be a positive number of seconds"),
+        (["run", str(EX2), "--dt", "0"], "--dt 0.0: must be a positive number of seconds"),
         (["run", str(EX2), "--backend", "gpu"], "invalid choice"),
     ],
 )
@@ -163,7 +161,7 @@ def test_compare_rrd_holds_both_runs(tmp_path, capsys):
     rrd = tmp_path / "rec" / "ex2.rrd"
     out = tmp_path / "cmp"
     assert main(["compare", str(EX2), "--rrd", str(rrd), "--out", str(out), "--duration", "1", "-q"]) == 0
-    assert rrd.is_file() and not list(rrd.parent.glob("*.part"))
+    assert rrd.is_file() and not list(rrd.parent.glob(".*.tmp"))
     entities = read_entities(rrd)
     for path in ("world/bodies/arm", "world/ode_ghost/arm", "world/target", "signals/tracking/y",
                  "signals/tracking/y_d", "signals/tracking/y_ode", "signals/input/u",
@@ -175,7 +173,7 @@ def test_compare_rrd_holds_both_runs(tmp_path, capsys):
     c = json.loads((out / "compare.json").read_text())
     assert np.max(np.abs(y - y_ode)) == c["max_abs_dy"] <= 1e-9  # the recording holds the same two runs
     _, dy = temporal(entities["signals/difference/y/ode"], "Scalars:scalars")  # the ODE run is the twin
-    np.testing.assert_array_equal(dy, np.abs(y - y_ode))
+    np.testing.assert_array_equal(dy, np.log10(np.maximum(np.abs(y - y_ode), 1e-16)))  # as log10, floored
 
 
 def test_run_without_rrd_does_not_import_rerun():
@@ -212,3 +210,38 @@ def test_run_streams_chunks_with_bounded_memory_same_numbers(tmp_path, overrides
     for key in ("error_rate", "max_abs_u", "max_abs_z1_last_half", "final_eps_hat", "lemma2_max_ratio",
                 "diverged", "diverged_time", "steps"):
         assert got[key] == want[key], key
+
+
+def test_progress_is_shown_on_a_terminal_only(tmp_path, capsys, monkeypatch):
+    """Piped (here: captured), no command writes progress lines; on a terminal the line is redrawn."""
+    import io
+
+    from qcontrol.progress import ProgressLine
+
+    assert main(["sweep", str(EX2), "--backend", "ode", "--grid", "controller.gamma=0.5,2", "--set",
+                 "simulation.duration=0.2", "--out", str(tmp_path / "sweep")]) == 0
+    assert main(["run", str(EX2), "--duration", "0.2"]) == 0
+    assert capsys.readouterr().err == ""
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    terminal = Terminal()
+    monkeypatch.setattr(sys, "stderr", terminal)
+    line = ProgressLine("sweep", True, "runs")
+    for done in range(5):
+        line(done, 4)
+    drawn = "".join(f"\rsweep: {100 * d // 4:3d}% ({d}/4 runs)" for d in range(5))
+    assert terminal.getvalue() == drawn + "\n"
+
+
+def test_actuator_line_says_never_saturated_or_how_often(tmp_path, capsys):
+    common = ["run", str(EX2), "--duration", "1", "-q"]
+    assert main([*common, "--out", str(tmp_path / "free")]) == 0
+    free = capsys.readouterr().out
+    assert "never saturated" in free and "0.0%" not in free
+    assert main([*common, "--out", str(tmp_path / "cut"), "--set", "plant.mujoco.torque_limit=12.0"]) == 0
+    cut = capsys.readouterr().out
+    fraction = json.loads((tmp_path / "cut" / "summary.json").read_text())["saturated_fraction"]
+    assert 0.0 < fraction < 1.0 and f"saturated at {100 * fraction:.2g}% of the control samples" in cut

@@ -1,16 +1,15 @@
 """The closed loop on the shipped scenarios: Lemma 2 at every step, Theorem 1's boundedness."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import SCENARIOS
 
 from qcontrol.assembly import run_scenario
 from qcontrol.expr import compile_expression
 from qcontrol.plants.ode import ChainPlant
 from qcontrol.scenario import load_scenario
 
-SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
 SHIPPED = sorted(p.stem for p in SCENARIOS.glob("*.toml"))
 
 # Stated bound on |z_1| over the last half of each 10 s run (Theorem 1 gives ultimate boundedness

@@ -9,7 +9,7 @@ from numpy.polynomial import Polynomial as P
 
 from qcontrol.controller import (
     Backstepping,
-    BaselineController,
+    ComparisonController,
     ProposedController,
     backstepping_coefficients,
     lemma2_bounds,
@@ -149,7 +149,7 @@ def test_eps_hat_stays_nonnegative():
 
 def test_baseline_law_46_by_hand():
     phi = [compile_expression(e, X2) for e in ("x2", "x2**2*cos(x1)", "sin(x1)")]
-    ctrl = BaselineController([4.0, 3.0], 0.005, None, phi)
+    ctrl = ComparisonController([4.0, 3.0], 0.005, None, phi)
     q = np.array([[0.2, -0.3]])
     yd = np.array([0.0, 1.5, 0.0])
     theta_hat = np.array([[0.5, -1.0, 2.0]])

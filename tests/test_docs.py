@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import ROOT
 
 from qcontrol.controller import LAW_KINDS
 from qcontrol.reference import REFERENCE_KINDS
@@ -19,7 +20,6 @@ from qcontrol.scenario.document import scenarios_markdown
 from qcontrol.scenario.keys import TOP, top_sections
 from qcontrol.schema import REQUIRED
 
-ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 
 

@@ -1,20 +1,20 @@
 """A batch of one runs on plain floats, a larger batch on numpy columns: both go through the same
 controller code (qcontrol.controller), so they must give the same numbers."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import SCENARIOS
 
 from qcontrol.assembly import build_controller, build_plant, build_quantizer, build_reference
-from qcontrol.controller import BaselineController, ProposedController
+from qcontrol.controller import ComparisonController, ProposedController
 from qcontrol.engine import simulate
+from qcontrol.engine.fastpath import float_quantizer
 from qcontrol.expr import compile_expression
 from qcontrol.plants.ode import ChainPlant
-from qcontrol.quantizer import QuantizedReading, UniformQuantizer, float_quantizer, quantize
+from qcontrol.quantizer import QuantizedReading, UniformQuantizer, quantize
 from qcontrol.scenario import load_scenario
 
-SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
 Q2, X2 = ["q1", "q2"], ["x1", "x2"]
 PHI = ["x2", "x2**2*cos(x1)", "sin(x1)"]
 
@@ -27,8 +27,8 @@ def _controllers():
         "proposed": ProposedController([4.0, 3.0], 0.005, kappa=1.125, gamma=1.5, sigma=0.7, r=r),
         "proposed-r_scale": ProposedController([4.0, 3.0], 0.005, kappa=1.125, gamma=1.5, sigma=0.7, r=r,
                                                r_scale=2.5),
-        "baseline": BaselineController([4.0, 3.0], 0.005, psi, phi, adaptation_gain=2.0),
-        "baseline-known": BaselineController([4.0, 3.0], 0.005, None, phi, known_theta=[-1.0, -3.5, -34.3]),
+        "baseline": ComparisonController([4.0, 3.0], 0.005, psi, phi, adaptation_gain=2.0),
+        "baseline-known": ComparisonController([4.0, 3.0], 0.005, None, phi, known_theta=[-1.0, -3.5, -34.3]),
     }
 
 
@@ -71,8 +71,8 @@ class _Seen:
         return self.inner.control(reading, yd, adaptive, t)
 
 
-@pytest.mark.parametrize("overrides", [[], ["controller.kind=baseline"], ["controller.r_scale=2.0"],
-                                       ["controller.kind=baseline", "controller.theta=known"],
+@pytest.mark.parametrize("overrides", [[], ["controller.kind=comparison"], ["controller.r_scale=2.0"],
+                                       ["controller.kind=comparison", "controller.theta=known"],
                                        ["simulation.control_period=0.004"]])
 @pytest.mark.parametrize("backend", ["ode", "mujoco"])
 def test_batch_of_one_on_floats_equals_the_numpy_batch(overrides: list[str], backend: str) -> None:
@@ -176,3 +176,90 @@ def test_a_batch_of_one_stops_at_the_first_row_out_of_bounds(bound: float, with_
         assert one.error_rate == two.error_rate and one.max_abs_u == two.max_abs_u
         assert one.max_abs_z1_last_half == two.max_abs_z1_last_half or (
             np.isnan(one.max_abs_z1_last_half) and np.isnan(two.max_abs_z1_last_half))
+
+
+class _ArrayOnly:
+    """A plant with only the core of the Plant protocol, in array form (no float form, no load,
+    no actuator of its own): it must run at every batch size."""
+
+    def __init__(self, inner: ChainPlant) -> None:
+        self.inner, self.n, self.batch = inner, inner.n, inner.batch
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def reset(self, x0):
+        self.inner.reset(x0)
+
+    def observe(self):
+        x = self.inner.state()
+        return x, x.copy()
+
+    def step(self, u, h):
+        assert isinstance(u, np.ndarray) and u.shape == (self.batch,)
+        self.inner.step(u, h)
+
+    def close(self):
+        pass
+
+
+@pytest.mark.parametrize("batch", [1, 3])
+def test_a_plant_with_only_the_array_form_runs_at_every_batch_size(batch: int) -> None:
+    from qcontrol.plants import FloatStepping, Plant
+
+    sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=0.5"])
+    plant = _ArrayOnly(build_plant(sc, "ode", batch=batch))
+    assert isinstance(plant, Plant) and not isinstance(plant, FloatStepping)
+    runs = [simulate(p, build_controller(sc), build_quantizer(sc), build_reference(sc), sc.x0,
+                     sc.simulation.duration, sc.simulation.dt)
+            for p in (plant, build_plant(sc, "ode", batch=batch))]
+    for mine, native in zip(*runs, strict=True):
+        assert not mine.diverged and len(mine.t) == len(native.t) == 501
+        for field in ("x", "x_q", "u", "adaptive"):
+            np.testing.assert_array_equal(getattr(mine, field), getattr(native, field), err_msg=field)
+
+
+class _ArrayOnlyLaw:
+    """The paper's law seen through the array form of BatchLaw only (no FloatColumns): it must
+    run at every batch size, a batch of one through the engine's adapter."""
+
+    def __init__(self, inner) -> None:
+        self.inner = inner
+        self.state_name, self.state_size, self.copies = inner.state_name, inner.state_size, inner.copies
+        self.coordinates, self.diagnostics = inner.coordinates, inner.diagnostics
+        self.forms: set[str] = set()
+
+    def initial_state(self, batch):
+        return self.inner.initial_state(batch)
+
+    def control(self, reading, yd, state, t=0.0):
+        assert not reading.floats and all(isinstance(e, np.ndarray) for e in (*reading.columns, *state))
+        self.forms.add(f"array{len(reading.values)}")
+        return self.inner.control(reading, yd, state, t)
+
+    def advancer(self, h):
+        return self.inner.advancer(h)
+
+    def constants(self):
+        return self.inner.constants()
+
+
+@pytest.mark.parametrize("batch", [1, 3])
+def test_a_law_with_only_the_array_form_runs_at_every_batch_size(batch: int) -> None:
+    from qcontrol.controller import FloatColumns
+
+    sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=0.5"])
+    law = _ArrayOnlyLaw(build_controller(sc))
+    assert not isinstance(law, FloatColumns) and isinstance(build_controller(sc), FloatColumns)
+    runs = [simulate(build_plant(sc, "ode", batch=batch), lw, build_quantizer(sc), build_reference(sc),
+                     sc.x0, sc.simulation.duration, sc.simulation.dt)
+            for lw in (law, build_controller(sc))]
+    assert law.forms == {f"array{batch}"}
+    for mine, native in zip(*runs, strict=True):
+        assert not mine.diverged and len(mine.t) == len(native.t) == 501
+        for field in ("x", "x_q", "u", "adaptive"):
+            np.testing.assert_allclose(getattr(mine, field), getattr(native, field), rtol=1e-12, atol=1e-14,
+                                       err_msg=field)

@@ -10,19 +10,18 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from conftest import EX2, ROOT
 
 from qcontrol.cli import main
-from qcontrol.controller import LAW_KINDS, baseline
+from qcontrol.controller import LAW_KINDS, comparison
 from qcontrol.controller.law import LawKind
 from qcontrol.errors import QcontrolInputError
 from qcontrol.plants import BACKENDS
 from qcontrol.reference import REFERENCE_KINDS, Constant, Sine, SumOfSines
-from qcontrol.scenario import load_scenario
+from qcontrol.scenario import load_scenario, parse_scenario
 from qcontrol.scenario.document import scenarios_markdown, toml_value
 from qcontrol.schema import OPTIONAL, REQUIRED, Key
 
-ROOT = Path(__file__).resolve().parents[1]
-EX2 = ROOT / "scenarios" / "example2.toml"
 CHAIN3 = ROOT / "scenarios" / "chain3.toml"
 SINE_KEYS = ("reference.amplitude", "reference.frequency")  # what example2's [reference] holds
 
@@ -77,8 +76,15 @@ def test_an_unknown_key_in_a_kind_sub_table_is_refused(chosen: str) -> None:
 
 def test_switching_the_law_from_the_command_line_keeps_working() -> None:
     """example2 holds both laws' settings in sub-tables: --set controller.kind picks one."""
-    sc = load_scenario(EX2, ["controller.kind=baseline"])
-    assert sc.controller.kind == "baseline" and sc.controller.settings.gain == 1.0
+    sc = load_scenario(EX2, ["controller.kind=comparison"])
+    assert sc.controller.kind == "comparison" and sc.controller.settings.gain == 1.0
+    # the kind's former name still loads, as the same kind, and so does its former sub-table
+    old = load_scenario(EX2, ["controller.kind=baseline"])
+    assert old.controller == sc.controller
+    text = EX2.read_text().replace("[controller.comparison]", "[controller.baseline]")
+    older = parse_scenario(text, base_dir=EX2.parent,
+                           overrides=["controller.kind=baseline", "controller.baseline.gain=2"])
+    assert older.controller.kind == "comparison" and older.controller.settings.gain == 2
     sc = load_scenario(EX2, ["controller.kappa=1.2"])  # kappa directly replaces the file's margin
     assert sc.controller.settings.kappa == 1.2 and sc.controller.settings.kappa_margin is None
 
@@ -91,9 +97,9 @@ def test_a_law_registered_from_python_gets_its_keys_unchecked(monkeypatch: pytes
 
     def parse(table, ctx):  # the law's own factory: records what it was given
         seen.update(table.data)
-        return baseline.BaselineSettings(1.0, "adaptive")
+        return comparison.ComparisonSettings(1.0, "adaptive")
 
-    kind = LawKind("mine", None, parse, baseline.build, baseline.structure)
+    kind = LawKind("mine", None, parse, comparison.build, comparison.structure)
     monkeypatch.setitem(LAW_KINDS, "mine", kind)
     assert main(["check", str(EX2), "--set", "controller.kind=mine", "--set", "controller.anything=3"]) == 0
     assert seen == {"anything": 3}
@@ -224,7 +230,7 @@ def test_unset_a_whole_sub_table() -> None:
      "[reference] are kind, amplitude, frequency"),
     ("controller.kappa_margin", "--unset controller.kappa_margin: {f} has no key kappa_margin in "
      "[controller]; it is in a sub-table: --unset controller.proposed.kappa_margin; the keys in "
-     "[controller] are kind, delta, c, proposed, baseline"),
+     "[controller] are kind, delta, c, proposed, comparison"),
     ("simulation.dt.x", "--unset simulation.dt.x: simulation.dt is a value, not a table; the keys in "
      "[simulation] are duration, dt, backend"),
     ("nosuch.foo", "--unset nosuch.foo: {f} has no table [nosuch]; the keys in the top level are "

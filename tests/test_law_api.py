@@ -40,11 +40,11 @@ class Proportional:
 def test_sweep_returns_the_table_the_command_writes(tmp_path: Path) -> None:
     sc = qcontrol.load_scenario(EX1, SHORT)
     rows = qcontrol.sweep(sc, grid={"controller.delta": [0.05, 0.1],
-                                    "controller.kind": ["proposed", "baseline"]}, backend="ode")
+                                    "controller.kind": ["proposed", "comparison"]}, backend="ode")
     assert [(r["controller.delta"], r["controller.kind"]) for r in rows] == [
-        (0.05, "proposed"), (0.05, "baseline"), (0.1, "proposed"), (0.1, "baseline")]
+        (0.05, "proposed"), (0.05, "comparison"), (0.1, "proposed"), (0.1, "comparison")]
     assert main(["sweep", str(EX1), "--set", "simulation.duration=0.5", "--grid",
-                 "controller.delta=0.05,0.1", "--grid", "controller.kind=proposed,baseline",
+                 "controller.delta=0.05,0.1", "--grid", "controller.kind=proposed,comparison",
                  "--backend", "ode", "--out", str(tmp_path / "sw"), "--quiet"]) == 0
     with open(tmp_path / "sw" / "sweep.csv") as file:
         written = list(csv.DictReader(file))
@@ -105,7 +105,7 @@ def test_register_law_replace_and_a_hyphenated_kind() -> None:
 
 
 def test_the_summary_names_the_final_state_by_the_laws_name() -> None:
-    base = qcontrol.run(qcontrol.load_scenario(EX1, SHORT | {"controller.kind": "baseline"}), backend="ode")
+    base = qcontrol.run(qcontrol.load_scenario(EX1, SHORT | {"controller.kind": "comparison"}), backend="ode")
     s = base.summary
     assert s["adaptive_state"] == "theta_hat"
     assert s["final_theta_hat"] == s["final_eps_hat"] == [float(v) for v in base.adaptive[-1]]
@@ -292,11 +292,12 @@ def test_a_sweep_over_kinds_draws_categories_not_a_trend() -> None:
     from qcontrol.plots.sweeps import _line, _Points
 
     rows = [{"controller.kind": kind, "max_abs_u": u, "diverged": False}
-            for kind, u in (("proposed", 3.0), ("baseline", 2.0), ("proposed", 4.0))]
+            for kind, u in (("proposed", 3.0), ("comparison", 2.0), ("proposed", 4.0))]
     points = _Points(rows, ["controller.kind"])
     for categories, style in ((True, "None"), (False, "-")):
         fig, ax = plt.subplots()
-        _line(ax, points, ["proposed", "baseline"], np.arange(2.0), "max_abs_u", "max |u|", "C0", categories)
+        _line(ax, points, ["proposed", "comparison"], np.arange(2.0), "max_abs_u", "max |u|", "C0",
+              categories)
         assert {line.get_linestyle() for line in ax.lines} == {style}  # no line joins two kinds
         plt.close(fig)
 
@@ -307,13 +308,13 @@ def test_a_sweep_over_kinds_draws_categories_not_a_trend() -> None:
 
 def test_compare_laws_equals_the_single_runs_and_records_every_law(tmp_path: Path) -> None:
     sc = qcontrol.load_scenario(EX1, SHORT)
-    cmp = qcontrol.compare_laws(sc, ["proposed", "baseline"], backend="ode", rrd=tmp_path / "laws.rrd")
-    assert [row["kind"] for row in cmp.table] == ["proposed", "baseline"]
+    cmp = qcontrol.compare_laws(sc, ["proposed", "comparison"], backend="ode", rrd=tmp_path / "laws.rrd")
+    assert [row["kind"] for row in cmp.table] == ["proposed", "comparison"]
     for row in cmp.table:
         alone = qcontrol.run(sc.with_overrides({"controller.kind": row["kind"]}), backend="ode").summary
         assert row["error_rate_0.100"] == alone["error_rate"]["0.100"]
         assert row["max_abs_u"] == alone["max_abs_u"]
-    assert cmp.runs["baseline"].summary["adaptive_state"] == "theta_hat"
+    assert cmp.runs["comparison"].summary["adaptive_state"] == "theta_hat"
     assert (tmp_path / "laws.rrd").stat().st_size > 10_000
     assert cmp.plot(tmp_path / "laws.png").stat().st_size > 10_000
     with pytest.raises(QcontrolInputError, match=r"^compare_laws: kinds \['proposed', 'nope'\] must be"):

@@ -30,5 +30,5 @@ def test_the_laws_tutorial_runs(tmp_path: Path) -> None:
                              capture_output=True, text=True, timeout=600)
         assert ran.returncode == 0, f"{command}: {ran.stderr}"
     sweep = (tmp_path / "sweep-laws" / "sweep.csv").read_text()
-    assert "integral-bs" in sweep and "baseline" in sweep
+    assert "integral-bs" in sweep and "comparison" in sweep
     assert (tmp_path / "region-laws" / "region.csv").is_file()

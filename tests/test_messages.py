@@ -12,6 +12,7 @@ import tomllib
 from pathlib import Path
 
 import pytest
+from conftest import EX1, EX2, ROOT
 
 from qcontrol.cli import main
 from qcontrol.errors import QcontrolInputError
@@ -20,9 +21,6 @@ from qcontrol.paper import PAPER_TABLE1
 from qcontrol.scenario import load_scenario
 from qcontrol.timegrid import step_count
 
-ROOT = Path(__file__).resolve().parents[1]
-EX1 = ROOT / "scenarios" / "example1.toml"
-EX2 = ROOT / "scenarios" / "example2.toml"
 CHAIN3 = ROOT / "scenarios" / "chain3.toml"
 
 
@@ -73,7 +71,7 @@ def test_the_toml_hint_checker_catches_the_finding() -> None:
     '[reference]\nkind = "sum_of_sines"\nterms = 3\n',
 ])
 def test_a_hint_about_a_list_of_tables_is_toml(tmp_path: Path, text: str) -> None:
-    base = EX2.read_text().replace('"../models/', f'"{ROOT}/models/')
+    base = EX2.read_text().replace('"qcontrol:models/', f'"{ROOT}/models/')
     base = base.replace('kind = "sine"          # y_d = sin(1.5 t)\namplitude = 1.0\nfrequency = 1.5\n', "")
     path = tmp_path / "bad.toml"
     path.write_text(base.replace("[reference]\n", text))
@@ -162,17 +160,43 @@ def test_the_finding_dt_0_003_names_the_nearest_values(capsys: pytest.CaptureFix
 # the first run tells the story
 
 
-@pytest.mark.parametrize(("overrides", "row"), [((), "proposed"), (("--set", "controller.kind=baseline"),
+@pytest.mark.parametrize(("overrides", "row"), [((), "proposed"), (("--set", "controller.kind=comparison"),
                                                                    "comparison")])
 def test_a_paper_scenario_prints_the_papers_value(capsys: pytest.CaptureFixture[str],
                                                   overrides: tuple[str, ...], row: str) -> None:
-    assert main(["run", str(EX2), "--backend", "ode", "--duration", "1", "-q", *overrides]) == 0
+    assert main(["run", str(EX2), "--backend", "ode", "-q", *overrides]) == 0
     lines = capsys.readouterr().out.splitlines()
     told = [line for line in lines if "paper, Table 1" in line]
     assert len(told) == 1 and lines.index(told[0]) == len(lines) - 1  # under the summary
     rates = "  ".join(f"E({w})={v:.4f}" for w, v in PAPER_TABLE1[row].items())
-    assert told[0] == (f"  paper, Table 1, {row} law: {rates} (over T = 10 s; this run: 1 s); why ours "
-                       f"differs: {README_SECTION}")
+    assert told[0] == f"  paper, Table 1, {row} law: {rates}; why ours differs: {README_SECTION}"
+
+
+@pytest.mark.parametrize(("scenario", "args", "differs"), [
+    (EX2, ("--duration", "1"), "simulation.duration = 1.0 (example2.toml: 10.0)"),
+    (EX2, ("--set", "controller.delta=0.02"), "controller.delta = 0.02 (example2.toml: 0.01)"),
+    (EX2, ("--unset", "reference.amplitude", "--unset", "reference.frequency",
+           "--set", "reference.kind=constant", "--set", "reference.value=0.2"),
+     "reference.kind = 'constant' (example2.toml: 'sine')"),
+    (EX1, ("--set", 'plant.psi="-0.1*x2**2"'), "plant.psi = '-0.1*x2**2' (example1.toml: '0.1*x2**2')"),
+])
+def test_a_run_outside_the_papers_setting_gets_no_paper_numbers(capsys: pytest.CaptureFixture[str],
+                                                                 scenario: Path, args: tuple[str, ...],
+                                                                 differs: str) -> None:
+    assert main(["run", str(scenario), "--backend", "ode", "--duration", "1", "-q", *args]) == 0
+    out = capsys.readouterr().out
+    assert "paper, Table 1" not in out and "Figs. 1-4" not in out
+    line = next(line for line in out.splitlines() if line.startswith("  paper:"))
+    assert line.startswith(f"  paper: no numbers to compare: this run leaves the setting of the paper's "
+                           f"Example {2 if scenario == EX2 else 1} in ") and differs in line
+
+
+def test_a_copied_paper_scenario_naming_the_shipped_model_is_the_papers_setting(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    copy = tmp_path / "example2.toml"
+    copy.write_text(EX2.read_text())  # the shipped file names its model qcontrol:models/pendulum.xml
+    assert main(["run", str(copy), "--backend", "ode", "-q"]) == 0
+    assert "paper, Table 1, proposed law" in capsys.readouterr().out
 
 
 def test_the_readme_has_the_section_the_line_names() -> None:
@@ -181,7 +205,18 @@ def test_the_readme_has_the_section_the_line_names() -> None:
 
 
 def test_example1_and_other_scenarios(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["run", str(EX1), "--backend", "ode", "--duration", "0.5", "-q"]) == 0
+    assert main(["run", str(EX1), "--backend", "ode", "-q"]) == 0
     assert "paper: Example 1 is shown in Figs. 1-4 without numbers" in capsys.readouterr().out
     assert main(["run", str(CHAIN3), "--duration", "0.5", "-q"]) == 0
     assert "paper" not in capsys.readouterr().out
+
+
+def test_a_kind_switched_on_the_command_line_names_the_unset_fix(capsys: pytest.CaptureFixture[str]) -> None:
+    switched = ["--set", "reference.kind=constant", "--set", "reference.value=0.2"]
+    assert main(["run", str(EX2), "-q", *switched]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert "reference.amplitude: does not apply to kind 'constant'" in err
+    assert err.endswith("as the kind came from --set, remove the file's key: --unset reference.amplitude")
+    assert main(["run", str(EX2), "-q", "--set", "controller.gain=2"]) == 2
+    assert capsys.readouterr().err.strip().endswith("or leave out --set controller.gain=...")

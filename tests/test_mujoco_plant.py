@@ -8,6 +8,7 @@ import pathlib
 import mujoco
 import numpy as np
 import pytest
+from conftest import ROOT, SCENARIOS
 
 from qcontrol.controller import ProposedController
 from qcontrol.engine import simulate
@@ -25,8 +26,6 @@ from qcontrol.quantizer import UniformQuantizer
 from qcontrol.reference import Sine
 from qcontrol.schema import Table
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-SCENARIOS = ROOT / "scenarios"
 X, Q = ["x1", "x2"], ["q1", "q2"]
 
 SLIDER = {"model": "../models/slider.xml", "joint": "slide", "position_sensor": "position",
@@ -147,8 +146,10 @@ def test_inconsistent_model_is_refused_naming_the_term(table: dict, theta: list,
     assert "\n" not in message and term in message and "differs" in message
 
 
-def test_rk4_calls_the_passive_callback_at_every_stage() -> None:
+def test_rk4_calls_the_passive_callback_at_every_stage(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("QCONTROL_COMPILE", "0")  # the Python callback, which can count its calls
     mj, _ = plants("example2")
+    assert mj._native is None
     with mj:
         mj.reset(np.array([[0.3, 0.3]]))
         key = id(mj._datas[0])

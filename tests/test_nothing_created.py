@@ -12,15 +12,12 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import EX2, ROOT, SCENARIOS
 
 from qcontrol.cli import main
 from qcontrol.errors import QcontrolInputError
 from qcontrol.recording import viewer
 
-ROOT = Path(__file__).resolve().parents[1]
-SCENARIOS = ROOT / "scenarios"
-EX1 = SCENARIOS / "example1.toml"
-EX2 = SCENARIOS / "example2.toml"
 CHAIN3 = SCENARIOS / "chain3.toml"
 
 
@@ -56,7 +53,7 @@ def here(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
 
 def _mismatched_physics(tmp_path: Path) -> Path:
     """Example 2 whose theta disagrees with the MJCF: refused when the MuJoCo plant is built."""
-    text = EX2.read_text().replace('"../models/', f'"{ROOT}/models/')
+    text = EX2.read_text().replace('"qcontrol:models/', f'"{ROOT}/models/')
     path = tmp_path / "inputs" / "bad.toml"
     path.parent.mkdir()
     path.write_text(text.replace("theta = [-1.0, -3.5, -34.3]", "theta = [-1.0, -3.5, -20.0]"))
@@ -97,11 +94,11 @@ def test_reproduce_creates_nothing_on_bad_input(here: Path, capsys: pytest.Captu
     """The finding: `--scenarios /nonexistent --out runs/bad3` left an empty runs/bad3/. A folder
     missing only the last scenario the reproduction uses is refused before anything is made."""
     _refused_and_nothing_made(here, capsys, ["reproduce", "--scenarios", "/nonexistent", "--out", "runs/bad3",
-                                             "-q"], "/nonexistent/example1.toml", "not found")
+                                             "-q"], "--scenarios /nonexistent", "does not exist")
     partial = here / "partial"
     partial.mkdir()
     for name in ("example1.toml", "example2.toml"):
-        text = (SCENARIOS / name).read_text().replace('"../models/', f'"{ROOT}/models/')
+        text = (SCENARIOS / name).read_text().replace('"qcontrol:models/', f'"{ROOT}/models/')
         (partial / name).write_text(text)
     _refused_and_nothing_made(here, capsys, ["reproduce", "--scenarios", str(partial), "--out", "runs/bad4",
                                              "-q"], "example2-rigid.toml", "not found")

@@ -13,7 +13,7 @@ from matplotlib.figure import Figure
 from matplotlib.image import imread
 
 from qcontrol import plots as P
-from qcontrol.controller import BaselineController, ProposedController
+from qcontrol.controller import ComparisonController, ProposedController
 from qcontrol.engine import Trajectory, simulate
 from qcontrol.expr import compile_expression as C
 from qcontrol.plants.ode import ChainPlant
@@ -36,7 +36,7 @@ def _example2_runs(duration: float = 2.0, state_bound: float = 1e6) -> tuple[Tra
     r = [C("1+q2**2", Q), C("1+2*q2**2", Q), C("1", Q)]
     ctrl = ProposedController([4, 3], q.max_error, 1.125, 1, 1, r)
     proposed = simulate(plant, ctrl, q, Sine(1, 1.5), [0.3, 0.3], duration, 1e-3, state_bound=state_bound)[0]
-    base_ctrl = BaselineController([4, 3], q.max_error, None, phi)
+    base_ctrl = ComparisonController([4, 3], q.max_error, None, phi)
     base = simulate(plant, base_ctrl, q, Sine(1, 1.5), [0.3, 0.3], duration, 1e-3, state_bound=state_bound)[0]
     return proposed, base
 

@@ -11,10 +11,10 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import ROOT
 
 from qcontrol.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text()
 PYTHON_BLOCKS = re.findall(r"```python\n(.*?)```", README, re.S)
 SHELL_BLOCKS = re.findall(r"```bash\n(.*?)```", README, re.S)
@@ -53,3 +53,20 @@ def test_python_block_runs(workplace: Path, index: int) -> None:
 def test_shell_command_runs(workplace: Path, monkeypatch: pytest.MonkeyPatch, command: str) -> None:
     monkeypatch.chdir(workplace)
     assert main([*shlex.split(command)[1:], "-q"]) == 0
+
+
+def test_animation_at_the_top_is_small_and_its_command_is_documented() -> None:
+    from PIL import Image
+
+    first_image = re.search(r"!\[[^\]]*\]\(([^)]+)\)", README)
+    assert first_image and first_image.start() < README.index("## Quick start")
+    gif = ROOT / first_image.group(1)
+    assert gif.suffix == ".gif" and gif.stat().st_size < 2_000_000
+    with Image.open(gif) as image:
+        assert image.n_frames > 100  # an animation of the run, not a still
+    made_by = re.search(r"`(qcontrol run example2 --video (\S+) [^`]*)`", README[:first_image.end() + 600])
+    assert made_by and made_by.group(2) == first_image.group(1)
+    from qcontrol.cli.dispatch import build_parser
+
+    args = build_parser().parse_args(shlex.split(made_by.group(1))[1:])
+    assert args.video == Path(first_image.group(1))

@@ -11,6 +11,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
+from conftest import ROOT
 from rerun.chunk import RrdReader
 from test_record import PENDULUM, RERUN_CLI, SLIDER, example2, read_entities, temporal
 
@@ -18,7 +19,6 @@ from qcontrol.recording import Recording, styles
 from qcontrol.recording.camera import FIELD_OF_VIEW_Y, FRAME_MARGIN, TRAVEL_MARGIN, VIEW_WIDTH_PER_HEIGHT
 from qcontrol.recording.styles import Plot
 
-ROOT = Path(__file__).resolve().parents[1]
 COLLAPSED = 2  # rerun.blueprint.components.PanelState
 
 
@@ -175,3 +175,22 @@ def test_a_new_plot_lands_in_its_panel_or_a_tab_of_its_own(tmp_path, monkeypatch
     found = views(active_blueprint(path))
     assert found["input u"][2] == "signals/input"  # shows everything under signals/input
     assert found["signals/extra"][2] == "signals/extra"
+
+
+def test_a_panel_of_one_value_gets_a_range_and_a_varying_one_does_not(tmp_path: Path) -> None:
+    """rerun labels a constant series' axis with one tick: such a panel gets value -+ 1 when the
+    recording closes; a panel whose values vary keeps rerun's own fit."""
+    from qcontrol.recording.layout import default_blueprint
+    from qcontrol.recording.series import Panel
+
+    flat, varying = Panel("signals/input", "signals/input"), Panel("signals/tracking", "signals/tracking")
+    with Recording(tmp_path / "r.rrd") as rec:
+        rec.see_values(flat, np.zeros(50))
+        rec.see_values(flat, np.array([0.0, np.nan]))
+        rec.see_values(varying, np.linspace(-1.0, 1.0, 50))
+        ranges = rec._flat_ranges()
+    assert ranges == {flat: (-1.0, 1.0)}
+    views = default_blueprint([flat, varying], None, None, ranges).root_container.contents[1].contents
+    axes = {view.origin: view for view in views}
+    assert "[[-1.0, 1.0]]" in repr(axes["signals/input"].properties["ScalarAxis"])
+    assert "ScalarAxis" not in axes["signals/tracking"].properties

@@ -24,30 +24,24 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import EX1, EX2
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from qcontrol.assembly import build_plant, run_scenario
 from qcontrol.cli import main
 from qcontrol.engine import Trajectory
-from qcontrol.errors import QcontrolInputError
-from qcontrol.outputs import atomic_path, write_json
+from qcontrol.errors import QcontrolInputError, QcontrolOutputError
+from qcontrol.outputs import atomic_path, partial_path, write_json
 from qcontrol.scenario import load_scenario
 
-ROOT = Path(__file__).resolve().parents[1]
-EX1 = ROOT / "scenarios" / "example1.toml"
-EX2 = ROOT / "scenarios" / "example2.toml"
 LEMMA2_TOLERANCE = 1e-9
 ARRAYS = ("t", "x", "x_meas", "x_q", "yd", "z", "zbar", "e_z", "u", "adaptive", "L_z")
 
 
 def _leftovers(folder: Path) -> list[Path]:
-    """Temporary files (``*.part``, ``.summary.json.*``) anywhere under ``folder``."""
-    return [
-        p
-        for p in folder.rglob("*")
-        if p.name.endswith(".part") or p.name.startswith((".summary", ".compare"))
-    ]
+    """Temporary files (``.NAME.<random>.tmp``, or an older ``*.part``) anywhere under ``folder``."""
+    return [p for p in folder.rglob("*") if p.name.endswith((".part", ".tmp"))]
 
 
 def _summary(folder: Path) -> dict:
@@ -162,7 +156,8 @@ def test_diverged_run_still_writes_atomically(tmp_path: Path) -> None:
 
 
 def test_failed_write_leaves_no_temporary_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """The result cannot be put in place (a folder is in the way): exit 2, one line, nothing left."""
+    """The result cannot be put in place (a folder is in the way): refused before the run, exit 2,
+    one line, nothing left."""
     out = tmp_path / "out"
     (out / "summary.json").mkdir(parents=True)
     argv = ["run", str(EX2), "--backend", "ode", "-q", "--duration", "0.01", "--out", str(out)]
@@ -183,9 +178,9 @@ def test_atomic_path_keeps_the_old_file_on_failure(tmp_path: Path, failure: Base
     assert sorted(p.name for p in tmp_path.iterdir()) == ["result.json"]
 
 
-def test_atomic_path_into_a_missing_folder_is_an_input_error(tmp_path: Path) -> None:
+def test_atomic_path_into_a_missing_folder_is_an_output_error(tmp_path: Path) -> None:
     with (
-        pytest.raises(QcontrolInputError, match="cannot create a file"),
+        pytest.raises(QcontrolOutputError, match="cannot write"),
         atomic_path(tmp_path / "gone" / "x"),
     ):
         pass
@@ -195,11 +190,12 @@ def test_atomic_path_into_a_missing_folder_is_an_input_error(tmp_path: Path) -> 
 # Ctrl-C
 
 
-def _interrupt(tmp_path: Path, argv: list[str], ready: Path | None,
-               settle: float = 1.0) -> tuple[int, str, float]:
+def _interrupt(tmp_path: Path, argv: list[str], ready: Path | str | None,
+               settle: float = 1.0, sig: int = signal.SIGINT) -> tuple[int, str, float]:
     """Start ``qcontrol argv`` (SIGINT at its default: Python's KeyboardInterrupt), wait until the
     run has started plus ``settle`` seconds, send SIGINT; return (exit status, stderr, seconds from
-    the signal to the exit). The run has started when ``ready`` exists or, with ``ready`` None,
+    the signal to the exit). The run has started when ``ready`` exists (a glob pattern in
+    ``tmp_path`` matches) or, with ``ready`` None,
     when it shows progress on its stderr, a terminal (a pseudo-terminal here): bad-input checks
     make nothing before the run, so there is no folder to wait for."""
     master, terminal = pty.openpty() if ready is None else (None, None)
@@ -218,7 +214,8 @@ def _interrupt(tmp_path: Path, argv: list[str], ready: Path | None,
         deadline = time.perf_counter() + 60.0
         shown = ""
         while proc.poll() is None and time.perf_counter() < deadline:
-            if ready is not None and ready.exists():
+            started = ready.exists() if isinstance(ready, Path) else ready and any(tmp_path.glob(ready))
+            if started:
                 break
             if master is not None and select.select([master], [], [], 0.05)[0]:
                 shown += os.read(master, 4096).decode(errors="replace")
@@ -228,7 +225,7 @@ def _interrupt(tmp_path: Path, argv: list[str], ready: Path | None,
         time.sleep(settle)
         assert proc.poll() is None, f"finished before the signal: {proc.communicate()}"
         sent = time.perf_counter()
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(sig)
         _, err = proc.communicate(timeout=15)
         seconds = time.perf_counter() - sent
         return proc.returncode, err if master is None else shown + _drain(master), seconds
@@ -272,14 +269,15 @@ def test_ctrl_c_stops_promptly_exit_130_no_temporary_files(
 
 
 def test_ctrl_c_keeps_the_recording(tmp_path: Path) -> None:
-    """With --rrd: the recording so far is kept under its final name, no .part file is left."""
+    """With --rrd: the recording so far is kept under its partial name (run.partial.rrd, it reads
+    back), the final name is not made, no temporary file is left."""
     rrd = tmp_path / "run.rrd"
     argv = ["run", str(EX2), "--backend", "ode", "--duration", "600", "-q", "--rrd", str(rrd)]
-    status, err, seconds = _interrupt(tmp_path, argv, ready=rrd.with_name(rrd.name + ".part"))
+    status, err, seconds = _interrupt(tmp_path, argv, ready=".run.rrd.*.tmp")
     assert status == 130 and seconds < 5.0, err
-    assert "Traceback" not in err
+    assert "Traceback" not in err and "run.partial.rrd" in err
     assert not _leftovers(tmp_path)
-    assert rrd.is_file() and rrd.stat().st_size > 0
+    assert not rrd.exists() and partial_path(rrd).stat().st_size > 0
 
 
 # --------------------------------------------------------------------------------------------

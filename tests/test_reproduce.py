@@ -32,7 +32,7 @@ def test_every_file_is_written(reproduction):
     expected = set(FIGURES) | {"table1.md", "table1.json", "studies.json", "robustness.json", "REPORT.md",
                                "example1.rrd", "example2.rrd", "region.json"}
     assert expected <= names
-    assert not [n for n in names if n.endswith(".part")]
+    assert not [n for n in names if n.endswith((".part", ".tmp"))]
 
 
 def test_table1_json(reproduction):
@@ -71,8 +71,8 @@ def test_table1_json_carries_the_provenance(reproduction):
     table = json.loads((reproduction / "table1.json").read_text())
     provenance = table["provenance"]
     assert set(provenance["scenario_file"]) == {"proposed", "comparison"}
-    assert provenance["overrides"]["comparison"][0] == "controller.kind=baseline"
-    assert "[controller.baseline]" in provenance["resolved_scenario"]["comparison"]
+    assert provenance["overrides"]["comparison"][0] == "controller.kind=comparison"
+    assert "[controller.comparison]" in provenance["resolved_scenario"]["comparison"]
 
 
 def test_studies_cover_the_paper_values(reproduction):
@@ -133,6 +133,16 @@ def test_robustness_json_holds_every_row(reproduction):
     assert {m["example"] for m in study["margins"]} == {"example1", "example2"}
 
 
+def test_quick_reproduce_skips_the_robustness_study(tmp_path, capsys):
+    out = tmp_path / "quick"
+    assert main(["reproduce", "--quick", "--duration", "0.3", "--out", str(out)]) == 0
+    assert "no region or robustness study (--quick)" in capsys.readouterr().out
+    assert (out / "table1.json").is_file() and (out / "REPORT.md").is_file()
+    assert not (out / "robustness.json").exists() and not (out / "study_margins.png").exists()
+    report = (out / "REPORT.md").read_text()
+    assert "Not run here (`qcontrol reproduce --quick`)" in report
+
+
 def test_the_region_study_compares_the_three_laws_at_two_rates(reproduction):
     """Both examples at 1 kHz and 2 kHz: the paper's law, its exact hold and the comparison law; the
     exact hold fails nowhere in the box, the paper's law somewhere on Example 2, and from x(0) the
@@ -147,5 +157,5 @@ def test_the_region_study_compares_the_three_laws_at_two_rates(reproduction):
             assert exact["failing_in_box"] == 0 and exact["points_in_box"] == 81
             assert {w: round(v, 4) for w, v in paper["error_rate"].items()} == {
                 w: round(v, 4) for w, v in exact["error_rate"].items()}
-            assert rows[(example, period, "baseline")]["max_gain_period_from_x0"] is None
+            assert rows[(example, period, "comparison")]["max_gain_period_from_x0"] is None
     assert rows[("example2", 0.001, "proposed")]["failing_in_box"] > 0

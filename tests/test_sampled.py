@@ -110,8 +110,8 @@ def test_the_monitor_counts_only_control_samples() -> None:
     assert summary(metrics, "a", "ode")["max_gain_period"] == float(samples.max())
 
 
-def test_the_baseline_law_declares_no_gain() -> None:
-    s = summary(_run(EX2, "controller.kind='baseline'", "simulation.duration=0.5"), "b", "ode")
+def test_the_comparison_law_declares_no_gain() -> None:
+    s = summary(_run(EX2, "controller.kind='comparison'", "simulation.duration=0.5"), "b", "ode")
     assert "max_gain_period" not in s
 
 
@@ -142,13 +142,13 @@ def test_a_bad_hold_is_one_line() -> None:
 def test_the_region_command_writes_its_map(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "region"
     assert main(["region", str(EX2), "--resolution", "3", "--duration", "0.5", "--law", "proposed",
-                 "--law", "proposed:hold=exact", "--law", "baseline", "--out", str(out), "-q"]) == 0
+                 "--law", "proposed:hold=exact", "--law", "comparison", "--out", str(out), "-q"]) == 0
     rows = list(csv.DictReader((out / "region.csv").open()))
-    assert len(rows) == 27 and {r["law"] for r in rows} == {"proposed", "proposed:hold=exact", "baseline"}
+    assert len(rows) == 27 and {r["law"] for r in rows} == {"proposed", "proposed:hold=exact", "comparison"}
     corner = {r["law"]: r for r in rows if r["x1"] == "10.0" and r["x2"] == "10.0"}
     assert corner["proposed"]["outcome"] == "diverged" and float(corner["proposed"]["diverged_time"]) < 0.01
     assert corner["proposed:hold=exact"]["outcome"] == "bounded"
-    assert corner["baseline"]["max_gain_period"] == ""
+    assert corner["comparison"]["max_gain_period"] == ""
     record = json.loads((out / "region.json").read_text())
     assert record["axes"] == ["x1", "x2"] and record["resolution"] == 3 and record["control_period"] == 0.001
     assert "provenance" in record and record["provenance"]["scenario_sha256"]

@@ -7,13 +7,13 @@ import struct
 from pathlib import Path
 
 import pytest
+from conftest import EX2 as EXAMPLE2
 
 from qcontrol.cli.sweep_command import add_sweep_parser, cmd_sweep
 from qcontrol.errors import QcontrolInputError
 from qcontrol.sweep import CSV_METRICS, sweep_summaries
 from qcontrol.sweep import runs as sweep
 
-EXAMPLE2 = Path(__file__).resolve().parent.parent / "scenarios" / "example2.toml"
 SHORT = "simulation.duration=1.0"
 
 
@@ -135,13 +135,18 @@ def test_ctrl_c_keeps_the_finished_rows(tmp_path, monkeypatch):
 
     monkeypatch.setattr(sweep, "CHUNK", 1)
     monkeypatch.setattr(sweep, "_run_chunk", stop_on_the_second_chunk)
+    (tmp_path / "sweep.csv").write_text("a complete sweep's table\n")
     with pytest.raises(KeyboardInterrupt):
         _sweep(str(EXAMPLE2), "--grid", "controller.gamma=1,2,3", "--set", SHORT, "--backend", "ode",
                "--out", str(tmp_path), "-q")
-    rows = _table(tmp_path / "sweep.csv")
+    rows = _table(tmp_path / "sweep.partial.csv")  # the finished rows, under the partial names
     assert [r["controller.gamma"] for r in rows] == ["1"]
-    record = json.loads((tmp_path / "sweep.json").read_text())
+    record = json.loads((tmp_path / "sweep.partial.json").read_text())
     assert record["interrupted"] and record["runs"] == 3 and record["runs_finished"] == 1
+    assert record["csv"] == "sweep.partial.csv"
+    assert (tmp_path / "sweep.csv").read_text() == "a complete sweep's table\n"  # left as it was
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names == ["sweep.csv", "sweep.partial.csv", "sweep.partial.json", "sweep.partial.png"]
 
 
 GRIDS = [["controller.gamma=1,2,3"], ["controller.gamma=1,2", "controller.sigma=1,2"],

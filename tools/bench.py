@@ -1,13 +1,17 @@
-"""qcontrol's performance figures, as ratios measured in one process (the targets: the README's
-Performance section).
+"""qcontrol's performance figures, as ratios measured in one process against the physical limit
+(the targets: the README's Performance section).
 
-    python tools/bench.py [--quick] [--json FILE] [--repeat N] [--sweep1000]
+    python tools/bench.py [--quick] [--json FILE] [--repeat N] [--sweep1000] [--reproduce]
 
-* MuJoCo closed loop: us per step, and the ratio to a bare ``mj_step`` loop on the same model,
-  integrator and passive callback (target <= 2).
+* MuJoCo closed loop: us per step, and the ratio to a bare C ``mj_step`` loop on the same model
+  and integrator with no passive callback; ``mj_step`` with the plant's native callback, and with
+  the Python one, against the same bare loop.
 * ODE backend, one run: the speed-up over scipy's ``solve_ivp`` (RK45, max_step = dt) on the same
   closed loop: the controller is evaluated inside the right-hand side from the quantized state and
-  eps_hat is part of the ODE state (target >= 10).
+  eps_hat is part of the ODE state; and the ratio to a compiled (numba) bare RK4 loop of the same
+  right-hand side.
+* 1000 Example 2 runs batched on MuJoCo (``mujoco.batch``), per copy and step against bare
+  ``mj_step``; ``--reproduce``: the wall time of ``qcontrol reproduce``.
 * Batched ODE runs of Example 2 (per-copy kappa, ``record="metrics"``): N = 1, 10, 100, 1000
   and the ratio to one run (target: 1000 runs <= 20x one run).
 * Recording overhead (from ``tools/bench_recording.py`` if present; target <= 0.25) and the
@@ -23,12 +27,15 @@ import argparse
 import importlib.util
 import json
 import math
+import os
 import platform
+import subprocess
 import sys
 import tempfile
 import time
 import tracemalloc
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import mujoco
@@ -68,22 +75,55 @@ def scenario(name: str, duration: float, dt: float | None = None) -> Scenario:
 # --------------------------------------------------------------------------------------------
 
 
-def mujoco_ratio(sc: Scenario, repeat: int) -> dict:
-    """Closed loop on MuJoCo vs the same model's bare mj_step loop with the callback installed."""
-    steps = round(sc.simulation.duration / sc.simulation.dt)
-    plant = build_plant(sc, "mujoco")
-    closed = best_of(repeat, lambda: run_scenario(sc, "mujoco", plant=plant)) / steps
+def _mj_step_loop(plant, steps: int, installed: bool) -> Callable[[], None]:
+    """``steps`` calls of ``mj_step`` on the plant's first copy, at rest at x = 0 with no input (an
+    equilibrium of both examples), with the plant's passive callback installed or with none."""
+    model, data = plant.model, plant._datas[0]
 
-    def bare() -> None:
-        model, data = plant.model, plant._datas[0]
-        with plant:  # at rest at x = 0 with no input: an equilibrium of both examples
-            plant.reset(np.zeros((1, 2)))
+    def loop() -> None:
+        if installed:
+            with plant:
+                plant.reset(np.zeros((plant.batch, 2)))
+                for _ in range(steps):
+                    mujoco.mj_step(model, data)
+        else:
+            plant.reset(np.zeros((plant.batch, 2)))
             for _ in range(steps):
                 mujoco.mj_step(model, data)
 
-    bare_step = best_of(repeat, bare) / steps
-    return {"closed_loop_us_per_step": closed * 1e6, "bare_mj_step_us_per_step": bare_step * 1e6,
-            "ratio": closed / bare_step, "target": "<= 2"}
+    return loop
+
+
+def mujoco_ratio(sc: Scenario, repeat: int) -> dict:
+    """The closed loop on MuJoCo against the physical limit, a bare C ``mj_step`` loop (no passive
+    callback); and ``mj_step`` with the plant's passive callback (native, and Python) against it."""
+    steps = round(sc.simulation.duration / sc.simulation.dt)
+    plant = build_plant(sc, "mujoco")
+    closed = best_of(repeat, lambda: run_scenario(sc, "mujoco", plant=plant)) / steps
+    bare = best_of(repeat, _mj_step_loop(plant, steps, installed=False)) / steps
+    native = best_of(repeat, _mj_step_loop(plant, steps, installed=True)) / steps
+    with compiled_off():
+        python_plant = build_plant(sc, "mujoco")
+        python = best_of(repeat, _mj_step_loop(python_plant, steps, installed=True)) / steps
+    return {"closed_loop_us_per_step": closed * 1e6, "bare_mj_step_us_per_step": bare * 1e6,
+            "native_callback_us_per_step": native * 1e6, "python_callback_us_per_step": python * 1e6,
+            "ratio": closed / bare, "native_callback_ratio": native / bare,
+            "python_callback_ratio": python / bare, "native_in_use": plant._native is not None,
+            "target": "closed loop <= 1.3, native callback <= 1.05 (x bare mj_step)"}
+
+
+@contextmanager
+def compiled_off() -> Iterator[None]:
+    """``QCONTROL_COMPILE=0`` inside the block (plants built there use the Python paths)."""
+    previous = os.environ.get("QCONTROL_COMPILE")
+    os.environ["QCONTROL_COMPILE"] = "0"
+    try:
+        yield
+    finally:
+        if previous is None:
+            del os.environ["QCONTROL_COMPILE"]
+        else:
+            os.environ["QCONTROL_COMPILE"] = previous
 
 
 def solve_ivp_closed_loop(sc: Scenario) -> None:
@@ -107,10 +147,55 @@ def solve_ivp_closed_loop(sc: Scenario) -> None:
               t_eval=np.arange(round(duration / dt) + 1) * dt)
 
 
+def compiled_rk4(sc: Scenario) -> Callable[[int], None]:
+    """The physical limit of the ODE backend: a numba loop of classical RK4 steps of the same
+    right-hand side (eq. (1) with u = 0 held), generated from the plant's expression trees."""
+    import numba
+
+    from qcontrol.expr.source import FLAG, Statements, float_source
+
+    terms, n = sc.terms, sc.order
+    names = [f"s{i}" for i in range(n)]
+    body = Statements("t")
+    total = float_source(terms.psi._tree, names, body) if terms.psi is not None else "0.0"
+    for theta, phi in zip(terms.theta, terms.phi, strict=True):
+        total = body.temporary(f"{total} + {float(theta)!r} * {float_source(phi._tree, names, body)}")
+    lines = [f"{FLAG} = False", *body.lines, f"return {total}"]
+    xs, args = ", ".join(f"x{i}" for i in range(n)), ", ".join(f"y{i}" for i in range(n))
+
+    def stage(k: str, scale: str) -> list[str]:  # y = x + scale * k, then k' = rhs(y)
+        return [f"y{i} = x{i} + {scale} * {k}{i}" for i in range(n)]
+
+    def rhs(k: str, state: str) -> list[str]:
+        return [f"{k}{i} = {state}{i + 1}" for i in range(n - 1)] + [f"{k}{n - 1} = g({state})"]
+
+    loop = [*rhs("a", "x").copy(), *stage("a", "half"), *rhs("b", "y"), *stage("b", "half"), *rhs("c", "y"),
+            *stage("c", "h"), *rhs("d", "y")]
+    loop = [line.replace("g(x)", f"g({xs})").replace("g(y)", f"g({args})") for line in loop]
+    loop += [f"x{i} = x{i} + sixth * (a{i} + 2.0 * (b{i} + c{i}) + d{i})" for i in range(n)]
+    source = (f"def g({', '.join(names)}):\n" + "".join(f"    {line}\n" for line in lines)
+              + f"def rk4({xs}, h, steps):\n    half, sixth = 0.5 * h, h / 6.0\n"
+              + "    for _ in range(steps):\n" + "".join(f"        {line}\n" for line in loop)
+              + "    return x0\n")
+    namespace = {"math": math}
+    exec(compile(source, "<bench rk4>", "exec"), namespace)  # our own generated text
+    namespace["g"] = numba.njit(error_model="numpy")(namespace["g"])
+    rk4 = numba.njit(error_model="numpy")(namespace["rk4"])
+    x0, h = [0.0] * n, sc.simulation.dt  # at rest (an equilibrium of the examples), as the mj_step loop
+    rk4(*x0, h, 1)  # compiled here, not timed
+
+    return lambda steps: rk4(*x0, h, steps)
+
+
 def ode_speedup(sc: Scenario, repeat: int) -> dict:
+    """One ODE run against scipy's solve_ivp, and against a compiled bare RK4 of the same rhs."""
     engine = best_of(repeat, lambda: run_scenario(sc, "ode"))
     scipy_s = best_of(max(1, repeat // 2), lambda: solve_ivp_closed_loop(sc))
-    return {"engine_s": engine, "solve_ivp_s": scipy_s, "speedup": scipy_s / engine, "target": ">= 10"}
+    steps = round(sc.simulation.duration / sc.simulation.dt)
+    rk4 = compiled_rk4(sc)
+    bare = best_of(repeat, lambda: rk4(steps))
+    return {"engine_s": engine, "solve_ivp_s": scipy_s, "speedup": scipy_s / engine,
+            "compiled_rk4_s": bare, "ratio_to_compiled_rk4": engine / bare, "target": ">= 300 (vs solve_ivp)"}
 
 
 def batch_times(duration: float, sizes: list[int], repeat: int) -> dict:
@@ -130,6 +215,35 @@ def batch_times(duration: float, sizes: list[int], repeat: int) -> dict:
         times[str(size)] = best_of(repeat if size <= 100 else max(1, repeat // 2), run)
     one = times["1"]
     return {"seconds": times, "ratio_to_one": {k: v / one for k, v in times.items()}}
+
+
+def mujoco_batch(duration: float, size: int, repeat: int) -> dict:
+    """Example 2 on MuJoCo, ``size`` copies with different kappa in one simulate call (metrics
+    record): per copy and step, against one bare C ``mj_step``."""
+    path = ROOT / "scenarios" / "example2.toml"
+    scs = [load_scenario(path, [f"simulation.duration={duration!r}", f"controller.kappa_margin={m!r}"])
+           for m in np.linspace(0.1, 1.1, size).tolist()]
+    sc, steps = scs[0], round(duration / scs[0].simulation.dt)
+    plant = build_plant(sc, "mujoco", batch=size)
+
+    def run() -> None:
+        simulate(plant, build_law(scs), build_quantizer(sc), build_reference(sc), [s.x0 for s in scs],
+                 duration, sc.simulation.dt, record="metrics")
+
+    wall = best_of(repeat, run)
+    bare = best_of(repeat, _mj_step_loop(build_plant(sc, "mujoco"), 10_000, installed=False)) / 10_000
+    per_copy_step = wall / (size * steps)
+    return {"size": size, "duration_s": duration, "wall_s": wall, "us_per_copy_step": per_copy_step * 1e6,
+            "ratio_to_bare_mj_step": per_copy_step / bare, "on_mujoco_batch": plant._threaded is not None}
+
+
+def reproduce_wall(workers: int) -> dict:
+    """Wall time of ``qcontrol reproduce`` (the whole command, in a fresh process)."""
+    with tempfile.TemporaryDirectory(prefix="qcontrol-bench-") as tmp:
+        started = time.perf_counter()
+        subprocess.run([sys.executable, "-m", "qcontrol.cli", "reproduce", "--out", tmp, "-q",
+                        "--workers", str(workers)], check=True, stdout=subprocess.DEVNULL)
+        return {"wall_s": time.perf_counter() - started, "workers": workers}
 
 
 def recording_overhead(duration: float, repeat: int) -> tuple[float | None, str]:
@@ -179,23 +293,15 @@ def sweep1000(duration: float, workers: int) -> dict:
 # --------------------------------------------------------------------------------------------
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="short horizons, small batches (smoke run)")
-    parser.add_argument("--json", type=Path, metavar="FILE", help="write the figures as JSON")
-    parser.add_argument("--repeat", type=int, default=3, help="best of N (default 3)")
-    parser.add_argument("--sweep1000", action="store_true", help="also time 1000-run sweeps (slow)")
-    parser.add_argument("--workers", type=int, default=2, help="workers for --sweep1000 (default 2)")
-    args = parser.parse_args(argv)
+def measure(args: argparse.Namespace) -> dict:
     duration = 1.0 if args.quick else 10.0
     repeat = 1 if args.quick else args.repeat
     sizes = [1, 10, 100] if args.quick else [1, 10, 100, 1000]
-
     result: dict = {"machine": f"{platform.node()} {platform.machine()} {platform.processor() or ''}".strip(),
                     "python": sys.version.split()[0], "numpy": np.__version__, "mujoco": mujoco.__version__,
-                    "quick": args.quick, "duration_s": duration}
-    result["mujoco_step_ratio"] = {}
-    result["ode_speedup_vs_solve_ivp"] = {}
+                    "quick": args.quick, "duration_s": duration, "repeat": repeat,
+                    "compiled": os.environ.get("QCONTROL_COMPILE", "1") != "0"}
+    result["mujoco_step_ratio"], result["ode_speedup_vs_solve_ivp"] = {}, {}
     details: dict = {"mujoco": {}, "ode": {}}
     for name in SCENARIOS:
         sc = scenario(name, duration)
@@ -203,42 +309,80 @@ def main(argv: list[str] | None = None) -> int:
         result["mujoco_step_ratio"][name] = details["mujoco"][name]["ratio"]
         details["ode"][name] = ode_speedup(sc, repeat)
         result["ode_speedup_vs_solve_ivp"][name] = details["ode"][name]["speedup"]
-    batches = batch_times(duration, sizes, repeat)
-    details["batch"] = batches
-    result["batch1000_ratio"] = batches["ratio_to_one"].get("1000")
+    details["batch"] = batch_times(duration, sizes, repeat)
+    result["batch1000_ratio"] = details["batch"]["ratio_to_one"].get("1000")
+    # 1000 MuJoCo copies of 10 s are 1e7 copy-steps (about a minute): 1 s runs unless --quick (100)
+    details["mujoco_batch"] = mujoco_batch(1.0 if not args.quick else 0.2, 1000 if not args.quick else 100,
+                                           1 if args.quick else max(1, repeat // 2))
     overhead, note = recording_overhead(duration, repeat)
     if args.quick:  # opening, the static logs and closing cost ~15 ms a file: a 1 s run is no test
         note += "; quick: per-file costs dominate a 1 s run, the target is for 10 s"
     result["recording_overhead"], result["recording_overhead_note"] = overhead, note
-    memory_duration = 1.0 if args.quick else 10.0
-    result["peak_memory_mb"] = peak_memory_mb(memory_duration)
-    result["peak_memory_note"] = (f"Example 2, ODE, full record, {memory_duration:g} s at dt = 1e-4 "
-                                  "(tracemalloc)")
+    result["peak_memory_mb"] = peak_memory_mb(duration)
+    result["peak_memory_note"] = f"Example 2, ODE, full record, {duration:g} s at dt = 1e-4 (tracemalloc)"
     if args.sweep1000:
         result["sweep1000"] = sweep1000(duration, args.workers)
+    if args.reproduce:
+        result["reproduce"] = reproduce_wall(args.workers)
     result["details"] = details
+    return result
 
+
+def report(result: dict, args: argparse.Namespace) -> None:
+    details = result["details"]
     print(f"qcontrol bench on {result['machine']} (python {result['python']}, numpy {result['numpy']}, "
-          f"mujoco {result['mujoco']}){' [quick]' if args.quick else ''}, best of {repeat}")
-    print(f"{'figure':44s} {'value':>10s}  target")
+          f"mujoco {result['mujoco']}){' [quick]' if args.quick else ''}, best of {result['repeat']}, "
+          f"compiled paths {'on' if result['compiled'] else 'off (QCONTROL_COMPILE=0)'}")
+    print(f"{'figure':52s} {'value':>10s}  target")
     for name in SCENARIOS:
         m, o = details["mujoco"][name], details["ode"][name]
-        print(f"{'MuJoCo closed loop / bare mj_step, ' + name:44s} {m['ratio']:10.2f}  <= 2   "
-              f"({m['closed_loop_us_per_step']:.1f} vs {m['bare_mj_step_us_per_step']:.1f} us/step)")
-        print(f"{'ODE speed-up vs solve_ivp RK45, ' + name:44s} {o['speedup']:10.1f}  >= 10  "
-              f"({o['engine_s']:.3f} s vs {o['solve_ivp_s']:.3f} s)")
+        print(f"{'MuJoCo closed loop / bare C mj_step, ' + name:52s} {m['ratio']:10.2f}  <= 1.3  "
+              f"({m['closed_loop_us_per_step']:.2f} vs {m['bare_mj_step_us_per_step']:.2f} us/step)")
+        print(f"{'mj_step with native callback / bare, ' + name:52s} {m['native_callback_ratio']:10.3f}  "
+              f"<= 1.05 ({m['native_callback_us_per_step']:.2f} us/step; "
+              f"native in use: {m['native_in_use']})")
+        print(f"{'mj_step with Python callback / bare, ' + name:52s} {m['python_callback_ratio']:10.3f}  "
+              f"         ({m['python_callback_us_per_step']:.2f} us/step)")
+        print(f"{'ODE speed-up vs solve_ivp RK45, ' + name:52s} {o['speedup']:10.1f}  >= 300  "
+              f"({o['engine_s']:.4f} s vs {o['solve_ivp_s']:.3f} s)")
+        print(f"{'ODE run / compiled bare RK4 of the rhs, ' + name:52s} {o['ratio_to_compiled_rk4']:10.1f}  "
+              f"         ({o['engine_s']:.4f} s vs {o['compiled_rk4_s']:.5f} s)")
+    batches = details["batch"]
     for size, ratio in batches["ratio_to_one"].items():
         target = "<= 20" if size == "1000" else ""
-        print(f"{'Example 2 batch of ' + size + ' / one run':44s} {ratio:10.2f}  {target:6s} "
+        print(f"{'ODE Example 2 batch of ' + size + ' / one run':52s} {ratio:10.2f}  {target:7s} "
               f"({batches['seconds'][size]:.3f} s)")
-    shown = "null" if overhead is None else f"{overhead:.3f}"
-    print(f"{'recording overhead (fraction)':44s} {shown:>10s}  <= 0.25 ({note})")
-    print(f"{'peak memory, 10 kHz run [MB]':44s} {result['peak_memory_mb']:10.1f}  "
+    mb = details["mujoco_batch"]
+    print(f"{'MuJoCo batch of ' + str(mb['size']) + ' (per copy-step) / bare mj_step':52s} "
+          f"{mb['ratio_to_bare_mj_step']:10.2f}           "
+          f"({mb['wall_s']:.2f} s for {mb['duration_s']:g} s runs; "
+          f"mujoco.batch: {mb['on_mujoco_batch']})")
+    shown = "null" if result["recording_overhead"] is None else f"{result['recording_overhead']:.3f}"
+    print(f"{'recording overhead (fraction)':52s} {shown:>10s}  <= 0.25 "
+          f"({result['recording_overhead_note']})")
+    print(f"{'peak memory, 10 kHz run [MB]':52s} {result['peak_memory_mb']:10.1f}  "
           f"({result['peak_memory_note']})")
-    if args.sweep1000:
+    if "sweep1000" in result:
         for backend, wall in result["sweep1000"]["wall_s"].items():
-            print(f"{'1000-run sweep wall time, ' + backend + ' [s]':44s} {wall:10.1f}  "
-                  f"({duration:g} s runs, {args.workers} workers)")
+            target = "<= 20" if backend == "mujoco" else ""
+            print(f"{'1000-run sweep wall time, ' + backend + ' [s]':52s} {wall:10.1f}  {target:7s} "
+                  f"({result['duration_s']:g} s runs, {args.workers} workers)")
+    if "reproduce" in result:
+        print(f"{'qcontrol reproduce wall time [s]':52s} {result['reproduce']['wall_s']:10.1f}  <= 15    "
+              f"({args.workers} workers)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="short horizons, small batches (smoke run)")
+    parser.add_argument("--json", type=Path, metavar="FILE", help="write the figures as JSON")
+    parser.add_argument("--repeat", type=int, default=3, help="best of N (default 3)")
+    parser.add_argument("--sweep1000", action="store_true", help="also time 1000-run sweeps (slow)")
+    parser.add_argument("--reproduce", action="store_true", help="also time qcontrol reproduce (slow)")
+    parser.add_argument("--workers", type=int, default=2, help="workers for --sweep1000, --reproduce (2)")
+    args = parser.parse_args(argv)
+    result = measure(args)
+    report(result, args)
     if args.json is not None:
         args.json.write_text(json.dumps(result, indent=2, default=lambda v: None if v != v else v) + "\n")
         print(f"wrote {args.json}")

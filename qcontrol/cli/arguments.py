@@ -8,12 +8,17 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..outputs import check_output_dir, check_output_file
+from ..errors import QcontrolInputError
+from ..outputs import check_distinct, check_figure_file, check_output_dir, check_output_file
 from ..progress import ProgressLine
 from ..resources import shipped_scenarios
 from ..scenario import Scenario, load_scenario
 
-EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_WRITE_FAILED = 0, 1, 2, 3
+EXIT_INTERRUPTED, EXIT_TERMINATED = 130, 143
+EXIT_STATUS = ("Exit status: 0 ok, 1 diverged or a theory check failed, 2 bad input (checked before the run, "
+               "outputs included), 3 an output could not be written (disk full, I/O error, no permission; "
+               "the previous file is kept), 130 interrupted, 143 terminated (SIGTERM).")
 
 SET_HELP = ("override a scenario key, e.g. --set controller.kappa_margin=0.1 (repeatable; the value is "
             "read as TOML, otherwise as a string)")
@@ -56,9 +61,18 @@ def add_recording_options(p: argparse.ArgumentParser) -> None:
                    help="stream to a rerun viewer started on this machine (needs a display)")
 
 
+def _check_timing(args: argparse.Namespace) -> None:
+    """``--duration`` and ``--dt`` are positive finite seconds: refused naming the option."""
+    for option, value in (("--duration", args.duration), ("--dt", args.dt)):
+        if value is not None and not (0 < value < float("inf")):
+            raise QcontrolInputError(f"{option} {value!r}: must be a positive number of seconds; "
+                                     f"e.g. {option} {'10' if option == '--duration' else '0.001'}")
+
+
 def scenario_from_args(args: argparse.Namespace) -> Scenario:
     """The scenario of :func:`add_scenario_options`' arguments (with ``timing``): ``--unset``,
     then ``--set``, then ``--duration`` and ``--dt`` applied to the file."""
+    _check_timing(args)
     overrides = list(args.overrides)
     if args.duration is not None:
         overrides.append(f"simulation.duration={args.duration!r}")
@@ -67,15 +81,27 @@ def scenario_from_args(args: argparse.Namespace) -> Scenario:
     return load_scenario(args.scenario, overrides, args.unset)
 
 
-def check_outputs(args: argparse.Namespace, files: dict[str, Path | None]) -> None:
-    """Check --out and the output ``files`` (option -> path) without creating anything; with
-    --spawn, make sure a viewer runs (one line and exit status 2 when there is no display: before
-    the run starts)."""
+def check_outputs(args: argparse.Namespace, sc: Scenario, files: dict[str, Path | None],
+                  in_out: tuple[str, ...] = ()) -> None:
+    """Check --out (and the files ``in_out`` it will hold) and the output ``files`` (option ->
+    path) without creating anything: each a regular file or a new name, no two the same, none the
+    scenario file, none where the folder goes, a --plot with a figure's suffix; with --spawn, make
+    sure a viewer runs (one line and exit status 2 when there is no display: before the run
+    starts)."""
+    given = {option: path for option, path in files.items() if path is not None}
+    for option, path in given.items():
+        if option == "--plot":
+            check_figure_file(path, option)
+        else:
+            check_output_file(path, option)
     if args.out is not None:
         check_output_dir(args.out)
-    for option, path in files.items():
-        if path is not None:
-            check_output_file(path, option)
+        for name in in_out:
+            fix = "remove it or choose another --out folder"
+            given[f"--out (its {name})"] = check_output_file(args.out / name, "--out", fix=fix)
+    source = Path(sc.source)
+    check_distinct(given, {"scenario file": source} if source.is_file() else {},
+                   {"--out": args.out} if args.out is not None else {})
     if args.spawn:
         from ..recording.viewer import start_viewer
 

@@ -18,6 +18,7 @@ from .arguments import (
     scenario_from_args,
 )
 from .printing import format_summary, print_paper_line, print_warnings, status
+from .rendering import add_rendering_options, check_rendering, write_video
 
 
 def add_compare_parser(sub: argparse._SubParsersAction) -> None:
@@ -32,19 +33,22 @@ def add_compare_parser(sub: argparse._SubParsersAction) -> None:
     add_scenario_options(compare)
     compare.add_argument("--out", type=Path, metavar="DIR", help="write DIR/compare.json")
     add_recording_options(compare)
+    add_rendering_options(compare)
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
     sc = scenario_from_args(args)
     api.require_twin(sc)  # before --spawn starts a viewer
-    check_outputs(args, {"--rrd": args.rrd})
+    check_outputs(args, sc, {"--rrd": args.rrd, "--video": args.video}, ("compare.json",))
+    check_rendering(args, sc)
     progress: dict[str, ProgressLine] = {}
 
     def progress_of(backend: str) -> ProgressLine:
         progress[backend] = progress_line(sc, backend, args)
         return progress[backend]
 
-    cmp = api.compare(sc, rrd=args.rrd, spawn=args.spawn, progress=progress_of, command=args.command_line)
+    cmp = api.compare(sc, rrd=args.rrd, spawn=args.spawn, progress=progress_of, command=args.command_line,
+                      camera_view=args.camera_view)
     for line in progress.values():
         line.finish()
     result = cmp.summary
@@ -70,4 +74,5 @@ def cmd_compare(args: argparse.Namespace) -> int:
         print(f"  wrote {out / 'compare.json'}")
     if args.rrd is not None:
         print(f"  wrote {args.rrd} (open it with: rerun {args.rrd})")
+    write_video(args, cmp.mujoco, twin=cmp.ode)
     return max(status(result["mujoco"]), status(result["ode"]))

@@ -1,25 +1,37 @@
 """The ``qcontrol`` command line: run, compare, reproduce, sweep, region, check (on :mod:`qcontrol.api`).
 
-Exit status: 0 success; 1 the run diverged or a theory check failed; 2 bad input; 130 interrupted.
-Bad input is reported as one line on stderr, never as a traceback, and every input is checked
-before any folder or file is made. Each command is one module of this package with its parser
-and its handler; they share the scenario options of :mod:`.arguments`.
+Exit status: 0 success; 1 the run diverged or a theory check failed; 2 bad input (outputs that
+cannot be written included: checked before the run); 3 an output could not be written during or
+after the run (no space left, an I/O error, no permission: the previous file is intact); 130
+interrupted (Ctrl-C); 143 terminated (SIGTERM). Bad input is reported as one line on stderr, never
+as a traceback, and every input is checked before any folder or file is made. Each command is one
+module of this package with its parser and its handler; they share the scenario options of
+:mod:`.arguments`.
 """
 
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 import time
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from .._version import __version__
 from ..controller.plugins import load_law_module, load_law_plugins
-from ..errors import QcontrolInputError
+from ..errors import QcontrolInputError, QcontrolOutputError, Terminated
 from ..provenance import command_line
-from .arguments import EXIT_BAD_INPUT, EXIT_INTERRUPTED, Parser
+from .arguments import (
+    EXIT_BAD_INPUT,
+    EXIT_INTERRUPTED,
+    EXIT_STATUS,
+    EXIT_TERMINATED,
+    EXIT_WRITE_FAILED,
+    Parser,
+)
 from .check_command import add_check_parser, cmd_check
 from .compare_command import add_compare_parser, cmd_compare
 from .laws_command import add_laws_parser, cmd_laws
@@ -28,8 +40,20 @@ from .reproduce_command import add_reproduce_parser, cmd_reproduce
 from .run_command import add_run_parser, cmd_run
 from .sweep_command import add_sweep_parser, cmd_sweep
 
-COMMANDS = {"run": cmd_run, "compare": cmd_compare, "reproduce": cmd_reproduce, "sweep": cmd_sweep,
-            "region": cmd_region, "check": cmd_check, "laws": cmd_laws}
+Register = Callable[[argparse._SubParsersAction], None]
+Handler = Callable[[argparse.Namespace], int]
+
+# Each command: the function that registers its parser (and options) and its handler. A new
+# command is one module with both, and one entry here.
+COMMANDS: dict[str, tuple[Register, Handler]] = {
+    "run": (add_run_parser, cmd_run),
+    "compare": (add_compare_parser, cmd_compare),
+    "laws": (add_laws_parser, cmd_laws),
+    "reproduce": (add_reproduce_parser, cmd_reproduce),
+    "sweep": (add_sweep_parser, cmd_sweep),
+    "region": (add_region_parser, cmd_region),
+    "check": (add_check_parser, cmd_check),
+}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -39,15 +63,14 @@ def build_parser() -> argparse.ArgumentParser:
             "Adaptive backstepping control with quantized states (Sun et al., Electronics 2022, "
             "11, 3160) on an ideal ODE plant or on MuJoCo physics."
         ),
-        epilog="Exit status: 0 ok, 1 diverged or a theory check failed, 2 bad input, 130 interrupted.",
+        epilog=EXIT_STATUS,
     )
     parser.add_argument("--version", action="version", version=f"qcontrol {__version__}")
     parser.set_defaults(law_modules=[])  # the commands without scenario options load no law file
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     sub.required = True
-    for add in (add_run_parser, add_compare_parser, add_laws_parser, add_reproduce_parser, add_sweep_parser,
-                add_region_parser, add_check_parser):
-        add(sub)
+    for register, _ in COMMANDS.values():
+        register(sub)
     return parser
 
 
@@ -65,18 +88,32 @@ def load_laws(files: Sequence[Path]) -> None:
         load_law_module(file)
 
 
+def _terminate(signum: int, frame: object) -> None:
+    """SIGTERM: stop as Ctrl-C does (every output cleans up after itself), exit status 143."""
+    raise Terminated
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.command_line = command_line(argv)  # what the outputs' provenance names as the command
     warnings.formatwarning = _one_line_warning
     started = time.perf_counter()
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _terminate) if main_thread else None
     try:
         load_laws(args.law_modules)
-        return COMMANDS[args.command](args)
+        return COMMANDS[args.command][1](args)
     except QcontrolInputError as exc:
         print(f"qcontrol: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print(f"\nqcontrol: interrupted after {time.perf_counter() - started:.1f} s", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    except QcontrolOutputError as exc:
+        print(f"qcontrol: error: {exc.strerror or exc}", file=sys.stderr)
+        return EXIT_WRITE_FAILED
+    except KeyboardInterrupt as exc:
+        how = "terminated" if isinstance(exc, Terminated) else "interrupted"
+        print(f"\nqcontrol: {how} after {time.perf_counter() - started:.1f} s", file=sys.stderr)
+        return EXIT_TERMINATED if isinstance(exc, Terminated) else EXIT_INTERRUPTED
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, previous)

@@ -23,7 +23,8 @@ def add_laws_parser(sub: argparse._SubParsersAction) -> None:
     )
     add_scenario_options(p)
     p.add_argument("--law", dest="laws", action="append", default=[], metavar="KIND", required=True,
-                   help="a controller kind to compare (give two or more, e.g. --law proposed --law baseline)")
+                   help="a controller kind to compare (give two or more, e.g. --law proposed "
+                        "--law comparison)")
     p.add_argument("--backend", choices=tuple(BACKENDS), help="default: the scenario's simulation.backend")
     p.add_argument("--out", type=Path, metavar="DIR", help="write DIR/laws.json and DIR/laws.png")
     p.add_argument("--rrd", type=Path, metavar="FILE", help="write a rerun recording with every law")

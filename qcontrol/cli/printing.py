@@ -1,4 +1,5 @@
-"""What ``run`` and ``compare`` print of a run's summary, and the exit status it gives."""
+"""What ``run`` and ``compare`` print of a run's summary (read as a typed
+:class:`~qcontrol.summary.Summary`), and the exit status it gives."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import sys
 from ..explain import divergence_lines, gain_period_lines, paper_line
 from ..metrics import LEMMA2_TOLERANCE
 from ..scenario import Scenario
+from ..summary import Summary
 from .arguments import EXIT_FAILED, EXIT_OK
 
 
@@ -23,38 +25,45 @@ def print_warnings(s: dict) -> None:
 def format_summary(s: dict, sc: Scenario) -> str:
     """The printed summary of a run; a diverged run says when and why it stopped and what usually
     helps (:mod:`qcontrol.explain`)."""
-    rates = "  ".join(f"E({k})={v:.4f}" for k, v in s["error_rate"].items())
-    if s["diverged"]:
-        simulated = (f"stopped after {s['steps']} of {round(s['duration'] / s['dt'])} steps of {s['dt']:g} s "
-                     f"({s['steps'] * s['dt']:g} s of {s['duration']:g} s simulated)")
+    f = Summary.from_json(s)
+    rates = "  ".join(f"E({k})={v:.4f}" for k, v in f.error_rate.items())
+    if f.diverged:
+        simulated = (f"stopped after {f.steps} of {round(f.duration / f.dt)} steps of {f.dt:g} s "
+                     f"({f.steps * f.dt:g} s of {f.duration:g} s simulated)")
     else:
-        simulated = f"{s['steps']} steps of {s['dt']:g} s ({s['duration']:g} s simulated)"
+        simulated = f"{f.steps} steps of {f.dt:g} s ({f.duration:g} s simulated)"
     lines = [
-        f"scenario {s['scenario']} on {s['backend']}: {simulated} in {s['wall_time_s']:.2f} s",
+        f"scenario {f.scenario} on {f.backend}: {simulated} in {f.wall_time_s:.2f} s",
         f"  error rate: {rates}",
-        f"  max |z1| over the last half: {s['max_abs_z1_last_half']:.4g}    max |u|: {s['max_abs_u']:.4g}",
-        f"  actuator: max |u applied|: {s['max_abs_u_applied']:.4g}    saturated at "
-        f"{100 * s['saturated_fraction']:.1f}% of the control samples",
-        f"  final {s['adaptive_state']}: [{', '.join(f'{v:.4g}' for v in final_state(s))}]",
-        _lemma2_line(s),
+        f"  max |z1| over the last half: {f.max_abs_z1_last_half:.4g}    max |u|: {f.max_abs_u:.4g}",
+        f"  actuator: max |u applied|: {f.max_abs_u_applied:.4g}    {_saturation(f.saturated_fraction)}",
+        f"  final {f.adaptive_state}: [{', '.join(f'{v:.4g}' for v in final_state(f))}]",
+        _lemma2_line(f),
         *gain_period_lines(s),
     ]
-    if s["diverged"]:
+    if f.diverged:
         lines += divergence_lines(s, sc)
     return "\n".join(lines)
 
 
-def _lemma2_line(s: dict) -> str:
-    ratio = f"  Lemma 2: max |e_zi|/L_zi = {s['lemma2_max_ratio']:.6f}"
-    if not s["lemma2_applies"]:
+def _saturation(fraction: float) -> str:
+    """How often the actuator's limit cut the command; a run it never cut says so (not "at 0.0%")."""
+    if fraction == 0.0:
+        return "never saturated"
+    return f"saturated at {100 * fraction:.2g}% of the control samples"
+
+
+def _lemma2_line(f: Summary) -> str:
+    ratio = f"  Lemma 2: max |e_zi|/L_zi = {f.lemma2_max_ratio:.6f}"
+    if not f.lemma2_applies:
         return (f"{ratio} (not checked: x2 is differenced from the encoder, outside the paper's "
                 "assumptions)")
-    return f"{ratio} (<= 1 holds: {'yes' if lemma2_holds(s) else 'NO'})"
+    return f"{ratio} (<= 1 holds: {'yes' if lemma2_holds(f) else 'NO'})"
 
 
-def lemma2_holds(s: dict) -> bool:
+def lemma2_holds(f: Summary) -> bool:
     """Whether the run kept every Lemma 2 error within its bound (up to rounding)."""
-    return s["lemma2_max_ratio"] <= 1 + LEMMA2_TOLERANCE
+    return f.lemma2_max_ratio <= 1 + LEMMA2_TOLERANCE
 
 
 def print_paper_line(s: dict, sc: Scenario) -> None:
@@ -64,16 +73,17 @@ def print_paper_line(s: dict, sc: Scenario) -> None:
         print(told)
 
 
-def status(s: dict) -> int:
+def status(s: dict | Summary) -> int:
     """The exit status a run's summary gives: 1 when it diverged or broke a Lemma 2 bound, else 0."""
-    if s["diverged"]:
+    f = s if isinstance(s, Summary) else Summary.from_json(s)
+    if f.diverged:
         return EXIT_FAILED
-    if s["lemma2_applies"] and not lemma2_holds(s):
+    if f.lemma2_applies and not lemma2_holds(f):
         print("qcontrol: check failed: a Lemma 2 bound was exceeded", file=sys.stderr)
         return EXIT_FAILED
     return EXIT_OK
 
 
-def final_state(s: dict) -> list[float]:
-    """The law's final state as the summary names it (``final_<adaptive_state>``)."""
-    return s["final_" + s["adaptive_state"]]
+def final_state(f: Summary) -> tuple[float, ...]:
+    """The law's final state (the summary's ``final_<adaptive_state>``)."""
+    return f.final_eps_hat if f.final_state is None else f.final_state

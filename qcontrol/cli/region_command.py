@@ -12,7 +12,7 @@ import argparse
 from pathlib import Path
 
 from ..errors import QcontrolInputError
-from ..outputs import check_output_dir
+from ..outputs import check_output_dir, check_output_file
 from ..plants import BACKENDS
 from ..progress import ProgressLine
 from ..provenance import command_line
@@ -39,7 +39,7 @@ def add_region_parser(subparsers: argparse._SubParsersAction) -> None:
                          set_help="a fixed override for every run, e.g. simulation.control_period=0.005",
                          unset_help="remove a key of the scenario file for every run")
     p.add_argument("--law", dest="laws", action="append", default=[], metavar="KIND[:KEY=VALUE,...]",
-                   help="a law to map, e.g. proposed, proposed:hold=exact, baseline, or a registered kind "
+                   help="a law to map, e.g. proposed, proposed:hold=exact, comparison, or a registered kind "
                    "(repeatable; default: the scenario's law, and for the paper's law also hold=exact)")
     p.add_argument("--axes", default="1,2", metavar="I,J",
                    help="the two state axes of the grid (default 1,2)")
@@ -71,11 +71,13 @@ def cmd_region(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise QcontrolInputError(f"--workers {args.workers}: must be >= 1")
     check_output_dir(args.out)
+    for name in ("region.csv", "region.json", "region.png"):
+        check_output_file(args.out / name, "--out", fix="remove it or choose another --out folder")
     overrides = _overrides(args)
     base = load_scenario(args.scenario, overrides, args.unset)
     grid = parse_grid(base, args.axes, args.box, args.resolution)
     laws = [parse_law(text) for text in args.laws] or default_laws(base)
-    progress = ProgressLine("region", not args.quiet, "runs", piped_every=10)
+    progress = ProgressLine("region", not args.quiet, "runs")
     try:
         region = measure_region(base.source, grid, laws, args.backend, overrides, args.unset, args.workers,
                                 args.scheduler, progress)

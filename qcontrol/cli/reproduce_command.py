@@ -6,9 +6,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..errors import QcontrolInputError
+from ..errors import QcontrolInputError, shown
+from ..outputs import check_output_dir, path_kind
 from ..plants import BACKENDS
 from .arguments import EXIT_OK
+
+MAX_DURATION = 3600.0  # s of simulated time per run: every run keeps its rows for the figures
+SCENARIO_FILES = ("example1.toml", "example2.toml", "example2-rigid.toml", "example2-arm.toml",
+                  "example1-cart.toml")
 
 
 def add_reproduce_parser(sub: argparse._SubParsersAction) -> None:
@@ -16,32 +21,53 @@ def add_reproduce_parser(sub: argparse._SubParsersAction) -> None:
     rep = sub.add_parser(
         "reproduce",
         help="reproduce the paper's Figures 1-8 and Table 1 with an honest report",
-        description="Run both examples of the paper (proposed law and the comparison method of [20]) "
-        "and the sensitivity studies; write figures, table1.md/.json, REPORT.md and recordings.",
+        description="Write the paper's Figures 1-8, Table 1 (table1.md/.json/.png), REPORT.md, the "
+        "studies' figures and recordings. It runs, in order (times on an idle 2-core VM): (1) Example 1 "
+        "and Example 2 with the proposed law and the comparison law of [20], each on MuJoCo with its ODE "
+        "twin (about 5 s with the figures and recordings); (2) the sensitivity studies on the ODE: "
+        "kappa - L, the scale of r, the plant variants (21 runs, batched: about 3 s); (2b) the sampled "
+        "loop's region of attraction: both examples at 1 and 2 kHz, the paper's law, its exact hold and "
+        "the comparison law on a 9 x 9 grid of initial states (batched ODE: about 10 s); (3) the robustness "
+        "study: 248 MuJoCo runs of the realistic arm and cart (each imperfection alone, 20 noise seeds, "
+        "margins beyond the hardware, disturbances: about 25 s over two worker processes, 50 s of CPU; "
+        "longer on a shared machine). --quick skips (2b) and (3) and runs 1 s horizons: a few seconds.",
     )
     rep.add_argument("--out", type=Path, default=Path("results"), metavar="DIR",
                      help="output folder (default: results)")
     rep.add_argument("--backend", choices=tuple(BACKENDS), default="mujoco",
                      help="plant for the examples (default: mujoco, with the ODE twin beside it)")
     rep.add_argument("--duration", type=float, metavar="S",
-                     help="shorter horizon for a quick look (default: the paper's 10 s)")
+                     help="horizon of every run (default: the paper's 10 s); the robustness study keeps its "
+                     "248 runs: for a quick look use --quick")
+    rep.add_argument("--quick", action="store_true",
+                     help="a first look in a few seconds: 1 s horizons (or --duration), no region "
+                     "study and no robustness study (no region.json, study_region.png, robustness.json, "
+                     "study_robustness.png, study_margins.png)")
     rep.add_argument("--scenarios", type=Path, default=None, metavar="DIR",
-                     help="folder holding example1.toml, example2.toml, example2-rigid.toml, "
-                     "example2-arm.toml, example1-cart.toml")
+                     help=f"folder holding {', '.join(SCENARIO_FILES)} (default: the shipped ones)")
     rep.add_argument("--workers", type=int, default=None, metavar="N",
                      help="worker processes for the robustness study (default: the cores, at most 4)")
     rep.add_argument("-q", "--quiet", action="store_true", help="no progress output")
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
+    """The command-line options are checked before the reproduction (and matplotlib) is imported."""
+    if args.duration is not None and not (0 < args.duration <= MAX_DURATION):
+        raise QcontrolInputError(f"--duration {args.duration!r}: must be a number of seconds > 0 and at most "
+                                 f"{MAX_DURATION:g}; e.g. --duration 2 for a quick look")
+    if args.workers is not None and args.workers < 1:
+        raise QcontrolInputError(f"--workers {args.workers}: must be >= 1; e.g. --workers 2 (more than the "
+                                 "cores are capped at the cores)")
+    if args.scenarios is not None and path_kind(args.scenarios) != "a folder":
+        kind = path_kind(args.scenarios) or "a file"
+        what = "does not exist" if not args.scenarios.exists() else f"is {kind}"
+        raise QcontrolInputError(f"--scenarios {shown(args.scenarios)}: {what}; give the folder holding "
+                                 f"{', '.join(SCENARIO_FILES)}")
+    check_output_dir(args.out)
     from ..reproduce import SCENARIO_DIR, reproduce  # matplotlib and the studies: only for this command
 
-    if args.duration is not None and not (args.duration > 0):
-        raise QcontrolInputError(f"--duration must be > 0, got {args.duration!r}")
-    if args.workers is not None and args.workers < 1:
-        raise QcontrolInputError(f"--workers must be >= 1, got {args.workers}")
     scenarios = args.scenarios or SCENARIO_DIR
     log = (lambda line: None) if args.quiet else (lambda line: print(line, flush=True))
     reproduce(args.out, args.backend, args.duration, scenarios, log, command=args.command_line,
-              workers=args.workers)
+              workers=args.workers, quick=args.quick)
     return EXIT_OK

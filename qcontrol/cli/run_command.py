@@ -19,6 +19,7 @@ from .arguments import (
     scenario_from_args,
 )
 from .printing import format_summary, print_paper_line, print_warnings, status
+from .rendering import add_rendering_options, check_rendering, write_video
 
 
 def add_run_parser(sub: argparse._SubParsersAction) -> None:
@@ -37,8 +38,9 @@ def add_run_parser(sub: argparse._SubParsersAction) -> None:
                      "per component); keeps every row in memory, unlike a plain run")
     run.add_argument("--plot", type=Path, metavar="FILE",
                      help="draw the run (y and y_d, z1, u, the adaptive estimates, the Lemma 2 ratio) to "
-                     "FILE.png; keeps every row in memory, unlike a plain run")
+                     "FILE.png, .pdf or .svg; keeps every row in memory, unlike a plain run")
     add_recording_options(run)
+    add_rendering_options(run)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -47,13 +49,15 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.save is not None and args.save.suffix not in api.SAVE_FORMATS:
         raise QcontrolInputError(f"--save {args.save}: unknown format {args.save.suffix!r}; "
                                  "give a .npz or .csv file")
-    check_outputs(args, {"--rrd": args.rrd, "--save": args.save, "--plot": args.plot})
-    # a plain run keeps only its metrics (memory stays flat however long the run); --save and
-    # --plot need every row
-    record = "full" if args.save is not None or args.plot is not None else "metrics"
+    outputs = {"--rrd": args.rrd, "--save": args.save, "--plot": args.plot, "--video": args.video}
+    check_outputs(args, sc, outputs, ("summary.json",))
+    check_rendering(args, sc)
+    # a plain run keeps only its metrics (memory stays flat however long the run); --save, --plot
+    # and --video need every row
+    record = "metrics" if args.save is None and args.plot is None and args.video is None else "full"
     progress = progress_line(sc, backend, args)
     result = api.run(sc, backend, rrd=args.rrd, spawn=args.spawn, record=record, progress=progress,
-                     command=args.command_line)
+                     command=args.command_line, camera_view=args.camera_view)
     progress.finish()
     s = result.summary
     print(format_summary(s, sc))
@@ -69,4 +73,5 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"  wrote {result.plot(args.plot)}")
     if args.rrd is not None:
         print(f"  wrote {args.rrd} (open it with: rerun {args.rrd})")
+    write_video(args, result)
     return status(s)

@@ -3,10 +3,10 @@
 
 * :mod:`.backstepping`: coefficients, Lemma 2 bounds, the coordinates z / zbar / alphabar.
 * :mod:`.law`: the :class:`BatchLaw` protocol the engine drives, and the kind registry.
-* :mod:`.proposed`: law (44)-(45); :mod:`.baseline`: law (46) of reference [20].
+* :mod:`.proposed`: law (44)-(45); :mod:`.comparison`: law (46) of reference [20].
 """
 
-from . import baseline, proposed
+from . import comparison, proposed
 from .backstepping import (
     Backstepping,
     ControlOutput,
@@ -14,19 +14,20 @@ from .backstepping import (
     lemma2_bounds,
     lemma2_L,
 )
-from .baseline import BaselineController
-from .law import LAW_KINDS, BatchLaw, LawContext, LawKind, law_kind, register_kind
+from .comparison import ComparisonController
+from .law import LAW_KINDS, BatchLaw, FloatColumns, LawContext, LawKind, law_kind, register_kind
 from .proposed import ProposedController
 
-for _kind in (proposed.KIND, baseline.KIND):
+for _kind in (proposed.KIND, comparison.KIND):
     register_kind(_kind)
 
 __all__ = [
     "LAW_KINDS",
     "Backstepping",
-    "BaselineController",
+    "ComparisonController",
     "BatchLaw",
     "ControlOutput",
+    "FloatColumns",
     "LawContext",
     "LawKind",
     "ProposedController",

@@ -10,8 +10,8 @@
 The laws' formulas are written once, over *columns*: one value per state (``q_1 .. q_n``) or per
 adaptive estimate, each either a ``(batch,)`` array or, for a batch of one, a plain Python float.
 They use only elementwise arithmetic and coefficients precomputed as Python floats, so the same
-lines step a batch of 1000 copies on numpy arrays and a single run on floats, where a numpy call on
-a one-element array would cost a microsecond each.
+lines step a batch of 1000 copies on numpy arrays and a single run on floats (the engine's fast
+path, :mod:`qcontrol.engine.fastpath`).
 """
 
 from __future__ import annotations
@@ -23,10 +23,9 @@ from typing import NamedTuple
 import numpy as np
 
 from ..errors import QcontrolInputError
-from ..quantizer import QuantizedReading
+from ..quantizer import Column, QuantizedReading
 
 Parameter = float | np.ndarray  # a scalar, or one value per copy of the batch (shape (batch,))
-Column = float | np.ndarray  # one value per copy: a (batch,) array, or a float for a batch of one
 Columns = tuple  # of Column: q_1 .. q_n, or the adaptive estimates
 
 
@@ -227,8 +226,8 @@ class ControlOutput(NamedTuple):
 
     u: np.ndarray
     zbar: np.ndarray
-    target: np.ndarray  # proposed: s r / sigma; baseline: Gamma phi zbar_n (a rate)
-    rate: float | np.ndarray  # proposed: gamma sigma, a float or per copy; baseline: 0
+    target: np.ndarray  # proposed: s r / sigma; comparison: Gamma phi zbar_n (a rate)
+    rate: float | np.ndarray  # proposed: gamma sigma, a float or per copy; comparison: 0
 
 
 # ControlOutput((u, zbar, target, rate)) without NamedTuple's Python-level __new__ (hot loop)

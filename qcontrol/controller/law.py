@@ -11,7 +11,7 @@ from __future__ import annotations
 import re
 from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -69,10 +69,11 @@ class BatchLaw(Protocol):
 
     The engine calls :meth:`control` at every control sample with the quantized reading (the only
     state the law may see), ``[y_d .. y_d^(n)]`` and the adaptive state as a tuple of columns
-    (floats for a batch of one, ``(batch,)`` arrays otherwise), holds the output's ``u`` over the
-    control period, and advances the adaptive state every step with the function
-    :meth:`advancer` made once per run. ``coordinates`` defines the errors z, zbar and the Lemma 2
-    bounds the engine records and checks.
+    (``(batch,)`` arrays: the array form, which every law implements and which serves every batch
+    size), holds the output's ``u`` over the control period, and advances the adaptive state
+    every step with the function :meth:`advancer` made once per run. ``coordinates`` defines the
+    errors z, zbar and the Lemma 2 bounds the engine records and checks. A law that can also
+    take a batch of one as plain floats says so with :class:`FloatColumns`.
     """
 
     state_name: str  # names the adaptive state in outputs: "eps_hat", "theta_hat", ...
@@ -90,11 +91,23 @@ class BatchLaw(Protocol):
                 t: float = 0.0) -> ControlOutput:
         """``u`` and the held terms that drive the adaptive state until the next sample."""
 
-    def advancer(self, h: float, floats: bool) -> Advance:
-        """``(state, output) -> state`` over a step ``h`` with the output held."""
+    def advancer(self, h: float) -> Advance:
+        """``(state, output) -> state`` over a step ``h`` with the output held (array columns)."""
 
     def constants(self) -> dict[str, Any]:
         """The law's own constants as a recording shows them (kappa, gamma, ...)."""
+
+
+@runtime_checkable
+class FloatColumns(Protocol):
+    """A capability: the law's :meth:`~BatchLaw.control` also takes a batch of one as plain floats
+    (a reading whose ``columns`` are floats, the adaptive state a tuple of floats, ``u`` a float
+    back), and :meth:`float_advancer` advances that state. The engine's float path
+    (:mod:`qcontrol.engine.fastpath`) uses it when present; a law without it runs there through
+    its array form."""
+
+    def float_advancer(self, h: float) -> Advance:
+        """:meth:`~BatchLaw.advancer` for a state of floats."""
 
 
 @dataclass(frozen=True)
@@ -177,6 +190,10 @@ def register_kind(kind: LawKind, *, replace: bool = False) -> None:
         raise QcontrolInputError(f"controller kind {kind.name!r} is already registered; choose another name "
                                  "or pass replace=True")
     LAW_KINDS[kind.name] = kind
+
+
+# Former names of kinds: a scenario written with one still loads, as the kind it now names.
+KIND_ALIASES: dict[str, str] = {"baseline": "comparison"}
 
 
 def law_kind(name: str) -> LawKind:

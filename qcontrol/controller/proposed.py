@@ -17,7 +17,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ..errors import QcontrolInputError
-from ..expr import Expression, compile_expression, scalar_function
+from ..expr import FLOAT_REFUSED, Expression, compile_expression, scalar_function
 from ..quantizer import QuantizedReading
 from ..schema import OPTIONAL, Key, KindKeys, Table, expressions, number, read_keys, string
 from .backstepping import (
@@ -189,7 +189,7 @@ class ProposedController(Backstepping):
         zbar, alphabar = self.recursion(q, yd)  # eqs. (31)-(34)
         try:
             r = [term(q) for term in law.terms]  # r(x_q)
-        except (ValueError, ArithmeticError):  # math's domain error or overflow (floats only)
+        except FLOAT_REFUSED:  # math refused (floats only): numpy's answer, the one fallback rule
             r = [e.on_floats(q) for e in self.r]
         if law.r_scale is not None:
             r = [ri * law.r_scale for ri in r]
@@ -210,22 +210,35 @@ class ProposedController(Backstepping):
         if isinstance(state, np.ndarray):
             eps = self.advance(tuple(state.T), out._replace(target=tuple(out.target.T)), h)
             return stack(eps, len(state))
-        return self.advancer(h, floats=not isinstance(out.u, np.ndarray))(state, out)
+        return (self.advancer(h) if isinstance(out.u, np.ndarray) else self.float_advancer(h))(state, out)
 
-    def advancer(self, h: float, floats: bool) -> Advance:
+    def advancer(self, h: float) -> Advance:
         """:meth:`advance` over a fixed ``h`` in column form, as a function ``(state, out) ->
         state`` made once per run: ``exp(-gamma sigma h)`` is computed here, not every step."""
-        law = self._on_floats if floats else self._on_arrays
+        return self._decay_advance(self._on_arrays, h)
+
+    def float_advancer(self, h: float) -> Advance:
+        """:meth:`advancer` for a batch of one on floats (:class:`~.law.FloatColumns`)."""
+        return self._decay_advance(self._on_floats, h)
+
+    def _decay_advance(self, law: _Law | None, h: float) -> Advance:
         if law is None:
             raise ValueError(f"the controller has per-copy parameters for {self.copies} copies, not one")
         decay = np.exp(-np.asarray(law.rate) * h)
-        decay = decay if decay.ndim else float(decay)
+        return DecayAdvance(decay if decay.ndim else float(decay)).advance
 
-        def advance(state: Columns, out: ControlOutput) -> Columns:
-            # zip without strict=: the lengths are equal by construction (strict= costs ~0.3 us)
-            return tuple([t + (e - t) * decay for e, t in zip(state, out.target)])  # noqa: B905
 
-        return advance
+class DecayAdvance:
+    """Eq. (45) over one step with the sample held: each estimate decays towards its held target,
+    ``eps <- t + (eps - t) exp(-gamma sigma h)`` (``decay`` computed once per run)."""
+
+    def __init__(self, decay: Parameter) -> None:
+        self.decay = decay
+
+    def advance(self, state: Columns, out: ControlOutput) -> Columns:
+        decay = self.decay
+        # zip without strict=: the lengths are equal by construction (strict= costs ~0.3 us)
+        return tuple([t + (e - t) * decay for e, t in zip(state, out.target)])  # noqa: B905
 
 
 # --------------------------------------------------------------------------------------------
@@ -273,7 +286,7 @@ def parse(table: Table, ctx: LawContext) -> ProposedSettings:
     if ctx.uncertain_terms == 0:
         raise table.error_at("plant", "has no uncertain term (psi or phi) for the proposed law to bound and "
                              "adapt to (eqs. (37)-(45))", "add psi or phi to [plant], or use controller "
-                             "kind \"baseline\"")
+                             "kind \"comparison\"")
     kappa = _kappa(table, ctx, v["kappa"], v["kappa_margin"])
     r = v["r"]
     if len(r) != ctx.uncertain_terms:
@@ -336,17 +349,17 @@ def _check_bounding_functions(table: Table, r_expr: Sequence[Expression], ctx: L
 
 def build(settings: Sequence[ProposedSettings], ctx: LawContext) -> ProposedController:
     """One controller for a batch of variants: kappa, gamma, sigma and r_scale per copy."""
-
-    def per_copy(values: list[float]) -> float | np.ndarray:
-        return values[0] if len(values) == 1 else np.array(values)
-
     return ProposedController(
         ctx.c, ctx.max_error,
-        kappa=per_copy([s.kappa for s in settings]), gamma=per_copy([s.gamma for s in settings]),
-        sigma=per_copy([s.sigma for s in settings]), r=settings[0].r_expr,
-        r_scale=per_copy([s.r_scale for s in settings]), expected_terms=ctx.uncertain_terms,
+        kappa=_per_copy([s.kappa for s in settings]), gamma=_per_copy([s.gamma for s in settings]),
+        sigma=_per_copy([s.sigma for s in settings]), r=settings[0].r_expr,
+        r_scale=_per_copy([s.r_scale for s in settings]), expected_terms=ctx.uncertain_terms,
         hold=settings[0].hold, period=ctx.control_period,
     )
+
+
+def _per_copy(values: list[float]) -> float | np.ndarray:
+    return values[0] if len(values) == 1 else np.array(values)
 
 
 def structure(settings: ProposedSettings, ctx: LawContext) -> Hashable:

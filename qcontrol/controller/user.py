@@ -9,8 +9,8 @@ the reference and the time of the last sample held (the same zero-order hold as 
 engine records the law's errors z, zbar and the Lemma 2 check in the backstepping coordinates of
 the scenario's ``c`` and ``delta``, as for the built-in laws.
 
-This path calls Python per copy and per step (a few microseconds a call); the built-in laws keep
-their float fast path.
+The adapter implements the array form only (a batch of one runs through it as a batch of one
+array); it calls Python per copy and per step, so it is slower than the built-in laws.
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ LawFactory = Callable[[dict, int], Law]  # (the [controller] table, the plant or
 class _Sample(NamedTuple):
     """What one evaluation hands the engine: ``u``, and what the state's RK4 steps hold."""
 
-    u: Any  # a float for a batch of one, a (batch,) array otherwise
+    u: np.ndarray  # (batch,)
     t: float
     x_q: np.ndarray  # (batch, n)
     yd: np.ndarray  # (n + 1,)
@@ -92,7 +92,7 @@ class UserLaw(Backstepping):
                 self._check_number(value)
             self._control_checked = True
         u = np.array([float(v) for v in outputs])
-        return _Sample(float(u[0]) if reading.floats else u, t, x_q, yd_row)
+        return _Sample(u, t, x_q, yd_row)
 
     def _law(self, b: int) -> Law:
         return self.laws[b] if len(self.laws) > 1 else self.laws[0]
@@ -131,21 +131,29 @@ class UserLaw(Backstepping):
             raise self._refuse(field, f"returned a value that is not finite: {array.tolist()}")
         return array.astype(float).reshape(self.state_size)
 
-    def advancer(self, h: float, floats: bool) -> Callable[[Columns, _Sample], Columns]:
+    def advancer(self, h: float) -> Callable[[Columns, _Sample], Columns]:
         """One classical RK4 step of ``h`` of ``state' = state_rate(t_k, x_q, yd, state)``."""
+        return UserRK4(self, h).advance
 
-        def advance(state: Columns, sample: _Sample) -> Columns:
-            if not self.state_size:
-                return state
-            s = stack(state, len(sample.x_q))
-            k1 = self._rates(sample, s)
-            k2 = self._rates(sample, s + 0.5 * h * k1)
-            k3 = self._rates(sample, s + 0.5 * h * k2)
-            k4 = self._rates(sample, s + h * k3)
-            s = s + h / 6.0 * (k1 + 2.0 * (k2 + k3) + k4)
-            return tuple(s[0].tolist()) if floats else tuple(np.ascontiguousarray(s.T))
 
-        return advance
+class UserRK4:
+    """The state of a batch of user laws over one step ``h``: classical RK4 of its ``state_rate``
+    with the sample (``t_k``, ``x_q``, ``yd``) held."""
+
+    def __init__(self, law: UserLaw, h: float) -> None:
+        self.law, self.h = law, h
+
+    def advance(self, state: Columns, sample: _Sample) -> Columns:
+        law, h = self.law, self.h
+        if not law.state_size:
+            return state
+        s = stack(state, len(sample.x_q))
+        k1 = law._rates(sample, s)
+        k2 = law._rates(sample, s + 0.5 * h * k1)
+        k3 = law._rates(sample, s + 0.5 * h * k2)
+        k4 = law._rates(sample, s + h * k3)
+        s = s + h / 6.0 * (k1 + 2.0 * (k2 + k3) + k4)
+        return tuple(np.ascontiguousarray(s.T))
 
 
 def _state_size(law: object) -> int:
@@ -208,16 +216,30 @@ def register_law(kind: str, factory: LawFactory, *, state_name: str = "state", r
                                  "starting with a letter or _")
     if not isinstance(replace, bool):
         raise QcontrolInputError(f"register_law: replace must be True or False, got {replace!r}")
-    def parse(table: Table, ctx: LawContext) -> UserSettings:
-        settings = UserSettings(_freeze({"kind": kind, "delta": ctx.delta, "c": list(ctx.c)} | table.data))
-        _call(factory, settings, ctx, table)
+    user = UserKind(kind, factory, state_name)
+    register_kind(LawKind(kind, None, user.parse, user.build, user.structure), replace=replace)
+
+
+class UserKind:
+    """A controller kind made by :func:`register_law`: its table checked by the factory when a
+    scenario loads, one law per copy built when it runs; variants of it always share a batch."""
+
+    def __init__(self, kind: str, factory: LawFactory, state_name: str) -> None:
+        self.kind, self.factory, self.state_name = kind, factory, state_name
+
+    def parse(self, table: Table, ctx: LawContext) -> UserSettings:
+        given = {"kind": self.kind, "delta": ctx.delta, "c": list(ctx.c)} | table.data
+        settings = UserSettings(_freeze(given))
+        _call(self.factory, settings, ctx, table)
         return settings
 
-    def build(settings: Sequence[UserSettings], ctx: LawContext) -> UserLaw:
-        laws = [_call(factory, s, ctx, None) for s in settings]
-        return UserLaw(laws, ctx.c, ctx.max_error, state_name, kind)
+    def build(self, settings: Sequence[UserSettings], ctx: LawContext) -> UserLaw:
+        laws = [_call(self.factory, s, ctx, None) for s in settings]
+        return UserLaw(laws, ctx.c, ctx.max_error, self.state_name, self.kind)
 
-    register_kind(LawKind(kind, None, parse, build, lambda settings, ctx: None), replace=replace)
+    @staticmethod
+    def structure(settings: UserSettings, ctx: LawContext) -> Hashable:
+        return None
 
 
 def _call(factory: LawFactory, settings: UserSettings, ctx: LawContext, table: Table | None) -> Law:

@@ -3,11 +3,12 @@ parts of a run, each with one job: row buffers (:mod:`.rows`), divergence bookke
 (:mod:`.divergence`), the reference at the rows (:mod:`.reference_rows`), what a run keeps
 (:mod:`.records`, :mod:`.reductions`) and what it returns (:mod:`.results`)."""
 
-from .loop import RECORD_MODES, ClosedLoop, ProgressCallback, simulate
+from .loop import ClosedLoop, simulate
 from .reductions import MetricSettings
 from .results import RunMetrics, RunRecord, Trajectory
 from .retention import Observer
 from .signals import SIGNALS, Separation, Signal
+from .spec import RECORD_MODES, ProgressCallback, RunSpec
 
 __all__ = [
     "RECORD_MODES",
@@ -18,6 +19,7 @@ __all__ = [
     "ProgressCallback",
     "RunMetrics",
     "RunRecord",
+    "RunSpec",
     "Separation",
     "Signal",
     "Trajectory",

@@ -15,27 +15,24 @@ progress, streaming to an observer, reducing to metrics) happens at a few schedu
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
 from ..controller.law import BatchLaw
-from ..expr import Expression
-from ..plants.base import Plant
+from ..plants.base import Actuated, Disturbable, Plant
 from ..quantizer import Quantizer
 from ..reference import Reference
 from ..timegrid import TimeGrid
 from .divergence import Divergence
-from .reductions import MetricSettings
+from .fastpath import rows_for
 from .reference_rows import ReferenceRows
 from .results import RunMetrics, Trajectory
-from .retention import OBSERVE_EVERY, FullRecord, MetricsRecord, Observer, RunParts
-from .row_buffer import NEVER, ArrayRows, FloatRows
-from .signals import Separation, SignalContext
-from .velocity import VELOCITY_SOURCES, differencing
-
-ProgressCallback = Callable[[int, int], None]  # (row reached, last row)
-RECORD_MODES = ("full", "metrics")
+from .retention import FullRecord, MetricsRecord, RunParts
+from .row_buffer import NEVER
+from .signals import SignalContext, applied_as_commanded
+from .spec import ProgressCallback, RunSpec
 
 
 class ProgressReports:
@@ -58,6 +55,8 @@ class Loads:
     rows where it changes: ``changes`` are ``(row, d)`` in row order, ``d`` in u's units."""
 
     def __init__(self, plant: Plant, changes: Sequence[tuple[int, float]]) -> None:
+        if changes and not isinstance(plant, Disturbable):
+            raise ValueError(f"{type(plant).__name__} takes no external load (it is not Disturbable)")
         self.plant, self.changes, self.applied = plant, list(changes), 0
 
     def next_event(self, k: int) -> int:
@@ -73,27 +72,26 @@ class Loads:
 class ClosedLoop:
     """The parts of one run (each with one job) and the loop that drives them (:meth:`run`)."""
 
-    def __init__(self, plant: Plant, law: BatchLaw, quantizer: Quantizer, reference: Reference,
-                 grid: TimeGrid, state_bound: float, progress: ProgressCallback | None,
-                 observer: Observer | None, observe_every: int, record: str, metrics: MetricSettings,
-                 separation: Separation | None, loads: Sequence[tuple[int, float]] = (),
-                 velocity_source: str = "sensor", terms: Sequence[tuple[str, Expression]] = ()) -> None:
+    def __init__(self, spec: RunSpec) -> None:
+        plant, law, grid = spec.plant, spec.law, spec.grid
         n, batch = plant.n, plant.batch
-        self.plant, self.law, self.grid = plant, law, grid
-        self.divergence = Divergence(batch, grid.rows, grid.dt, state_bound, law.state_name, terms)
-        self.reference = ReferenceRows(reference, n, grid, whole=record == "full")
-        context = SignalContext(law.coordinates, separation, plant.actuator, velocity_source,
-                                plant.actuator_limited, tuple(law.diagnostics))
-        parts = RunParts(grid, law, self.reference, self.divergence, context, metrics, batch, n)
-        self.record = (FullRecord(parts, observer, observe_every) if record == "full"
-                       else MetricsRecord(parts, observer))
-        self.rows = FloatRows(self.record.buffer) if batch == 1 else ArrayRows(self.record.buffer,
-                                                                               state_bound)
-        self.quantize = self.rows.quantizer(quantizer)
-        if velocity_source == "difference":
-            self.quantize = differencing(self.quantize, grid.hold, grid.hold * grid.dt, self.rows.floats)
-        self.progress = ProgressReports(progress, grid.rows)
-        self.loads = Loads(plant, loads)
+        self.plant, self.law, self.grid, self.x0 = plant, law, grid, spec.x0
+        self.divergence = Divergence(batch, grid.rows, grid.dt, spec.state_bound, law.state_name,
+                                     spec.terms)
+        self.reference = ReferenceRows(spec.reference, n, grid, whole=spec.record == "full")
+        actuated = isinstance(plant, Actuated)  # else u is applied as commanded
+        actuator = plant.actuator if actuated else applied_as_commanded
+        context = SignalContext(law.coordinates, spec.separation, actuator, spec.velocity_source,
+                                actuated and plant.actuator_limited, tuple(law.diagnostics))
+        parts = RunParts(grid, law, self.reference, self.divergence, context, spec.metrics, batch, n)
+        self.record = (FullRecord(parts, spec.observer, spec.observe_every) if spec.record == "full"
+                       else MetricsRecord(parts, spec.observer))
+        self.rows = rows_for(self.record.buffer, batch, spec.state_bound)
+        self.quantize = self.rows.quantizer(spec.quantizer)
+        if spec.velocity_source == "difference":
+            self.quantize = self.rows.differenced(self.quantize, grid.hold, grid.hold * grid.dt)
+        self.progress = ProgressReports(spec.progress, grid.rows)
+        self.loads = Loads(plant, spec.loads)
 
     def next_event(self, k: int) -> int:
         """The first row after ``k`` at which the loop has more to do than step."""
@@ -114,17 +112,18 @@ class ClosedLoop:
         self.record.at(end, finished, time.perf_counter())
         return finished
 
-    def run(self, x0: np.ndarray) -> list[Trajectory] | list[RunMetrics]:
+    def run(self) -> list[Trajectory] | list[RunMetrics]:
         """The closed loop, row by row: observe -> quantize -> control -> record -> step -> advance."""
         plant, grid, rows = self.plant, self.grid, self.rows
-        quantize, control, reference_at, keep = self.quantize, self.law.control, self.reference.at, rows.keep
-        advance = self.law.advancer(grid.dt, rows.floats)
+        quantize, reference_at, keep = self.quantize, self.reference.at, rows.keep
+        control, advance = rows.law(self.law, grid.dt)
         hold, dt = grid.hold, grid.dt
         adaptive = rows.initial_state(self.law)
         self.record.started = time.perf_counter()
         with plant, np.errstate(all="ignore"):
-            plant.reset(np.broadcast_to(np.asarray(x0, dtype=float), (plant.batch, plant.n)))
-            observe, step = plant.io(dt)
+            plant.reset(np.broadcast_to(np.asarray(self.x0, dtype=float), (plant.batch, plant.n)))
+            io = rows.plant_io(plant, dt)
+            observe, step = io.observe, io.step
             due = self.next_event(-1)
             for k in range(grid.rows):
                 x, reading = observe()
@@ -141,51 +140,27 @@ class ClosedLoop:
 
 
 def simulate(
-    plant: Plant,
-    law: BatchLaw,
-    quantizer: Quantizer,
-    reference: Reference,
-    x0: np.ndarray,
-    duration: float,
-    dt: float,
+    spec: RunSpec | Plant,
+    law: BatchLaw | None = None,
+    quantizer: Quantizer | None = None,
+    reference: Reference | None = None,
+    x0: np.ndarray | None = None,
+    duration: float | None = None,
+    dt: float | None = None,
     control_period: float | None = None,
-    state_bound: float = 1e6,
-    progress: ProgressCallback | None = None,
-    observer: Observer | None = None,
-    observe_every: int = OBSERVE_EVERY,
-    record: str = "full",
-    metrics: MetricSettings | None = None,
-    separation: Separation | None = None,
-    loads: Sequence[tuple[int, float]] = (),
-    velocity_source: str = "sensor",
-    terms: Sequence[tuple[str, Expression]] = (),
+    **options: Any,
 ) -> list[Trajectory] | list[RunMetrics]:
-    """Run the closed loop for every copy in ``plant``'s batch; one :class:`Trajectory` each.
+    """Run the closed loop of ``spec`` (a :class:`~.spec.RunSpec`) for every copy of its plant's
+    batch: one :class:`Trajectory` each, or one :class:`RunMetrics` each with ``record="metrics"``.
 
     A copy whose state turns non-finite or leaves ``|x_i| <= state_bound`` stops there: its
-    trajectory ends with the offending row, ``diverged`` is set and the others run on.
-    ``observer`` is called every ``observe_every`` rows (the last call takes up to half as many
-    more) and at the end with the rows that became final, so a recorder can stream them to disk
-    while the run goes on. ``record="metrics"`` (sweeps, long runs) keeps only
-    :class:`RunMetrics`, in memory that does not grow with the run; an observer then receives each
-    buffered chunk as short trajectories (``t`` starting at the chunk's first instant).
-    ``metrics`` sets the error rate's thresholds and samples (default: the paper's Table 1);
-    ``separation`` names the terms of eq. (1) and their bounding functions r to check along the
-    run (eqs. (37)-(43); default: not checked). ``loads``: ``(row, d)`` where the external load
-    changes (:meth:`Plant.disturb`, u's units; see :mod:`qcontrol.disturbance`).
-    ``velocity_source``: ``"sensor"``, or ``"difference"`` for an x2 differenced from the
-    quantized position over the control period (:mod:`.velocity`). ``terms``: the plant's
-    expressions by name (``("plant.psi", psi)``), evaluated where a copy turned NaN to say which
-    term went out of its domain.
+    record ends with the offending row, ``diverged`` is set and the others run on.
+
+    The parts may also be given as they were before the specification existed,
+    ``simulate(plant, law, quantizer, reference, x0, duration, dt, control_period=None, **options)``
+    with the other fields of :class:`~.spec.RunSpec` as keywords; they make the same spec.
     """
-    if record not in RECORD_MODES:
-        raise ValueError(f"record must be one of {RECORD_MODES}, got {record!r}")
-    if velocity_source not in VELOCITY_SOURCES:
-        raise ValueError(f"velocity_source must be one of {VELOCITY_SOURCES}, got {velocity_source!r}")
-    if law.copies is not None and law.copies != plant.batch:
-        raise ValueError(f"the controller has per-copy parameters for {law.copies} copies, "
-                         f"the plant {plant.batch}")
-    grid = TimeGrid.of(duration, dt, control_period)
-    loop = ClosedLoop(plant, law, quantizer, reference, grid, state_bound, progress, observer, observe_every,
-                      record, metrics or MetricSettings(), separation, loads, velocity_source, terms)
-    return loop.run(x0)
+    if not isinstance(spec, RunSpec):
+        spec = RunSpec(plant=spec, law=law, quantizer=quantizer, reference=reference, x0=x0,
+                       grid=TimeGrid.of(duration, dt, control_period), **options)
+    return ClosedLoop(spec).run()

@@ -276,3 +276,24 @@ class DiagnosticValues(Reduction):
     def value(self, b: int) -> dict[str, np.ndarray]:
         largest = np.where(np.isfinite(self.largest[b]), self.largest[b], np.nan)
         return {"max": largest, "last": self.last[b].copy()}
+
+
+class SmallestBound(Reduction):
+    """The smallest value of each bounding function ``r_i(x_q)`` over every row before a
+    divergence: eqs. (37)-(43) need ``r_i >= 1`` wherever the run goes, which the scenario's load
+    checks only on sampled states (Inf where no row was seen; NaN rows are skipped)."""
+
+    name, signal = "smallest_r", "r"
+
+    def __init__(self, batch: int, width: int, duration: float, settings: MetricSettings) -> None:
+        super().__init__(batch, width, duration, settings)
+        self.smallest = np.full((batch, width), np.inf)
+
+    def add(self, chunk: Chunk, values: np.ndarray) -> None:
+        values = np.where(np.isnan(values), np.inf, values)
+        if not chunk.everyone:
+            values = np.where(chunk.before_divergence[..., None], values, np.inf)
+        np.minimum(self.smallest, values.min(axis=0, initial=np.inf), out=self.smallest)
+
+    def value(self, b: int) -> np.ndarray:
+        return self.smallest[b].copy()

@@ -34,6 +34,7 @@ from .reductions import (
     Lemma2Largest,
     Reduction,
     SaturatedFraction,
+    SmallestBound,
 )
 
 Block = Mapping[str, np.ndarray]  # signals of rows [first, stop): (rows, batch, width); y_d (rows, 1, n+1)
@@ -49,7 +50,8 @@ class Separation:
     r: tuple[Expression, ...]
 
 
-def _as_commanded(u: np.ndarray) -> np.ndarray:
+def applied_as_commanded(u: np.ndarray) -> np.ndarray:
+    """The actuator of a plant that applies u as commanded."""
     return u
 
 
@@ -63,7 +65,7 @@ class SignalContext:
 
     coordinates: Backstepping
     separation: Separation | None = None
-    actuator: Callable[[np.ndarray], np.ndarray] = _as_commanded
+    actuator: Callable[[np.ndarray], np.ndarray] = applied_as_commanded
     velocity_source: str = "sensor"
     actuator_limited: bool = False
     diagnostics: tuple[Diagnostic, ...] = ()  # the law's own signals
@@ -109,17 +111,29 @@ def _e_z(block: Block, ctx: SignalContext) -> np.ndarray:
     return np.abs(ctx.coordinates.errors(block["x_meas"], block["yd"]) - block["zbar"])
 
 
+def _r(block: Block, ctx: SignalContext) -> np.ndarray:
+    """The bounding functions ``r_i(x_q)`` of (37)-(43) at the quantized reading."""
+    x_q = block["x_q"]
+    out = np.empty(x_q.shape[:-1] + (ctx.terms,))
+    if ctx.separation is None:
+        return out
+    at_q = tuple(np.moveaxis(x_q, -1, 0))
+    for i, r in enumerate(ctx.separation.r):
+        out[..., i] = r.on_columns(at_q)
+    return out
+
+
 def _bound_ratio(block: Block, ctx: SignalContext) -> np.ndarray:
     """``|term_i| / r_i(x_q)`` with the term at the true state and at x_q (the centre of the
     quantization cell (37)-(43) must bound), whichever is larger; NaN or Inf where either is."""
-    x, x_q = block["x"], block["x_q"]
+    x, x_q, r = block["x"], block["x_q"], block["r"]
     out = np.empty(x.shape[:-1] + (ctx.terms,))
     if ctx.separation is None:
         return out
     at_x, at_q = tuple(np.moveaxis(x, -1, 0)), tuple(np.moveaxis(x_q, -1, 0))
-    for i, (term, r) in enumerate(zip(ctx.separation.terms, ctx.separation.r, strict=True)):
+    for i, term in enumerate(ctx.separation.terms):
         size = np.maximum(np.abs(term.on_columns(at_x)), np.abs(term.on_columns(at_q)))
-        out[..., i] = size / r.on_columns(at_q)
+        out[..., i] = size / r[..., i]
     return out
 
 
@@ -200,9 +214,12 @@ SIGNALS: tuple[Signal, ...] = (
     Signal("e_z", "n", "state", False, "Lemma 2 errors |z_i(x_meas) - zbar_i| (bound L_zi)", _e_z,
            reads=("x_meas", "yd", "zbar"),
            reductions=(Lemma2Largest,)),
+    Signal("r", "terms", "r", False,
+           "bounding functions r_i(x_q) of the separation (37)-(43) (phi_1..phi_l, then psi): >= 1 required",
+           _r, reads=("x_q",), reductions=(SmallestBound,)),
     Signal("bound_ratio", "terms", "ratio", False,
            "|term_i| / r_i(x_q) of the separation (37)-(43) (phi_1..phi_l, then psi), at x and at x_q",
-           _bound_ratio, reads=("x", "x_q"), reductions=(BoundConstants,)),
+           _bound_ratio, reads=("x", "x_q", "r"), reductions=(BoundConstants,)),
     Signal("quantization_error", "n", "state", False,
            "quantization error x_meas - q(x_meas) of the reading the quantizer saw (|.| <= delta/2)",
            _quantization_error, reads=("x_meas", "x_q")),

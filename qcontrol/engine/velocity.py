@@ -17,7 +17,7 @@ z_2 .. z_n. Runs report the Lemma 2 ratio anyway and say that the check does not
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -33,40 +33,21 @@ def lemma2_applies(velocity_source: str) -> bool:
     return velocity_source == "sensor"
 
 
-def differencing(quantize: Quantize, hold: int, period: float, floats: bool) -> Quantize:
+class ArrayDifferencing:
     """``quantize`` with x2 replaced by the quantized position differenced over ``hold`` rows
-    (``period`` seconds). Called once per row, in order; the state lives in the closure (one per
-    run)."""
-    return _on_floats(quantize, hold, period) if floats else _on_arrays(quantize, hold, period)
+    (``period`` seconds), for a batch in array form (one copy's float form:
+    :class:`~.fastpath.FloatDifferencing`). Called once per row, in order; one per run."""
 
+    def __init__(self, quantize: Quantize, hold: int, period: float) -> None:
+        self.inner, self.hold, self.period = quantize, hold, period
+        self.past: deque[np.ndarray] = deque(maxlen=hold)  # q(x1) of the last `hold` rows, oldest first
 
-def _on_floats(quantize: Quantize, hold: int, period: float) -> Quantize:
-    past: deque[float] = deque(maxlen=hold)  # q(x1) of the last `hold` rows, oldest first
-
-    def reading(values: Sequence[float]) -> QuantizedReading:
-        q = quantize(values)
-        columns = q.columns
-        q1 = columns[0]
-        if not past:
-            past.extend([q1] * hold)
-        velocity = (q1 - past[0]) / period
-        past.append(q1)
-        return QuantizedReading(None, q.max_error, (q1, velocity, *columns[2:]))
-
-    return reading
-
-
-def _on_arrays(quantize: Quantize, hold: int, period: float) -> Quantize:
-    past: deque[np.ndarray] = deque(maxlen=hold)
-
-    def reading(values: np.ndarray) -> QuantizedReading:
-        q = quantize(values)
+    def quantize(self, values: np.ndarray) -> QuantizedReading:
+        q = self.inner(values)
         out = np.array(q.values, dtype=float)
         q1 = out[:, 0].copy()
-        if not past:
-            past.extend([q1] * hold)
-        out[:, 1] = (q1 - past[0]) / period
-        past.append(q1)
+        if not self.past:
+            self.past.extend([q1] * self.hold)
+        out[:, 1] = (q1 - self.past[0]) / self.period
+        self.past.append(q1)
         return QuantizedReading(out, q.max_error)
-
-    return reading

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import QcontrolInputError
 from .generators import columns_closure, float_closure
-from .operations import NAMED, OPERATIONS, ColumnsFn, Operation, ScalarFn
+from .operations import FLOAT_REFUSED, NAMED, OPERATIONS, ColumnsFn, Operation, ScalarFn
 from .tree import (
     MAX_CONSTANT_EXPONENT,
     MAX_DEPTH,
@@ -45,6 +45,7 @@ __all__ = [
     "OPERATIONS",
     "SHOWN_SOURCE",
     "Expression",
+    "FLOAT_REFUSED",
     "Operation",
     "ScalarFn",
     "compile_expression",
@@ -78,13 +79,13 @@ class Expression:
 
     def on_floats(self, values: Sequence[float]) -> float:
         """Evaluate on plain floats, ``values[i]`` = ``variables[i]``: the same expression through
-        ``math`` (:func:`scalar_function`), a few tens of nanoseconds per operation instead of a
-        microsecond. Where ``math`` refuses (a domain error, an overflow), numpy's value (NaN,
-        Inf) is returned, so both evaluations agree up to the last bit, except that
-        ``(-inf)**0.5`` is inf here (C's ``pow``) and NaN through numpy (a square root)."""
+        ``math`` (:func:`scalar_function`). Where ``math`` refuses (a domain error, an overflow:
+        :data:`FLOAT_REFUSED`), numpy's value (NaN, Inf) is returned, the one fallback rule, so
+        both evaluations agree up to the last bit, except that ``(-inf)**0.5`` is inf here (C's
+        ``pow``) and NaN through numpy (a square root)."""
         try:
             return self._scalar_fn(values)
-        except (ValueError, ZeroDivisionError, OverflowError):
+        except FLOAT_REFUSED:
             with np.errstate(all="ignore"):
                 return float(self._fn(values))
 
@@ -127,10 +128,9 @@ def compile_expression(source: object, variables: Sequence[str], where: str = "e
 def scalar_function(expression: Expression) -> ScalarFn:
     """A plain-float version of a (validated) :class:`Expression`: ``f((x1, x2)) -> float``.
 
-    A numpy call on a scalar costs about a microsecond, the same operation on floats a few tens of
-    nanoseconds, so hot loops on one copy (MuJoCo's passive callback, a batch of one) use ``math``
-    instead. Domain errors raise (the caller decides; :meth:`Expression.on_floats` falls back to
-    numpy's answer). ``sin``, ``exp``, ... may differ from numpy's in the last bit.
+    For the hot loops of one copy (:mod:`qcontrol.engine.fastpath` says why). Where ``math``
+    refuses it raises one of :data:`FLOAT_REFUSED`, and the one rule is then numpy's answer
+    (:meth:`Expression.on_floats`). ``sin``, ``exp``, ... may differ from numpy's in the last bit.
     """
     return float_closure(expression._tree)
 

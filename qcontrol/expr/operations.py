@@ -15,6 +15,9 @@ import numpy as np
 
 ScalarFn = Callable[[Sequence[float]], float]
 ColumnsFn = Callable[[Sequence[np.ndarray]], "np.ndarray | float"]
+# What ``math`` raises where numpy returns NaN or Inf (a domain error, a division by zero, an
+# overflow): a float evaluation that raises one of these is answered by numpy instead.
+FLOAT_REFUSED = (ValueError, ZeroDivisionError, OverflowError)
 
 
 

@@ -44,25 +44,26 @@ class SceneSource:
         return int(self.model.jnt_type[jid]) == int(mujoco.mjtJoint.mjJNT_HINGE)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Backend:
-    """One plant backend.
+    """One plant backend, built with keywords.
 
-    ``section``/``parse``: the keys of ``[plant.<name>]`` and their parsed options (None when the
-    backend takes no section); ``build(terms, options, dt)`` makes one plant of ``len(terms)``
-    copies; ``structure(terms, options)`` is what variants stepped as one batch must share;
-    ``scene(options, dt)`` what recordings draw (None: nothing to draw); ``inertia(options, dt)``
-    the joint's generalized inertia I, the gain between u and a generalized force on the joint
-    (None: the backend has no joint of its own, e.g. the ODE with its unit input gain).
+    Required: ``name``; ``build(terms, options, dt)`` makes one plant of ``len(terms)`` copies;
+    ``structure(terms, options)`` is what variants stepped as one batch must share; ``summary``
+    says what it is in one line. Optional: ``section``/``parse``, the keys of ``[plant.<name>]``
+    and their parsed options (None: the backend takes no section); ``scene(options, dt)`` what
+    recordings draw in 3-D (None: nothing to draw); ``inertia(options, dt)`` the joint's
+    generalized inertia I, the gain between u and a generalized force on the joint (None: the
+    backend has no joint of its own, e.g. the ODE with its unit input gain).
     """
 
     name: str
-    section: Section | None
-    parse: Callable[[Table, PlantContext], Any] | None
     build: Callable[[Sequence[PlantTerms], Any, float], Plant]
     structure: Callable[[PlantTerms, Any], Hashable]
-    scene: Callable[[Any, float], SceneSource | None]
     summary: str
+    section: Section | None = None
+    parse: Callable[[Table, PlantContext], Any] | None = None
+    scene: Callable[[Any, float], SceneSource | None] | None = None
     inertia: Callable[[Any, float], float] | None = None
 
     def require(self, options: Any, source: str) -> None:

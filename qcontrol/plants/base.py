@@ -1,18 +1,23 @@
-"""What the closed-loop engine uses of a plant, and the terms of eq. (1) every plant is built from."""
+"""What the closed-loop engine uses of a plant, and the terms of eq. (1) every plant is built from.
+
+A plant implements the core :class:`Plant` in array form, ``(batch, n)`` states and ``(batch,)``
+inputs, and declares what else it can do as separate capabilities, each a protocol of its own:
+:class:`Disturbable` (an external load), :class:`Actuated` (an actuator that may clip u),
+:class:`PhysicsReport` (what the physics engine warned about, its agreement with eq. (1)) and
+:class:`FloatStepping` (a faster form for a batch of one, which the engine's adapter
+:mod:`qcontrol.engine.fastpath` uses when it is there). A plant with only the core works at every
+batch size.
+"""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
 from ..expr import Expression
-
-Observe = Callable[[], tuple[Any, Any]]  # () -> (true state, sensor reading)
-Step = Callable[[Any], None]  # u -> None: hold u over one engine step
-IO = tuple[Observe, Step]
 
 
 @dataclass(frozen=True)
@@ -43,19 +48,19 @@ class PlantTerms:
         return ([1.0] if self.psi is not None else []) + list(self.theta)
 
 
+@runtime_checkable
 class Plant(Protocol):
-    """A batch of ``batch`` independent copies of an n-th order plant, eq. (1).
+    """A batch of ``batch`` independent copies of an n-th order plant, eq. (1): the core every
+    plant implements, in array form (``float64``; states ``(batch, n)``, inputs ``(batch,)``).
 
-    The engine uses a plant as a context manager (``with plant: ...``) so that backends with
-    process-global resources (MuJoCo's passive callback) install and remove them safely, calls
-    :meth:`reset`, then takes the two functions of :meth:`io` for the run. All arrays are
-    ``float64``; states have shape ``(batch, n)``, inputs ``(batch,)``.
+    The engine uses a plant as a context manager (``with plant: ...``; leaving the block calls
+    :meth:`close`), so that backends with process-global resources (MuJoCo's passive callback)
+    install and remove them safely; inside it, :meth:`reset`, then :meth:`observe` and
+    :meth:`step` once per row.
     """
 
     n: int
     batch: int
-    warnings: list[str]  # what the physics engine warned about during the last run (shown to users)
-    consistency_report: dict[str, Any]  # how the plant agrees with eq. (1) ({} for the ODE, which is eq. (1))
 
     def __enter__(self) -> Plant: ...
 
@@ -64,47 +69,61 @@ class Plant(Protocol):
     def reset(self, x0: np.ndarray) -> None:
         """Set the state of every copy; ``x0`` has shape ``(batch, n)``."""
 
-    def io(self, h: float) -> IO:
-        """``observe() -> (x, reading)`` and ``step(u)`` (hold ``u`` over ``h`` seconds) for one run.
-
-        For a batch of one they work on plain floats (lists of n floats, a float ``u``): a numpy
-        call on a one-element array costs about a microsecond, float arithmetic tens of
-        nanoseconds. Otherwise on ``(batch, n)`` arrays and a ``(batch,)`` array. Called once per
-        run, inside the ``with`` block, after :meth:`reset`. ``x`` is the true state (for the
-        record and the metrics only; never given to a controller); ``reading`` is what the
-        sensors report, which the engine quantizes before control.
-        """
-
-    def state(self) -> np.ndarray:
-        """The true state ``x``, shape ``(batch, n)``."""
-
-    def read_sensors(self) -> np.ndarray:
-        """What the sensors report for ``x``, shape ``(batch, n)``."""
+    def observe(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(x, reading)``: the true state (for the record and the metrics only; never given to a
+        controller) and what the sensors report, which the engine quantizes before control; both
+        ``(batch, n)``."""
 
     def step(self, u: np.ndarray, h: float) -> None:
         """Advance every copy by ``h`` seconds with the input ``u`` held (zero-order hold)."""
 
+    def close(self) -> None:
+        """Release what the run held (called when the ``with`` block ends)."""
+
+
+@runtime_checkable
+class Disturbable(Protocol):
+    """A plant that takes an external load (``[[disturbance]]``)."""
+
     def disturb(self, d: float) -> None:
         """Apply the external load ``d`` to every copy from the next step on, until changed: a
         matched term ``x_n' = u + d + psi + theta^T phi`` in u's units (a generalized force ``F``
-        on the joint is ``d = F / I``; see :mod:`qcontrol.disturbance`). :meth:`reset` sets it to 0."""
+        on the joint is ``d = F / I``; see :mod:`qcontrol.disturbance`). :meth:`Plant.reset` sets
+        it to 0."""
 
-    actuator_limited: bool  # whether the actuator can clip a command (False: actuator() is the identity)
+
+@runtime_checkable
+class Actuated(Protocol):
+    """A plant whose actuator may apply something else than the command (a torque limit)."""
+
+    actuator_limited: bool  # whether the actuator can clip a command (False: actuator() is u)
 
     def actuator(self, u: np.ndarray) -> np.ndarray:
         """The input the plant applies for the commanded ``u`` (same units, same shape): ``u``
-        itself for an ideal actuator, ``u`` clipped at the actuator's limit otherwise. Where it
-        does not clip, the result is ``u`` exactly."""
+        clipped at the actuator's limit; where it does not clip, ``u`` exactly."""
 
 
-def array_io(plant: Plant, h: float) -> IO:
-    """:meth:`Plant.io` in array form, from a plant's :meth:`~Plant.state`,
-    :meth:`~Plant.read_sensors` and :meth:`~Plant.step`."""
+@runtime_checkable
+class PhysicsReport(Protocol):
+    """A plant whose physics engine has something to tell users."""
 
-    def observe() -> tuple[np.ndarray, np.ndarray]:
-        return plant.state(), plant.read_sensors()
+    warnings: list[str]  # what the physics engine warned about during the last run
+    consistency_report: dict[str, Any]  # how the model agrees with eq. (1)
 
-    def step(u: np.ndarray) -> None:
-        plant.step(u, h)
 
-    return observe, step
+class FloatIO(Protocol):
+    """One copy's :meth:`Plant.observe` and :meth:`Plant.step` on plain floats: ``observe() ->
+    (x, reading)`` as lists of n floats, ``step(u)`` with a float u held over the run's step."""
+
+    def observe(self) -> tuple[Sequence[float], Sequence[float]]: ...
+
+    def step(self, u: float) -> None: ...
+
+
+@runtime_checkable
+class FloatStepping(Protocol):
+    """A plant with a faster form for a batch of one (see :mod:`qcontrol.engine.fastpath`)."""
+
+    def float_io(self, h: float) -> FloatIO:
+        """The one copy's :class:`FloatIO` for steps of ``h``, made once per run inside the ``with``
+        block after :meth:`Plant.reset`; it must give the numbers the array form gives."""

@@ -7,11 +7,10 @@ deliberate: an adaptive-step solver either steps over the quantizer's jumps or c
 
 The state is kept as columns, one value per state ``x_1 .. x_n``, and :func:`_rk4` is written once
 over them with elementwise arithmetic: for a batch of one the columns are plain floats and the
-terms are evaluated with ``math`` (a numpy call on a one-element array costs about a microsecond,
-the same arithmetic on floats a few tens of nanoseconds), otherwise they are ``(batch,)`` arrays
-and numpy evaluates the terms. Same operations in the same order; only ``sin``, ``cos``, ... come
-from the C library instead of numpy on floats, which may differ in the last bit.
-:meth:`ChainPlant.io` lets the engine's batch-of-one loop use the floats without making arrays.
+terms are evaluated with ``math`` (the engine's fast path, :mod:`qcontrol.engine.fastpath`),
+otherwise they are ``(batch,)`` arrays and numpy evaluates the terms. Same operations in the same
+order; only ``sin``, ``cos``, ... come from the C library instead of numpy on floats, which may
+differ in the last bit. :meth:`ChainPlant.float_io` is that float form for the engine.
 """
 
 from __future__ import annotations
@@ -21,11 +20,11 @@ from typing import Any
 
 import numpy as np
 
-from ..expr import Expression, ScalarFn, scalar_function
+from ..expr import FLOAT_REFUSED, Expression, ScalarFn, scalar_function
+from ..quantizer import Column
 from .backends import Backend
-from .base import IO, PlantTerms, array_io
+from .base import PlantTerms
 
-Column = float | np.ndarray  # one value per copy: a (batch,) array, or a float for a batch of one
 Uncertainty = Callable[[list[Column]], Column]  # psi + theta^T phi on the state's columns
 
 
@@ -60,11 +59,11 @@ class ChainPlant:
         self._floats = self.batch == 1
         if self._floats:
             row = theta[0] if theta.ndim == 2 else theta  # the one copy's theta
-            self._g: Uncertainty = _scalar_uncertainty(psi, phi, row)
+            self._g: Uncertainty = FloatUncertainty(psi, phi, row).evaluate
         else:
             self._g = self._uncertainty_columns
         self._x: list[Column] = [0.0] * self.n if self._floats else [np.zeros(self.batch)] * self.n
-        self._load = [0.0]  # the external load d of :meth:`disturb` (a cell the step closures read)
+        self._load = 0.0  # the external load d of :meth:`disturb`, held like u
         self.warnings: list[str] = []  # an ODE has nothing to warn about
         self.actuator_limited = False  # eq. (1)'s input is applied as commanded
         self.consistency_report: dict[str, Any] = {}  # it is eq. (1)
@@ -73,7 +72,10 @@ class ChainPlant:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        return None
+        self.close()
+
+    def close(self) -> None:
+        """Nothing to release: the ODE holds no resources."""
 
     def _uncertainty_columns(self, columns: Sequence[np.ndarray]) -> np.ndarray | float:
         """``psi + theta^T phi`` on columns (numpy), the terms summed in order."""
@@ -100,11 +102,11 @@ class ChainPlant:
     def reset(self, x0: np.ndarray) -> None:
         x0 = np.array(np.broadcast_to(x0, (self.batch, self.n)), dtype=float)
         self._x = x0[0].tolist() if self._floats else list(np.ascontiguousarray(x0.T))
-        self._load[0] = 0.0
+        self._load = 0.0
 
     def disturb(self, d: float) -> None:
         """The matched load d, held like u: ``x_n' = u + d + psi + theta^T phi``."""
-        self._load[0] = float(d)
+        self._load = float(d)
 
     def actuator(self, u: np.ndarray) -> np.ndarray:
         """Eq. (1)'s input is applied as commanded."""
@@ -116,67 +118,79 @@ class ChainPlant:
     def read_sensors(self) -> np.ndarray:
         return self.state()
 
+    def observe(self) -> tuple[np.ndarray, np.ndarray]:
+        """The state and the reading: the ideal plant's sensors read the state exactly."""
+        x = self.state()
+        return x, x
+
     def step(self, u: np.ndarray, h: float) -> None:
         """One classical RK4 step of eq. (1) with ``u`` held."""
         if self._floats:
             u = float(np.ravel(u)[0])
         elif not (isinstance(u, np.ndarray) and u.shape == (self.batch,)):
             u = np.broadcast_to(np.asarray(u, dtype=float), (self.batch,))
-        self._x = _rk4(self._x, u + self._load[0] if self._load[0] else u, h, self._g)
+        self._x = _rk4(self._x, u + self._load if self._load else u, h, self._g)
 
-    def io(self, h: float) -> IO:
-        """``observe() -> (x, reading)`` and ``step(u)`` (an RK4 step of ``h``) for one run; for a
-        batch of one on plain floats, as closures made once per run. The ideal plant's sensors read
-        the state exactly, so both are the state (the engine only reads them)."""
+    def float_io(self, h: float) -> ChainFloatIO:
+        """The batch of one on plain floats, for steps of ``h`` (see :mod:`qcontrol.engine.fastpath`)."""
         if not self._floats:
-            return array_io(self, h)
-        g, load = self._g, self._load
-
-        def observe() -> tuple[list[float], list[float]]:
-            x = self._x
-            return x, x
-
-        def step(u: float) -> None:  # u and d are both held over the step: RK4 sees their sum
-            d = load[0]
-            self._x = _rk4(self._x, u + d if d else u, h, g)
-
-        return observe, step
+            raise ValueError(f"float_io is for a batch of one; this plant has {self.batch} copies")
+        return ChainFloatIO(self, h)
 
 
-def _scalar_uncertainty(psi: Expression | None, phi: Sequence[Expression], theta: np.ndarray) -> Uncertainty:
+class ChainFloatIO:
+    """One copy of a :class:`ChainPlant` on plain floats: ``observe()`` gives the state's list
+    twice (the sensors read it exactly; the engine only reads them), ``step(u)`` one RK4 step of
+    ``h`` with u and the load d held (RK4 sees their sum)."""
+
+    def __init__(self, plant: ChainPlant, h: float) -> None:
+        self.plant, self.h, self.g = plant, h, plant._g
+
+    def observe(self) -> tuple[list[float], list[float]]:
+        x = self.plant._x
+        return x, x
+
+    def step(self, u: float) -> None:
+        plant = self.plant
+        d = plant._load
+        plant._x = _rk4(plant._x, u + d if d else u, self.h, self.g)
+
+
+class FloatUncertainty:
     """``psi + theta^T phi`` on plain floats, summed in the order of :meth:`ChainPlant.uncertainty`.
-    Where ``math`` refuses (a domain error, an overflow) the terms are evaluated again with
-    :meth:`Expression.on_floats`, which gives numpy's answer (NaN, Inf) there."""
-    coefficients = [float(c) for c in theta]
-    fast = (scalar_function(psi) if psi is not None else None, [scalar_function(p) for p in phi])
-    safe = (psi.on_floats if psi is not None else None, [p.on_floats for p in phi])
+    Where ``math`` refuses (:data:`~qcontrol.expr.FLOAT_REFUSED`), the terms are evaluated again
+    with :meth:`Expression.on_floats`, which gives numpy's answer (NaN, Inf) there."""
 
-    def total(x: list[float], first: ScalarFn | None, terms: list[ScalarFn]) -> float:
+    def __init__(self, psi: Expression | None, phi: Sequence[Expression], theta: np.ndarray) -> None:
+        self.coefficients = [float(c) for c in theta]
+        self.fast = (scalar_function(psi) if psi is not None else None, [scalar_function(p) for p in phi])
+        self.safe = (psi.on_floats if psi is not None else None, [p.on_floats for p in phi])
+
+    def _total(self, x: list[float], first: ScalarFn | None, terms: list[ScalarFn]) -> float:
         value = first(x) if first is not None else 0.0
-        for coefficient, term in zip(coefficients, terms):  # noqa: B905 (equal lengths)
+        for coefficient, term in zip(self.coefficients, terms):  # noqa: B905 (equal lengths)
             value = value + coefficient * term(x)
         return value
 
-    def uncertainty(x: list[float]) -> float:
+    def evaluate(self, x: list[float]) -> float:
         try:
-            return total(x, *fast)
-        except (ValueError, ZeroDivisionError, OverflowError):
-            return total(x, *safe)
+            return self._total(x, *self.fast)
+        except FLOAT_REFUSED:
+            return self._total(x, *self.safe)
 
-    return uncertainty
+
+def _derivative(s: list[Column], u: Column, g: Uncertainty) -> list[Column]:
+    """The right-hand side of eq. (1) on columns: ``x_i' = x_{i+1}``, ``x_n' = u + g(x)``."""
+    return s[1:] + [u + g(s)]
 
 
 def _rk4(x: list[Column], u: Column, h: float, g: Uncertainty) -> list[Column]:
     """One classical RK4 step of eq. (1) on the state's columns (floats or arrays alike)."""
     half = 0.5 * h
-
-    def rhs(s: list[Column]) -> list[Column]:
-        return s[1:] + [u + g(s)]
-
-    k1 = rhs(x)
-    k2 = rhs([a + half * b for a, b in zip(x, k1, strict=True)])
-    k3 = rhs([a + half * b for a, b in zip(x, k2, strict=True)])
-    k4 = rhs([a + h * b for a, b in zip(x, k3, strict=True)])
+    k1 = _derivative(x, u, g)
+    k2 = _derivative([a + half * b for a, b in zip(x, k1, strict=True)], u, g)
+    k3 = _derivative([a + half * b for a, b in zip(x, k2, strict=True)], u, g)
+    k4 = _derivative([a + h * b for a, b in zip(x, k3, strict=True)], u, g)
     sixth = h / 6.0
     return [a + sixth * (b + 2.0 * (c + d) + e) for a, b, c, d, e in zip(x, k1, k2, k3, k4, strict=True)]
 
@@ -197,5 +211,5 @@ def structure(terms: PlantTerms, options: Any) -> Hashable:
     return terms.order, None if terms.psi is None else terms.psi.source, tuple(p.source for p in terms.phi)
 
 
-BACKEND = Backend("ode", None, None, build, structure, lambda options, dt: None,
-                  "the ideal ODE of eq. (1), fixed-step RK4 (vectorised over batches)")
+BACKEND = Backend(name="ode", build=build, structure=structure,
+                  summary="the ideal ODE of eq. (1), fixed-step RK4 (vectorised over batches)")

@@ -4,7 +4,7 @@ robustness study's figures belong to :mod:`qcontrol.reproduce.robustness_figures
 
 Every function draws one matplotlib figure on the Agg canvas (never pyplot's global state, never
 a display), writes it as a PNG of exactly ``FIG_WIDTH_PX x FIG_HEIGHT_PX`` pixels and returns the
-path. The file is written atomically (:func:`qcontrol.outputs.atomic_path`), so a reader never
+path. The file is written atomically (:func:`qcontrol.outputs.write_file`), so a reader never
 sees half a PNG. Missing folders are created.
 
 The signatures follow one pattern: the data first, then ``path`` and ``title``, then keywords.

@@ -14,7 +14,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from ..engine import Trajectory
-from ..outputs import atomic_path
+from ..outputs import FIGURE_FORMATS, write_file
 
 FIG_WIDTH_PX = 1200
 """Width of every PNG written here, in pixels."""
@@ -31,8 +31,8 @@ PAPER_TITLES: dict[int, str] = {
     2: "Fig. 2. Tracking error $y - y_d$ (Example 1)",
     3: r"Fig. 3. Estimated parameter $\hat{\xi}$ (Example 1)",
     4: "Fig. 4. Control input with quantized states (Example 1)",
-    5: "Fig. 5. Output y of the proposed scheme and the method of [20], and $y_d$ (Example 2)",
-    6: "Fig. 6. Tracking error $y - y_d$ of the proposed scheme and the method of [20] (Example 2)",
+    5: "Fig. 5. Output y of the proposed scheme and the comparison law of [20], and $y_d$ (Example 2)",
+    6: "Fig. 6. Tracking error $y - y_d$ of the proposed scheme and the comparison law of [20] (Example 2)",
     7: r"Fig. 7. Estimated parameters $\hat{\varepsilon}_i$, i = 1, 2, 3 (Example 2)",
     8: "Fig. 8. Control input with state quantization (Example 2)",
 }
@@ -77,12 +77,13 @@ def new_figure(rows: int = 1, cols: int = 1, **subplot_kw) -> tuple[Figure, np.n
 
 
 def save(fig: Figure, path: str | os.PathLike) -> Path:
-    """Write ``fig`` as a PNG to ``path`` atomically (missing folders are created)."""
+    """Write ``fig`` to ``path`` atomically, as PNG, PDF or SVG by its suffix (PNG for any other
+    suffix; the command line refuses those before the run); missing folders are created."""
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(target) as tmp:
-        fig.savefig(tmp, format="png", dpi=FIG_DPI)
-    return target
+    suffix = target.suffix.lower()
+    kind = suffix[1:] if suffix in FIGURE_FORMATS else "png"
+    return write_file(target, lambda handle: fig.savefig(handle, format=kind, dpi=FIG_DPI))
 
 
 def unit(unit: str) -> str:

@@ -107,7 +107,7 @@ def fig_input(traj: Trajectory, path: str | os.PathLike, title: str, units: Unit
 # Comparison figures (paper Figs. 5, 6)
 # --------------------------------------------------------------------------------------------
 
-DEFAULT_METHOD_LABELS = ("proposed", "method of [20]")
+DEFAULT_METHOD_LABELS = ("proposed", "comparison law [20]")
 
 
 def fig_compare_output(
@@ -118,7 +118,7 @@ def fig_compare_output(
     units: Units,
     labels: tuple[str, str] = DEFAULT_METHOD_LABELS,
 ) -> Path:
-    """Fig. 5: output ``y`` of the proposed and the comparison method, with ``y_d``."""
+    """Fig. 5: output ``y`` of the proposed and the comparison law, with ``y_d``."""
     fig, axes = new_figure()
     ax = axes[0, 0]
     t_ref, yd = reference(proposed, comparison)

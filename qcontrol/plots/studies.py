@@ -6,6 +6,7 @@ import math
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -16,6 +17,9 @@ from .common import (
     new_figure,
     save,
 )
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
 
 # --------------------------------------------------------------------------------------------
 # Sensitivity studies and Table 1
@@ -87,7 +91,8 @@ def fig_table1(
     path: str | os.PathLike,
     title: str = r"Table 1. Error rate E($\omega$) (Example 2): ours vs the paper",
 ) -> Path:
-    """Grouped bar chart of Table 1: one panel per method, bars per omega for every source.
+    """Grouped bar chart of Table 1: one column per method; above, bars per omega for every
+    source; below, the difference of each other source from the first (``ours - paper``).
 
     ``table`` maps method (e.g. ``"proposed"``, ``"comparison"``) -> source (e.g. ``"paper"``,
     ``"MuJoCo"``, ``"ODE"``) -> omega key -> rate. Each panel has its own y scale (the two methods
@@ -96,7 +101,9 @@ def fig_table1(
     methods = list(table)
     if not methods:
         raise ValueError("fig_table1: the table is empty")
-    fig, axes = new_figure(1, len(methods))
+    fig, axes = new_figure(2, len(methods))
+    for ax, method in zip(axes[1], methods, strict=True):
+        _table1_differences(ax, table[method])
     for ax, method in zip(axes[0], methods, strict=True):
         sources = table[method]
         omegas: list[str] = []
@@ -128,9 +135,36 @@ def fig_table1(
         ax.set_xticks(np.arange(len(omegas)), omegas)
         ax.set_xlabel(r"$\omega$ [rad]")
         ax.set_ylabel(r"E($\omega$)")
-        ax.set_ylim(0.0, max(top * 1.3, 1e-3))
+        ax.set_ylim(0.0, max(top * 1.55, 1e-3))  # room for the legend above the bars
         ax.grid(True, axis="y", alpha=0.3)
-        ax.set_title(f"{method} method")
-        legend(ax, fontsize=8, loc="upper right")
+        ax.set_title(f"{method} law")
+        legend(ax, fontsize=8, loc="upper center", ncol=len(sources))
     fig.suptitle(title)
     return save(fig, path)
+
+
+def _table1_differences(ax: Axes, sources: Mapping[str, Mapping[str, float | None]]) -> None:
+    """Bars of ``source - first source`` per omega (first: the paper), labelled with the value."""
+    names = list(sources)
+    paper = sources[names[0]]
+    omegas = sorted(paper, key=float)
+    others = names[1:]
+    width = 0.8 / max(1, len(others))
+    for s, source in enumerate(others, start=1):
+        offsets = np.arange(len(omegas)) - 0.4 + width * (s - 0.5)
+        values = np.array([np.nan if sources[source].get(k) is None or paper.get(k) is None
+                           else float(sources[source][k]) - float(paper[k]) for k in omegas])
+        shown = np.isfinite(values)
+        bars = ax.bar(offsets[shown], values[shown], width=width * 0.95, color=COLORS[s % len(COLORS)],
+                      edgecolor="white", label=f"{source} - {names[0]}")
+        ax.bar_label(bars, fmt="%+.3f", fontsize=6, rotation=90, padding=2)
+    ax.axhline(0.0, color="black", linewidth=0.8)
+    ax.set_xticks(np.arange(len(omegas)), omegas)
+    ax.set_xlabel(r"$\omega$ [rad]")
+    ax.set_ylabel(f"difference from the {names[0]}")
+    low, high = ax.get_ylim()
+    span = max(high - low, 1e-3)
+    ax.set_ylim(min(low, 0.0) - 0.3 * span, max(high, 0.0) + 0.6 * span)  # room for the legend above
+    ax.grid(True, axis="y", alpha=0.3)
+    ax.set_title(f"ours - {names[0]}")
+    legend(ax, fontsize=8, loc="upper center", ncol=len(others))

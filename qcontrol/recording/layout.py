@@ -3,7 +3,8 @@
 Right (three fifths of the width, so that a 10 s time axis has a label every second at
 1600 x 1000): the panels of :data:`PANELS` placed in the ``column``, top to bottom (y with y_d,
 the tracking error z1, the input u). Left: the 3-D view ``world`` (everything under ``world/``,
-seen from the fixed camera of :mod:`.camera`; left out when nothing is drawn in 3-D) over tabs,
+seen from the fixed camera of :mod:`.camera`; left out when nothing is drawn in 3-D), beside it
+MuJoCo's own rendering when the recording holds one (``camera/<name>``), over tabs,
 one per group of panels (stacked in the tab): for each x_i, x_i with q(x_i) over the quantization
 error with its band +-delta/2; the adaptive estimates; Lemma 2's ratios; a twin's differences;
 then the controller constants, the scenario text and the version. A panel that is not in
@@ -13,8 +14,8 @@ own, titled by its path. The time panel is collapsed to its play bar.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 from .camera import Camera
@@ -51,8 +52,10 @@ PANELS: dict[str, PanelStyle] = {  # keyed by panel (a series path's parent), in
                                 "Lemma 2", (0.0, 1.1)),
     "theory/law": PanelStyle("law diagnostics: gain_period = K T of (44) (> 1: the held input overshoots)",
                              "Lemma 2"),
-    "signals/difference/y": PanelStyle("|y - y_twin|: MuJoCo against its ODE twin", "twin difference"),
-    "signals/difference/u": PanelStyle("|u - u_twin|", "twin difference"),
+    "signals/difference/y": PanelStyle("log10 |y - y_twin|: MuJoCo against its ODE twin (-16: equal to "
+                                       "rounding)", "twin difference", (-17.0, 1.0)),
+    "signals/difference/u": PanelStyle("log10 |u - u_twin| (-16: equal to rounding)", "twin difference",
+                                       (-17.0, 3.0)),
 }
 FRONT_TABS = ("twin difference", "x1")  # the first of these present is the tab shown on opening
 
@@ -86,14 +89,26 @@ def _motion(camera: Camera) -> rrb.Spatial3DView:
                              line_grid=rrb.LineGrid3D(visible=False))
 
 
-def default_blueprint(panels: Sequence[Panel], camera: Camera | None) -> rrb.Blueprint:
+def _camera_view(origin: str) -> rrb.Spatial2DView:
+    import rerun.blueprint as rrb
+
+    return rrb.Spatial2DView(origin=origin, name="MuJoCo render")
+
+
+def default_blueprint(panels: Sequence[Panel], camera: Camera | None,
+                      camera_view: str | None = None,
+                      ranges: Mapping[Panel, tuple[float, float]] | None = None) -> rrb.Blueprint:
     """The layout for a recording whose series fill ``panels`` (in any order, repeats allowed),
-    with the 3-D view seen from ``camera`` (None: no 3-D view)."""
+    with the 3-D view seen from ``camera`` (None: no 3-D view) and, with ``camera_view`` (an
+    entity holding MuJoCo's rendered frames), that picture beside it. ``ranges`` fixes the y axis
+    of panels (those whose values are all one number: rerun would show one tick)."""
     import rerun.blueprint as rrb
 
     groups: dict[str, list[tuple[rrb.TimeSeriesView, float]]] = {COLUMN: []}
     for panel in sorted(set(panels), key=_order):
         style = _style(panel)
+        if ranges and panel in ranges:
+            style = replace(style, y_range=ranges[panel])
         groups.setdefault(style.group, []).append((_plot(panel, style), style.height))
     stacks = {group: rrb.Vertical(*(view for view, _ in views), row_shares=[share for _, share in views],
                                   name=None if group == COLUMN else group)
@@ -105,7 +120,10 @@ def default_blueprint(panels: Sequence[Panel], camera: Camera | None) -> rrb.Blu
              rrb.TextDocumentView(origin="info/version", name="version")]
     front = next((list(stacks).index(name) for name in FRONT_TABS if name in stacks), 0)
     details = rrb.Tabs(*tabs, active_tab=front)
-    left = details if camera is None else rrb.Vertical(_motion(camera), details, row_shares=[2, 3])
+    views = ([] if camera is None else [_motion(camera)]) + ([] if camera_view is None else
+                                                           [_camera_view(camera_view)])
+    top = views[0] if len(views) == 1 else rrb.Horizontal(*views) if views else None
+    left = details if top is None else rrb.Vertical(top, details, row_shares=[2, 3])
     return rrb.Blueprint(
         rrb.Horizontal(left, column, column_shares=[2, 3]),
         rrb.TimePanel(timeline=TIMELINE, state="collapsed"),

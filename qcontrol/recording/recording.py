@@ -16,11 +16,12 @@ run starts and again only when it changes: a twin run adds its difference panels
 that travels beyond what its camera framed gets a camera that frames the whole run when the
 recording is closed.
 
-File handling: data goes to ``<path>.part`` while the recording is open. On *any* exit of the
-``with`` block (clean, exception, ``KeyboardInterrupt``) the stream is flushed and closed and the
-file renamed to ``path``: what was recorded up to the last chunk is kept, no temporary file is
-left behind. Only a killed process leaves the ``.part`` file (readable up to its last chunk but
-one at least).
+File handling (:mod:`.rrd_file`): data goes to a temporary file of its own beside ``path``
+(``.NAME.<random>.tmp``) while the recording is open. When the ``with`` block ends cleanly the
+stream is flushed and closed, the file is checked (it reads back, footer included) and moved to
+``path``. On an exception (an error, ``KeyboardInterrupt``, SIGTERM) what was recorded up to the
+last chunk is kept as ``NAME.partial.rrd`` and ``path`` is left as it was. Only a killed process
+leaves its temporary file (readable up to its last chunk but one at least).
 """
 
 from __future__ import annotations
@@ -37,9 +38,10 @@ import numpy as np
 
 from ..engine import Observer, Trajectory
 from ..errors import QcontrolInputError
-from ..outputs import AtomicFile, clean
+from ..outputs import clean
 from .camera import TRAVEL_MARGIN, Camera, fixed_camera
 from .layout import default_blueprint
+from .rrd_file import RrdFile, quiet_rerun_logging
 from .scene import Scene
 from .series import GREEN, LIGHT, RED, Panel, Series
 from .streamer import RunStreamer
@@ -51,11 +53,6 @@ if TYPE_CHECKING:
 
 _COMPARISON_ALPHA = 90
 _MAIN_RUN_TAKEN = "a main (non-ghost) run is already being recorded into this file"
-
-
-def temporary_path(path: Path) -> Path:
-    """The name a recording is written under until it is closed: ``<path>.part``."""
-    return path.with_name(path.name + ".part")
 
 
 def _label_suffix(label: str) -> str:
@@ -82,7 +79,7 @@ class Recording:
             raise ValueError("a recording needs a file (path) or a viewer (spawn=True)")
         self.path = None if path is None else Path(path)
         self.spawn = spawn
-        self._file: AtomicFile | None = None
+        self._file: RrdFile | None = None
         self.application_id = application_id
         self._stream: rr.RecordingStream | None = None
         self._main_taken = False
@@ -94,10 +91,12 @@ class Recording:
         self._travel = (np.inf, -np.inf)  # joint positions (and reference) seen so far
         self._framed: tuple[float, float] | None = None  # what the camera sent frames
         self._camera: Camera | None = None
-        self._layout_sent: tuple[frozenset[Panel], Camera | None] | None = None
+        self._layout_sent: tuple[Any, ...] | None = None
+        self._camera_view: str | None = None  # the entity of MuJoCo's rendered frames, if any
+        self._spans: dict[Panel, tuple[float, float]] = {}  # each panel's finite values so far
         self.main_series: list[Series] = []  # the main run's, restyled once a twin is drawn on them
         self.main_label = "main"
-        self._flush_failed = False
+        self._flush_error: str | None = None  # the first failure to flush, reported at close
         self._open()
 
     @property
@@ -111,14 +110,20 @@ class Recording:
         modules that log more than runs (e.g. :mod:`.disturbances`)."""
         return self._stream
 
+    @property
+    def temporary(self) -> Path | None:
+        """The file rerun writes while the recording is open (None without a file)."""
+        return None if self._file is None else self._file.temporary
+
     def _open(self) -> None:
+        quiet_rerun_logging()
         import rerun as rr
 
         stream = rr.RecordingStream(self.application_id)
         sinks: list[Any] = []
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._file = AtomicFile(self.path, temporary=temporary_path(self.path))
+            self._file = RrdFile(self.path)
             sinks.append(rr.FileSink(str(self._file.temporary)))
         if self.spawn:
             try:
@@ -140,34 +145,43 @@ class Recording:
     def __exit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
-        self.close()
+        self.close(complete=exc_type is None)
 
-    def close(self) -> None:
-        """Flush and close the stream, then rename the file to its final name (idempotent)."""
+    def close(self, complete: bool = True) -> None:
+        """Flush and close the stream; a ``complete`` recording's file is checked and moved to its
+        final name, any other is kept under its partial name (see the module docstring; idempotent)."""
         if self._stream is None:
+            if self._file is not None:  # nowhere to write after all (no sink): nothing to keep
+                self._file.discard()
+                self._file = None
             return
         try:
             self.update_layout(final=True)
             self.flush()
             self._stream.disconnect()  # closes the file: writes rerun's footer
+        except BaseException:
+            complete = False
+            raise
         finally:
             self._stream = None
-            if self._file is not None and self._file.temporary.exists():
-                self._file.commit()
+            if self._file is not None:
+                file, self._file = self._file, None
+                file.finish(complete)  # a file that was not written whole raises here
+            if self._flush_error is not None:
+                warnings.warn(f"rerun could not flush the recording: {self._flush_error}", stacklevel=3)
 
     def flush(self, wait: bool = True) -> None:
         """Write everything logged so far: block until it is written, or (``wait=False``) start
         writing it and return, so that the run goes on while rerun encodes and writes on another
-        core. A failure (e.g. a viewer that went away) is reported once as a warning and does not
-        stop the run."""
+        core. A failure does not stop the run: a file that could not be written is reported when
+        the recording closes (it is checked then), any other failure (e.g. a viewer that went away)
+        as one warning then."""
         if self._stream is None:
             return
         try:
             self._stream.flush(timeout_sec=1e38 if wait else 0.0)
         except RuntimeError as exc:
-            if not self._flush_failed:
-                warnings.warn(f"rerun could not flush the recording: {exc}", stacklevel=2)
-            self._flush_failed = True
+            self._flush_error = self._flush_error or str(exc)
 
     # -- static content -------------------------------------------------------------------
 
@@ -285,11 +299,44 @@ class Recording:
                 static=True,
             )
 
+    def log_camera_frames(self, name: str, times: np.ndarray, jpegs: Sequence[bytes]) -> None:
+        """MuJoCo's rendered frames (JPEG files' bytes) at simulated ``times`` [s], under
+        ``camera/<name>``, shown beside the 3-D view in the layout."""
+        if self._stream is None or not len(jpegs):
+            return
+        import rerun as rr
+
+        from .streamer import time_column
+
+        entity = f"camera/{_label_suffix(name)}"
+        self._stream.send_columns(entity, indexes=[time_column(np.asarray(times, dtype=float))],
+                                  columns=rr.EncodedImage.columns(blob=list(jpegs),
+                                                                  media_type=["image/jpeg"] * len(jpegs)))
+        self._camera_view = entity
+        self.update_layout()
+
     # -- layout ----------------------------------------------------------------------------
 
     def add_panels(self, panels: list[Panel]) -> None:
         """Panels a run's series fill; the layout shows them from its next update."""
         self._panels.update(panels)
+
+    def see_values(self, panel: Panel, values: np.ndarray) -> None:
+        """Values a panel shows: a panel whose values are all one number gets a fixed range
+        around it when the recording closes (rerun would label its axis with that one tick)."""
+        finite = values[np.isfinite(values)]
+        if finite.size:
+            low, high = self._spans.get(panel, (np.inf, -np.inf))
+            self._spans[panel] = (min(low, float(finite.min())), max(high, float(finite.max())))
+
+    def _flat_ranges(self) -> dict[Panel, tuple[float, float]]:
+        """``value -+ 1`` (or -+ 10 % of it, if larger) for the panels whose values are all one number."""
+        ranges = {}
+        for panel, (low, high) in self._spans.items():
+            if high - low <= 1e-12 * max(1.0, abs(high)):
+                half = max(1.0, 0.1 * abs(high))
+                ranges[panel] = (low - half, high + half)
+        return ranges
 
     def see_motion(self, positions: np.ndarray) -> None:
         """Joint positions (and reference positions) drawn in 3-D: the camera frames them."""
@@ -314,14 +361,16 @@ class Recording:
     def update_layout(self, final: bool = False) -> None:
         """Send the layout (active and default) if it differs from the one sent last. The camera
         is re-made only for the closing update (``final``) or the first one, so that a live viewer
-        does not jump while a run goes on."""
+        does not jump while a run goes on; the closing update also fixes the range of panels whose
+        values are all one number."""
         if self._stream is None or not self._panels:
             return
         camera = self._current_camera() if final or self._layout_sent is None else self._camera
-        layout = (frozenset(self._panels), camera)
+        ranges = self._flat_ranges() if final else {}
+        layout = (frozenset(self._panels), camera, self._camera_view, tuple(sorted(ranges.items(), key=str)))
         if layout != self._layout_sent:
-            self._stream.send_blueprint(default_blueprint(list(self._panels), camera),
-                                        make_active=True, make_default=True)
+            blueprint = default_blueprint(list(self._panels), camera, self._camera_view, ranges)
+            self._stream.send_blueprint(blueprint, make_active=True, make_default=True)
             self._layout_sent = layout
 
 

@@ -179,7 +179,7 @@ def differences(run: Trajectory, main_label: str, twin_label: str, suffix: str) 
             continue
         (i,) = shown
         text = plot.label.format(**_names(run, i))
-        name = f"|{text} ({main_label}) - {text} ({twin_label})|"
+        name = f"log10 |{text} ({main_label}) - {text} ({twin_label})|"
         values = _columns(signal, shown, plot.per_bound)
         found.append(Series(f"{plot.difference}/{suffix}", (name,), "", (BLUE,), signal.held, values,
                             Panel(plot.difference, plot.difference)))

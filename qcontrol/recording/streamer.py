@@ -54,6 +54,9 @@ def time_column(t: ArrayLike) -> rr.TimeColumn:
     return rr.TimeColumn(TIMELINE, duration=time_nanoseconds(t).view("timedelta64[ns]"))
 
 
+# A twin's differences are recorded as log10 |main - twin| (a linear axis would label 5e-14 as
+# "0.000 000 000 000 05"), floored at this value: -16 on the plot means equal to double rounding.
+DIFFERENCE_FLOOR = 1e-16
 POSE_PERIOD = 0.01  # s of simulated time between the 3-D view's poses (a display shows 60 frames a second)
 
 
@@ -120,7 +123,9 @@ class RunStreamer:
 
         scalars = rr.Scalars.columns
         for s in self.series:
-            stream.send_columns(s.path, indexes=[times], columns=scalars(scalars=s.values(run, rows)))
+            values = s.values(run, rows)
+            self.recording.see_values(s.panel, values)
+            stream.send_columns(s.path, indexes=[times], columns=scalars(scalars=values))
         if first and self.guides:  # constant over the run: its two ends, once
             ends = time_column(np.array([run.t[start], max(run.duration, run.t[stop - 1])]))
             for g in self.guides:
@@ -167,8 +172,8 @@ class RunStreamer:
         for d in self.differences:
             against = np.full(len(index), np.nan)
             against[same] = d.values(main, index[same])
-            with np.errstate(invalid="ignore"):
-                gap = np.abs(against - d.values(run, rows))
+            with np.errstate(invalid="ignore", divide="ignore"):
+                gap = np.log10(np.maximum(np.abs(against - d.values(run, rows)), DIFFERENCE_FLOOR))
             self.recording.stream.send_columns(d.path, indexes=[times],
                                                 columns=rr.Scalars.columns(scalars=gap))
 

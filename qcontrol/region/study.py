@@ -22,6 +22,7 @@ import numpy as np
 
 from ..assembly import batch_structure, runnable_backend
 from ..controller import LAW_KINDS
+from ..controller.law import KIND_ALIASES
 from ..errors import QcontrolInputError
 from ..metrics import LEMMA2_TOLERANCE
 from ..scenario import Scenario, load_scenario
@@ -38,7 +39,7 @@ DIRECTIONS = ((1, 0), (0, 1), (1, 1), (1, -1), (-1, 0), (0, -1), (-1, -1), (-1, 
 @dataclass(frozen=True)
 class LawSpec:
     """One law to measure: a controller kind and settings of its ``[controller]`` table, as given
-    on the command line (``proposed``, ``proposed:hold=exact``, ``baseline``)."""
+    on the command line (``proposed``, ``proposed:hold=exact``, ``comparison``)."""
 
     kind: str
     settings: tuple[tuple[str, str], ...] = ()
@@ -65,7 +66,7 @@ def _toml_value(text: str) -> str:
 def parse_law(text: str) -> LawSpec:
     """``KIND`` or ``KIND:KEY=VALUE,KEY=VALUE`` -> a :class:`LawSpec` (the kind must be registered)."""
     kind, _, rest = text.partition(":")
-    kind = kind.strip()
+    kind = KIND_ALIASES.get(kind.strip(), kind.strip())
     if kind not in LAW_KINDS:
         raise QcontrolInputError(f"--law {text!r}: unknown controller kind {kind!r}; use one of "
                                  f"{', '.join(LAW_KINDS)}, optionally with settings (proposed:hold=exact)")
@@ -365,11 +366,13 @@ def csv_text(region: Region) -> str:
 
 
 def write_region(region: Region, out: Path, provenance: dict) -> None:
-    """region.csv, region.json and region.png in ``out`` (made now), each written atomically."""
-    from ..outputs import prepare_output_dir, write_json, write_text
+    """region.csv, region.json and region.png in ``out`` (made now), put in place together once all
+    three are complete (:func:`qcontrol.outputs.staged`): the folder never mixes two regions."""
+    from ..outputs import prepare_output_dir, staged, write_json, write_text
     from ..plots.region import fig_region  # matplotlib: imported only when a figure is drawn
 
     out = prepare_output_dir(out)
-    write_text(out / "region.csv", csv_text(region))
-    write_json(out / "region.json", region.record(provenance))
-    fig_region([region.maps()], OUTCOMES, out / "region.png", region.title())
+    with staged():
+        write_text(out / "region.csv", csv_text(region))
+        write_json(out / "region.json", region.record(provenance))
+        fig_region([region.maps()], OUTCOMES, out / "region.png", region.title())

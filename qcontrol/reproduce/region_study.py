@@ -21,11 +21,11 @@ from ..region import BOX, OUTCOMES, LawSpec, Region, RegionGrid, measure_region,
 from ..sweep import sweep_summaries
 
 EXAMPLES = ("example1", "example2")
-LAWS = ("proposed", "proposed:hold=exact", "baseline")
+LAWS = ("proposed", "proposed:hold=exact", "comparison")
 RATES = ((1e-3, 2.0), (5e-4, 1.0))  # (control period = dt in s, duration of a grid run in s)
 RESOLUTION = 9  # starts per axis: -10, -7.5, ..., 10 (the axes and diagonals on the grid)
 LAW_NAMES = {"proposed": "paper's law (44)", "proposed:hold=exact": "(44), exact hold",
-             "baseline": "comparison (46)"}
+             "comparison": "comparison (46)"}
 
 
 def region_study(scenarios: Path, duration: float | None, log: Callable[[str], None]) -> dict[str, Any]:

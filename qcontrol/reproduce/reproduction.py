@@ -1,12 +1,14 @@
 """``qcontrol reproduce``: the paper's Figures 1-8 and Table 1, side by side with ours.
 
-Runs Example 1 and Example 2 (proposed law and the comparison method of reference [20]) on the
+Runs Example 1 and Example 2 (proposed law and the comparison law of reference [20]) on the
 chosen backend, with the ideal ODE twin beside MuJoCo, then the sensitivity studies (kappa - L,
 a constant scale of r, plant variants) on the ODE backend, then the robustness study on realistic
 hardware (:mod:`qcontrol.robustness`, MuJoCo, in worker processes). Writes PNG figures,
 ``table1.md``, ``table1.json``, ``studies.json``, ``region.json`` (the sampled loop's region study,
 :mod:`.region_study`), ``robustness.json``, ``REPORT.md`` and one rerun
-recording per example into the output folder. Parameters come from the paper's Section 4
+recording per example into the output folder, all put in place together at the end
+(:func:`qcontrol.outputs.staged`): an interrupted or failed reproduction leaves the folder's
+previous files as they were, never a mix of old and new. Parameters come from the paper's Section 4
 (docs/math.md, 'The paper's examples'); nothing is fitted to Table 1.
 """
 
@@ -25,7 +27,7 @@ from ..assembly import run_scenario
 from ..controller import lemma2_L
 from ..engine import Trajectory
 from ..metrics import backend_deviation, summary
-from ..outputs import check_output_dir, prepare_output_dir, write_json, write_text
+from ..outputs import check_output_dir, prepare_output_dir, staged, write_json, write_text
 from ..plants import BACKENDS
 from ..resources import shipped_dir
 from ..scenario import Scenario, load_scenario
@@ -44,7 +46,7 @@ PLANT_VARIANTS = (
     ("theta2 = +3.5", "example2", ("plant.theta=[-1.0, 3.5, -34.3]",)),
     ("rigid pendulum", "example2-rigid", ()),
 )
-BASELINE = ("controller.kind=baseline",)
+COMPARISON = ("controller.kind=comparison",)
 ROBUSTNESS_SCENARIOS = tuple(name for pair in EXAMPLES for name in pair)
 
 
@@ -111,6 +113,9 @@ class Reproduction:
         return summaries
 
 
+QUICK_DURATION = 1.0  # s: the horizon of `reproduce --quick`
+
+
 def reproduce(
     out: str | Path,
     backend: str = "mujoco",
@@ -119,26 +124,44 @@ def reproduce(
     log: Callable[[str], None] = print,
     command: str | None = None,
     workers: int | None = None,
+    quick: bool = False,
 ) -> dict:
     """Run the whole reproduction into ``out``; returns Table 1 as written to ``table1.json``.
     ``command`` is what the outputs' provenance names as the command (default: this call);
-    ``workers``: processes for the robustness study (default: the machine's cores, at most 4). Every
-    scenario it uses is validated before the folder is made: bad input creates nothing."""
+    ``workers``: processes for the robustness study (default: the machine's cores, at most 4);
+    ``quick``: a first look: ``QUICK_DURATION`` unless ``duration`` is given, and no robustness study
+    (its 248 MuJoCo runs are most of the time). Every scenario it uses is validated before the
+    folder is made: bad input creates nothing."""
+    if quick and duration is None:
+        duration = QUICK_DURATION
     command = command or (f"qcontrol.reproduce.reproduce({str(out)!r}, backend={backend!r}, "
                           f"duration={duration!r})")
     rep = Reproduction(check_output_dir(out), backend, duration, Path(scenarios), log, command=command)
     _validate(rep)
     o = prepare_output_dir(out)
-    log(f"Example 1 on {backend}")
+    with staged():  # every file is put in place at the end, together: the folder is never mixed
+        table = _write_all(rep, o, command, workers, quick)
+    extra = "" if quick else "region.json, robustness.json, "
+    study = "no region or robustness study (--quick)" if quick else "then the region and robustness studies"
+    log(f"wrote {o}: REPORT.md, table1.md, table1.json, studies.json, {extra}figures, recordings "
+        f"({len(rep.lemma2_ratios)} example and study runs, {study}; "
+        f"{time.perf_counter() - rep.started:.1f} s)")
+    return table
+
+
+def _write_all(rep: Reproduction, o: Path, command: str, workers: int | None, quick: bool) -> dict:
+    """The runs and their files, in order; Table 1 as written to table1.json."""
+    backend = rep.backend
+    rep.log(f"Example 1 on {backend}")
     ex1, ex1_twin = rep.twins("example 1", rep.scenario("example1"))
     _example1_figures(o, ex1, ex1_twin)
     _record(o / "example1.rrd", ex1, {"ode": ex1_twin}, command)
 
-    log(f"Example 2 on {backend}: proposed and comparison method [20]")
+    rep.log(f"Example 2 on {backend}: proposed and comparison law [20]")
     ex2, ex2_twin = rep.twins("example 2 proposed", rep.scenario("example2"))
-    base, base_twin = rep.twins("example 2 comparison", rep.scenario("example2", BASELINE))
+    base, base_twin = rep.twins("example 2 comparison", rep.scenario("example2", COMPARISON))
     _example2_figures(o, ex2, ex2_twin, base)
-    _record(o / "example2.rrd", ex2, {"ode": ex2_twin, "baseline": base}, command)
+    _record(o / "example2.rrd", ex2, {"ode": ex2_twin, "comparison": base}, command)
 
     table = _table1(o, backend, ex2, ex2_twin, base, base_twin, command)
 
@@ -151,17 +174,14 @@ def reproduce(
     }
     studied = {name: rep.scenario(name) for name in ("example2", "example2-rigid")}
     write_json(o / "studies.json", studies | {"provenance": scenarios_provenance(studied, command)})
-    region = region_study(rep.scenarios, rep.duration, log)
-    write_region_study(region, o / "study_region.png")
-    examples = {name: rep.scenario(name) for name in ("example1", "example2")}
-    write_json(o / "region.json",
-               region_record(region) | {"provenance": scenarios_provenance(examples, command)})
-    robustness = _robustness(o, rep, workers)
+    region = None if quick else region_study(rep.scenarios, rep.duration, rep.log)
+    if region is not None:
+        write_region_study(region, o / "study_region.png")
+        examples = {name: rep.scenario(name) for name in ("example1", "example2")}
+        write_json(o / "region.json",
+                   region_record(region) | {"provenance": scenarios_provenance(examples, command)})
+    robustness = None if quick else _robustness(o, rep, workers)
     write_text(o / "REPORT.md", _report(rep, table, studies, deviations, ex1, ex2, robustness, region))
-    log(f"wrote {o}: REPORT.md, table1.md, table1.json, studies.json, region.json, robustness.json, figures, "
-        "recordings "
-        f"({len(rep.lemma2_ratios)} example and study runs, then the robustness study; "
-        f"{time.perf_counter() - rep.started:.1f} s)")
     return table
 
 
@@ -204,7 +224,7 @@ def _validate(rep: Reproduction) -> None:
         BACKENDS[rep.backend].require(sc.backends.get(rep.backend), sc.source)
     for _, name, overrides in PLANT_VARIANTS:
         rep.scenario(name, overrides)
-        rep.scenario(name, (*overrides, *BASELINE))
+        rep.scenario(name, (*overrides, *COMPARISON))
     for name in ROBUSTNESS_SCENARIOS:  # the robustness study's plants, with their MuJoCo models
         sc = rep.scenario(name)
         BACKENDS["mujoco"].require(sc.backends.get("mujoco"), sc.source)
@@ -236,7 +256,7 @@ def _example2_figures(o: Path, run: Run, twin: Run | None, base: Run) -> None:
 
 def _record(path: Path, main: Run, ghosts: dict[str, Run | None], command: str) -> None:
     """A rerun recording of the main run with its ghosts: its twin "ode" (the same closed loop on
-    the ODE) and the others (the comparison method)."""
+    the ODE) and the others (the comparison law)."""
     sc = main.scenario
     with recording_for(path, False, sc, scenario_provenance(sc, command)) as rec:
         observer_for(rec, sc, main.backend)(0, len(main.traj.t), [main.traj])
@@ -268,7 +288,7 @@ def _studies(rep: Reproduction) -> dict:
     )
     variants: dict[str, list] = {"labels": [], "summaries": []}
     for label, name, overrides in PLANT_VARIANTS:
-        for method, extra in (("proposed", ()), ("[20]", BASELINE)):
+        for method, extra in (("proposed", ()), ("[20]", COMPARISON)):
             variants["labels"].append(f"{label}\n{method}")
             variants["summaries"].append(rep.study(f"{label} {method}", name, [[*overrides, *extra]])[0])
     plots.fig_sensitivity(
@@ -285,7 +305,7 @@ def _studies(rep: Reproduction) -> dict:
 
 
 def _report(rep: Reproduction, table: dict, studies: dict, deviations: dict, ex1: Run, ex2: Run,
-            robustness: dict, region: dict) -> str:
+            robustness: dict | None, region: dict | None) -> str:
     """REPORT.md from the runs' facts (see :func:`qcontrol.report.report_markdown`)."""
     traj, c = ex2.traj, ex2.scenario.controller
     facts = ReportFacts(

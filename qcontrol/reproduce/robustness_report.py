@@ -111,7 +111,11 @@ def _worst(rows: Sequence[Mapping], example: str, law: str) -> tuple[str, float,
 
 
 def _change(value: float, base: float) -> str:
-    return f"{100 * (value - base) / base:+.0f} %" if base else "n/a"
+    """``+12 %`` against ``base``; a change that rounds to 0 % says so instead of "+0 %"."""
+    if not base:
+        return "n/a"
+    percent = 100 * (value - base) / base
+    return "unchanged to within 0.5 %" if abs(percent) < 0.5 else f"{percent:+.0f} %"
 
 
 def _per_law(study: Mapping, example: str) -> list[str]:
@@ -123,13 +127,17 @@ def _per_law(study: Mapping, example: str) -> list[str]:
             continue
         label, value, base = worst
         z_all = _median(together["mujoco"], "max_abs_z1_last_half")
-        verdict = (" No imperfection alone moves it by more than 5 %: the loop's own tracking error "
-                   "dominates." if abs(value - base) <= 0.05 * base else "")
         e_all, e_ideal = _median(together["mujoco"], "E"), _median(ideal["mujoco"], "E")
+        if abs(value - base) <= 0.05 * base:
+            effect = (f"no imperfection alone moves max |z1| over the last half by more than 5 % (the "
+                      f"largest, {label}: {_number(value)} against {_number(base)} ideal, "
+                      f"{_change(value, base)}): the loop's own tracking error dominates.")
+        else:
+            effect = (f"the largest effect alone is **{label}**: max |z1| over the last half "
+                      f"{_number(value)} against {_number(base)} ideal ({_change(value, base)}).")
         lines.append(
-            f"* {EXAMPLE_NAMES[example]}, {law} law: the largest effect alone is **{label}**: max |z1| over "
-            f"the last half {_number(value)} against {_number(base)} ideal ({_change(value, base)})."
-            f"{verdict} All together: max |z1| last half {_number(z_all)} ({_change(z_all, base)}), "
+            f"* {EXAMPLE_NAMES[example]}, {law} law: {effect}"
+            f" All together: max |z1| last half {_number(z_all)} ({_change(z_all, base)}), "
             f"E(0.1) = {_rate(e_all)} against {_rate(e_ideal)} ideal; the ODE twin with the same "
             f"settings gives E(0.1) = {_rate(_median(together['ode'], 'E'))}: the difference is what "
             "the physics costs.")
@@ -190,8 +198,10 @@ def reading(study: Mapping) -> list[str]:
     friction = [(e, law, _row(rows, e, law, "friction")) for e, law in pairs]
     lines += [
         "* **Saturation.** Theorem 1 assumes the input is applied as computed. With the realistic motors "
-        f"the actuator clipped at most {_number(100 * clipped)} % of the control samples: the motors are "
-        "sized for the task and the paper's laws, at its settings, ask for less. Beyond the hardware "
+        + ("the actuator never clipped" if clipped == 0 else
+           f"the actuator clipped at most {_number(100 * clipped, 2)} % of the control samples")
+        + ": the motors are sized for the task and the paper's laws, at its settings, ask for less. "
+        "Beyond the hardware "
         "(margins): "
         + "; ".join(_saturation(rows, margins, e, law) for e, law in pairs) + ".",
         "* **Delay and sampling.** The analysis is in continuous time, with q(x(t)) read at t; a delayed or "

@@ -20,10 +20,8 @@ processes; the numbers do not depend on how many.
 
 from __future__ import annotations
 
-import os
 import statistics
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,9 +31,10 @@ from ..assembly import run_scenario, scene
 from ..metrics import finite_max_abs
 from ..scenario import Scenario, load_scenario
 from ..sweep import run_batch
+from ..workers import worker_count, worker_pool
 
 SEEDS = tuple(range(1, 21))  # sensor-noise seeds of every row with noise on
-LAWS = (("proposed", ()), ("comparison", ("controller.kind=baseline",)))
+LAWS = (("proposed", ()), ("comparison", ("controller.kind=comparison",)))
 EXAMPLES = (("example2", "example2-arm"), ("example1", "example1-cart"))  # (ideal, realistic)
 NUMBERS = ("max_abs_z1_last_half", "max_abs_u_applied", "saturated_fraction", "lemma2_max_ratio")
 RECOVERY_BAND = 0.1  # |z1| < 0.1: Table 1's smallest omega
@@ -214,6 +213,7 @@ def robustness_study(scenarios: Path, duration: float | None, workers: int,
                                                                  "mujoco"))]})
         if ideal == "example2":
             disturbances += _disturbance_cases(ideal_path, real_path, real.simulation.duration, extra)
+    workers = worker_count(workers, len(plan.tasks))
     log(f"study: robustness: {len(plan.tasks)} runs, {len(disturbances)} disturbance cases, "
         f"on {workers} worker(s)")
     runs = Plan([], {})
@@ -255,15 +255,21 @@ def _execute(tasks: list[StudyJob], full: list[StudyJob], workers: int) -> tuple
     """Every task's summary and every full run's tracking error, in order."""
     if workers <= 1:
         return [_summary(t) for t in tasks], [_errors(t) for t in full]
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        errors = [pool.submit(_errors, t) for t in full]
-        summaries = list(pool.map(_summary, tasks, chunksize=max(1, len(tasks) // (8 * workers))))
-        return summaries, [f.result() for f in errors]
+    pool = worker_pool(workers)  # workers die with this process (qcontrol.workers)
+    try:
+        errors = [pool.apply_async(_errors, (t,)) for t in full]
+        summaries = pool.map(_summary, tasks, chunksize=max(1, len(tasks) // (8 * workers)))
+        result = summaries, [e.get() for e in errors]
+        pool.close()
+        return result
+    finally:
+        pool.terminate()
+        pool.join()
 
 
 def default_workers() -> int:
     """Worker processes for the study: the machine's cores, at most 4."""
-    return max(1, min(4, os.cpu_count() or 1))
+    return worker_count(4, 4)
 
 
 # --------------------------------------------------------------------------------------------

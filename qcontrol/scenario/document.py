@@ -37,7 +37,7 @@ Rules that hold for every table:
 * **Keys per kind.** A table with a `kind` key (`[controller]`, `[reference]`) takes the keys every
   kind takes plus those of the chosen kind. A key of another kind is refused, naming the kind and
   the keys that do apply. Settings of kinds that are not chosen may sit in sub-tables of their own,
-  `[controller.<kind>]` or `[reference.<kind>]`, so that `--set controller.kind=baseline` switches
+  `[controller.<kind>]` or `[reference.<kind>]`, so that `--set controller.kind=comparison` switches
   the law without editing the file; a key written directly in the table overrides the chosen kind's
   sub-table (for the proposed law, `kappa` there replaces a `kappa_margin` of the sub-table and the
   other way round).
@@ -63,8 +63,8 @@ error that lists the keys that are there.
 # Example 2 as a set-point run: the sine's keys do not apply to a constant reference
 qcontrol run scenarios/example2.toml --unset reference.amplitude --unset reference.frequency \\
     --set reference.kind=constant --set reference.value=0.2
-# the comparison law of eq. (46): its settings are in [controller.baseline]
-qcontrol run scenarios/example2.toml --set controller.kind=baseline
+# the comparison law of eq. (46): its settings are in [controller.comparison]
+qcontrol run scenarios/example2.toml --set controller.kind=comparison
 # kappa directly instead of the file's kappa_margin
 qcontrol run scenarios/example2.toml --set controller.kappa=1.2
 ```

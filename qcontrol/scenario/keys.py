@@ -34,6 +34,7 @@ REQUIRED_TABLES = ("plant", "controller", "reference", "simulation")
 # (compare, reproduce, the library's default) keeps every row: 20 million steps is a few GB. Longer
 # runs are refused at load, by every command, instead of failing mid-way.
 MAX_STEPS = 20_000_000
+MAX_SAMPLES = 10_000_000  # metrics.samples: the error rate keeps a flag per sample and copy
 
 
 PAPER_EXAMPLES = (1, 2)
@@ -129,7 +130,7 @@ METRICS = Section(
         Key("omega", numbers(positive=True), list(TABLE1_OMEGAS), "y",
             "thresholds omega of the error rate E(omega) = #{i: |z_1(t_i)| > omega} / M (Table 1)",
             example="[0.05, 0.1, 0.2]"),
-        Key("samples", integer(2), TABLE1_SAMPLES,
+        Key("samples", integer(2, MAX_SAMPLES), TABLE1_SAMPLES,
             meaning="samples M of the error rate, at t_i = i T / (M - 1)", example="1302"),
     ),
     "what a run reports: the error rate's thresholds and samples (default: the paper's Table 1)",

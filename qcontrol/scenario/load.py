@@ -19,11 +19,12 @@ from typing import Any
 
 import numpy as np
 
-from ..controller.law import LawContext, law_kind
+from ..controller.law import KIND_ALIASES, LawContext, law_kind
 from ..disturbance import Disturbance, parse_disturbances
 from ..engine import MetricSettings
-from ..errors import QcontrolInputError
+from ..errors import KeyNotForKind, QcontrolInputError, shown
 from ..expr import Expression, compile_expression
+from ..outputs import check_name, path_kind
 from ..plants.backends import BACKENDS, PlantContext
 from ..plants.base import PlantTerms
 from ..reference import REFERENCE_KINDS
@@ -42,6 +43,7 @@ from .keys import (
     scenario_section,
     simulation_section,
 )
+from .limits import check_limits
 
 Overrides = Sequence[str] | Mapping[str, Any]  # "key=value" strings (the value read as TOML), or a dict
 
@@ -58,8 +60,6 @@ class Scenario:
     text: str  # the TOML text as read
     overrides: tuple[str | tuple[str, Any], ...]  # as given: "key=value" strings or (key, value) pairs
     order: int
-    psi: str | None
-    phi: tuple[str, ...]
     theta: tuple[float, ...]
     x0: tuple[float, ...]
     controller: ControllerConfig
@@ -99,9 +99,19 @@ class Scenario:
                           sim.dt, sim.period)
 
     @property
+    def psi(self) -> str | None:
+        """The text of psi(x) as given (None: no psi)."""
+        return None if self.psi_expr is None else self.psi_expr.source
+
+    @property
+    def phi(self) -> tuple[str, ...]:
+        """The texts of phi_1(x) .. phi_l(x) as given."""
+        return tuple(p.source for p in self.phi_expr)
+
+    @property
     def uncertain_terms(self) -> int:
-        """Entries of eps, eqs. (37)-(43): one per phi_i, plus one for psi."""
-        return len(self.phi) + (self.psi is not None)
+        """Entries of eps, eqs. (37)-(43) (:attr:`LawContext.uncertain_terms`)."""
+        return self.law_context.uncertain_terms
 
 
 def check_overrides(overrides: object, function: str) -> None:
@@ -141,17 +151,18 @@ def load_scenario(path: str | Path, overrides: Overrides = (), unset: Sequence[s
     check_overrides(overrides, "load_scenario")
     if isinstance(unset, str) or not all(isinstance(k, str) for k in unset):
         raise QcontrolInputError(f"load_scenario: unset must be a list of keys (strings), got {unset!r}")
-    path = scenario_path(path)
-    if path.is_dir():
-        raise QcontrolInputError(f"{path}: is a folder, not a scenario file; pass a .toml scenario")
+    path = scenario_path(check_name(path, "scenario"))
+    kind = path_kind(path)
+    if kind is not None:
+        raise QcontrolInputError(f"{shown(path)}: is {kind}, not a scenario file; pass a .toml scenario file")
     if not path.is_file():
         shipped = ", ".join(shipped_scenarios()) or "none"
-        raise QcontrolInputError(f"{path}: scenario file not found; pass the path of a .toml scenario or the "
-                                 f"name of a shipped one ({shipped})")
+        raise QcontrolInputError(f"{shown(path)}: scenario file not found; pass the path of a .toml scenario "
+                                 f"or the name of a shipped one ({shipped})")
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
-        raise QcontrolInputError(f"{path}: cannot read the scenario ({exc}); check the file") from None
+        raise QcontrolInputError(f"{shown(path)}: cannot read the scenario ({exc}); check the file") from None
     return parse_scenario(text, source=str(path), base_dir=path.parent, overrides=overrides,
                           default_name=path.stem, unset=unset)
 
@@ -170,6 +181,10 @@ def parse_scenario(
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise QcontrolInputError(f"{source}: malformed TOML ({exc}); fix the syntax") from None
+    except (RecursionError, ValueError):  # ValueError: an integer literal of thousands of digits
+        raise QcontrolInputError(f"{source}: arrays or tables nested too deep, or a number too long, to "
+                                 "read; no key takes such a value: flatten or shorten it") from None
+    check_limits(data, source)
     for key in unset:
         remove_key(data, key, source)
     given = _as_given(overrides)
@@ -178,8 +193,41 @@ def parse_scenario(
             apply_override(data, item)
         else:
             set_key(data, *item, f"override {item[0]!r}")
-    scenario = _build(data, source, base_dir or Path("."), text, given, default_name)
+    _current_kind_names(data, source)
+    try:
+        scenario = _build(data, source, base_dir or Path("."), text, given, default_name)
+    except KeyNotForKind as exc:
+        raise QcontrolInputError(_command_line_fix(exc, given)) from None
     return replace(scenario, unset=tuple(unset)) if unset else scenario
+
+
+def _current_kind_names(data: dict, source: str) -> None:
+    """A controller kind (and its sub-table) written under a former name takes its current one
+    (``baseline`` -> ``comparison``), so that older scenario files and commands keep working."""
+    controller = data.get("controller")
+    if not isinstance(controller, dict):
+        return
+    kind = controller.get("kind")
+    if isinstance(kind, str) and kind in KIND_ALIASES:
+        controller["kind"] = KIND_ALIASES[kind]
+    for old, new in KIND_ALIASES.items():
+        if isinstance(controller.get(old), dict):
+            if new in controller:
+                raise QcontrolInputError(f"{source}: [controller.{old}] is the former name of "
+                                         f"[controller.{new}], which is there too; keep one of them")
+            controller[new] = controller.pop(old)
+
+
+def _command_line_fix(exc: KeyNotForKind, given: Sequence[str | tuple[str, Any]]) -> str:
+    """A key the chosen kind does not take, with the fix on the command line when the overrides
+    chose the kind (the key is then the file's: ``--unset`` it) or set the key (leave it out)."""
+    keys = [(item.partition("=")[0] if isinstance(item, str) else item[0]).strip() for item in given]
+    table = exc.key.rsplit(".", 1)[0]
+    if exc.key in keys:
+        return f"{exc}; or leave out --set {exc.key}=..."
+    if f"{table}.kind" in keys:
+        return f"{exc}; or, as the kind came from --set, remove the file's key: --unset {exc.key}"
+    return str(exc)
 
 
 def _as_given(overrides: Overrides) -> tuple[str | tuple[str, Any], ...]:
@@ -244,7 +292,7 @@ def apply_override(data: dict, item: str) -> None:
     raw = raw.strip()
     try:
         value = tomllib.loads(f"v = {raw}")["v"]
-    except tomllib.TOMLDecodeError:
+    except (tomllib.TOMLDecodeError, RecursionError, ValueError):
         value = raw
     set_key(data, key, value, f"--set {item!r}")
 
@@ -262,6 +310,7 @@ def set_key(data: dict, key: str, value: Any, label: str) -> None:
                 f"{label}: {part!r} is a value, not a table; set {'.'.join(parts[:-1])} directly"
             )
         node = child
+    check_limits(value, label, key)
     node[parts[-1]] = value
 
 
@@ -284,8 +333,7 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
     scenario = Scenario(
         name=meta["name"], description=meta["description"], source=source, text=text, overrides=overrides,
         data=read_only(data), base_dir=base_dir,
-        order=terms.order, psi=None if terms.psi is None else terms.psi.source,
-        phi=tuple(p.source for p in terms.phi), theta=terms.theta, x0=x0, controller=controller,
+        order=terms.order, theta=terms.theta, x0=x0, controller=controller,
         reference=signal, simulation=simulation, backends=MappingProxyType(backends),
         disturbances=disturbances,
         psi_expr=terms.psi, phi_expr=terms.phi, metrics=metrics, paper_example=meta["paper_example"],

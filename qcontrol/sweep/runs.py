@@ -11,9 +11,11 @@ Determinism. Groups are cut into chunks of at most ``CHUNK`` runs in input order
 executor; a chunk is one batch. So the in-process path, local worker processes and a Dask cluster
 run the very same batches and give identical numbers (only ``wall_time_s`` differs).
 
-MuJoCo. Chunks run as MuJoCo plant batches (one ``MjData`` per copy, the unmodelled term in the
-passive callback exactly as in a single run), spread over worker processes. ``mujoco.batch``
-threads are not used: they refuse Python physics callbacks.
+MuJoCo. Chunks run as MuJoCo plant batches, spread over worker processes: on ``mujoco.batch``
+(the copies stepped in C, the unmodelled term in the native passive callback) where the plant
+allows it, else one ``MjData`` per copy; the numbers are the same either way
+(:mod:`qcontrol.plants.mujoco.threaded`). One batch runs on one thread: the workers are the
+parallelism.
 
 Laws registered from Python (:func:`qcontrol.register_law`) run in this process and on local
 workers (which start as copies of this process); a Dask cluster's workers do not know them.
@@ -21,17 +23,16 @@ workers (which start as copies of this process); a Dask cluster's workers do not
 
 from __future__ import annotations
 
-import multiprocessing
-import signal
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from ..assembly import batch_structure, run_variants
-from ..errors import QcontrolInputError
+from ..errors import QcontrolInputError, Terminated
 from ..metrics import summary
 from ..plants import BACKENDS
 from ..scenario import Scenario, load_scenario
+from ..workers import worker_count, worker_pool
 
 CHUNK = 250  # runs per batch: fixed, so every executor runs the same batches
 DASK_CONNECT_TIMEOUT = 10.0  # seconds to reach a --scheduler
@@ -42,9 +43,10 @@ ChunkJob = tuple[str, list[list[str]], str, list[str]]  # (path, override sets o
 class SweepInterrupted(KeyboardInterrupt):
     """Ctrl-C during a sweep: ``summaries`` holds the finished runs' summaries (None elsewhere)."""
 
-    def __init__(self, summaries: list[dict | None]) -> None:
+    def __init__(self, summaries: list[dict | None], terminated: bool = False) -> None:
         super().__init__()
         self.summaries = summaries
+        self.terminated = terminated  # SIGTERM rather than Ctrl-C
 
 
 def run_batch(scs: Sequence[Scenario], backend: str) -> list[dict]:
@@ -135,24 +137,19 @@ def sweep_summaries(
             for ids, summaries in zip(chunks, _on_dask(scheduler, tasks), strict=True):
                 store(ids, summaries)
         elif workers > 1 and len(chunks) > 1:
-            _on_workers(min(workers, len(chunks)), chunks, tasks, store)
+            _on_workers(worker_count(workers, len(chunks)), chunks, tasks, store)
         else:
             for ids, task in zip(chunks, tasks, strict=True):
                 store(ids, _run_chunk(*task))
-    except KeyboardInterrupt:
-        raise SweepInterrupted(results) from None
+    except KeyboardInterrupt as stop:
+        raise SweepInterrupted(results, isinstance(stop, Terminated)) from None
     return results  # type: ignore[return-value]
-
-
-def _ignore_ctrl_c() -> None:
-    """Workers leave Ctrl-C to the parent, which stops them (and prints nothing of theirs)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _on_workers(workers: int, chunks: list[list[int]], tasks: list[ChunkJob],
                 store: Callable[[list[int], list[dict]], None]) -> None:
     """The chunks on local worker processes (copies of this one: registered laws included)."""
-    pool = multiprocessing.get_context("fork").Pool(workers, initializer=_ignore_ctrl_c)
+    pool = worker_pool(workers)
     try:
         pending = [pool.apply_async(_run_chunk, task) for task in tasks]
         for ids, result in zip(chunks, pending, strict=True):

@@ -57,7 +57,8 @@ def inertia(options: MujocoOptions, dt: float) -> float:
     return compiled(options, dt).inertia
 
 
-BACKEND = Backend("mujoco", SECTION, parse, build, structure, scene,
-                  "MuJoCo physics of an MJCF model (order 2: one joint)", inertia)
+BACKEND = Backend(name="mujoco", build=build, structure=structure,
+                  summary="MuJoCo physics of an MJCF model (order 2: one joint)",
+                  section=SECTION, parse=parse, scene=scene, inertia=inertia)
 
 __all__ = ["BACKEND", "MujocoOptions"]

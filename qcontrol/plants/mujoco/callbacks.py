@@ -1,11 +1,12 @@
 """MuJoCo's process-global hooks: the passive-force callback and the warning handler.
 
-``mjcb_passive`` is one function for the whole process. One dispatcher serves every plant in use:
-each ``MjData`` has its own entry (:func:`passive_forces`), and the callback found before the
-first plant is restored after the last. A term of eq. (1) with no rigid-body counterpart
-(Example 1's psi, Example 2's theta2 x2^2 cos x1) is added to ``qfrc_passive`` here; MuJoCo's
-RK4 calls the callback at each of its four stages, so MuJoCo and the ODE integrate the same
-vector field with the same scheme.
+``mjcb_passive`` is one function for the whole process, installed while plants are in use and
+restored after the last (:func:`passive_forces`). Where the plants' terms compile
+(:mod:`.native`) and every plant in use shares them, it is the native callback itself; otherwise
+one Python dispatcher serves every plant, each ``MjData`` with its own entry. A term of eq. (1)
+with no rigid-body counterpart (Example 1's psi, Example 2's theta2 x2^2 cos x1) is added to
+``qfrc_passive`` there; MuJoCo's RK4 calls the callback at each of its four stages, so MuJoCo and
+the ODE integrate the same vector field with the same scheme.
 
 MuJoCo's default warning handler appends to ``MUJOCO_LOG.TXT`` in the working folder. While a
 :func:`collect_warnings` block is open (a plant's run, a model compiled or checked at load:
@@ -18,44 +19,54 @@ before the first one is restored: importing this module changes nothing.
 from __future__ import annotations
 
 import contextlib
-import math
+import ctypes
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
 
 import mujoco
 
-from ...expr import ScalarFn
-
-GeneralizedForce = Callable[[float, float], float]  # (qpos, qvel) -> generalized force
+from ...expr import FLOAT_REFUSED, Expression, scalar_function
+from .native import NativeForce
 
 _ENTRIES: dict[int, Callable[[], None]] = {}  # id(MjData) -> adds the non-native terms to it
 _PREVIOUS: list[Any] = []  # the passive callback that was installed before the dispatcher
+_NATIVE: list[str] = []  # [key] while a native callback (of that key) is installed directly
 UNCLAIMED_WARNINGS: list[str] = []  # warnings while no run collects them (the last 100)
 _SINKS: list[list[str]] = []  # the innermost collecting run's list is last
 _PREVIOUS_WARNING: list[Any] = []  # the warning handler found when the first block opened
 
 
-def generalized_force(terms: Sequence[tuple[float, ScalarFn]], inertia: float) -> GeneralizedForce:
-    """``(q, v) -> I * sum(coefficient * term(q, v))`` on plain floats, NaN where a term is
-    undefined (see :func:`qcontrol.expr.scalar_function`)."""
-    pairs = tuple((inertia * c, f) for c, f in terms)
+class GeneralizedForce:
+    """``force(q, v) = I * sum(coefficient * term(q, v))`` on plain floats: the terms of eq. (1)
+    MuJoCo's own physics does not produce, as a generalized force on the joint. Where ``math``
+    refuses a term (:data:`~qcontrol.expr.FLOAT_REFUSED`), the one fallback rule: numpy's answer
+    (:meth:`~qcontrol.expr.Expression.on_floats`)."""
 
-    def force(q: float, v: float) -> float:
+    def __init__(self, terms: Sequence[tuple[float, Expression]], inertia: float) -> None:
+        self.fast = tuple((inertia * c, scalar_function(e)) for c, e in terms)
+        self.safe = tuple((inertia * c, e.on_floats) for c, e in terms)
+
+    def at(self, q: float, v: float) -> float:
         xs = (q, v)
         total = 0.0
         try:
-            for c, f in pairs:
+            for c, f in self.fast:
                 total += c * f(xs)
-        except (ValueError, ZeroDivisionError, OverflowError):
-            return math.nan
+        except FLOAT_REFUSED:
+            return self._total(self.safe, xs)
         return total
 
-    return force
+    @staticmethod
+    def _total(pairs: tuple, xs: tuple[float, float]) -> float:
+        total = 0.0
+        for c, f in pairs:
+            total += c * f(xs)
+        return total
 
 
 def _dispatch(model: mujoco.MjModel, data: mujoco.MjData) -> None:
-    """The installed ``mjcb_passive``: MuJoCo passes the very MjData objects the plants own."""
+    """The Python ``mjcb_passive``: MuJoCo passes the very MjData objects the plants own."""
     apply = _ENTRIES.get(id(data))
     if apply is not None:
         apply()
@@ -63,30 +74,62 @@ def _dispatch(model: mujoco.MjModel, data: mujoco.MjData) -> None:
         _PREVIOUS[0](model, data)
 
 
-def _applier(data: mujoco.MjData, qadr: int, dof: int, force: GeneralizedForce) -> Callable[[], None]:
-    qpos, qvel, qfrc = data.qpos, data.qvel, data.qfrc_passive  # views, made once
+class PassiveApplier:
+    """Adds the non-native terms to one MjData's ``qfrc_passive`` (the dispatcher calls
+    :meth:`apply` with MuJoCo's every evaluation of the passive forces)."""
 
-    def apply() -> None:
-        qfrc[dof] += force(qpos.item(qadr), qvel.item(dof))
+    def __init__(self, data: mujoco.MjData, qadr: int, dof: int, force: GeneralizedForce) -> None:
+        self.qpos, self.qvel, self.qfrc = data.qpos, data.qvel, data.qfrc_passive  # views, made once
+        self.qadr, self.dof, self.force = qadr, dof, force.at
 
-    return apply
+    def apply(self) -> None:
+        dof = self.dof
+        self.qfrc[dof] += self.force(self.qpos.item(self.qadr), self.qvel.item(dof))
+
+
+class NativeApplier:
+    """The native callback called from the Python dispatcher for one MjData (when plants of
+    different terms, or a foreign callback, share the process's one ``mjcb_passive``)."""
+
+    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, native: NativeForce) -> None:
+        self.call, self.model, self.data = native.pointer, model._address, data._address
+
+    def apply(self) -> None:
+        self.call(self.model, self.data)
+
+
+def _install(native: NativeForce | None) -> None:
+    """Install the callback for the first plant: its native one when it has one and no foreign
+    callback must be chained, else the Python dispatcher."""
+    previous = mujoco.get_mjcb_passive()
+    _PREVIOUS[:] = [None if previous is _dispatch else previous]
+    if native is not None and _PREVIOUS[0] is None:
+        mujoco.set_mjcb_passive(native.pointer)
+        _NATIVE[:] = [native.key]
+    else:
+        mujoco.set_mjcb_passive(_dispatch)
 
 
 @contextmanager
-def passive_forces(datas: Sequence[mujoco.MjData], qadr: int, dof: int,
-                   force: GeneralizedForce | None) -> Iterator[None]:
-    """Register ``datas`` with the dispatcher, installing it if needed; undo everything on exit."""
+def passive_forces(model: mujoco.MjModel, datas: Sequence[mujoco.MjData], qadr: int, dof: int,
+                   force: GeneralizedForce | None, native: NativeForce | None = None) -> Iterator[None]:
+    """Register ``datas`` for the passive force, installing the callback if needed; undo
+    everything on exit. With ``native`` (whose numbers the caller keeps in each copy's userdata)
+    MuJoCo calls compiled code directly while every plant in use shares its terms; otherwise the
+    Python dispatcher serves every plant, calling the native callbacks through ctypes."""
     if force is None:
         yield
         return
     if not _ENTRIES:
-        previous = mujoco.get_mjcb_passive()
-        _PREVIOUS[:] = [None if previous is _dispatch else previous]
+        _install(native)
+    elif _NATIVE and (native is None or native.key != _NATIVE[0]):
         mujoco.set_mjcb_passive(_dispatch)
+        _NATIVE.clear()
     keys = []
     try:
         for data in datas:
-            _ENTRIES[id(data)] = _applier(data, qadr, dof, force)
+            _ENTRIES[id(data)] = (NativeApplier(model, data, native).apply if native is not None
+                                  else PassiveApplier(data, qadr, dof, force).apply)
             keys.append(id(data))
         yield
     finally:
@@ -95,6 +138,13 @@ def passive_forces(datas: Sequence[mujoco.MjData], qadr: int, dof: int,
         if not _ENTRIES:
             mujoco.set_mjcb_passive(_PREVIOUS[0] if _PREVIOUS else None)
             _PREVIOUS.clear()
+            _NATIVE.clear()
+
+
+def python_callback_installed() -> bool:
+    """Whether ``mjcb_passive`` is a Python function now (which ``mujoco.batch`` refuses)."""
+    installed = mujoco.get_mjcb_passive()
+    return installed is not None and not isinstance(installed, ctypes._CFuncPtr)
 
 
 def _warn(message: str) -> None:

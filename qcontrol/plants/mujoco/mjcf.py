@@ -16,16 +16,20 @@ from __future__ import annotations
 
 import hashlib
 import math
+import pathlib
+import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import lru_cache, partial
 from typing import Any
 
 import mujoco
 import numpy as np
 
-from ...errors import QcontrolInputError
+from ...errors import QcontrolInputError, shown
+from ...outputs import path_kind
 from .callbacks import kept_aside
+from .native import USERDATA_SLOTS
 from .options import MujocoOptions
 
 INTEGRATORS = {
@@ -88,18 +92,46 @@ def _compiled(options: MujocoOptions, timestep: float | None, content_sha256: st
 
 
 def _fail(options: MujocoOptions) -> Fail:
-    def fail(key: str, problem: str, fix: str) -> QcontrolInputError:
-        return QcontrolInputError(f"{options.where}.{key}: {problem}; {fix}")
+    """``fail(key, problem, fix)``: the one-line error of a key of the options' section."""
+    return partial(_error_at, options.where)
 
-    return fail
+
+def _error_at(where: str, key: str, problem: str, fix: str) -> QcontrolInputError:
+    return QcontrolInputError(f"{where}.{key}: {problem}; {fix}")
 
 
 def _one_line(text: object) -> str:
     return " ".join(str(text).split())
 
 
+_INCLUDE = re.compile(r"""<include\s+file\s*=\s*["']([^"']+)["']""")
+MAX_INCLUDES = 100
+
+
+def _check_includes(model: pathlib.Path, fail: Fail) -> None:
+    """Every file the MJCF includes (and they include) is a regular file: MuJoCo would block
+    forever reading a FIFO, or fail on a device, with no message naming it."""
+    pending, seen = [model], set()
+    while pending and len(seen) < MAX_INCLUDES:
+        current = pending.pop()
+        seen.add(current)
+        try:
+            text = current.read_text(encoding="utf-8", errors="replace")
+        except OSError:
+            continue  # MuJoCo's own message names it
+        for name in _INCLUDE.findall(text):
+            included = (model.parent / name).resolve()
+            kind = path_kind(included)
+            if kind is not None:
+                raise fail("model", f"{current.name} includes {shown(name)}, which is {kind}, not a regular "
+                           "file", "include only MJCF files")
+            if included.is_file() and included not in seen:
+                pending.append(included)
+
+
 def _compile(options: MujocoOptions, timestep: float | None) -> tuple[mujoco.MjModel, Ids]:
     fail = _fail(options)
+    _check_includes(options.model, fail)
     try:
         spec = mujoco.MjSpec.from_file(str(options.model))
     except Exception as exc:  # MuJoCo raises ValueError with a multi-line parser message
@@ -109,6 +141,7 @@ def _compile(options: MujocoOptions, timestep: float | None) -> tuple[mujoco.MjM
     if timestep is not None:
         spec.option.timestep = timestep
     spec.option.integrator = INTEGRATORS[options.integrator]
+    spec.nuserdata = max(spec.nuserdata, USERDATA_SLOTS)  # room for the native passive callback's numbers
     _apply_parameters(spec, joint, options, fail)
     _apply_realism(spec, joint, actuator, options, fail)
     try:

@@ -11,6 +11,8 @@ import pathlib
 from dataclasses import dataclass, replace
 from typing import Any
 
+from ...errors import shown
+from ...outputs import check_name, path_kind
 from ...resources import resolve_file
 from ...schema import Key, Section, Table, custom, number, read_keys, string
 from ..base import PlantTerms
@@ -177,7 +179,7 @@ SECTION = Section(
         Key("model", custom("path of an MJCF file", _element_name, path=True),
             meaning="the MJCF file, relative to the scenario file's folder, or a model shipped with "
             "qcontrol: \"qcontrol:models/pendulum.xml\", \"qcontrol:models/slider.xml\"",
-            example='"../models/pendulum.xml"'),
+            example='"qcontrol:models/pendulum.xml"'),
         Key("joint", _NAME, meaning="the hinge or slide joint whose position is x1 and velocity x2",
             example='"hinge"'),
         Key("position_sensor", _NAME, meaning="<jointpos> sensor on the joint: the reading of x1",
@@ -221,7 +223,12 @@ def parse(table: Table, terms: PlantTerms, base_dir: pathlib.Path) -> MujocoOpti
                              f"plant.order = {terms.order}", "remove [plant.mujoco] (the ode backend runs "
                              "any order)")
     v = read_keys(table, SECTION.keys, {"terms": terms.names})
+    check_name(v["model"], f"{table.source}: {table.path('model')}")
     model = resolve_file(v["model"], base_dir)
+    kind = path_kind(model)
+    if kind is not None:
+        raise table.error("model", f"{shown(v['model'])} is {kind}, not a regular file",
+                          "give the path of an MJCF file")
     if not model.is_file():
         raise table.error("model", f"file {v['model']!r} not found (looked at {model})",
                           "give the MJCF path relative to the scenario file's folder, "

@@ -12,7 +12,8 @@ inertia. So:
   (divided by the motor's gain), with ``I`` read from the model by ``mujoco.mj_fullM``.
 * Terms MuJoCo's own physics produces (``native_terms``, e.g. joint damping for ``theta1 * x2``
   and gravity for ``theta3 * sin(x1)`` in Example 2) are left to MuJoCo; every other term is
-  added by the passive callback (:mod:`.callbacks`).
+  added by the passive callback (:mod:`.callbacks`): compiled code (:mod:`.native`) where numba
+  is available, the same arithmetic in Python otherwise.
 * The controller reads ``sensordata`` (jointpos, jointvel sensors), never ``qpos``/``qvel``.
 
 Realism options (each off by default) make the model differ from eq. (1) as hardware would; the
@@ -25,20 +26,28 @@ sensor history (``nsample``/``delay``/``interval``); the readings before t = del
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from typing import Any
 
 import mujoco
 import numpy as np
 
+from ... import compiled as compiled_paths
 from ...errors import QcontrolInputError
-from ...expr import scalar_function
 from ...timegrid import whole_steps
-from ..base import IO, PlantTerms, array_io
-from .callbacks import collect_warnings, generalized_force, kept_aside, passive_forces, unstable
+from ..base import PlantTerms
+from .callbacks import (
+    GeneralizedForce,
+    collect_warnings,
+    kept_aside,
+    passive_forces,
+    python_callback_installed,
+    unstable,
+)
 from .consistency import consistency_report
 from .mjcf import compiled
+from .native import native_force
 from .options import MujocoOptions
+from .threaded import ThreadedCopies, threadable
 
 _mj_step, _mj_sensor_pos, _mj_sensor_vel = mujoco.mj_step, mujoco.mj_sensorPos, mujoco.mj_sensorVel
 
@@ -75,19 +84,24 @@ class MujocoPlant:
         self.actuator_limited = self._ctrl_range is not None
         native = tuple(name in options.native_terms for name in terms.names)
         exprs, coefficients = terms.expressions, terms.coefficients
-        applied = [(c, scalar_function(e)) for c, e, n in zip(coefficients, exprs, native,
-                                                              strict=True) if not n]
-        self._force = generalized_force(applied, self.inertia) if applied else None
+        applied = [(c, e) for c, e, n in zip(coefficients, exprs, native, strict=True) if not n]
+        self._force = GeneralizedForce(applied, self.inertia) if applied else None
+        self._native = native_force([e for _, e in applied]) if applied else None
+        self._userdata = [self.inertia * c for c, _ in applied]  # the products the Python force uses
         self._datas = [mujoco.MjData(self.model) for _ in range(self.batch)]
         self._views = [(d.ctrl, d.sensordata, d.qpos, d.qvel) for d in self._datas]
         self._sadr = (int(self.model.sensor_adr[self._ids.position_sensor]),
                       int(self.model.sensor_adr[self._ids.velocity_sensor]))
         self._dead = [False] * self.batch
-        self._steppers: dict[float, list[Callable[[float], None]]] = {}  # h -> one per copy
+        self._steppers: dict[float, list[CopyStepper]] = {}  # h -> one per copy
         self._noise = np.asarray(options.sensor_noise, dtype=float)
         self._noisy = bool(self._noise.any())
         self._rng = np.random.default_rng(options.noise_seed)
         self._entered: list[Any] = []
+        eligible = threadable(self.model, self.batch, self._native, self._force is not None)
+        self._threaded = (ThreadedCopies(self.model, self._ids, self.batch, self._ctrl_per_u, self._native,
+                                         self._userdata) if eligible and compiled_paths.requested() else None)
+        self._threads = False  # whether this run steps the copies on the batch (set at __enter__)
         self.warnings: list[str] = []  # MuJoCo's warnings during the last run
         with kept_aside():  # the model check's warnings, outside any run
             self.consistency_report = consistency_report(built, options, terms, native, self._force)
@@ -98,13 +112,21 @@ class MujocoPlant:
             raise RuntimeError("MujocoPlant is already in use by a 'with' block")
         self.warnings = []
         self._steppers = {}  # (they hold the warnings list)
-        self._entered = [passive_forces(self._datas, self._ids.qpos, self._ids.dof, self._force),
+        for data in self._datas if self._native is not None else ():
+            self._native.fill(data, self._ids.qpos, self._ids.dof, self._userdata)
+        self._entered = [passive_forces(self.model, self._datas, self._ids.qpos, self._ids.dof, self._force,
+                                        self._native),
                          collect_warnings(self.warnings)]
         for manager in self._entered:
             manager.__enter__()
+        self._threads = self._threaded is not None and not python_callback_installed()
         return self
 
     def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Remove the passive callback's entries and stop collecting warnings (the end of a run)."""
         managers, self._entered = self._entered, []
         for manager in reversed(managers):
             manager.__exit__(None, None, None)
@@ -113,9 +135,15 @@ class MujocoPlant:
     def reset(self, x0: np.ndarray) -> None:
         """Put every copy at ``x0`` (shape ``(batch, 2)``); sensor histories are filled with it."""
         x0 = np.broadcast_to(np.asarray(x0, dtype=float), (self.batch, 2))
+        self._rng = np.random.default_rng(self.options.noise_seed)
+        if self._threads:
+            self._threaded.reset(x0)
+            return
         model, ids = self.model, self._ids
         for b, data in enumerate(self._datas):
             mujoco.mj_resetData(model, data)
+            if self._native is not None:  # (reset zeroes userdata)
+                self._native.fill(data, ids.qpos, ids.dof, self._userdata)
             data.qpos[ids.qpos] = x0[b, 0]
             data.qvel[ids.dof] = x0[b, 1]
             mujoco.mj_forward(model, data)
@@ -125,13 +153,15 @@ class MujocoPlant:
                     mujoco.mj_initSensorHistory(model, data, sid, None, np.full((nsample, 1), value), 0.0)
             if model.nhistory:
                 mujoco.mj_forward(model, data)
-        self._dead[:] = [False] * self.batch  # in place: the step closures hold this list
-        self._rng = np.random.default_rng(self.options.noise_seed)
+        self._dead[:] = [False] * self.batch  # in place: the steppers hold this list
 
     def disturb(self, d: float) -> None:
         """The external load d (u's units) as the generalized force ``I d`` in ``qfrc_applied``
         (``I`` the nominal inertia, as for u), held until changed; ``mj_resetData`` clears it."""
         force = self.inertia * float(d)
+        if self._threads:
+            self._threaded.disturb(force)
+            return
         for data in self._datas:
             data.qfrc_applied[self._ids.dof] = force
 
@@ -148,6 +178,8 @@ class MujocoPlant:
 
     def state(self) -> np.ndarray:
         """The true ``(qpos, qvel)`` of every copy (NaN for a copy MuJoCo had to reset)."""
+        if self._threads:
+            return self._threaded.state()
         q, dof = self._ids.qpos, self._ids.dof
         out = np.array([(qpos.item(q), qvel.item(dof)) for _, _, qpos, qvel in self._views])
         if True in self._dead:
@@ -157,12 +189,24 @@ class MujocoPlant:
     def read_sensors(self) -> np.ndarray:
         """``sensordata`` of the position and velocity sensors (plus noise, if configured)."""
         p, v = self._sadr
-        out = np.array([(data.item(p), data.item(v)) for _, data, _, _ in self._views])
+        threaded = self._threads
+        out = (self._threaded.readings() if threaded else
+               np.array([(data.item(p), data.item(v)) for _, data, _, _ in self._views]))
         if self._noisy:
-            out += self._rng.normal(0.0, 1.0, size=out.shape) * self._noise
-        if True in self._dead:
-            out[np.asarray(self._dead)] = np.nan
+            out += self.sensor_noise()
+        dead = self._threaded.dead if threaded else (np.asarray(self._dead) if True in self._dead else None)
+        if dead is not None:
+            out[dead] = np.nan
         return out
+
+    def sensor_noise(self) -> np.ndarray:
+        """The noise of one reading of every copy, ``(batch, 2)``: the one place it is drawn (one
+        draw per reading from the plant's seeded stream, whichever form reads the sensors)."""
+        return self._rng.normal(0.0, 1.0, size=(self.batch, 2)) * self._noise
+
+    def observe(self) -> tuple[np.ndarray, np.ndarray]:
+        """The true state and the sensors' reading of every copy."""
+        return self.state(), self.read_sensors()
 
     def step(self, u: np.ndarray, h: float) -> None:
         """Hold ``u`` for ``h`` seconds: ``h / timestep`` calls of ``mj_step`` per copy.
@@ -173,66 +217,79 @@ class MujocoPlant:
         """
         if not self._entered and self._force is not None:
             raise RuntimeError("use MujocoPlant in a 'with' block: its passive callback is installed there")
+        if self._threads:
+            substeps = whole_steps(h, self.timestep, f"{self.options.where}: step", "the model timestep")
+            self._threaded.step(np.broadcast_to(np.asarray(u, dtype=float).ravel(), (self.batch,)), substeps)
+            return
         steppers = self._steppers.get(h) or self._make_steppers(h)
         values = np.asarray(u, dtype=float).ravel().tolist()
         if len(values) != self.batch:
             values = values * self.batch if len(values) == 1 else list(np.broadcast_to(values, (self.batch,)))
-        for step_copy, value in zip(steppers, values):  # noqa: B905 (one value per copy)
-            step_copy(value)
+        for stepper, value in zip(steppers, values):  # noqa: B905 (one value per copy)
+            stepper.step(value)
 
-    def _make_steppers(self, h: float) -> list[Callable[[float], None]]:
-        """One ``step(u)`` per copy for steps of ``h``: closures over the copy's MjData views,
-        made once per step length and ``with`` block (they hold its list of MuJoCo warnings)."""
+    def _make_steppers(self, h: float) -> list[CopyStepper]:
+        """One :class:`CopyStepper` per copy for steps of ``h``, made once per step length and
+        ``with`` block (they hold its list of MuJoCo warnings)."""
         substeps = whole_steps(h, self.timestep, f"{self.options.where}: step", "the model timestep")
-        model, dead, messages = self.model, self._dead, self.warnings
-        actuator, ctrl_per_u = self._ids.actuator, self._ctrl_per_u
-
-        def stepper(b: int) -> Callable[[float], None]:
-            data, ctrl = self._datas[b], self._views[b][0]
-
-            def step_copy(u: float) -> None:
-                """Copy ``b`` through ``substeps`` calls of ``mj_step`` with ``u`` held."""
-                if dead[b]:
-                    return
-                ctrl[actuator] = ctrl_per_u * u
-                seen = len(messages)
-                _mj_step(model, data, substeps)
-                _mj_sensor_pos(model, data)
-                _mj_sensor_vel(model, data)
-                if len(messages) != seen and unstable(messages[seen:]):  # a blow-up always warns
-                    dead[b] = True
-
-            return step_copy
-
-        steppers = self._steppers[h] = [stepper(b) for b in range(self.batch)]
+        steppers = self._steppers[h] = [CopyStepper(self, b, substeps) for b in range(self.batch)]
         return steppers
 
-    def io(self, h: float) -> IO:
-        """:meth:`~qcontrol.plants.base.Plant.io`; for a batch of one, closures over the copy's
-        MjData views, so a step costs one ``mj_step`` call and a few attribute-free operations."""
+    def float_io(self, h: float) -> MujocoFloatIO:
+        """The batch of one on plain floats (:mod:`qcontrol.engine.fastpath`): a step costs one
+        ``mj_step`` call and a few attribute reads."""
         if not self._entered:
-            raise RuntimeError("use MujocoPlant in a 'with' block: io() belongs to one run")
+            raise RuntimeError("use MujocoPlant in a 'with' block: float_io() belongs to one run")
         if self.batch != 1:
-            return array_io(self, h)
-        steppers = self._steppers.get(h) or self._make_steppers(h)
-        sensordata, qpos, qvel = self._views[0][1:]
-        q, dof = self._ids.qpos, self._ids.dof
-        p, v = self._sadr
-        dead = self._dead
-        noise = self._noise.tolist() if self._noisy else None
-        nan = [math.nan, math.nan]
+            raise ValueError(f"float_io is for a batch of one; this plant has {self.batch} copies")
+        return MujocoFloatIO(self, (self._steppers.get(h) or self._make_steppers(h))[0])
 
-        def observe() -> tuple[list[float], list[float]]:
-            if noise is not None:  # one draw per reading, the same stream as read_sensors
-                e = self._rng.normal(0.0, 1.0, size=(1, 2))[0].tolist()
-            if dead[0]:
-                return nan[:], nan[:]
-            x = [qpos.item(q), qvel.item(dof)]
-            if noise is not None:
-                return x, [sensordata.item(p) + e[0] * noise[0], sensordata.item(v) + e[1] * noise[1]]
-            return x, [sensordata.item(p), sensordata.item(v)]
 
-        return observe, steppers[0]
+class CopyStepper:
+    """Copy ``b`` of a :class:`MujocoPlant` through ``substeps`` calls of ``mj_step`` with u held;
+    a copy MuJoCo reported unstable is marked dead and no longer stepped."""
+
+    def __init__(self, plant: MujocoPlant, b: int, substeps: int) -> None:
+        self.b, self.substeps = b, substeps
+        self.model, self.data, self.ctrl = plant.model, plant._datas[b], plant._views[b][0]
+        self.dead, self.messages = plant._dead, plant.warnings
+        self.actuator, self.ctrl_per_u = plant._ids.actuator, plant._ctrl_per_u
+
+    def step(self, u: float) -> None:
+        if self.dead[self.b]:
+            return
+        self.ctrl[self.actuator] = self.ctrl_per_u * u
+        model, data, messages = self.model, self.data, self.messages
+        seen = len(messages)
+        _mj_step(model, data, self.substeps)
+        _mj_sensor_pos(model, data)
+        _mj_sensor_vel(model, data)
+        if len(messages) != seen and unstable(messages[seen:]):  # a blow-up always warns
+            self.dead[self.b] = True
+
+
+class MujocoFloatIO:
+    """One MuJoCo copy on plain floats: ``observe()`` reads qpos/qvel and the two sensors (with
+    the plant's :meth:`~MujocoPlant.sensor_noise`), ``step(u)`` is the copy's
+    :meth:`CopyStepper.step`."""
+
+    def __init__(self, plant: MujocoPlant, stepper: CopyStepper) -> None:
+        self.plant, self.step = plant, stepper.step
+        self.sensordata, self.qpos, self.qvel = plant._views[0][1:]
+        self.q, self.dof = plant._ids.qpos, plant._ids.dof
+        self.p, self.v = plant._sadr
+        self.dead, self.noisy = plant._dead, plant._noisy
+
+    def observe(self) -> tuple[list[float], list[float]]:
+        if self.noisy:  # drawn even for a dead copy: the stream stays the array form's
+            e = self.plant.sensor_noise()[0].tolist()
+        if self.dead[0]:
+            return [math.nan, math.nan], [math.nan, math.nan]
+        x = [self.qpos.item(self.q), self.qvel.item(self.dof)]
+        data = self.sensordata
+        if self.noisy:
+            return x, [data.item(self.p) + e[0], data.item(self.v) + e[1]]
+        return x, [data.item(self.p), data.item(self.v)]
 
 
 def _ctrl_range(model: mujoco.MjModel, actuator: int) -> tuple[float, float] | None:

@@ -24,7 +24,7 @@ from .backstepping import Advance, Backstepping, Columns, ControlOutput, output,
 from .law import LawContext, LawKind
 
 
-class BaselineController(Backstepping):
+class ComparisonController(Backstepping):
     """Comparison law of reference [20], eq. (46), with our reconstructed adaptive law.
 
     ``u = alphabar_n - psi(x_q) - theta_hat^T phi(x_q)`` with
@@ -47,7 +47,8 @@ class BaselineController(Backstepping):
         super().__init__(c, max_error)
         if not (np.isfinite(adaptation_gain) and adaptation_gain > 0):
             raise QcontrolInputError(
-                f"baseline adaptation gain Gamma must be a finite number > 0, got {adaptation_gain!r}"
+                "the comparison law's adaptation gain Gamma must be a finite number > 0, "
+                f"got {adaptation_gain!r}"
             )
         self.psi = psi
         self.phi = tuple(phi)
@@ -66,7 +67,7 @@ class BaselineController(Backstepping):
         return np.zeros((batch, self.state_size))
 
     def constants(self) -> dict[str, Any]:
-        return {"baseline_gain": self.adaptation_gain}
+        return {"comparison_gain": self.adaptation_gain}
 
     def control(self, reading: QuantizedReading, yd: Sequence[float],
                 theta_hat: np.ndarray | Columns, t: float = 0.0) -> ControlOutput:
@@ -98,23 +99,33 @@ class BaselineController(Backstepping):
         if isinstance(state, np.ndarray):
             grown = self.advance(tuple(state.T), out._replace(target=tuple(out.target.T)), h)
             return stack(grown, len(state))
-        return self.advancer(h, floats=not isinstance(out.u, np.ndarray))(state, out)
+        return self.advancer(h)(state, out)
 
     @staticmethod
-    def advancer(h: float, floats: bool) -> Advance:
-        """:meth:`advance` over a fixed ``h`` in column form, as a function made once per run."""
+    def advancer(h: float) -> Advance:
+        """:meth:`advance` over a fixed ``h`` in column form (arrays or floats), made once per run."""
+        return RateAdvance(h).advance
 
-        def advance(state: Columns, out: ControlOutput) -> Columns:
-            return tuple([e + h * t for e, t in zip(state, out.target)])  # noqa: B905 (equal lengths)
+    float_advancer = advancer  # the same lines on floats (:class:`~.law.FloatColumns`)
 
-        return advance
+
+class RateAdvance:
+    """``theta_hat`` over one step ``h`` at the rate held since the sample: ``e <- e + h rate``."""
+
+    def __init__(self, h: float) -> None:
+        self.h = h
+
+    def advance(self, state: Columns, out: ControlOutput) -> Columns:
+        h = self.h
+        return tuple([e + h * t for e, t in zip(state, out.target)])  # noqa: B905 (equal lengths)
 
 
 # --------------------------------------------------------------------------------------------
-# Scenario keys: [controller] with kind = "baseline" (or [controller.baseline])
+# Scenario keys: [controller] with kind = "comparison" (or [controller.comparison]); the former
+# name "baseline" still loads (controller.law.KIND_ALIASES)
 
 KEYS = KindKeys(
-    "baseline",
+    "comparison",
     (
         Key("gain", number(positive=True), 1.0,
             meaning="adaptation gain Gamma of theta_hat' = Gamma phi(x_q) zbar_n", example="1.0"),
@@ -127,30 +138,30 @@ KEYS = KindKeys(
 
 
 @dataclass(frozen=True)
-class BaselineSettings:
+class ComparisonSettings:
     gain: float
     theta: str
 
 
-def parse(table: Table, ctx: LawContext) -> BaselineSettings:
+def parse(table: Table, ctx: LawContext) -> ComparisonSettings:
     v = read_keys(table, KEYS.keys, {"n": ctx.order})
-    return BaselineSettings(v["gain"], v["theta"])
+    return ComparisonSettings(v["gain"], v["theta"])
 
 
-def build(settings: Sequence[BaselineSettings], ctx: LawContext) -> BaselineController:
+def build(settings: Sequence[ComparisonSettings], ctx: LawContext) -> ComparisonController:
     """One controller for the whole batch: the variants share its settings (see :func:`structure`)."""
     s = settings[0]
-    return BaselineController(ctx.c, ctx.max_error, ctx.psi, ctx.phi, adaptation_gain=s.gain,
+    return ComparisonController(ctx.c, ctx.max_error, ctx.psi, ctx.phi, adaptation_gain=s.gain,
                               known_theta=ctx.theta if s.theta == "known" else None)
 
 
-def structure(settings: BaselineSettings, ctx: LawContext) -> Hashable:
+def structure(settings: ComparisonSettings, ctx: LawContext) -> Hashable:
     """Everything the law reads must be shared: its settings and, when theta is known, theta."""
     return settings, ctx.theta if settings.theta == "known" else None
 
 
 KIND = LawKind(
-    "baseline", KEYS, parse, build, structure,
+    "comparison", KEYS, parse, build, structure,
     divergence_hint="law (46) cancels psi and theta^T phi at the quantized state; a term that is not "
     "Lipschitz differs there from its true value by more the larger the state (docs/math.md, "
     "'The comparison law')",

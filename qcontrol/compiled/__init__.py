@@ -1,0 +1,53 @@
+"""Compiled (numba) versions of qcontrol's hot loops, with the Python loops as the fallback.
+
+Every compiled path gives the same numbers, to the last bit, as the Python code it replaces (it
+is generated from the same expression trees, evaluates the same operations in the same order,
+without fast-math contraction, with numpy's error model). It is on by default;
+``QCONTROL_COMPILE=0`` in the environment turns every compiled path off. Where it cannot be used
+(numba missing or refusing to compile), the Python path runs instead and a warning says so once.
+
+Generated code is kept on disk in the user's cache folder (:mod:`.cache`), so a process compiles a
+callback once and later processes (worker processes included) load it in a fraction of a second.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+
+ENVIRONMENT_SWITCH = "QCONTROL_COMPILE"
+_SAID: set[str] = set()
+
+
+def requested() -> bool:
+    """Whether the environment allows compiled paths (``QCONTROL_COMPILE=0`` forbids them)."""
+    return os.environ.get(ENVIRONMENT_SWITCH, "1").strip().lower() not in ("0", "false", "no", "off")
+
+
+def numba_missing() -> str | None:
+    """Why numba cannot be used here, or None when it can."""
+    try:
+        import numba  # noqa: F401
+    except Exception as exc:  # ImportError, or a broken install (llvmlite's shared library)
+        return f"numba cannot be imported ({type(exc).__name__}: {exc})"
+    return None
+
+
+def enabled() -> bool:
+    """Compiled paths are on: requested and numba importable (a warning, once, when it is not)."""
+    if not requested():
+        return False
+    missing = numba_missing()
+    if missing is not None:
+        fallback("compiled paths", missing)
+        return False
+    return True
+
+
+def fallback(what: str, why: str) -> None:
+    """Say once per process that ``what`` runs in Python instead of compiled code, and why."""
+    if what in _SAID:
+        return
+    _SAID.add(what)
+    warnings.warn(f"qcontrol: {what} run in Python, not compiled: {why} (same numbers, slower; "
+                  f"{ENVIRONMENT_SWITCH}=0 silences this by choosing Python)", RuntimeWarning, stacklevel=3)

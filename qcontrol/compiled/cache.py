@@ -1,0 +1,66 @@
+"""Generated modules of numba code, kept in the user's cache folder.
+
+A generated module's file name is a hash of its source text and of the versions that shape the
+machine code (Python, numba, numpy, MuJoCo, qcontrol): the same text on the same versions is the
+same file, and numba's own cache (``cache=True``) keeps the compiled code next to it, in its
+``__pycache__``. Nothing is written into site-packages. ``QCONTROL_CACHE_DIR`` moves the folder.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import os
+import sys
+import tempfile
+from pathlib import Path
+from types import ModuleType
+
+_LOADED: dict[str, ModuleType] = {}
+
+
+def cache_folder() -> Path:
+    """``$QCONTROL_CACHE_DIR``, else the platform's user cache folder + ``qcontrol/compiled``."""
+    override = os.environ.get("QCONTROL_CACHE_DIR")
+    if override:
+        return Path(override)
+    if sys.platform == "win32":
+        base = Path(os.environ.get("LOCALAPPDATA") or Path.home() / "AppData" / "Local")
+    elif sys.platform == "darwin":
+        base = Path.home() / "Library" / "Caches"
+    else:
+        base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return base / "qcontrol" / "compiled"
+
+
+def versions() -> str:
+    """The versions the generated code depends on, one line."""
+    import mujoco
+    import numba
+    import numpy
+
+    from .._version import __version__
+
+    return (f"python {sys.version.split()[0]} numba {numba.__version__} numpy {numpy.__version__} "
+            f"mujoco {mujoco.__version__} qcontrol {__version__}")
+
+
+def generated_module(kind: str, source: str) -> ModuleType:
+    """The module of ``source`` (written to the cache folder once, then imported from there)."""
+    key = hashlib.sha256(f"# {versions()}\n{source}".encode()).hexdigest()[:24]
+    name = f"qcontrol_{kind}_{key}"
+    if name in _LOADED:
+        return _LOADED[name]
+    folder = cache_folder()
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{name}.py"
+    if not path.is_file() or path.read_text() != source:
+        with tempfile.NamedTemporaryFile("w", dir=folder, suffix=".tmp", delete=False) as tmp:
+            tmp.write(source)
+        os.replace(tmp.name, path)  # atomic: a concurrent process sees the old file or the new one
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # numba's cache pickles references to the module by name
+    spec.loader.exec_module(module)
+    _LOADED[name] = module
+    return module

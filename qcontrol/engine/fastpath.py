@@ -1,0 +1,206 @@
+"""The batch-of-one fast path: the engine's adapter between the array form every part implements
+and plain Python floats.
+
+Why: a numpy call on a one-element array costs about a microsecond, float arithmetic tens of
+nanoseconds, and a closed-loop step makes a few dozen of them; so a single run (a batch of one)
+steps on floats, a batch of copies on ``(batch,)`` numpy columns. This module is where that
+choice is made for a run and where the float form of the engine's own parts lives:
+
+* :class:`FloatRows`: the rows of one copy kept as tuples and written to the arrays in blocks;
+* :class:`FloatQuantize`: q(x) of eq. (3) on floats, bit for bit the array quantizer's;
+* :class:`FloatDifferencing`: the encoder's differenced velocity (:mod:`.velocity`) on floats;
+* :func:`float_io`: the plant's :class:`~qcontrol.plants.base.FloatStepping` form if it has one,
+  else its array form seen as floats (:class:`ArrayPlantAsFloats`), so a plant that implements
+  only the array form runs at every batch size;
+* :meth:`FloatRows.law`: the law's :class:`~qcontrol.controller.law.FloatColumns` form if it has
+  one, else its array form seen as floats (:class:`ArrayLawAsFloats`), so a law that implements
+  only the array form runs at every batch size too.
+
+The one fallback rule: where ``math`` refuses an evaluation that numpy answers with NaN or Inf
+(:data:`qcontrol.expr.FLOAT_REFUSED`), numpy's answer is taken. The laws' formulas are written once
+over columns (:mod:`qcontrol.controller.backstepping`): the same lines take floats here and
+arrays for a batch; expressions come in both forms from one compiler (:mod:`qcontrol.expr`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Callable, Sequence
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from ..controller.backstepping import Advance, Columns
+from ..controller.law import BatchLaw, FloatColumns
+from ..expr import FLOAT_REFUSED
+from ..plants.base import FloatIO, FloatStepping, Plant
+from ..quantizer import QuantizedReading, Quantizer, UniformQuantizer
+from .row_buffer import ArrayRows, RowBuffer
+from .signals import RECORDED
+
+Quantize = Callable[[Any], QuantizedReading]
+FLUSH_ROWS = 1000  # a batch of one: rows kept as Python tuples before they are written to arrays
+
+
+class FloatQuantize:
+    """``quantize`` for the readings of one copy, plain floats ``x_1 .. x_n``: the uniform
+    quantizer's ``delta * floor(x / delta + 1/2)`` on floats (``floor`` is exact either way, so
+    bit for bit the array form's); another quantizer through its array form."""
+
+    def __init__(self, quantizer: Quantizer) -> None:
+        self.quantizer, self.max_error = quantizer, quantizer.max_error
+        self.delta = quantizer.delta if isinstance(quantizer, UniformQuantizer) else None
+
+    def quantize(self, readings: Sequence[float]) -> QuantizedReading:
+        return QuantizedReading(None, self.max_error, self.values(readings))
+
+    def values(self, readings: Sequence[float]) -> tuple[float, ...]:
+        d = self.delta
+        if d is not None:
+            try:
+                return tuple([d * math.floor(v / d + 0.5) for v in readings])
+            except FLOAT_REFUSED:  # NaN or Inf: numpy's answer
+                pass
+        return tuple(self.quantizer(np.array([readings], dtype=float))[0].tolist())
+
+
+def float_quantizer(quantizer: Quantizer) -> Quantize:
+    """``quantize(readings) -> QuantizedReading`` for one copy's plain floats."""
+    return FloatQuantize(quantizer).quantize
+
+
+class FloatDifferencing:
+    """x2 of one copy's reading replaced by the quantized position differenced over ``hold`` rows
+    (``period`` seconds), on floats (:mod:`.velocity`). Called once per row, in order."""
+
+    def __init__(self, quantize: Quantize, hold: int, period: float) -> None:
+        self.inner, self.hold, self.period = quantize, hold, period
+        self.past: deque[float] = deque(maxlen=hold)  # q(x1) of the last `hold` rows, oldest first
+
+    def quantize(self, values: Sequence[float]) -> QuantizedReading:
+        q = self.inner(values)
+        columns = q.columns
+        q1 = columns[0]
+        past = self.past
+        if not past:
+            past.extend([q1] * self.hold)
+        velocity = (q1 - past[0]) / self.period
+        past.append(q1)
+        return QuantizedReading(None, q.max_error, (q1, velocity, *columns[2:]))
+
+
+class ArrayPlantAsFloats:
+    """A plant with only the array form, as one copy's :class:`~qcontrol.plants.base.FloatIO`."""
+
+    def __init__(self, plant: Plant, h: float) -> None:
+        self.plant, self.h = plant, h
+
+    def observe(self) -> tuple[list[float], list[float]]:
+        x, reading = self.plant.observe()
+        return np.asarray(x, dtype=float)[0].tolist(), np.asarray(reading, dtype=float)[0].tolist()
+
+    def step(self, u: float) -> None:
+        self.plant.step(np.array([u]), self.h)
+
+
+def float_io(plant: Plant, h: float) -> FloatIO:
+    """One copy's observe and step on floats: the plant's own float form, or its array form."""
+    return plant.float_io(h) if isinstance(plant, FloatStepping) else ArrayPlantAsFloats(plant, h)
+
+
+class FloatOutput(NamedTuple):
+    """What :class:`ArrayLawAsFloats` gives the loop: ``u`` as a float, and the law's own output
+    (array form), which its advance reads."""
+
+    u: float
+    held: Any
+
+
+class ArrayLawAsFloats:
+    """A law with only the array form, driven on one copy's floats: the reading and the adaptive
+    state become one-row arrays, ``u`` and the advanced state floats again."""
+
+    def __init__(self, law: BatchLaw, h: float) -> None:
+        self.law, self.array_advance = law, law.advancer(h)
+
+    def control(self, reading: QuantizedReading, yd: Sequence[float], state: Columns,
+                t: float = 0.0) -> FloatOutput:
+        out = self.law.control(QuantizedReading(reading.values, reading.max_error), yd,
+                               tuple([np.array([e]) for e in state]), t)
+        return FloatOutput(float(np.asarray(out.u).reshape(-1)[0]), out)
+
+    def advance(self, state: Columns, out: FloatOutput) -> Columns:
+        advanced = self.array_advance(tuple([np.array([e]) for e in state]), out.held)
+        return tuple([float(np.asarray(e).reshape(-1)[0]) for e in advanced])
+
+
+class FloatRows:
+    """A batch of one on plain floats: each row is one tuple (x, x_meas, x_q, u, adaptive, in the
+    order of the signal table), written to the buffer at :meth:`flush`, at least every
+    :data:`FLUSH_ROWS` rows, and tested for divergence there (a per-step test cost about 1 us of
+    a 25 us MuJoCo step). The run may go on for up to that many rows after it diverged; those
+    rows do not count. Offers the loop what :class:`~.row_buffer.ArrayRows` offers, in float form."""
+
+    def __init__(self, buffer: RowBuffer) -> None:
+        self.buffer = buffer
+        self._pending: list[tuple] = []
+        self._append = self._pending.append
+        self._tested = 0  # rows [0, tested) are tested for divergence
+        self._columns = []  # (name, first column, stop column) of each signal in a row's tuple
+        start = 0
+        for signal in RECORDED:
+            width = 1 if signal.width == "1" else buffer.arrays[signal.name].shape[2]
+            self._columns.append((signal.name, start, start + width, signal.width == "1"))
+            start += width
+
+    def initial_state(self, law: BatchLaw) -> tuple[float, ...]:
+        return tuple(law.initial_state(1)[0].tolist())
+
+    def quantizer(self, quantizer: Quantizer) -> Quantize:
+        return FloatQuantize(quantizer).quantize
+
+    def differenced(self, quantize: Quantize, hold: int, period: float) -> Quantize:
+        return FloatDifferencing(quantize, hold, period).quantize
+
+    def plant_io(self, plant: Plant, h: float) -> FloatIO:
+        return float_io(plant, h)
+
+    def law(self, law: BatchLaw, h: float) -> tuple[Callable[..., Any], Advance]:
+        """``(control, advance)`` of one copy on floats: the law's float form, or its array form."""
+        if isinstance(law, FloatColumns):
+            return law.control, law.float_advancer(h)
+        adapter = ArrayLawAsFloats(law, h)
+        return adapter.control, adapter.advance
+
+    def keep(self, k: int, x: list[float], meas: list[float], reading: QuantizedReading, u: float,
+             adaptive: tuple) -> None:
+        """Row ``k``; returns None: it is tested at the next :meth:`flush`."""
+        self._append((*x, *meas, *reading.columns, u, *adaptive))
+
+    def flush(self, k: int) -> None:
+        """Write the pending rows, which end at run row ``k``, to the buffer."""
+        if not self._pending:
+            return
+        block = np.array(self._pending, dtype=float)
+        stop = k - self.buffer.base + 1
+        rows = slice(stop - len(self._pending), stop)
+        for name, first, last, scalar in self._columns:
+            self.buffer.arrays[name][rows, 0] = block[:, first] if scalar else block[:, first:last]
+        self._pending.clear()
+
+    def untested(self, k: int) -> tuple[int, int]:
+        """The rows to test for divergence now: every row since the last test, up to ``k``."""
+        first, self._tested = self._tested, k + 1
+        return first, k + 1
+
+    def next_event(self, k: int) -> int:
+        """The next row at which the pending rows must be flushed."""
+        return ((k + 1) // FLUSH_ROWS + 1) * FLUSH_ROWS - 1
+
+
+def rows_for(buffer: RowBuffer, batch: int, state_bound: float) -> FloatRows | ArrayRows:
+    """The loop's rows for a run, the one place the form is chosen: floats for a batch of one,
+    ``(batch,)`` columns otherwise. Each offers the loop the quantizer, the plant's and the law's
+    observe/step/control/advance in its form."""
+    return FloatRows(buffer) if batch == 1 else ArrayRows(buffer, state_bound)

@@ -1,0 +1,144 @@
+"""Frames of a run as MuJoCo draws them: the model posed at a recorded joint position, seen from
+one of the model's named cameras, with the reference and the quantized reading marked and an
+overlay of t, q(x1), u.
+
+The model is posed on private ``MjData`` by kinematics alone (``mj_kinematics``, ``mj_comPos``,
+``mj_camlight``): no force, no callback, no step, so rendering cannot touch the plant it draws.
+Markers: a translucent red ball where the tip would be at ``y_d``, a small yellow ball where it
+would be at the controller's reading ``q(x1)``; a comparison's twin is the same bodies again,
+translucent blue (:meth:`FrameRenderer.render`'s ``twin``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from ..errors import QcontrolInputError
+from ..recording.scene import Scene
+from .context import open_context
+
+TARGET_RGBA = (0.9, 0.15, 0.15, 0.35)  # where the tip would be at y_d
+READING_RGBA = (1.0, 0.85, 0.1, 1.0)  # where the tip would be at q(x1)
+TWIN_RGBA = (0.35, 0.6, 1.0, 0.35)  # the ODE twin's bodies
+MAX_GEOMS = 500
+
+
+@dataclass(frozen=True)
+class Instant:
+    """What one frame shows: the time, the joint position x1 and the reading q(x1), the input u,
+    the reference y_d and, in a comparison, the twin's x1."""
+
+    t: float
+    x1: float
+    q1: float
+    u: float
+    yd: float
+    twin_x1: float | None = None
+
+
+def camera_id(model: mujoco.MjModel, name: str | None, source: str) -> int:
+    """The id of the model's camera ``name`` (None: its first camera); one line if there is none."""
+    if name is None:
+        if model.ncam == 0:
+            raise QcontrolInputError(f"--video: the model of {source} has no <camera>; add a named camera "
+                                     "to its MJCF (e.g. <camera name=\"front\" pos=\"0 -1.3 0\" "
+                                     "xyaxes=\"1 0 0 0 0 1\"/>)")
+        return 0
+    cid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, name)
+    if cid < 0:
+        names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_CAMERA, i) for i in range(model.ncam)]
+        raise QcontrolInputError(f"--video-camera {name}: the model has no camera of that name; it has "
+                                 f"{', '.join(map(repr, names)) or 'none'}")
+    return cid
+
+
+class FrameRenderer:
+    """Renders ``width`` x ``height`` RGB frames of ``model`` with ``joint`` at given positions,
+    from camera ``camera`` (an id, :func:`camera_id`). Use as a context manager (it holds a GL
+    context)."""
+
+    def __init__(self, model: mujoco.MjModel, joint: str, camera: int, width: int, height: int,
+                 twin_label: str = "ODE") -> None:
+        self.model, self.width, self.height, self.twin_label = model, width, height, twin_label
+        self.scene_geometry = Scene(model, joint)
+        self.adr = self.scene_geometry.qpos_adr
+        self.marker_radius = min(1.3 * self.scene_geometry.tip_radius, 0.06)
+        # the offscreen buffer must hold the frame: a visual setting only, never read by the physics
+        model.vis.global_.offwidth = max(int(model.vis.global_.offwidth), width)
+        model.vis.global_.offheight = max(int(model.vis.global_.offheight), height)
+        self.context = open_context(width, height)
+        self.data, self.twin = mujoco.MjData(model), mujoco.MjData(model)
+        self.scene = mujoco.MjvScene(model, maxgeom=MAX_GEOMS)
+        self.camera = mujoco.MjvCamera()
+        self.camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
+        self.camera.fixedcamid = camera
+        self.option, self.perturb = mujoco.MjvOption(), mujoco.MjvPerturb()
+        scale = mujoco.mjtFontScale.mjFONTSCALE_150 if width >= 560 else mujoco.mjtFontScale.mjFONTSCALE_100
+        self.mjr = mujoco.MjrContext(model, scale)
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self.mjr)
+        self.rect = mujoco.MjrRect(0, 0, width, height)
+        self.pixels = np.empty((height, width, 3), dtype=np.uint8)
+
+    def __enter__(self) -> FrameRenderer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self.context is not None:
+            self.mjr.free()
+            self.context.free()
+            self.context = None
+
+    def _pose(self, data: mujoco.MjData, position: float) -> None:
+        data.qpos[:] = self.model.qpos0
+        data.qpos[self.adr] = position
+        mujoco.mj_kinematics(self.model, data)
+        mujoco.mj_comPos(self.model, data)
+        mujoco.mj_camlight(self.model, data)
+
+    def _marker(self, position: float, radius: float, rgba: tuple[float, ...], in_front: bool) -> None:
+        if self.scene.ngeom >= self.scene.maxgeom or not np.isfinite(position):
+            return
+        centre = self.scene_geometry.tip_positions(np.array([position]))[0]
+        if in_front:  # moved towards the camera, out of the body it marks
+            eye = self.data.cam_xpos[self.camera.fixedcamid]
+            toward = (eye - centre) / max(float(np.linalg.norm(eye - centre)), 1e-9)
+            centre = centre + toward * (self.scene_geometry.tip_radius + radius)
+        mujoco.mjv_initGeom(self.scene.geoms[self.scene.ngeom], int(mujoco.mjtGeom.mjGEOM_SPHERE),
+                            np.array([radius, 0.0, 0.0]), centre, np.eye(3).ravel(),
+                            np.array(rgba, dtype=np.float32))
+        self.scene.ngeom += 1
+
+    def render(self, instant: Instant) -> np.ndarray:
+        """One frame (height, width, 3) uint8, top row first; the array is reused by the next call."""
+        self._pose(self.data, instant.x1)
+        mujoco.mjv_updateScene(self.model, self.data, self.option, self.perturb, self.camera,
+                               int(mujoco.mjtCatBit.mjCAT_ALL), self.scene)
+        if instant.twin_x1 is not None and np.isfinite(instant.twin_x1):
+            self._pose(self.twin, instant.twin_x1)
+            first = self.scene.ngeom
+            mujoco.mjv_addGeoms(self.model, self.twin, self.option, self.perturb,
+                                int(mujoco.mjtCatBit.mjCAT_DYNAMIC), self.scene)
+            for i in range(first, self.scene.ngeom):
+                self.scene.geoms[i].rgba[:] = TWIN_RGBA
+        self._marker(instant.yd, self.marker_radius, TARGET_RGBA, in_front=False)
+        self._marker(instant.q1, 0.4 * self.marker_radius, READING_RGBA, in_front=True)
+        mujoco.mjr_render(self.rect, self.scene, self.mjr)
+        self._overlay(instant)
+        mujoco.mjr_readPixels(self.pixels, None, self.rect, self.mjr)
+        return np.flipud(self.pixels)
+
+    def _overlay(self, instant: Instant) -> None:
+        labels = "t\nq(x1)\nu"
+        values = f"{instant.t:6.2f} s\n{instant.q1:+.3f}\n{instant.u:+.2f}"
+        font, grid = mujoco.mjtFont.mjFONT_NORMAL, mujoco.mjtGridPos
+        mujoco.mjr_overlay(font, grid.mjGRID_TOPLEFT, self.rect, labels, values, self.mjr)
+        legend = "red: y_d  yellow: q(x1)"
+        if instant.twin_x1 is not None:
+            legend += f"  blue: {self.twin_label}"
+        mujoco.mjr_overlay(font, grid.mjGRID_BOTTOMLEFT, self.rect, legend, None, self.mjr)

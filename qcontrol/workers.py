@@ -1,0 +1,56 @@
+"""Local worker processes that never outlive the command that started them.
+
+Each worker is a fork of the command's process. It leaves Ctrl-C to the parent (which stops the
+pool), and dies with the parent however the parent ends: on Linux the kernel sends it SIGKILL when
+the parent exits (``PR_SET_PDEATHSIG``, also after a ``kill -9`` of the parent); everywhere a
+watchdog thread exits it within half a second of the parent's end. The number of workers is
+capped at the work there is and at the machine's cores (more only share the cores and memory).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import multiprocessing
+import multiprocessing.pool
+import os
+import signal
+import sys
+import threading
+import time
+
+_PR_SET_PDEATHSIG = 1
+WATCH_PERIOD = 0.5  # s between a worker's checks that its parent is alive
+
+
+def worker_count(requested: int, work: int) -> int:
+    """``requested`` workers capped at ``work`` (tasks or chunks) and at the machine's cores."""
+    return max(1, min(requested, work, os.cpu_count() or 1))
+
+
+def _watch(parent: int) -> None:
+    while True:
+        if os.getppid() != parent:
+            os._exit(1)
+        time.sleep(WATCH_PERIOD)
+
+
+def _worker_start(parent: int) -> None:
+    """A worker's first act: ignore Ctrl-C, ask to be killed with the parent, watch it anyway."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # not the parent's handler: a SIGTERM ends a worker
+    if sys.platform.startswith("linux"):
+        try:
+            ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent:  # the parent died before the request was made
+        os._exit(1)
+    threading.Thread(target=_watch, args=(parent,), daemon=True, name="qcontrol-parent-watch").start()
+
+
+def worker_pool(workers: int) -> multiprocessing.pool.Pool:
+    """A pool of ``workers`` forked processes that die with this one; its user ends it with
+    ``terminate()`` on every exit path (a ``finally``), so an error, Ctrl-C or SIGTERM stops the
+    workers at once."""
+    context = multiprocessing.get_context("fork")
+    return context.Pool(workers, initializer=_worker_start, initargs=(os.getpid(),))

@@ -1,0 +1,42 @@
+"""The typed summary: summary.json is Summary.to_json(), read back by Summary.from_json()."""
+
+import dataclasses
+import json
+
+import pytest
+
+import qcontrol
+from qcontrol import Summary
+from qcontrol.cli import main
+
+CONTRACT = ["scenario", "backend", "duration", "dt", "steps", "wall_time_s", "diverged", "diverged_time",
+            "divergence_reason", "error_rate", "max_abs_z1_last_half", "max_abs_u", "max_abs_u_applied",
+            "saturated_fraction", "final_eps_hat", "adaptive_state", "lemma2_max_ratio", "velocity_source",
+            "lemma2_applies", "L_z", "L", "bound_constants", "warnings", "max_gain_period", "provenance",
+            "physics_warnings"]  # max_gain_period: the paper's law's diagnostic (a law declares its own)
+
+
+def test_summary_json_is_to_json_and_reads_back(tmp_path, ex2):
+    assert main(["run", str(ex2), "--backend", "ode", "--duration", "0.2", "-q", "--out", str(tmp_path)]) == 0
+    text = (tmp_path / "summary.json").read_text()
+    data = json.loads(text)
+    assert list(data) == CONTRACT
+    typed = Summary.from_json(data)
+    assert typed.to_json() == data
+    assert json.dumps(typed.to_json(), indent=2) == json.dumps(data, indent=2)
+    assert typed.steps == 200 and typed.L == typed.L_z[-1] and isinstance(typed.final_eps_hat, tuple)
+    assert typed.law_diagnostics == {"max_gain_period": data["max_gain_period"]}
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        typed.steps = 3  # type: ignore[misc]
+
+
+def test_the_api_gives_the_same_summary_typed(short_example2):
+    result = qcontrol.run(short_example2, "mujoco", record="metrics")
+    typed = result.typed_summary
+    assert typed.to_json() == result.summary and typed.backend == "mujoco"
+    assert "provenance" not in dataclasses.replace(typed, provenance=None).to_json()
+
+
+def test_an_unknown_field_is_refused():
+    with pytest.raises(ValueError, match="not a summary field: speed"):
+        Summary.from_json({"speed": 1.0})

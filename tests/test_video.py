@@ -1,0 +1,166 @@
+"""``--video``: MuJoCo's own rendering of a run, headless; the physics does not change.
+
+Frames are few and tiny here (a 64 x 48 video of a fraction of a second) to keep the suite fast.
+Tests that render are skipped, with the reason, on a machine without an offscreen OpenGL library
+(CI installs one: .ci/run).
+"""
+
+import json
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from qcontrol.cli import main
+from qcontrol.errors import QcontrolInputError
+from qcontrol.render import context
+from qcontrol.render.frames import FrameRenderer, Instant, camera_id
+from qcontrol.render.video import frame_rows
+
+ROOT = Path(__file__).resolve().parents[1]
+EX1, EX2 = ROOT / "scenarios" / "example1.toml", ROOT / "scenarios" / "example2.toml"
+CHAIN3 = ROOT / "scenarios" / "chain3.toml"
+
+
+def _gl_missing() -> str | None:
+    try:
+        context.require_offscreen_gl()
+        import imageio_ffmpeg  # noqa: F401
+    except (QcontrolInputError, ImportError) as exc:
+        return str(exc)
+    return None
+
+
+_MISSING = _gl_missing()
+needs_gl = pytest.mark.skipif(_MISSING is not None, reason=f"no offscreen rendering here: {_MISSING}")
+
+
+def _frames(path: Path) -> list[np.ndarray]:
+    import imageio_ffmpeg
+
+    reader = imageio_ffmpeg.read_frames(str(path))
+    meta = next(reader)
+    width, height = meta["size"]
+    return [np.frombuffer(f, np.uint8).reshape(height, width, 3) for f in reader]
+
+
+def _numbers(summary: dict) -> dict:
+    return {k: v for k, v in summary.items() if k not in ("wall_time_s", "provenance")}
+
+
+@needs_gl
+def test_run_video_has_a_frame_per_instant_and_same_summary(tmp_path, capsys):
+    plain, filmed, video = tmp_path / "plain", tmp_path / "filmed", tmp_path / "run.mp4"
+    common = ["run", str(EX2), "--duration", "0.3", "-q"]
+    assert main([*common, "--out", str(plain)]) == 0
+    assert main([*common, "--out", str(filmed), "--video", str(video), "--video-fps", "10",
+                 "--video-size", "64x48"]) == 0
+    assert "per simulated second" in capsys.readouterr().out
+    a = json.loads((plain / "summary.json").read_text())
+    b = json.loads((filmed / "summary.json").read_text())
+    assert _numbers(a) == _numbers(b)  # rendering only reads the trajectory
+    frames = _frames(video)
+    assert len(frames) == 4  # t = 0, 0.1, 0.2, 0.3 s
+    assert frames[0].shape == (48, 64, 3)
+    assert not np.array_equal(frames[0], frames[-1])  # the arm moved (and the overlay's t changed)
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temporary left
+
+
+@needs_gl
+def test_compare_gif_draws_the_twin(tmp_path):
+    video = tmp_path / "cmp.gif"
+    assert main(["compare", str(EX1), "--duration", "0.2", "-q", "--video", str(video),
+                 "--video-fps", "10", "--video-size", "64x48"]) == 0
+    assert video.read_bytes()[:6] == b"GIF89a"
+    assert len(_frames(video)) == 3
+
+
+@needs_gl
+def test_renderer_poses_the_model_and_draws_the_ghost():
+    model = mujoco.MjModel.from_xml_path(str(ROOT / "models" / "pendulum.xml"))
+    with FrameRenderer(model, "hinge", camera_id(model, "front", "pendulum"), 80, 60) as renderer:
+        down = renderer.render(Instant(0.0, 0.0, 0.0, 0.0, 0.0)).copy()
+        turned = renderer.render(Instant(0.0, 1.2, 1.2, 0.0, 0.0)).copy()
+        ghost = renderer.render(Instant(0.0, 1.2, 1.2, 0.0, 0.0, twin_x1=-1.2)).copy()
+    assert down.shape == (60, 80, 3) and down.std() > 5  # a scene, not a blank frame
+    assert np.mean(np.any(down != turned, axis=2)) > 0.005
+    assert np.mean(np.any(ghost != turned, axis=2)) > 0.005
+
+
+def test_frame_rows_sample_simulated_time():
+    from qcontrol.engine import Trajectory  # noqa: F401  (the rows depend only on t)
+
+    class Run:
+        t = np.arange(1001) * 1e-3  # 1 s at dt = 1 ms
+
+    assert frame_rows(Run, 30.0)[:4].tolist() == [0, 33, 66, 100]
+    assert len(frame_rows(Run, 30.0)) == 31 and frame_rows(Run, 30.0)[-1] == 1000
+
+
+@pytest.mark.parametrize("args, expected", [
+    (["--video", "run.avi"], "give a .mp4 or .gif"),
+    (["--video", "run.mp4", "--video-fps", "0"], "--video-fps must be > 0"),
+    (["--video", "run.mp4", "--video-camera", "nope"], "no camera of that name"),
+])
+def test_bad_video_request_exit_2_before_the_run(tmp_path, capsys, args, expected):
+    args = [a if not a.startswith("run.") else str(tmp_path / a) for a in args]
+    assert main(["run", str(EX2), "--duration", "0.1", "-q", *args]) == 2
+    captured = capsys.readouterr()
+    assert expected in captured.err and len(captured.err.strip().splitlines()) == 1
+    assert captured.out == ""  # refused before the run
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_video_of_a_scenario_without_model_exit_2(tmp_path, capsys):
+    assert main(["run", str(CHAIN3), "-q", "--video", str(tmp_path / "x.mp4")]) == 2
+    assert "no MuJoCo model to render" in capsys.readouterr().err
+
+
+def test_missing_gl_names_the_package(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(context, "_candidates", lambda: [])
+    context._context_class.cache_clear()
+    try:
+        assert main(["run", str(EX2), "-q", "--video", str(tmp_path / "x.mp4")]) == 2
+    finally:
+        context._context_class.cache_clear()
+    err = capsys.readouterr().err
+    assert "libegl1" in err and "apt-get install" in err and len(err.strip().splitlines()) == 1
+    assert list(tmp_path.iterdir()) == []
+
+
+def _views(container) -> list:
+    """The views of a layout, depth first."""
+    import rerun.blueprint as rrb
+
+    found = []
+    for item in container.contents:
+        found += _views(item) if isinstance(item, rrb.Container) else [item]
+    return found
+
+
+@needs_gl
+def test_recording_holds_the_camera_view_beside_the_3d_view(tmp_path):
+    from rerun.chunk import RrdReader
+
+    from qcontrol.recording.layout import default_blueprint
+
+    rrd = tmp_path / "run.rrd"
+    assert main(["run", str(EX2), "--duration", "0.2", "-q", "--rrd", str(rrd), "--camera-view"]) == 0
+    times, blobs = [], 0
+    for chunk in RrdReader(rrd).stream():
+        if chunk.entity_path.lstrip("/") == "camera/front":
+            batch = chunk.to_record_batch()
+            times += batch.column("sim_time").cast("int64").to_pylist()
+            blob = next(c for c in batch.column_names if c.lower().endswith("blob"))
+            blobs += sum(1 for b in batch.column(blob).to_pylist() if b and bytes(b[0][:2]) == b"\xff\xd8")
+    # 15 frames per simulated second, each at the row it shows: 0, 66, 133 and 200 ms
+    assert times == [0, 66_000_000, 133_000_000, 200_000_000] and blobs == 4  # JPEG files
+    layout = default_blueprint([], None, "camera/front")
+    assert [(type(v).__name__, v.origin) for v in _views(layout.root_container)][0] == (
+        "Spatial2DView", "camera/front")  # the first view: top left
+
+
+def test_camera_view_needs_a_recording(capsys):
+    assert main(["run", str(EX2), "-q", "--camera-view"]) == 2
+    assert "add --rrd FILE" in capsys.readouterr().err
