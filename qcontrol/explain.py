@@ -18,6 +18,7 @@ from .engine.divergence import DOMAIN_ERROR
 from .paper import OMEGA_KEYS, PAPER_TABLE1, PAPER_TABLE1_ROWS
 from .resources import resolve_file, shipped_scenarios
 from .scenario import Scenario
+from .scenario.load import plain_data
 
 README_SECTION = "README.md, section 'Reproducing the paper'"
 GAIN_PERIOD_LIMIT = 1.0  # K T above this: the held input overshoots the continuous-time decay
@@ -100,7 +101,7 @@ def paper_setting_differences(sc: Scenario) -> list[str]:
         path = shipped[f"example{sc.paper_example}"]
         reference = tomllib.loads(path.read_text())
     kind = sc.controller.kind
-    paper, run = _setting(reference, path.parent, kind), _setting(sc.data, sc.base_dir, kind)
+    paper, run = _setting(reference, path.parent, kind), _setting(plain_data(sc.data), sc.base_dir, kind)
     differences = []
     for key in sorted(set(paper) | set(run)):
         if paper.get(key) != run.get(key):
