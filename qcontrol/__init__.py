@@ -9,22 +9,31 @@ The Python API (see the README's "Python API"):
 * :func:`load_scenario` -> :class:`Scenario` (immutable; ``sc.with_overrides({...})``)
 * :func:`run` -> :class:`Result` (``summary``, as JSON; ``typed_summary``, a frozen
   :class:`Summary` whose ``to_json()`` is that summary; the signals ``t, x, x_q, u, y, yd, z, adaptive``,
-  ``save``); :func:`compare` -> :class:`Comparison` (``summary``, ``mujoco``, ``ode``)
+  ``save``, ``plot``); :func:`compare` -> :class:`Comparison` (``summary``, ``mujoco``, ``ode``);
+  :func:`compare_laws` -> :class:`LawComparison` (several laws side by side: ``table``,
+  ``runs``, ``plot``); :func:`sweep` -> the sweep's table (a dict per run). ``qcontrol.sweep``
+  is this function; the package of the same name stays importable (``from qcontrol.sweep import``).
 * :class:`Law` and :func:`register_law`: a control law of your own, selected by
   ``controller.kind``; :func:`check_keys`, :func:`quantized_backstepping` and
-  :func:`lemma2_bounds` help write one.
+  :func:`lemma2_bounds` help write one; :func:`load_law_module` runs a file that registers laws
+  (``--law-module``), :func:`load_law_plugins` the installed plugins (entry points ``qcontrol.laws``);
+  :func:`expression` compiles a math expression as scenarios do (for a law's bounding function r).
 """
 
 from ._version import __version__
-from .api import Comparison, Result, compare, lemma2_bounds, quantized_backstepping, run
+from .api import Comparison, Result, compare, lemma2_bounds, quantized_backstepping, run, sweep
+from .controller.plugins import load_law_module, load_law_plugins
 from .controller.user import Law, check_keys, register_law
 from .errors import QcontrolInputError
+from .expr import expression
+from .law_comparison import LawComparison, compare_laws
 from .scenario import Scenario, load_scenario
 from .summary import Summary
 
 __all__ = [
     "Comparison",
     "Law",
+    "LawComparison",
     "QcontrolInputError",
     "Result",
     "Scenario",
@@ -32,9 +41,14 @@ __all__ = [
     "__version__",
     "check_keys",
     "compare",
+    "compare_laws",
+    "expression",
     "lemma2_bounds",
+    "load_law_module",
+    "load_law_plugins",
     "load_scenario",
     "quantized_backstepping",
     "register_law",
     "run",
+    "sweep",
 ]

@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import csv
 import io
+import itertools
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -35,6 +36,8 @@ from .outputs import check_output_file, clean, prepare_output_dir, write_file, w
 from .scenario import Scenario
 from .scenario.resolve import scenario_provenance
 from .summary import Summary
+from .sweep.runs import run_variants_batched
+from .sweep.table import sweep_rows
 
 SAVE_FORMATS = (".npz", ".csv")
 
@@ -90,6 +93,21 @@ class Result:
             return write_text(path, _csv_text(traj))
         meta = np.array(json.dumps(clean(self.summary)))
         return write_file(path, lambda file: np.savez(file, t=traj.t, summary=meta, **traj.signals))
+
+    def plot(self, path: str | Path) -> Path:
+        """Draw the run's figure (y and y_d, the errors, u, the law's state; the figure
+        ``qcontrol run --plot`` draws) to ``path`` (.png, .pdf or .svg); returns the path."""
+        from .plots import fig_run  # matplotlib: imported only when a figure is drawn
+
+        path = check_output_file(path, "plot")
+        s = self.summary
+        notes = [f"{s['scenario']} on {s['backend']}, {s['duration']:g} s, dt = {s['dt']:g} s"]
+        notes += [f"E({k}) = {v:.4f}" for k, v in s["error_rate"].items()]
+        notes += [f"max |z1|, last half = {s['max_abs_z1_last_half']:.4g}", f"max |u| = {s['max_abs_u']:.4g}",
+                  f"Lemma 2 ratio = {s['lemma2_max_ratio']:.6f}"]
+        if s["diverged"]:
+            notes.append(f"diverged at t = {s['diverged_time']:g} s")
+        return fig_run(self.trajectory, path, f"{s['scenario']} ({s['backend']})", notes=notes)
 
 
 for _signal in SIGNALS:
@@ -154,6 +172,14 @@ def run(scenario: Scenario, backend: str | None = None, *, rrd: str | Path | Non
     MuJoCo's own rendering of the run beside its 3-D view (the run keeps every row for it).
     ``command`` is what the provenance names as the command (default: this call).
     """
+    check_scenario(scenario, "run")
+    _check_arguments("run", backend=(backend, str, True), rrd=(rrd, (str, Path), True),
+                     spawn=(spawn, bool, False), command=(command, str, True),
+                     camera_view=(camera_view, bool, False))
+    if record not in ("full", "metrics"):
+        raise QcontrolInputError(f"run: record must be \"full\" or \"metrics\", got {record!r}")
+    if progress is not None and not callable(progress):
+        raise QcontrolInputError(f"run: progress must be a callable or None, got {type(progress).__name__}")
     backend = runnable_backend(scenario, backend)
     command = command or _call("run", scenario, backend=backend, rrd=None if rrd is None else str(rrd))
     provenance = scenario_provenance(scenario, command)
@@ -185,6 +211,9 @@ def compare(scenario: Scenario, *, rrd: str | Path | None = None, spawn: bool = 
     """Run the scenario on its MuJoCo model and on the ODE with the same step and hold, and
     measure how far they drift apart (``max_abs_dx``, ``max_abs_dy``, ``max_abs_du``, ...).
     ``progress(backend)`` may give a progress callback per run."""
+    check_scenario(scenario, "compare")
+    _check_arguments("compare", rrd=(rrd, (str, Path), True), spawn=(spawn, bool, False),
+                     command=(command, str, True), camera_view=(camera_view, bool, False))
     require_twin(scenario)
     command = command or _call("compare", scenario, rrd=None if rrd is None else str(rrd))
     provenance = scenario_provenance(scenario, command)
@@ -209,6 +238,48 @@ def compare(scenario: Scenario, *, rrd: str | Path | None = None, spawn: bool = 
         "physics_warnings": list(plant.warnings), "provenance": provenance,
     }
     return Comparison(result, runs["mujoco"], runs["ode"])
+
+
+def sweep(scenario: Scenario, grid: Mapping[str, Sequence[Any]], *, backend: str | None = None) -> list[dict]:
+    """Run every point of the product of ``grid`` (``{"controller.kappa_margin": [0.1, 0.5],
+    "controller.kind": ["proposed", "comparison"]}``: each key a scenario key, its values as
+    ``with_overrides`` takes them) on ``backend`` (None: the scenario's), batched as
+    ``qcontrol sweep`` batches them, in this process. Returns the table ``qcontrol sweep`` writes
+    to sweep.csv: one dict per run, the grid's keys (the values as given), then the error rate per
+    omega (``error_rate_0.100``, ...), ``max_abs_z1_last_half``, ``max_abs_u``, ``diverged``,
+    ``diverged_time`` and ``lemma2_max_ratio``."""
+    check_scenario(scenario, "sweep")
+    _check_arguments("sweep", backend=(backend, str, True))
+    if not isinstance(grid, Mapping) or not grid:
+        raise QcontrolInputError(f"sweep: grid must be a non-empty dict {{key: [values]}}, got {grid!r}")
+    for key, values in grid.items():
+        listed = isinstance(values, Sequence) and not isinstance(values, (str, bytes)) and len(values) > 0
+        if not isinstance(key, str) or not listed:
+            raise QcontrolInputError(f"sweep: grid[{key!r}] must be a non-empty list of values, "
+                                     f"got {values!r}")
+    backend = runnable_backend(scenario, backend)
+    points = [dict(zip(grid, combo, strict=True)) for combo in itertools.product(*grid.values())]
+    variants = [scenario.with_overrides(point) for point in points]
+    return sweep_rows(points, run_variants_batched(variants, backend))
+
+
+def check_scenario(scenario: object, function: str) -> Scenario:
+    """``scenario`` if it is a :class:`Scenario`, else a one-line refusal naming ``function``."""
+    if not isinstance(scenario, Scenario):
+        raise QcontrolInputError(f"{function}: expected a Scenario (from qcontrol.load_scenario), got "
+                                 f"{type(scenario).__name__}")
+    return scenario
+
+
+def _check_arguments(function: str, **given: tuple[Any, type | tuple[type, ...], bool]) -> None:
+    """Each argument ``name=(value, types, may_be_none)`` of the types it must have, else one line."""
+    for name, (value, types, optional) in given.items():
+        if (value is None and optional) or (isinstance(value, types) and not (types is not bool
+                                                                               and isinstance(value, bool))):
+            continue
+        wanted = " or ".join(t.__name__ for t in (types if isinstance(types, tuple) else (types,)))
+        raise QcontrolInputError(f"{function}: {name} must be {wanted}{' or None' if optional else ''}, "
+                                 f"got {type(value).__name__} {value!r}")
 
 
 def check_video(scenario: Scenario, path: str | Path, fps: float = 30.0, camera: str | None = None,

@@ -14,6 +14,7 @@ from .controller import BatchLaw, law_kind
 from .disturbance import Schedule, scaled_changes
 from .engine import Observer, ProgressCallback, RunMetrics, RunSpec, Separation, Trajectory, simulate
 from .errors import QcontrolInputError
+from .expr import Expression
 from .plants import BACKENDS, Plant, SceneSource
 from .quantizer import UniformQuantizer
 from .reference import Reference
@@ -161,7 +162,14 @@ def run_spec(sc: Scenario, plant: Plant, law: BatchLaw, x0: Sequence, separation
     return RunSpec(plant=plant, law=law, quantizer=build_quantizer(sc), reference=build_reference(sc), x0=x0,
                    grid=TimeGrid.of(sim.duration, sim.dt, sim.control_period), state_bound=sim.state_bound,
                    record=record, metrics=sc.metrics, separation=separation, loads=loads(sc),
-                   velocity_source=sim.velocity_source, progress=progress, observer=observer)
+                   velocity_source=sim.velocity_source, terms=named_terms(sc), progress=progress,
+                   observer=observer)
+
+
+def named_terms(sc: Scenario) -> list[tuple[str, Expression]]:
+    """The plant's expressions of eq. (1) by their scenario keys, ``plant.phi[1]`` .. ``plant.psi``."""
+    named = [(f"plant.phi[{i + 1}]", phi) for i, phi in enumerate(sc.phi_expr)]
+    return named + ([("plant.psi", sc.psi_expr)] if sc.psi_expr is not None else [])
 
 
 def run_scenario(

@@ -14,9 +14,11 @@ from pathlib import Path
 from typing import Any
 
 from .controller import law_kind
+from .engine.divergence import DOMAIN_ERROR
 from .paper import OMEGA_KEYS, PAPER_TABLE1, PAPER_TABLE1_ROWS
 from .resources import resolve_file, shipped_scenarios
 from .scenario import Scenario
+from .scenario.load import plain_data
 
 README_SECTION = "README.md, section 'Reproducing the paper'"
 GAIN_PERIOD_LIMIT = 1.0  # K T above this: the held input overshoots the continuous-time decay
@@ -41,6 +43,8 @@ def divergence_lines(s: Mapping, sc: Scenario) -> list[str]:
     """Two lines for a diverged run: when and why it stopped, and what usually helps."""
     lines = [f"  DIVERGED: stopped at t = {s['diverged_time']:g} s of {sc.simulation.duration:g} s: "
              f"{s['divergence_reason']}"]
+    if s["divergence_reason"].endswith(DOMAIN_ERROR):  # a term's domain, which no step size fixes
+        return lines
     helps = ["a smaller --dt or simulation.control_period"]
     hint = law_kind(sc.controller.kind).divergence_hint
     if hint:
@@ -97,7 +101,7 @@ def paper_setting_differences(sc: Scenario) -> list[str]:
         path = shipped[f"example{sc.paper_example}"]
         reference = tomllib.loads(path.read_text())
     kind = sc.controller.kind
-    paper, run = _setting(reference, path.parent, kind), _setting(sc.data, sc.base_dir, kind)
+    paper, run = _setting(reference, path.parent, kind), _setting(plain_data(sc.data), sc.base_dir, kind)
     differences = []
     for key in sorted(set(paper) | set(run)):
         if paper.get(key) != run.get(key):

@@ -46,18 +46,20 @@ def run_summary(run: Trajectory | RunMetrics, scenario: str, backend: str) -> Su
     ratio is still reported, with ``lemma2_applies`` false.
     """
     values = run.reduced()
+    final = tuple(float(v) for v in values["final_adaptive"])
     return Summary(
         scenario=scenario, backend=backend, duration=run.duration, dt=run.dt, steps=run.steps,
         wall_time_s=run.wall_time_s, diverged=bool(run.diverged), diverged_time=run.diverged_time,
         divergence_reason=run.divergence_reason, error_rate=values["error_rate"],
         max_abs_z1_last_half=values["max_abs_z1_last_half"], max_abs_u=values["max_abs_u"],
         max_abs_u_applied=values["max_abs_u_applied"], saturated_fraction=values["saturated_fraction"],
-        final_eps_hat=tuple(float(v) for v in values["final_adaptive"]), adaptive_state=run.adaptive_name,
+        final_eps_hat=final, adaptive_state=run.adaptive_name,  # final_eps_hat: alias of final_state
         lemma2_max_ratio=lemma2_max_ratio(values["e_z_max"][None, :], run.L_z),
         velocity_source=run.velocity_source, lemma2_applies=lemma2_applies(run.velocity_source),
         L_z=tuple(float(v) for v in run.L_z), L=float(run.L_z[-1]),
         **bound_constants(run.bound_names, values["bound_constants"], values["smallest_r"]),
         law_diagnostics=law_diagnostics(run.law_diagnostics, values["diagnostics"]),
+        final_state=final,
     )
 
 

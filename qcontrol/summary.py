@@ -27,7 +27,10 @@ class Summary:
     ``warnings``; ``r_below_one`` (term -> smallest ``r_i(x_q)``), present only when a bounding
     function went below 1 during the run. ``law_diagnostics``: the law's own diagnostics as it
     declared them (``max_gain_period`` for the paper's law: the largest K T over the control
-    samples), written as top-level keys ``<reduce>_<name>`` of ``summary.json``. ``provenance`` and
+    samples), written as top-level keys ``<reduce>_<name>`` of ``summary.json``. ``final_state``:
+    the law's state at the end under the law's own name, the key ``final_<adaptive_state>``
+    (``final_theta_hat`` for the comparison law; for the paper's law that key is ``final_eps_hat``
+    itself, kept for every law as an alias). ``provenance`` and
     ``physics_warnings`` are present (not None) in the summary of a single run written by
     ``qcontrol run`` or :func:`qcontrol.run`.
     """
@@ -56,6 +59,7 @@ class Summary:
     bound_constants: Mapping[str, float | None] | None = None
     warnings: tuple[str, ...] = ()
     law_diagnostics: Mapping[str, Any] = field(default_factory=dict)
+    final_state: tuple[float, ...] | None = None  # written as final_<adaptive_state>
     r_below_one: Mapping[str, float] | None = None
     provenance: Mapping[str, Any] | None = field(default=None, compare=False)
     physics_warnings: tuple[str, ...] | None = None
@@ -71,19 +75,25 @@ class Summary:
             if f.name == "law_diagnostics":  # flat: "max_gain_period": 0.011
                 out.update({key: _plain(v) for key, v in value.items()})
                 continue
+            if f.name == "final_state":  # "final_theta_hat": [...]; "final_eps_hat" is the field itself
+                if value is not None and self.adaptive_state != "eps_hat":
+                    out[f"final_{self.adaptive_state}"] = _plain(value)
+                continue
             out[f.name] = _plain(value)
         return out
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> Summary:
         """The summary of a ``summary.json`` object (as :meth:`to_json` writes it)."""
-        known = {f.name for f in fields(cls)} - {"law_diagnostics"}
+        known = {f.name for f in fields(cls)} - {"law_diagnostics", "final_state"}
+        state_key = f"final_{data.get('adaptive_state')}"
         diagnostics = {k: v for k, v in data.items() if k not in known and k.startswith(_DIAGNOSTIC_PREFIXES)}
-        unknown = sorted(set(data) - known - set(diagnostics))
+        unknown = sorted(set(data) - known - set(diagnostics) - {state_key})
         if unknown:
             raise ValueError(f"not a summary field: {', '.join(unknown)}")
-        values = {k: v for k, v in data.items() if k in known} | {"law_diagnostics": diagnostics}
-        for name in ("final_eps_hat", "L_z", "warnings", "physics_warnings"):
+        values = {k: v for k, v in data.items() if k in known} | {"law_diagnostics": diagnostics,
+                                                                   "final_state": data.get(state_key)}
+        for name in ("final_eps_hat", "final_state", "L_z", "warnings", "physics_warnings"):
             if values.get(name) is not None:
                 values[name] = tuple(values[name])
         return cls(**values)

@@ -201,7 +201,7 @@ def test_a_law_must_follow_the_protocol() -> None:
     qcontrol.register_law("not_a_law", lambda table, n: object())
     with pytest.raises(QcontrolInputError, match="the qcontrol.Law protocol"):
         qcontrol.load_scenario(EX2, {"controller.kind": "not_a_law"})
-    with pytest.raises(QcontrolInputError, match="already registered"):
+    with pytest.raises(QcontrolInputError, match="built in and cannot be replaced"):
         qcontrol.register_law("proposed", ProposedAgain)
 
 

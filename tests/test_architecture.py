@@ -40,6 +40,7 @@ LAYERS = [
     {"recording", "plots", "attribution"},
     {"render"},
     {"sweep", "api", "explain", "region"},
+    {"law_comparison"},
     {"reproduce"},
     {"cli", "_entry"},
 ]

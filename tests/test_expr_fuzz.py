@@ -51,7 +51,8 @@ from qcontrol.expr import (
 
 VARIABLES = ("x1", "x2", "x3")
 WHERE = "fuzz.toml: plant.psi"
-ALLOWED_FUNCTIONS = ("abs", "sqrt", "exp", "log", "sin", "cos", "tan", "tanh", "sign", "min", "max")
+ALLOWED_FUNCTIONS = ("abs", "sqrt", "cbrt", "exp", "log", "sin", "cos", "tan", "tanh", "sign", "min", "max",
+                     "spow")
 # (examples per test); 2000 in all
 pytestmark = pytest.mark.filterwarnings("ignore::hypothesis.errors.HypothesisWarning")
 BUDGET = {"text": 500, "tokens": 500, "ast_any": 600, "ast_allowed": 400}
@@ -163,6 +164,8 @@ def _oracle(source: str, states: np.ndarray) -> np.ndarray | None:
         tan=np.tan,
         tanh=np.tanh,
         sign=np.sign,
+        cbrt=np.cbrt,
+        spow=lambda a, p: np.sign(a) * np.abs(a) ** p,
         min=lambda *a: functools.reduce(np.minimum, a),
         max=lambda *a: functools.reduce(np.maximum, a),
     )
@@ -435,7 +438,8 @@ def _allowed_extend(children: st.SearchStrategy[ast.expr]) -> st.SearchStrategy[
             children,
         ),
         st.builds(lambda op, a: ast.UnaryOp(op(), a), st.sampled_from([ast.USub, ast.UAdd]), children),
-        st.builds(lambda f, a: ast.Call(_name(f), [a], []), st.sampled_from(ALLOWED_FUNCTIONS[:9]), children),
+        st.builds(lambda f, a: ast.Call(_name(f), [a], []), st.sampled_from(ALLOWED_FUNCTIONS[:10]),
+                  children),
         st.builds(
             lambda f, args: ast.Call(_name(f), args, []),
             st.sampled_from(["min", "max"]),
@@ -580,6 +584,9 @@ def _uses(operation_name: str, arity: int | None) -> list[str]:
         return [operation_name]
     if arity == 1:
         return [f"{operation_name}x1"] if not operation_name.isalpha() else [f"{operation_name}(x1)"]
+    if arity == 2 and operation_name.isalpha():  # a function of two arguments: spow(a, p)
+        return [f"{operation_name}(x1, x2)", f"{operation_name}(2.5, x2)", f"{operation_name}(x1, 0.5)",
+                f"{operation_name}(sin(x1), cos(x2))"]
     if arity == 2:
         forms = [f"x1 {operation_name} x2", f"2.5 {operation_name} x2", f"x1 {operation_name} 0.5",
                  f"sin(x1) {operation_name} cos(x2)"]

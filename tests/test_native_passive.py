@@ -29,7 +29,8 @@ EXPRESSIONS = [
     "x2**2*cos(x1)", "0.1*x2**2", "sqrt(x1)", "log(x2)", "exp(x2)", "x1**0.5", "x2**x1", "1/x1",
     "tan(x1) - tanh(x2)", "sin(x1)*abs(x2) + sign(x1)*x2", "min(x1, x2, 0.5) - max(x2, x1)",
     "-x1 + 2*pi + x1**(1+1) + sin(0.5)*x2 + log(0.5)*x1 - (x1*x2)", "(x1 - x2)/(x1 + x2)",
-    "exp(-x1**2)*x2**3 + 0.2*sqrt(abs(x2)) - 3",
+    "exp(-x1**2)*x2**3 + 0.2*sqrt(abs(x2)) - 3", "cbrt(x1) - cbrt(-8)*x2", "spow(x1, 1/3) + spow(x2, x1)",
+    "spow(x2, -1) + spow(-2, 0.5)",
 ]
 VALUES = [0.0, -0.0, 1.0, -1.0, 0.5, -2.5, 3.0, 700.0, -710.0, 1e308, -1e-310, math.inf, -math.inf, math.nan]
 

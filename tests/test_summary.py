@@ -40,3 +40,17 @@ def test_the_api_gives_the_same_summary_typed(short_example2):
 def test_an_unknown_field_is_refused():
     with pytest.raises(ValueError, match="not a summary field: speed"):
         Summary.from_json({"speed": 1.0})
+
+
+def test_the_laws_own_final_state_key_reads_back_in_place(short_example2):
+    result = qcontrol.run(short_example2.with_overrides({"controller.kind": "comparison"}), "ode",
+                          record="metrics")
+    data = result.summary
+    keys = list(data)
+    assert data["adaptive_state"] == "theta_hat" and data["final_theta_hat"] == data["final_eps_hat"]
+    assert keys.index("final_theta_hat") == keys.index("warnings") + 1  # after the law's (no) diagnostics
+    typed = Summary.from_json(data)
+    assert typed.final_state == typed.final_eps_hat and list(typed.to_json()) == keys
+    paper = qcontrol.run(short_example2, "ode", record="metrics").summary
+    assert "final_state" not in paper  # final_eps_hat is the paper's law's own name
+    assert Summary.from_json(paper).final_state == tuple(paper["final_eps_hat"])

@@ -25,6 +25,9 @@ SET_HELP = ("override a scenario key, e.g. --set controller.kappa_margin=0.1 (re
 UNSET_HELP = ("remove a key of the scenario file, e.g. --unset reference.amplitude (repeatable; "
               "applied before --set)")
 
+LAW_MODULE_HELP = ("a Python file that registers control laws with qcontrol.register_law, run before the "
+                   "scenario is read, e.g. --law-module mylaws.py --set controller.kind=mine (repeatable)")
+
 
 class Parser(argparse.ArgumentParser):
     """argparse, but a usage error is one line and exit status 2."""
@@ -36,13 +39,15 @@ class Parser(argparse.ArgumentParser):
 def add_scenario_options(p: argparse.ArgumentParser, *, timing: bool = True, scenario_help: str | None = None,
                          set_help: str = SET_HELP, unset_help: str = UNSET_HELP) -> None:
     """The scenario a command works on: the file (or a shipped scenario's name), ``--set``,
-    ``--unset``, ``-q`` and, with ``timing``, ``--duration`` and ``--dt``
+    ``--unset``, ``--law-module``, ``-q`` and, with ``timing``, ``--duration`` and ``--dt``
     (:func:`scenario_from_args` reads them)."""
     p.add_argument("scenario", type=Path,
                    help=scenario_help or "scenario file (TOML), e.g. scenarios/example2.toml, or a shipped "
                    f"scenario's name ({', '.join(shipped_scenarios())})")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help=set_help)
     p.add_argument("--unset", dest="unset", action="append", default=[], metavar="KEY", help=unset_help)
+    p.add_argument("--law-module", dest="law_modules", action="append", default=[], type=Path,
+                   metavar="FILE", help=LAW_MODULE_HELP)
     if timing:
         p.add_argument("--duration", type=float, metavar="S", help="simulated time in seconds")
         p.add_argument("--dt", type=float, metavar="S", help="integration step in seconds")

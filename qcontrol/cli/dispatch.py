@@ -18,8 +18,10 @@ import threading
 import time
 import warnings
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 from .._version import __version__
+from ..controller.plugins import load_law_module, load_law_plugins
 from ..errors import QcontrolInputError, QcontrolOutputError, Terminated
 from ..provenance import command_line
 from .arguments import (
@@ -32,6 +34,7 @@ from .arguments import (
 )
 from .check_command import add_check_parser, cmd_check
 from .compare_command import add_compare_parser, cmd_compare
+from .laws_command import add_laws_parser, cmd_laws
 from .region_command import add_region_parser, cmd_region
 from .reproduce_command import add_reproduce_parser, cmd_reproduce
 from .run_command import add_run_parser, cmd_run
@@ -45,6 +48,7 @@ Handler = Callable[[argparse.Namespace], int]
 COMMANDS: dict[str, tuple[Register, Handler]] = {
     "run": (add_run_parser, cmd_run),
     "compare": (add_compare_parser, cmd_compare),
+    "laws": (add_laws_parser, cmd_laws),
     "reproduce": (add_reproduce_parser, cmd_reproduce),
     "sweep": (add_sweep_parser, cmd_sweep),
     "region": (add_region_parser, cmd_region),
@@ -62,6 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=EXIT_STATUS,
     )
     parser.add_argument("--version", action="version", version=f"qcontrol {__version__}")
+    parser.set_defaults(law_modules=[])  # the commands without scenario options load no law file
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     sub.required = True
     for register, _ in COMMANDS.values():
@@ -73,6 +78,14 @@ def _one_line_warning(message: Warning | str, category: type[Warning], filename:
                       line: str | None = None) -> str:
     """A warning as the command line prints it: one line, no source location."""
     return f"qcontrol: warning: {message}\n"
+
+
+def load_laws(files: Sequence[Path]) -> None:
+    """Before any scenario is read: the installed law plugins (entry-point group ``qcontrol.laws``),
+    then the ``--law-module`` files in the order given."""
+    load_law_plugins()
+    for file in files:
+        load_law_module(file)
 
 
 def _terminate(signum: int, frame: object) -> None:
@@ -89,6 +102,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _terminate) if main_thread else None
     try:
+        load_laws(args.law_modules)
         return COMMANDS[args.command][1](args)
     except QcontrolInputError as exc:
         print(f"qcontrol: error: {exc}", file=sys.stderr)

@@ -37,7 +37,7 @@ def format_summary(s: dict, sc: Scenario) -> str:
         f"  error rate: {rates}",
         f"  max |z1| over the last half: {f.max_abs_z1_last_half:.4g}    max |u|: {f.max_abs_u:.4g}",
         f"  actuator: max |u applied|: {f.max_abs_u_applied:.4g}    {_saturation(f.saturated_fraction)}",
-        f"  final {f.adaptive_state}: [{', '.join(f'{v:.4g}' for v in f.final_eps_hat)}]",
+        f"  final {f.adaptive_state}: [{', '.join(f'{v:.4g}' for v in final_state(f))}]",
         _lemma2_line(f),
         *gain_period_lines(s),
     ]
@@ -82,3 +82,8 @@ def status(s: dict | Summary) -> int:
         print("qcontrol: check failed: a Lemma 2 bound was exceeded", file=sys.stderr)
         return EXIT_FAILED
     return EXIT_OK
+
+
+def final_state(f: Summary) -> tuple[float, ...]:
+    """The law's final state (the summary's ``final_<adaptive_state>``)."""
+    return f.final_eps_hat if f.final_state is None else f.final_state

@@ -70,21 +70,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.save is not None:
         print(f"  wrote {result.save(args.save)}")
     if args.plot is not None:
-        print(f"  wrote {_plot_run(result, args.plot)}")
+        print(f"  wrote {result.plot(args.plot)}")
     if args.rrd is not None:
         print(f"  wrote {args.rrd} (open it with: rerun {args.rrd})")
     write_video(args, result)
     return status(s)
-
-
-def _plot_run(result: api.Result, path: Path) -> Path:
-    from ..plots import fig_run
-
-    s = result.summary
-    notes = [f"{s['scenario']} on {s['backend']}, {s['duration']:g} s, dt = {s['dt']:g} s"]
-    notes += [f"E({k}) = {v:.4f}" for k, v in s["error_rate"].items()]
-    notes += [f"max |z1|, last half = {s['max_abs_z1_last_half']:.4g}", f"max |u| = {s['max_abs_u']:.4g}",
-              f"Lemma 2 ratio = {s['lemma2_max_ratio']:.6f}"]
-    if s["diverged"]:
-        notes.append(f"diverged at t = {s['diverged_time']:g} s")
-    return fig_run(result.trajectory, path, f"{s['scenario']} ({s['backend']})", notes=notes)

@@ -8,6 +8,7 @@ law is one module with its class and its :class:`LawKind`, plus one :func:`regis
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
@@ -164,11 +165,30 @@ class LawKind:
 
 LAW_KINDS: dict[str, LawKind] = {}
 
+KIND_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_-]*\Z")  # a TOML bare key that starts like a name
+KIND_NAME_RULE = "letters, digits, _ and -, starting with a letter or _"
 
-def register_kind(kind: LawKind) -> None:
-    """Add a controller kind; its name must be new."""
-    if kind.name in LAW_KINDS:
-        raise QcontrolInputError(f"controller kind {kind.name!r} is already registered; choose another name")
+
+def check_kind_name(name: object, what: str) -> str:
+    """``name`` if it can name a controller kind (and its ``[controller.<kind>]`` table), else a
+    one-line refusal saying which characters are allowed."""
+    if not isinstance(name, str) or not KIND_NAME.match(name):
+        raise QcontrolInputError(f"{what}: kind {name!r} must be {KIND_NAME_RULE} (e.g. \"ce\" or "
+                                 "\"heldout-nominal\"); choose another")
+    return name
+
+
+def register_kind(kind: LawKind, *, replace: bool = False) -> None:
+    """Add a controller kind; its name must be new, unless ``replace`` is true and the kind it
+    replaces was registered from Python (a built-in kind, one with declared ``keys``, is never
+    replaced)."""
+    taken = LAW_KINDS.get(kind.name)
+    if taken is not None and taken.keys is not None:
+        raise QcontrolInputError(f"controller kind {kind.name!r} is built in and cannot be replaced; "
+                                 "choose another name")
+    if taken is not None and not replace:
+        raise QcontrolInputError(f"controller kind {kind.name!r} is already registered; choose another name "
+                                 "or pass replace=True")
     LAW_KINDS[kind.name] = kind
 
 

@@ -25,7 +25,7 @@ from ..errors import QcontrolInputError
 from ..quantizer import QuantizedReading
 from ..schema import Table
 from .backstepping import Backstepping, Columns, stack
-from .law import LawContext, LawKind, register_kind
+from .law import LawContext, LawKind, check_kind_name, register_kind
 
 
 @runtime_checkable
@@ -50,7 +50,7 @@ LawFactory = Callable[[dict, int], Law]  # (the [controller] table, the plant or
 class _Sample(NamedTuple):
     """What one evaluation hands the engine: ``u``, and what the state's RK4 steps hold."""
 
-    u: Any  # a float for a batch of one, a (batch,) array otherwise
+    u: np.ndarray  # (batch,)
     t: float
     x_q: np.ndarray  # (batch, n)
     yd: np.ndarray  # (n + 1,)
@@ -59,9 +59,11 @@ class _Sample(NamedTuple):
 class UserLaw(Backstepping):
     """A batch of user laws (one per copy) driven by the engine (:class:`~.law.BatchLaw`)."""
 
-    def __init__(self, laws: Sequence[Law], c: Sequence[float], max_error: float, state_name: str) -> None:
+    def __init__(self, laws: Sequence[Law], c: Sequence[float], max_error: float, state_name: str,
+                 kind: str = "user law") -> None:
         super().__init__(c, max_error)
-        self.laws = list(laws)
+        self.laws, self.kind = list(laws), kind
+        self._control_checked = self._rate_checked = False  # each output is checked at its first call
         sizes = {_state_size(law) for law in self.laws}
         if len(sizes) != 1:
             raise QcontrolInputError(f"the copies of a user law have different state sizes {sorted(sizes)}")
@@ -70,7 +72,7 @@ class UserLaw(Backstepping):
         self.copies = len(self.laws) if len(self.laws) > 1 else None
 
     def initial_state(self, batch: int) -> np.ndarray:
-        rows = [np.asarray(law.initial_state(), dtype=float).reshape(self.state_size) for law in self.laws]
+        rows = [self._checked_array(law.initial_state(), "initial_state()") for law in self.laws]
         return np.array(rows if len(rows) == batch else rows * batch).reshape(batch, self.state_size)
 
     def constants(self) -> dict[str, Any]:
@@ -83,17 +85,51 @@ class UserLaw(Backstepping):
             self.check_reading(reading)
         x_q, yd_row = reading.values, np.asarray(yd, dtype=float)
         states = stack(state, len(x_q))
-        u = np.array([float(self._law(b).control(t, x_q[b].copy(), yd_row.copy(), states[b].copy()))
-                      for b in range(len(x_q))])
+        outputs = [self._law(b).control(t, x_q[b].copy(), yd_row.copy(), states[b].copy())
+                   for b in range(len(x_q))]
+        if not self._control_checked:
+            for value in outputs:
+                self._check_number(value)
+            self._control_checked = True
+        u = np.array([float(v) for v in outputs])
         return _Sample(u, t, x_q, yd_row)
 
     def _law(self, b: int) -> Law:
         return self.laws[b] if len(self.laws) > 1 else self.laws[0]
 
     def _rates(self, sample: _Sample, states: np.ndarray) -> np.ndarray:
-        return np.array([np.asarray(self._law(b).state_rate(sample.t, sample.x_q[b].copy(), sample.yd.copy(),
-                                                            states[b].copy()), dtype=float).reshape(-1)
-                         for b in range(len(states))]).reshape(states.shape)
+        rates = [self._law(b).state_rate(sample.t, sample.x_q[b].copy(), sample.yd.copy(), states[b].copy())
+                 for b in range(len(states))]
+        if not self._rate_checked:
+            rates = [self._checked_array(r, "state_rate()") for r in rates]
+            self._rate_checked = True
+        return np.array([np.asarray(r, dtype=float).reshape(-1) for r in rates]).reshape(states.shape)
+
+    def _refuse(self, field: str, problem: str) -> QcontrolInputError:
+        return QcontrolInputError(f"controller kind {self.kind!r}: {field} {problem}; fix the law")
+
+    def _check_number(self, value: object) -> None:
+        """``control()``'s u: a real, finite number (a numpy scalar or a 0-d array too)."""
+        if isinstance(value, bool) or not isinstance(value, int | float | np.number | np.ndarray) \
+                or np.ndim(value) != 0 or not np.isrealobj(value):
+            raise self._refuse("control()", f"must return a real number u, got {type(value).__name__} "
+                                            f"{value!r}")
+        if not np.isfinite(float(value)):
+            raise self._refuse("control()", f"returned {float(value)} at the first control sample")
+
+    def _checked_array(self, value: object, field: str) -> np.ndarray:
+        """An ``(m,)`` array of finite real numbers from ``initial_state()`` or ``state_rate()``."""
+        arrays = np.ndarray | np.number | list | tuple | float
+        array = np.asarray(value) if isinstance(value, arrays) else None
+        if array is None or array.dtype.kind not in "iuf":
+            raise self._refuse(field, f"must return an array of {self.state_size} real numbers, got "
+                                      f"{type(value).__name__} {value!r}")
+        if array.ndim > 1 or array.size != self.state_size:
+            raise self._refuse(field, f"must return shape ({self.state_size},) (the law's state_size), "
+                                      f"got shape {array.shape}")
+        if not np.all(np.isfinite(array)):
+            raise self._refuse(field, f"returned a value that is not finite: {array.tolist()}")
+        return array.astype(float).reshape(self.state_size)
 
     def advancer(self, h: float) -> Callable[[Columns, _Sample], Columns]:
         """One classical RK4 step of ``h`` of ``state' = state_rate(t_k, x_q, yd, state)``."""
@@ -159,19 +195,29 @@ def _thaw(value: Any) -> Any:
     return value
 
 
-def register_law(kind: str, factory: LawFactory, *, state_name: str = "state") -> None:
+def register_law(kind: str, factory: LawFactory, *, state_name: str = "state", replace: bool = False) -> None:
     """Make ``controller.kind = "<kind>"`` select a law built by ``factory(table, n)``.
 
     ``table`` is the scenario's ``[controller]`` table as a dict (``kind``, ``delta``, ``c`` and
     the law's own keys, from ``[controller.<kind>]`` and from ``[controller]``); ``n`` is the plant
     order. The factory checks the keys it uses (:func:`check_keys` refuses unknown ones with the
     usual one-line message) and returns a :class:`Law`; it is called once when a scenario loads
-    (to check it) and once per copy of every run. ``state_name`` names the law's state in outputs.
+    (to check it) and once per copy of every run. ``state_name`` names the law's state in outputs
+    (the summary's ``final_<state_name>``). ``kind`` is letters, digits, ``_`` and ``-``, starting
+    with a letter or ``_``. ``replace=True`` replaces a law registered before under the same
+    name (editing a law in a notebook); the built-in kinds are never replaced.
     """
-    if not isinstance(kind, str) or not kind.isidentifier():
-        raise QcontrolInputError(f"register_law: kind {kind!r} must be a name such as \"ce\"; choose another")
+    check_kind_name(kind, "register_law")
+    if not callable(factory):
+        raise QcontrolInputError(f"register_law: factory for {kind!r} must be callable as factory(table, n), "
+                                 f"got {type(factory).__name__}")
+    if not isinstance(state_name, str) or not state_name.isidentifier():
+        raise QcontrolInputError(f"register_law: state_name {state_name!r} must be letters, digits and _, "
+                                 "starting with a letter or _")
+    if not isinstance(replace, bool):
+        raise QcontrolInputError(f"register_law: replace must be True or False, got {replace!r}")
     user = UserKind(kind, factory, state_name)
-    register_kind(LawKind(kind, None, user.parse, user.build, user.structure))  # refuses a taken name
+    register_kind(LawKind(kind, None, user.parse, user.build, user.structure), replace=replace)
 
 
 class UserKind:
@@ -189,7 +235,7 @@ class UserKind:
 
     def build(self, settings: Sequence[UserSettings], ctx: LawContext) -> UserLaw:
         laws = [_call(self.factory, s, ctx, None) for s in settings]
-        return UserLaw(laws, ctx.c, ctx.max_error, self.state_name)
+        return UserLaw(laws, ctx.c, ctx.max_error, self.state_name, self.kind)
 
     @staticmethod
     def structure(settings: UserSettings, ctx: LawContext) -> Hashable:

@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
+from ..expr import Expression
 from .row_buffer import RowBuffer
+
+DOMAIN_ERROR = "not a step-size problem"  # ends the reason of a NaN that a plant term's domain explains
 
 
 class Divergence:
@@ -12,7 +17,9 @@ class Divergence:
     ``|x_i|`` exceeds ``state_bound``: the copy keeps the rows up to and including that one."""
 
     def __init__(self, batch: int, rows: int, dt: float, state_bound: float,
-                 adaptive_name: str = "adaptive state") -> None:
+                 adaptive_name: str = "adaptive state", terms: Sequence[tuple[str, Expression]] = ()) -> None:
+        self.terms = tuple(terms)  # the plant's expressions by name, to explain a NaN (see _domain_error)
+        self.before: np.ndarray | None = None  # the last row of the rows tested before, (batch, n)
         self.dt = dt
         self.state_bound = state_bound
         self.adaptive_name = adaptive_name
@@ -33,19 +40,40 @@ class Divergence:
             row = int(np.argmax(bad[:, b]))
             self.kept[b] = first + row + 1
             self.times[b] = (first + row) * self.dt
-            self.reasons[b] = self._reason(x[row, b], adaptive[row, b])
+            before = x[row - 1, b] if row > 0 else None if self.before is None else self.before[b]
+            self.reasons[b] = self._reason(x[row, b], adaptive[row, b], before)
             self.alive[b] = False
+        self.before = np.array(x[-1])
 
-    def _reason(self, x: np.ndarray, adaptive: np.ndarray) -> str:
+    def _reason(self, x: np.ndarray, adaptive: np.ndarray, before: np.ndarray | None = None) -> str:
         """Which value stopped the copy, e.g. ``x2 = 1.2e+06 left the bound |x_i| <= 1e+06``."""
         for i, value in enumerate(x):
             if not np.isfinite(value):
-                return f"x{i + 1} became NaN/Inf"
+                return self._domain_error(before) or f"x{i + 1} became NaN/Inf"
         for i, value in enumerate(adaptive):
             if not np.isfinite(value):
                 return f"{self.adaptive_name}[{i + 1}] became NaN/Inf"
         i = int(np.argmax(np.abs(x)))
         return f"x{i + 1} = {x[i]:.3g} left the bound |x_i| <= {self.state_bound:g}"
+
+    def _domain_error(self, before: np.ndarray | None) -> str | None:
+        """A term of the plant that is NaN at the finite state the step started from, or at that
+        state with one coordinate's sign flipped (a step's inner stages cross zero first): the
+        state went NaN through that expression's domain (e.g. a negative base to a fractional
+        power), not through the step size."""
+        if before is None or not np.all(np.isfinite(before)):
+            return None
+        flipped = [np.where(np.arange(len(before)) == i, -before, before) for i in range(len(before))]
+        for name, term in self.terms:
+            for state in (before, *flipped):
+                with np.errstate(all="ignore"):
+                    value = float(term(state))
+                if np.isnan(value):
+                    shown = ", ".join(f"x{i + 1} = {v:.4g}" for i, v in enumerate(state))
+                    return (f"{name} = {term.source!r} is NaN at {shown} (beside the last finite state): "
+                            "the expression is undefined there (a negative base to a fractional power? "
+                            f"write cbrt(x) or spow(x, p) = sign(x) |x|**p), {DOMAIN_ERROR}")
+        return None
 
     @property
     def all_stopped(self) -> bool:

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..controller.law import BatchLaw
+from ..expr import Expression
 from ..plants.base import Plant
 from ..quantizer import Quantizer
 from ..reference import Reference
@@ -35,7 +36,9 @@ class RunSpec:
     (the terms of eq. (1) and their bounding functions to check along the run, eqs. (37)-(43);
     None: not checked). What it applies: ``loads``, ``(row, d)`` where the external load changes
     (u's units, :mod:`qcontrol.disturbance`); ``velocity_source``, ``"sensor"`` or
-    ``"difference"`` (x2 differenced from the quantized position, :mod:`.velocity`). Who watches:
+    ``"difference"`` (x2 differenced from the quantized position, :mod:`.velocity`). What explains a
+    NaN: ``terms``, the plant's expressions by name (``("plant.psi", psi)``), evaluated where a copy
+    turned NaN to say which term went out of its domain. Who watches:
     ``progress(row, last row)`` about every 1% of the run; ``observer`` every ``observe_every``
     rows and at the end, with the rows that became final.
     """
@@ -52,6 +55,7 @@ class RunSpec:
     separation: Separation | None = None
     loads: Sequence[tuple[int, float]] = ()
     velocity_source: str = "sensor"
+    terms: Sequence[tuple[str, Expression]] = ()
     progress: ProgressCallback | None = None
     observer: Observer | None = None
     observe_every: int = OBSERVE_EVERY

@@ -9,7 +9,9 @@ message that names it. Two generators turn that tree into closures: numpy calls 
 a row per operator, function and constant, with its numpy and its plain-float implementation.
 
 Allowed: numbers, the declared variables (``x1..xn``, ``q1..qn``), ``pi``, ``+ - * / **``, unary
-``-``/``+``, and calls to ``abs sqrt exp log sin cos tan tanh sign min max``.
+``-``/``+``, and calls to ``abs sqrt cbrt exp log sin cos tan tanh sign min max`` and
+``spow(a, p) = sign(a) |a|**p`` (a power of a negative base: ``x3**(1/3)`` is NaN for x3 < 0,
+``cbrt(x3)`` and ``spow(x3, 1/3)`` are the real cube root).
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ import numpy as np
 
 from ..errors import QcontrolInputError
 from .generators import columns_closure, float_closure
-from .operations import FLOAT_REFUSED, OPERATIONS, ColumnsFn, Operation, ScalarFn
+from .operations import FLOAT_REFUSED, NAMED, OPERATIONS, ColumnsFn, Operation, ScalarFn
 from .tree import (
     MAX_CONSTANT_EXPONENT,
     MAX_DEPTH,
@@ -47,6 +49,7 @@ __all__ = [
     "Operation",
     "ScalarFn",
     "compile_expression",
+    "expression",
     "scalar_function",
 ]
 
@@ -130,3 +133,20 @@ def scalar_function(expression: Expression) -> ScalarFn:
     (:meth:`Expression.on_floats`). ``sin``, ``exp``, ... may differ from numpy's in the last bit.
     """
     return float_closure(expression._tree)
+
+
+def expression(source: str, variables: Sequence[str] = ("x1", "x2")) -> Expression:
+    """The compiler scenarios use, public: ``qcontrol.expression("1 + q2**2", variables=("q1",
+    "q2"))`` parses and whitelist-checks ``source`` (the same language and safety as a scenario's
+    ``psi``, ``phi`` and ``r``: see the module docstring; ``cbrt`` and ``spow(a, p) = sign(a)
+    |a|**p`` give real powers of negative bases) and returns an :class:`Expression`: ``f(values)``
+    on an array ``values[..., len(variables)]`` (a row per state), ``f.on_floats([q1, q2])`` on
+    plain floats. Refusals are one :class:`QcontrolInputError` line."""
+    if isinstance(variables, str) or not isinstance(variables, Sequence) or not all(
+            isinstance(v, str) and v.isidentifier() for v in variables):
+        raise QcontrolInputError(f"expression: variables must be a list of names such as (\"q1\", \"q2\"), "
+                                 f"got {variables!r}")
+    if len(set(variables)) != len(variables) or any(v in NAMED for v in variables):
+        raise QcontrolInputError(f"expression: variables {list(variables)} must be distinct and not the name "
+                                 "of a function or constant")
+    return compile_expression(source, variables, "expression")

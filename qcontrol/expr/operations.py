@@ -56,6 +56,17 @@ def _nan_or(pick: Callable[[tuple[float, ...]], float]) -> Callable[..., float]:
     return pick_or_nan
 
 
+def _signed_power_of_arrays(a: Any, p: Any) -> Any:
+    """``spow(a, p) = sign(a) |a|**p``: a real power of a negative base (``a**(1/3)`` is NaN for
+    a < 0; ``spow(a, 1/3)`` is the real cube root), odd in ``a``."""
+    return np.sign(a) * np.power(np.abs(a), p)
+
+
+def _signed_power_of_floats(a: float, p: float) -> float:
+    """:func:`_signed_power_of_arrays` on plain floats, with the same operations."""
+    return _sign_of_float(a) * math.pow(abs(a), p)
+
+
 OPERATIONS: tuple[Operation, ...] = (
     Operation("+", 2, np.add, operator.add, ast.Add, lambda a, b: lambda xs: a(xs) + b(xs)),
     Operation("-", 2, np.subtract, operator.sub, ast.Sub, lambda a, b: lambda xs: a(xs) - b(xs)),
@@ -66,6 +77,7 @@ OPERATIONS: tuple[Operation, ...] = (
     Operation("pi", 0, lambda: np.pi, lambda: math.pi),
     Operation("abs", 1, np.abs, abs),
     Operation("sqrt", 1, np.sqrt, math.sqrt),
+    Operation("cbrt", 1, np.cbrt, math.cbrt),  # the real cube root, also of a negative number
     Operation("exp", 1, np.exp, math.exp),
     Operation("log", 1, np.log, math.log),
     Operation("sin", 1, np.sin, math.sin),
@@ -75,6 +87,7 @@ OPERATIONS: tuple[Operation, ...] = (
     Operation("sign", 1, np.sign, _sign_of_float),
     Operation("min", None, np.minimum, _nan_or(min)),
     Operation("max", None, np.maximum, _nan_or(max)),
+    Operation("spow", 2, _signed_power_of_arrays, _signed_power_of_floats),  # sign(a) |a|**p
 )
 OPERATORS = {row.syntax: row for row in OPERATIONS if row.is_operator}
 NAMED = {row.name: row for row in OPERATIONS if not row.is_operator}  # in the order messages list them

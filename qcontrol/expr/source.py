@@ -2,7 +2,8 @@
 
 The text computes exactly what :func:`~qcontrol.expr.generators.float_closure` computes, with
 the same folding of constants and the same operations in the same order (``x**2`` a product,
-``**`` ``math.pow``, ``sign``/``min``/``max`` as their plain-float rows). Where the closure
+``**`` ``math.pow``, ``sign``/``min``/``max``/``spow`` as their plain-float rows, ``cbrt`` as
+numpy's, which is libm's as ``math.cbrt`` is: numba has no ``math.cbrt``). Where the closure
 would raise (``math``'s domain and overflow errors, a division by zero), the generated code
 cannot; it sets a flag instead, :data:`FLAG`, which the caller turns into the closure's caller's
 answer (NaN for MuJoCo's passive force). CPython's rule for the ``math`` functions: an error
@@ -71,8 +72,9 @@ def _unary(row: Operation, operand: tuple[str, float | None], out: Statements) -
     if row.name == "abs":
         return out.temporary(f"abs({text})"), None
     if row.name == "sign":
-        a = out.temporary(text)
-        return out.temporary(f"{a} if {a} != {a} else (1.0 if {a} > 0 else (-1.0 if {a} < 0 else 0.0))"), None
+        return _sign(out.temporary(text), out), None
+    if row.name == "cbrt":  # defined everywhere: math.cbrt never raises
+        return out.temporary(f"np.cbrt({text})"), None
     assert row.name in _MATH, row.name
     a = out.temporary(text)
     r = out.temporary(f"math.{row.name}({a})")
@@ -92,16 +94,30 @@ def _binary(row: Operation, left: tuple[str, float | None], right: tuple[str, fl
     if lv is not None and rv is not None:
         return _literal(row.on_floats(lv, rv))
     if row is POWER:
-        r = out.temporary(f"math.pow({lt}, {rt})")
-        out.lines.append(f"{FLAG} = {FLAG} or (math.isfinite({lt}) and math.isfinite({rt}) "
-                         f"and not math.isfinite({r}))")
-        return r, None
+        return _power(lt, rt, out), None
+    if row.name == "spow":  # sign(a) * math.pow(abs(a), p), as its plain-float row
+        a = out.temporary(lt)
+        return out.temporary(f"{_sign(a, out)} * {_power(f'abs({a})', rt, out)}"), None
     if row.syntax is ast.Div:
         b = out.temporary(rt)
         out.lines.append(f"{FLAG} = {FLAG} or {b} == 0.0")
         return out.temporary(f"{lt} / {b}"), None
     symbol = {ast.Add: "+", ast.Sub: "-", ast.Mult: "*"}[row.syntax]
     return out.temporary(f"{lt} {symbol} {rt}"), None
+
+
+def _sign(a: str, out: Statements) -> str:
+    """numpy's sign of the temporary ``a`` on a float: -1.0, 0.0 or 1.0, NaN for NaN."""
+    return out.temporary(f"{a} if {a} != {a} else (1.0 if {a} > 0 else (-1.0 if {a} < 0 else 0.0))")
+
+
+def _power(base: str, exponent: str, out: Statements) -> str:
+    """``math.pow``, flagged where CPython's raises (a non-finite result of finite arguments)."""
+    b, e = out.temporary(base), out.temporary(exponent)
+    r = out.temporary(f"math.pow({b}, {e})")
+    out.lines.append(f"{FLAG} = {FLAG} or (math.isfinite({b}) and math.isfinite({e}) "
+                     f"and not math.isfinite({r}))")
+    return r
 
 
 def _variadic(row: Operation, texts: list[str], out: Statements) -> str:
@@ -115,5 +131,6 @@ def _variadic(row: Operation, texts: list[str], out: Statements) -> str:
     return out.temporary(f"math.nan if ({any_nan}) else {pick}")
 
 
-assert {row.name for row in NAMED.values() if row.arity != 0} == _MATH | {"abs", "sign", "min", "max"}
+assert {row.name for row in NAMED.values() if row.arity != 0} == _MATH | {"abs", "sign", "min", "max",
+                                                                              "cbrt", "spow"}
 assert set(OPERATORS) == {ast.Add, ast.Sub, ast.Mult, ast.Div, ast.Pow, ast.USub}

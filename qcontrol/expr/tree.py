@@ -231,6 +231,9 @@ class Validator:
             raise self.fail(problem, f"allowed names are {self.allowed_names()}")
         if row.arity == 1 and len(node.args) != 1:
             raise self.fail(f"{name}() takes exactly 1 argument, got {len(node.args)}", f"write {name}(x1)")
+        if row.arity == 2 and len(node.args) != 2:
+            raise self.fail(f"{name}() takes exactly 2 arguments, got {len(node.args)}",
+                            f"write {name}(x1, 0.5)")
         if row.arity is None and len(node.args) < 2:
             raise self.fail(f"{name}() needs at least 2 arguments", f"write {name}(a, b)")
         return self._apply(row, [self.visit(arg) for arg in node.args])

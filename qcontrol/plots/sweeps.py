@@ -1,7 +1,7 @@
 """The figure of a sweep, by the number of varied keys: one key, a line per metric against the
-value; two keys, a heatmap per metric; more, small multiples of heatmaps. Diverged runs are marked.
-With random initial states, each grid point shows the median over its runs (and, on lines, the
-range)."""
+value (markers per category for a non-numeric key such as the law's kind); two keys, a heatmap per
+metric; more, small multiples of heatmaps. Diverged runs are marked. With random initial states,
+each grid point shows the median over its runs (and, on lines, the range)."""
 
 from __future__ import annotations
 
@@ -90,17 +90,21 @@ def _lines(rows: Sequence[dict], points: _Points, rate_columns: Sequence[str], p
     xs = numbers if numbers is not None else np.arange(len(labels), dtype=float)
     fig, axes = new_figure(2, 2)
     panels = axes.ravel()
+    categories = numbers is None  # a kind, a reference kind: grouped markers, no trend line
     for i, metric in enumerate(rate_columns):
-        _line(panels[0], points, labels, xs, metric, rf"E($\omega$ = {metric[11:]})", COLORS[i % len(COLORS)])
+        shift = (i - (len(rate_columns) - 1) / 2) * 0.06 if categories else 0.0
+        _line(panels[0], points, labels, xs + shift, metric, rf"E($\omega$ = {metric[11:]})",
+              COLORS[i % len(COLORS)], categories)
     panels[0].set_ylim(-0.03, 1.03)
     panels[0].set_ylabel(r"error rate E($\omega$)")
     for ax, (metric, label) in zip(panels[1:], OTHER_METRICS, strict=True):
-        _line(ax, points, labels, xs, metric, label, COLORS[0])
+        _line(ax, points, labels, xs, metric, label, COLORS[0], categories)
         ax.set_ylabel(label)
     for ax in panels:
         _mark_diverged(ax, points, labels, xs)
         if numbers is None:
             ax.set_xticks(xs, labels, rotation=30, ha="right", fontsize=7)
+            ax.set_xlim(-0.5, len(labels) - 0.5)
         ax.set_xlabel(key)
         ax.grid(True, alpha=0.3)
         legend(ax, fontsize=7)
@@ -109,9 +113,16 @@ def _lines(rows: Sequence[dict], points: _Points, rate_columns: Sequence[str], p
 
 
 def _line(ax: Axes, points: _Points, labels: list[str], xs: np.ndarray, metric: str, label: str,
-          color: str) -> None:
+          color: str, categories: bool = False) -> None:
+    """The metric against a numeric key as a line (the range shaded); against categories as
+    markers (the range as error bars), with nothing drawn between two categories."""
     stats = np.array([points.stat((v,), metric) for v in labels]).reshape(-1, 3)
     stats[[points.diverged((v,)) for v in labels]] = np.nan  # marked by _mark_diverged instead
+    if categories:
+        spread = np.array([stats[:, 0] - stats[:, 1], stats[:, 2] - stats[:, 0]])
+        ax.errorbar(xs, stats[:, 0], yerr=spread, color=color, marker="o", markersize=5, linestyle="none",
+                    capsize=3, label=label)
+        return
     ax.plot(xs, stats[:, 0], color=color, marker="o", markersize=4, linewidth=1.3, label=label)
     if np.any(stats[:, 1] != stats[:, 2]):  # several runs per point: their range
         ax.fill_between(xs, stats[:, 1], stats[:, 2], color=color, alpha=0.15, linewidth=0)

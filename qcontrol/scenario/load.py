@@ -10,11 +10,11 @@ overrides, are applied to the file's data before validation (docs/scenarios.md).
 
 from __future__ import annotations
 
-import copy
 import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -65,10 +65,11 @@ class Scenario:
     controller: ControllerConfig
     reference: ReferenceConfig
     simulation: SimulationConfig
-    backends: dict[str, Any] = field(default_factory=dict)
+    backends: Mapping[str, Any] = field(default_factory=dict)  # read-only: a MappingProxyType
     disturbances: tuple[Disturbance, ...] = ()
     metrics: MetricSettings = field(default_factory=MetricSettings)
-    data: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)  # the TOML after overrides
+    # the TOML after overrides, read-only (tables as mappingproxy, arrays as tuples; plain_data copies it)
+    data: Mapping[str, Any] = field(default_factory=dict, repr=False, compare=False)
     base_dir: Path = field(default=Path("."), repr=False, compare=False)  # paths in it are relative to it
     psi_expr: Expression | None = field(default=None, repr=False)
     phi_expr: tuple[Expression, ...] = field(default=(), repr=False)
@@ -79,6 +80,7 @@ class Scenario:
         """A new scenario: this one's file with its overrides and then ``overrides`` (a dict
         ``{"controller.kappa_margin": 0.1}`` or ``"key=value"`` strings) applied. Scenarios are
         immutable: this one is unchanged."""
+        check_overrides(overrides, "with_overrides")
         return parse_scenario(self.text, source=self.source, base_dir=self.base_dir,
                               overrides=(*self.overrides, *_as_given(overrides)), default_name=self.name,
                               unset=self.unset)
@@ -112,10 +114,43 @@ class Scenario:
         return self.law_context.uncertain_terms
 
 
+def check_overrides(overrides: object, function: str) -> None:
+    """Overrides as :func:`load_scenario` takes them, else one line naming ``function``."""
+    strings = isinstance(overrides, list | tuple) and all(isinstance(o, str) for o in overrides)
+    if not strings and not (isinstance(overrides, Mapping) and all(isinstance(k, str) for k in overrides)):
+        raise QcontrolInputError(f"{function}: overrides must be a dict {{\"key\": value}} or a list of "
+                                 f"\"key=value\" strings, got {overrides!r}")
+
+
+def read_only(value: Any) -> Any:
+    """A read-only view of parsed TOML: tables as ``MappingProxyType``, arrays as tuples, so a
+    scenario's ``data`` cannot drift from what it ran (and its provenance)."""
+    if isinstance(value, Mapping):
+        return MappingProxyType({k: read_only(v) for k, v in value.items()})
+    if isinstance(value, list | tuple):
+        return tuple(read_only(v) for v in value)
+    return value
+
+
+def plain_data(value: Any) -> Any:
+    """A writable copy of :func:`read_only`'s view: dicts and lists again."""
+    if isinstance(value, Mapping):
+        return {k: plain_data(v) for k, v in value.items()}
+    if isinstance(value, tuple):
+        return [plain_data(v) for v in value]
+    return value
+
+
 def load_scenario(path: str | Path, overrides: Overrides = (), unset: Sequence[str] = ()) -> Scenario:
     """Read and validate a scenario file (or a shipped scenario by name, e.g. ``"example2"``),
     removing the ``unset`` keys and applying the overrides first: ``"key=value"`` strings as on the
     command line (``--set``), or a dict ``{"controller.kappa_margin": 0.1}``."""
+    if not isinstance(path, str | Path):
+        raise QcontrolInputError(f"load_scenario: path must be a file path (str or Path) or a shipped "
+                                 f"scenario's name, got {type(path).__name__}")
+    check_overrides(overrides, "load_scenario")
+    if isinstance(unset, str) or not all(isinstance(k, str) for k in unset):
+        raise QcontrolInputError(f"load_scenario: unset must be a list of keys (strings), got {unset!r}")
     path = scenario_path(check_name(path, "scenario"))
     kind = path_kind(path)
     if kind is not None:
@@ -297,9 +332,10 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
     disturbances = parse_disturbances(data.get("disturbance"), source)
     scenario = Scenario(
         name=meta["name"], description=meta["description"], source=source, text=text, overrides=overrides,
-        data=copy.deepcopy(data), base_dir=base_dir,
+        data=read_only(data), base_dir=base_dir,
         order=terms.order, theta=terms.theta, x0=x0, controller=controller,
-        reference=signal, simulation=simulation, backends=backends, disturbances=disturbances,
+        reference=signal, simulation=simulation, backends=MappingProxyType(backends),
+        disturbances=disturbances,
         psi_expr=terms.psi, phi_expr=terms.phi, metrics=metrics, paper_example=meta["paper_example"],
     )
     _check_terms_at_x0(scenario)

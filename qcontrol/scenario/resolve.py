@@ -4,7 +4,6 @@ the run from any folder), and the provenance of an output."""
 
 from __future__ import annotations
 
-import copy
 from pathlib import Path
 from typing import Any
 
@@ -13,12 +12,12 @@ import tomli_w
 from ..plants.backends import BACKENDS
 from ..provenance import provenance, sha256
 from ..resources import resolve_file, shipped_label
-from .load import Scenario
+from .load import Scenario, plain_data
 
 
 def resolved_toml(sc: Scenario) -> str:
     """The scenario after its overrides, as TOML: running it gives the same run."""
-    data = copy.deepcopy(sc.data)
+    data = plain_data(sc.data)
     data.setdefault("scenario", {})["name"] = sc.name
     plant = data.get("plant", {})
     for name, backend in BACKENDS.items():

@@ -61,6 +61,22 @@ def run_batch(scs: Sequence[Scenario], backend: str) -> list[dict]:
     return out
 
 
+def run_variants_batched(scs: Sequence[Scenario], backend: str) -> list[dict]:
+    """One summary per variant, in input order, in this process: the variants grouped and
+    chunked exactly as :func:`plan` groups a sweep's (so the same batches and numbers)."""
+    groups: dict[tuple, list[int]] = {}
+    for i, sc in enumerate(scs):
+        BACKENDS[backend].require(sc.backends.get(backend), sc.source)
+        groups.setdefault(batch_structure(sc, backend), []).append(i)
+    results: list[dict] = [{}] * len(scs)
+    for ids in groups.values():
+        for k in range(0, len(ids), CHUNK):
+            chunk = ids[k : k + CHUNK]
+            for i, s in zip(chunk, run_batch([scs[i] for i in chunk], backend), strict=True):
+                results[i] = s
+    return results
+
+
 def _run_chunk(scenario_path: str, override_sets: list[list[str]], backend: str,
                unset: Sequence[str] = ()) -> list[dict]:
     """Worker entry point (picklable arguments only): load the variants and run them as a batch."""

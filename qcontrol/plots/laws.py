@@ -1,0 +1,32 @@
+"""The figure of a law comparison: y and y_d, the tracking error z1 and the input u of every law on
+the same scenario and backend, overlaid (one colour per law)."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from pathlib import Path
+
+from ..engine import Trajectory
+from .common import COLORS, REF_STYLE, column, legend, new_figure, reference, save
+
+
+def fig_law_overlay(runs: Mapping[str, Trajectory], path: str | os.PathLike, title: str) -> Path:
+    """Three panels, each law a colour: y (with y_d), z1 = y - y_d, and u (held: steps)."""
+    fig, grid = new_figure(3, 1)
+    axes = grid.ravel()
+    first = next(iter(runs.values()))
+    t_ref, yd = reference(first)
+    axes[0].plot(t_ref, yd, label="$y_d$", **REF_STYLE)
+    for i, (kind, traj) in enumerate(runs.items()):
+        color = COLORS[i % len(COLORS)]
+        axes[0].plot(traj.t, traj.y, color=color, linewidth=1.2, label=kind)
+        axes[1].plot(traj.t, column(traj.z, 0), color=color, linewidth=1.2, label=kind)
+        axes[2].step(traj.t, traj.signals["u"], where="post", color=color, linewidth=1.0, label=kind)
+    for ax, label in zip(axes, ("y, $y_d$", "$z_1 = y - y_d$", "u"), strict=True):
+        ax.set_ylabel(label)
+        ax.grid(True, alpha=0.3)
+        legend(ax, fontsize=7)
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle(title)
+    return save(fig, path)
