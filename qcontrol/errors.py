@@ -1,5 +1,7 @@
 """Exception types the command line turns into exit statuses."""
 
+from __future__ import annotations
+
 
 class QcontrolInputError(ValueError):
     """Bad user input (scenario, model, command line). The CLI prints it as one line, exit 2."""
@@ -13,6 +15,24 @@ class KeyNotForKind(QcontrolInputError):
     def __init__(self, message: str, key: str) -> None:
         super().__init__(message)
         self.key = key
+
+
+class OverrideError(QcontrolInputError):
+    """A bad value (or key) that came from an override rather than the file: the message names the
+    override as given (``--set controller.delta=abc: must be a number ...``), not the file.
+    ``item`` is the override entry as the loader received it, so a command that made the entry
+    from another option (``--grid``, ``--duration``) can name that option instead
+    (:meth:`named`)."""
+
+    def __init__(self, label: str, detail: str, item: object = None) -> None:
+        super().__init__(f"{label}: {detail}")
+        self.label = label
+        self.detail = detail
+        self.item = item
+
+    def named(self, label: str) -> OverrideError:
+        """The same problem, named as the option ``label`` (e.g. ``--grid controller.delta=abc``)."""
+        return OverrideError(label, self.detail, self.item)
 
 
 class QcontrolOutputError(OSError):
@@ -30,3 +50,12 @@ def shown(value: object) -> str:
     with its control characters escaped (a newline in a name would split the message)."""
     text = str(value)
     return text if text.isprintable() else repr(text)
+
+
+def brief(text: str, limit: int = 40) -> str:
+    """``text`` (:func:`shown`) for a one-line message, cut after ``limit // 2`` characters when it is
+    longer than ``limit`` (a 400-digit literal is not echoed back whole)."""
+    text = shown(text)
+    if len(text) <= limit:
+        return text
+    return f"{text[: limit // 2]}... ({len(text)} characters)"

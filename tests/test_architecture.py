@@ -286,7 +286,8 @@ def test_switching_kind_takes_the_other_kinds_sub_table() -> None:
       "kappa_margin"]),
     (["controller.kind=comparison", "controller.gamma=2.0"],
      ["controller.gamma", "kind 'comparison'", "gain, theta"]),
-    (["controller.comparison.gian=2.0"], ["controller.comparison.gian: unknown key", "gain, theta"]),
+    (["controller.comparison.gian=2.0"],
+     ["--set controller.comparison.gian=2.0: unknown key", "gain, theta"]),
     (["controller.proposed=1"], ["controller.proposed", "must be a table"]),
 ])
 def test_keys_of_another_kind_are_refused_with_the_keys_that_apply(overrides: list[str],

@@ -257,7 +257,8 @@ CATALOGUE: dict[str, Case] = {
         ex2('actuator = "torque"', 'actuator = "torque"\nsensor_noise = nan'), "plant.mujoco.sensor_noise"
     ),
     "nonfinite: --set gamma=inf": case(
-        None, "controller.gamma: must be finite", scenario=EX2, args=("--set", "controller.gamma=inf")
+        None, "--set controller.gamma=inf: must be finite", scenario=EX2,
+        args=("--set", "controller.gamma=inf"), names_file=False,  # the command line is named, not the file
     ),
     "nonfinite: --duration nan": case(
         None, "--duration nan: must be a positive number", scenario=EX2, args=("--duration", "nan"),
@@ -302,10 +303,11 @@ CATALOGUE: dict[str, Case] = {
     "expr: open": case(phi(f'open("{CANARY}", "w")'), "unknown function 'open'"),
     "expr: exec via a --set": case(
         None,
-        "plant.psi",
+        "--set plant.psi=",
         "unknown function 'exec'",
         scenario=EX1,
         args=("--set", f'plant.psi="exec(\'open(\\"{CANARY}\\",\\"w\\")\')"'),
+        names_file=False,
     ),
     "expr: lambda": case(phi("lambda x1: x1"), "lambda is not allowed"),
     "expr: called lambda": case(phi("(lambda: 1)()"), "only calls of plain function names"),
@@ -389,25 +391,38 @@ CATALOGUE: dict[str, Case] = {
         args=("--set", "simulation.dt.x=1"),
         names_file=False,
     ),
-    "set: unknown top-level key": case(None, "foo: unknown key", scenario=EX2, args=("--set", "foo.bar=1")),
+    "set: unknown top-level key": case(None, "--set foo.bar=1: foo: unknown key", scenario=EX2,
+                                       args=("--set", "foo.bar=1"), names_file=False),
     "set: bad value type": case(
         None,
-        "controller.delta: must be a number, got a string 'abc'",
+        "--set controller.delta=abc: must be a number, got a string 'abc'",
         scenario=EX2,
         args=("--set", "controller.delta=abc"),
+        names_file=False,
     ),
     "set: bad choice": case(
-        None, "controller.kind: 'pid' is not allowed", scenario=EX2, args=("--set", "controller.kind=pid")
+        None, "--set controller.kind=pid: 'pid' is not allowed", scenario=EX2,
+        args=("--set", "controller.kind=pid"), names_file=False,
     ),
     "set: wrong length": case(
-        None, "plant.x0: has 3 entries", scenario=EX2, args=("--set", "plant.x0=[1, 2, 3]")
+        None, "--set plant.x0=[1, 2, 3]: has 3 entries", scenario=EX2, args=("--set", "plant.x0=[1, 2, 3]"),
+        names_file=False,
     ),
     "set: table replaced by a value": case(
-        None, "plant: must be a table", scenario=EX2, args=("--set", "plant=1")
+        None, "--set plant=1: must be a table", scenario=EX2, args=("--set", "plant=1"), names_file=False
+    ),
+    "set: bad --grid value": case(
+        None, "--grid controller.delta=abc: must be a number", scenario=EX2, command="sweep",
+        args=("--grid", "controller.delta=0.01,abc"), names_file=False,
+    ),
+    "set: bad entry of a list": case(
+        None, "--set controller.c=[1.0, -3.0]: controller.c[1]: must be > 0", scenario=EX2,
+        args=("--set", "controller.c=[1.0, -3.0]"), names_file=False,
     ),
     # ---- run length and steps --------------------------------------------------------------
     "steps: too many (memory)": case(
-        None, "simulation.duration", "more than the limit", scenario=EX2, args=("--duration", "1e300")
+        None, "--duration 1e+300: ", "more than the limit", scenario=EX2, args=("--duration", "1e300"),
+        names_file=False,
     ),
     "steps: tiny dt": case(None, "more than the limit", scenario=EX2, args=("--dt", "1e-300")),
     "steps: negative --dt": case(None, "--dt -0.001: must be a positive number", scenario=EX2,

@@ -100,7 +100,7 @@ def test_bad_scenario_exit_2_one_line(tmp_path, capsys, case):
     [
         (["run", "missing.toml"], "scenario file not found"),
         (["run", str(EX2), "--set", "nokey"], "expected KEY=VALUE"),
-        (["run", str(EX2), "--set", "controller.kapa=1"], "controller.kapa: unknown key"),
+        (["run", str(EX2), "--set", "controller.kapa=1"], "--set controller.kapa=1: unknown key"),
         (["run", str(EX2), "--set", "controller.c=[1, 2, 3]"], "has 3 entries, expected 2"),
         (["run", str(ROOT / "scenarios" / "chain3.toml"), "--backend", "mujoco"], "[plant.mujoco]"),
         (["run", str(EX2), "--duration", "-1"], "--duration -1.0: must be a positive number of seconds"),

@@ -34,6 +34,11 @@ def _value(key: Key) -> str:
     return "1.0" if key.default in (REQUIRED, OPTIONAL, None) else toml_value(key.default)
 
 
+def _names_override(message: str, key: str, problem: str) -> bool:
+    """Whether ``message`` names the override that set ``key`` (not the file) and says ``problem``."""
+    return message.startswith(f"--set {key}=") and f": {problem}" in message
+
+
 def _refused(argv_tail: list[str], scenario: Path = EX2, unset: tuple[str, ...] = ()) -> str:
     """The one-line message a scenario with these --set overrides is refused with (load only)."""
     with pytest.raises(QcontrolInputError) as exc:
@@ -61,8 +66,8 @@ def _law_cases() -> list[tuple[str, str, Key]]:
                          ids=lambda v: v if isinstance(v, str) else v.name)
 def test_a_controller_key_of_another_kind_is_refused(chosen: str, other: str, key: Key) -> None:
     message = _refused([f"controller.kind={chosen}", f"controller.{key.name}={_value(key)}"])
-    assert f"controller.{key.name}: does not apply to kind '{chosen}' (it is a setting of kind '{other}')" \
-        in message
+    assert _names_override(message, f"controller.{key.name}",
+                           f"does not apply to kind '{chosen}' (it is a setting of kind '{other}')")
     applies = ", ".join(["kind", "delta", "c", *LAW_KINDS[chosen].keys.names])
     assert f"keys of [controller] with kind = '{chosen}' are {applies}" in message
 
@@ -70,7 +75,7 @@ def test_a_controller_key_of_another_kind_is_refused(chosen: str, other: str, ke
 @pytest.mark.parametrize("chosen", [k for k, kind in LAW_KINDS.items() if kind.keys is not None])
 def test_an_unknown_key_in_a_kind_sub_table_is_refused(chosen: str) -> None:
     message = _refused([f"controller.{chosen}.no_such_key=1"])
-    assert f"controller.{chosen}.no_such_key: unknown key" in message
+    assert _names_override(message, f"controller.{chosen}.no_such_key", "unknown key")
     assert ", ".join(LAW_KINDS[chosen].keys.names) in message
 
 
@@ -133,7 +138,7 @@ def test_a_reference_key_of_another_kind_is_refused(chosen: str, other: str, key
     overrides = [f"reference.kind={chosen}", *_required_settings(chosen),
                  f"reference.{key.name}={_value(key)}"]
     message = _refused(overrides, unset=SINE_KEYS)
-    assert f"reference.{key.name}: does not apply to kind '{chosen}'" in message
+    assert _names_override(message, f"reference.{key.name}", f"does not apply to kind '{chosen}'")
     applies = ", ".join(["kind", *REFERENCE_KINDS[chosen].keys.names])
     assert f"keys of [reference] with kind = '{chosen}' are {applies}" in message
 
@@ -142,9 +147,10 @@ def test_the_findings_on_the_reference_are_refused() -> None:
     """A constant reference ignored `offset` and `amplitude`; chain3's amplitude was silently
     dropped on --set reference.kind=constant."""
     message = _refused(["reference.kind=constant", "reference.offset=0.5"], unset=SINE_KEYS)
-    assert "reference.offset: does not apply to kind 'constant'" in message and "kind, value" in message
+    assert _names_override(message, "reference.offset", "does not apply to kind 'constant'")
+    assert "kind, value" in message
     message = _refused(["reference.kind=constant", "reference.amplitude=3"], unset=SINE_KEYS)
-    assert "reference.amplitude: does not apply to kind 'constant'" in message
+    assert _names_override(message, "reference.amplitude", "does not apply to kind 'constant'")
     message = _refused(["reference.kind=constant"], scenario=CHAIN3)
     assert "reference.amplitude: does not apply to kind 'constant'" in message
 
@@ -173,7 +179,8 @@ def _backend_cases() -> list[tuple[str, Key]]:
                          ids=lambda v: v if isinstance(v, str) else v.name)
 def test_a_backend_key_written_directly_in_plant_is_refused(backend: str, key: Key) -> None:
     message = _refused([f"plant.{key.name}={_value(key)}"])
-    assert f"plant.{key.name}: does not apply to [plant] (it is a setting of backend '{backend}')" in message
+    assert _names_override(message, f"plant.{key.name}",
+                           f"does not apply to [plant] (it is a setting of backend '{backend}')")
     assert f"write it in [plant.{backend}]" in message
 
 
@@ -186,7 +193,7 @@ def test_a_backend_without_settings_refuses_a_section(backend: str) -> None:
 @pytest.mark.parametrize("backend", [name for name, b in BACKENDS.items() if b.section is not None])
 def test_an_unknown_key_in_a_backend_section_is_refused(backend: str) -> None:
     message = _refused([f"plant.{backend}.no_such_key=1"])
-    assert f"plant.{backend}.no_such_key: unknown key" in message
+    assert _names_override(message, f"plant.{backend}.no_such_key", "unknown key")
 
 
 def test_the_mujoco_section_needs_a_plant_of_order_two(tmp_path: Path) -> None:

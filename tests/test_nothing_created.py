@@ -84,7 +84,8 @@ def test_sweep_creates_nothing_on_bad_input(here: Path, capsys: pytest.CaptureFi
     _refused_and_nothing_made(here, capsys, ["sweep", str(EX2), "--grid", "controller.kapa=0.1", "--out",
                                              "runs/sw6", "-q"], "controller.kapa")
     _refused_and_nothing_made(here, capsys, ["sweep", str(EX2), "--grid", "controller.kappa_margin=0.1,-1",
-                                             "--out", "runs/sw7", "-q"], "kappa_margin: must be > 0")
+                                             "--out", "runs/sw7", "-q"],
+                              "--grid controller.kappa_margin=-1: must be > 0")
     _refused_and_nothing_made(here, capsys, ["sweep", str(EX2), "--grid", "controller.kappa_margin=0.1",
                                              "--unset", "reference.phase", "--out", "runs/sw8", "-q"],
                               "--unset reference.phase")

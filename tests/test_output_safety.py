@@ -445,9 +445,9 @@ BIG = "1" + "0" * 400
 
 
 @pytest.mark.parametrize("overrides, words", [
-    (["metrics.samples=100000000000"], "metrics.samples: must be at most"),
-    ([f"controller.proposed.gamma={BIG}"], "beyond the limit 2**63 - 1"),
-    ([f"plant.x0=[{BIG}, 0.0]"], "plant.x0[0]: the integer is beyond"),
+    (["metrics.samples=100000000000"], "--set metrics.samples=100000000000: must be at most"),
+    ([f"controller.proposed.gamma={BIG}"], "an integer of 401 digits is beyond the limit 2**63 - 1"),
+    ([f"plant.x0=[{BIG}, 0.0]"], "plant.x0[0]: an integer of 401 digits is beyond"),
     (['disturbance=[{kind = "step", start = 1e306, value = 1.0}]'], "disturbance[0].start: must be at most"),
     (["plant.x0=[" + ", ".join(["0.0"] * 100_001) + "]"], "more than 100000"),
 ])
@@ -457,6 +457,8 @@ def test_bounds_are_refused_by_check_and_run_alike(capsys, overrides, words):
     first = _one_line(capsys, words)
     assert main(["run", str(EX2), *SHORT, *sets]) == 2
     assert _one_line(capsys, words) == first
+    assert first.startswith("qcontrol: error: --set ")  # the command line is named, not the file
+    assert BIG not in first and len(first) < 400  # a long literal is not echoed back whole
 
 
 def test_bounds_in_a_file_and_in_an_api_dict(tmp_path):
@@ -465,8 +467,15 @@ def test_bounds_in_a_file_and_in_an_api_dict(tmp_path):
         deep.write_text(EX2.read_text() + "\n[extra]\nx = " + "[" * depth + "]" * depth + "\n")
         with pytest.raises(QcontrolInputError, match="nested"):
             load_scenario(deep)
-    with pytest.raises(QcontrolInputError, match="beyond the limit"):
+    with pytest.raises(QcontrolInputError, match=r"^override plant.x0=\[1000.*: plant.x0\[0\]: an integer "
+                       "of 401 digits is beyond the limit") as refused:
         qcontrol.load_scenario(EX2, {"plant.x0": [10**400, 0.0]})
+    assert BIG not in str(refused.value)
+    (tmp_path / "big.toml").write_text(EX2.read_text().replace("x0 = [", f"x0 = [{BIG}, ", 1).replace(
+        '"qcontrol:models/', f'"{ROOT}/models/'))
+    with pytest.raises(QcontrolInputError, match="big.toml: plant.x0") as refused:
+        load_scenario(tmp_path / "big.toml")  # a file's value names the file
+    assert BIG not in str(refused.value)
 
 
 def test_sweep_size_and_seed_are_bounded(capsys):

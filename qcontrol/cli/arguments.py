@@ -6,9 +6,11 @@ before anything runs."""
 from __future__ import annotations
 
 import argparse
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from pathlib import Path
 
-from ..errors import QcontrolInputError
+from ..errors import OverrideError, QcontrolInputError
 from ..outputs import check_distinct, check_figure_file, check_output_dir, check_output_file
 from ..progress import ProgressLine
 from ..resources import shipped_scenarios
@@ -61,24 +63,39 @@ def add_recording_options(p: argparse.ArgumentParser) -> None:
                    help="stream to a rerun viewer started on this machine (needs a display)")
 
 
-def _check_timing(args: argparse.Namespace) -> None:
-    """``--duration`` and ``--dt`` are positive finite seconds: refused naming the option."""
-    for option, value in (("--duration", args.duration), ("--dt", args.dt)):
-        if value is not None and not (0 < value < float("inf")):
+def timing_overrides(args: argparse.Namespace) -> dict[str, str]:
+    """``--duration`` and ``--dt`` as the overrides they stand for, each mapped to the option as
+    given (so a problem with the value names the option); positive finite seconds, else refused."""
+    made = {}
+    for option, key, value in (("--duration", "duration", args.duration), ("--dt", "dt", args.dt)):
+        if value is None:
+            continue
+        if not 0 < value < float("inf"):
             raise QcontrolInputError(f"{option} {value!r}: must be a positive number of seconds; "
                                      f"e.g. {option} {'10' if option == '--duration' else '0.001'}")
+        made[f"simulation.{key}={value!r}"] = f"{option} {value!r}"
+    return made
+
+
+@contextmanager
+def options_named(options: Mapping[str, str]) -> Iterator[None]:
+    """A problem with an override the command made from another option (``--duration``, a
+    ``--grid`` value; ``options`` maps the override to the option as given) names that option."""
+    try:
+        yield
+    except OverrideError as exc:
+        label = options.get(exc.item) if isinstance(exc.item, str) else None
+        if label is None:
+            raise
+        raise exc.named(label) from None
 
 
 def scenario_from_args(args: argparse.Namespace) -> Scenario:
     """The scenario of :func:`add_scenario_options`' arguments (with ``timing``): ``--unset``,
     then ``--set``, then ``--duration`` and ``--dt`` applied to the file."""
-    _check_timing(args)
-    overrides = list(args.overrides)
-    if args.duration is not None:
-        overrides.append(f"simulation.duration={args.duration!r}")
-    if args.dt is not None:
-        overrides.append(f"simulation.dt={args.dt!r}")
-    return load_scenario(args.scenario, overrides, args.unset)
+    timing = timing_overrides(args)
+    with options_named(timing):
+        return load_scenario(args.scenario, [*args.overrides, *timing], args.unset)
 
 
 def check_outputs(args: argparse.Namespace, sc: Scenario, files: dict[str, Path | None],

@@ -20,7 +20,7 @@ from ..region import BOX, default_laws, measure_region, parse_grid, parse_law, w
 from ..scenario import load_scenario
 from ..scenario.resolve import scenario_provenance
 from ..sweep.runs import SweepInterrupted
-from .arguments import EXIT_OK, add_scenario_options
+from .arguments import EXIT_OK, add_scenario_options, options_named, timing_overrides
 
 
 def add_region_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -56,16 +56,6 @@ def add_region_parser(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(command_line=None)
 
 
-def _overrides(args: argparse.Namespace) -> list[str]:
-    out = list(args.overrides)
-    for key, value in (("dt", args.dt), ("duration", args.duration)):
-        if value is not None:
-            if not value > 0:
-                raise QcontrolInputError(f"--{key} {value!r}: must be > 0")
-            out.append(f"simulation.{key}={value!r}")
-    return out
-
-
 def cmd_region(args: argparse.Namespace) -> int:
     """Every run is checked before the output folder is made."""
     if args.workers < 1:
@@ -73,8 +63,10 @@ def cmd_region(args: argparse.Namespace) -> int:
     check_output_dir(args.out)
     for name in ("region.csv", "region.json", "region.png"):
         check_output_file(args.out / name, "--out", fix="remove it or choose another --out folder")
-    overrides = _overrides(args)
-    base = load_scenario(args.scenario, overrides, args.unset)
+    timing = timing_overrides(args)
+    overrides = [*args.overrides, *timing]
+    with options_named(timing):
+        base = load_scenario(args.scenario, overrides, args.unset)
     grid = parse_grid(base, args.axes, args.box, args.resolution)
     laws = [parse_law(text) for text in args.laws] or default_laws(base)
     progress = ProgressLine("region", not args.quiet, "runs")

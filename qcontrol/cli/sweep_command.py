@@ -31,7 +31,7 @@ from ..scenario.resolve import scenario_provenance
 from ..sweep.grid import check_size, grid_points, parse_grid
 from ..sweep.runs import SweepInterrupted, plan, sweep_summaries
 from ..sweep.table import csv_text, metric_columns, sweep_record, sweep_rows
-from .arguments import EXIT_OK, add_scenario_options
+from .arguments import EXIT_OK, add_scenario_options, options_named
 
 OUTPUTS = ("sweep.csv", "sweep.json", "sweep.png")
 
@@ -89,7 +89,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     points = grid_points(grid, args.random_initial, args.seed, order=base.order)
     keys = list(points[0]) if points else []
     sets = [list(args.overrides) + [f"{k}={v}" for k, v in p.items()] for p in points]
-    chunks = plan(base.source, sets, backend, args.unset)
+    with options_named({f"{k}={v}": f"--grid {k}={v}" for k, values in grid for v in values}):
+        chunks = plan(base.source, sets, backend, args.unset)
     if backend != "ode" and not args.quiet:
         print(f"sweep on {backend}: one process per chunk of runs; --backend ode steps the runs together "
               "as arrays and is much faster")

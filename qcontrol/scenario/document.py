@@ -33,7 +33,8 @@ complete examples, and `qcontrol check FILE` validates a file without running it
 Rules that hold for every table:
 
 * **Unknown keys are errors**, as are wrong types, non-finite numbers and lists of the wrong
-  length: each is reported as one line naming the file, the key, what is wrong and the fix.
+  length: each is reported as one line naming the file, the key, what is wrong and the fix (a
+  value given on the command line is named as given, e.g. `--set controller.delta=abc: ...`).
 * **Keys per kind.** A table with a `kind` key (`[controller]`, `[reference]`) takes the keys every
   kind takes plus those of the chosen kind. A key of another kind is refused, naming the kind and
   the keys that do apply. Settings of kinds that are not chosen may sit in sub-tables of their own,
@@ -57,7 +58,10 @@ KEY is a dotted path (`controller.kappa_margin`, `plant.mujoco.torque_limit`). T
 are removed from the file first, then the `--set` values are applied, then the result is validated
 as a file would be: the same keys-per-kind rule holds. A `--set` value is read as TOML (`0.1`,
 `[1.0, 2.0]`, `"text"`), otherwise as a plain string. Removing a key that is not in the file is an
-error that lists the keys that are there.
+error that lists the keys that are there. A bad value that came from the command line is reported
+naming the option as given rather than the file: `--set controller.delta=abc: must be a number,
+got a string 'abc'; write e.g. 1.5` (likewise `--grid KEY=V`, `--duration`, `--dt`, and an API
+dict's entry as `override KEY=VALUE`); a long value is shown cut short.
 
 ```bash
 # Example 2 as a set-point run: the sine's keys do not apply to a constant reference

@@ -25,15 +25,16 @@ def check_limits(value: Any, where: str, path: str = "") -> None:
     stack = [(value, path, 0)]
     while stack:
         item, at, depth = stack.pop()
-        named = f"{where}: {at}" if at else where
+        named = ": ".join(part for part in (where, at) if part)
         if depth > MAX_DEPTH:
             raise QcontrolInputError(f"{named}: nested more than {MAX_DEPTH} levels deep; no key takes such "
                                      "a value: flatten it")
         if isinstance(item, bool):
             continue
         if isinstance(item, int) and abs(item) > MAX_INTEGER:
-            raise QcontrolInputError(f"{named}: the integer is beyond the limit 2**63 - 1 of an integer "
-                                     "literal; write a smaller number (or a float such as 1e20)")
+            digits = len(str(abs(item)))
+            raise QcontrolInputError(f"{named}: an integer of {digits} digits is beyond the limit 2**63 - 1 "
+                                     "of an integer literal; write a smaller number (or a float, e.g. 1e20)")
         elif isinstance(item, str) and len(item) > MAX_TEXT:
             raise QcontrolInputError(f"{named}: the string is {len(item)} characters long, more than "
                                      f"{MAX_TEXT}; shorten it")

@@ -3,13 +3,15 @@
 A scenario is data: the plant (order, psi, phi, theta, x0, and a model per backend), the
 controller (kind, delta, gains and the kind's own settings), the reference, and the simulation
 settings. Every key is declared once (:mod:`.keys`, and the kinds' own modules); every problem is
-reported as one line naming the file, the key, what is wrong and the fix. Unknown keys, and keys
-that do not apply to the chosen kind, are errors. ``--unset key`` removals, then ``--set key=value``
-overrides, are applied to the file's data before validation (docs/scenarios.md).
+reported as one line naming the file (or the override, when the value came from one), the key,
+what is wrong and the fix. Unknown keys, and keys that do not apply to the chosen kind, are errors.
+``--unset key`` removals, then ``--set key=value`` overrides, are applied to the file's data before
+validation (docs/scenarios.md).
 """
 
 from __future__ import annotations
 
+import copy
 import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -22,7 +24,7 @@ import numpy as np
 from ..controller.law import KIND_ALIASES, LawContext, law_kind
 from ..disturbance import Disturbance, parse_disturbances
 from ..engine import MetricSettings
-from ..errors import KeyNotForKind, QcontrolInputError, shown
+from ..errors import KeyNotForKind, OverrideError, QcontrolInputError, brief, shown
 from ..expr import Expression, compile_expression
 from ..outputs import check_name, path_kind
 from ..plants.backends import BACKENDS, PlantContext
@@ -188,16 +190,21 @@ def parse_scenario(
     for key in unset:
         remove_key(data, key, source)
     given = _as_given(overrides)
+    file_data = copy.deepcopy(data) if given else data  # what the file holds, to tell its keys apart
     for item in given:  # strings and (key, value) pairs: the latter come from dicts
         if isinstance(item, str):
             apply_override(data, item)
         else:
-            set_key(data, *item, f"override {item[0]!r}")
-    _current_kind_names(data, source)
+            set_key(data, item[0], item[1], item)
     try:
+        _current_kind_names(data, source)
         scenario = _build(data, source, base_dir or Path("."), text, given, default_name)
     except KeyNotForKind as exc:
-        raise QcontrolInputError(_command_line_fix(exc, given)) from None
+        raise _command_line_fix(exc, given) from None
+    except OverrideError:
+        raise
+    except QcontrolInputError as exc:
+        raise _from_override(exc, source, given, file_data) from None
     return replace(scenario, unset=tuple(unset)) if unset else scenario
 
 
@@ -218,16 +225,60 @@ def _current_kind_names(data: dict, source: str) -> None:
             controller[new] = controller.pop(old)
 
 
-def _command_line_fix(exc: KeyNotForKind, given: Sequence[str | tuple[str, Any]]) -> str:
+def _command_line_fix(exc: KeyNotForKind, given: Sequence[str | tuple[str, Any]]) -> QcontrolInputError:
     """A key the chosen kind does not take, with the fix on the command line when the overrides
-    chose the kind (the key is then the file's: ``--unset`` it) or set the key (leave it out)."""
+    chose the kind (the key is then the file's: ``--unset`` it) or set the key (named as the
+    override: leave it out)."""
     keys = [(item.partition("=")[0] if isinstance(item, str) else item[0]).strip() for item in given]
     table = exc.key.rsplit(".", 1)[0]
     if exc.key in keys:
-        return f"{exc}; or leave out --set {exc.key}=..."
+        item = given[len(keys) - 1 - keys[::-1].index(exc.key)]
+        detail = str(exc).split(f": {exc.key}: ", 1)[-1]
+        return OverrideError(override_label(item), f"{detail}; or leave out --set {exc.key}=...", item)
     if f"{table}.kind" in keys:
-        return f"{exc}; or, as the kind came from --set, remove the file's key: --unset {exc.key}"
-    return str(exc)
+        return QcontrolInputError(f"{exc}; or, as the kind came from --set, remove the file's key: "
+                                  f"--unset {exc.key}")
+    return QcontrolInputError(str(exc))
+
+
+def _from_override(exc: QcontrolInputError, source: str, given: Sequence[str | tuple[str, Any]],
+                   file_data: dict) -> QcontrolInputError:
+    """A problem the validator found at a key (``SOURCE: key: problem; fix``), named as the override
+    that gave the key its value when one did (the last one, as it wins): the key itself or a table
+    above it was set, or the key is a table the override made (it is not in the file)."""
+    prefix = f"{source}: "
+    message = str(exc)
+    if not given or not message.startswith(prefix):
+        return exc
+    rest = message[len(prefix):]
+    at = rest.split(": ", 1)[0]
+    for item in reversed(given):
+        key = (item.partition("=")[0] if isinstance(item, str) else item[0]).strip()
+        if at == key:
+            return OverrideError(override_label(item), rest[len(at) + 2:], item)
+        inside = at.startswith((f"{key}.", f"{key}["))
+        made = key.startswith(f"{at}.") and not _has_key(file_data, at)
+        if inside or made:
+            return OverrideError(override_label(item), rest, item)
+    return exc
+
+
+def _has_key(data: dict, dotted: str) -> bool:
+    node: Any = data
+    for part in dotted.split("."):
+        if not isinstance(node, dict) or part not in node:
+            return False
+        node = node[part]
+    return True
+
+
+def override_label(item: str | tuple[str, Any]) -> str:
+    """How a message names one override: ``--set key=value`` for a string (as on the command
+    line), ``override key=value`` for an entry of a dict (the API); a long value is cut short."""
+    if isinstance(item, str):
+        key, sep, raw = item.partition("=")
+        return f"--set {shown(key.strip())}{sep}{brief(raw.strip())}"
+    return f"override {shown(item[0])}={brief(repr(item[1]))}"
 
 
 def _as_given(overrides: Overrides) -> tuple[str | tuple[str, Any], ...]:
@@ -282,35 +333,34 @@ def apply_override(data: dict, item: str) -> None:
     key, sep, raw = item.partition("=")
     key = key.strip()
     if not sep or not key:
-        raise QcontrolInputError(
-            f"--set {item!r}: expected KEY=VALUE; write e.g. --set controller.kappa_margin=0.1"
-        )
-    parts = key.split(".")
-    if any(not p for p in parts):
-        raise QcontrolInputError(f"--set {item!r}: key {key!r} has an empty part; write e.g. "
-                                 "--set controller.kappa_margin=0.1")
+        raise OverrideError(override_label(item), "expected KEY=VALUE; write e.g. "
+                            "--set controller.kappa_margin=0.1", item)
     raw = raw.strip()
     try:
         value = tomllib.loads(f"v = {raw}")["v"]
     except (tomllib.TOMLDecodeError, RecursionError, ValueError):
         value = raw
-    set_key(data, key, value, f"--set {item!r}")
+    set_key(data, key, value, item)
 
 
-def set_key(data: dict, key: str, value: Any, label: str) -> None:
-    """Set the dotted ``key`` of the scenario's data to ``value`` (tables made as needed)."""
+def set_key(data: dict, key: str, value: Any, item: str | tuple[str, Any]) -> None:
+    """Set the dotted ``key`` of the scenario's data to ``value`` (tables made as needed); ``item``
+    is the override as given, which a problem names."""
     parts = key.split(".")
     if not key or any(not p for p in parts):
-        raise QcontrolInputError(f"{label}: key {key!r} has an empty part; write a.b.c=value")
+        raise OverrideError(override_label(item), f"key {shown(key)} has an empty part; write e.g. "
+                            "--set controller.kappa_margin=0.1", item)
     node = data
     for part in parts[:-1]:
         child = node.setdefault(part, {})
         if not isinstance(child, dict):
-            raise QcontrolInputError(
-                f"{label}: {part!r} is a value, not a table; set {'.'.join(parts[:-1])} directly"
-            )
+            raise OverrideError(override_label(item), f"{part!r} is a value, not a table; set "
+                                f"{'.'.join(parts[:-1])} directly", item)
         node = child
-    check_limits(value, label, key)
+    try:
+        check_limits(value, "", key)
+    except QcontrolInputError as exc:
+        raise OverrideError(override_label(item), str(exc).removeprefix(f"{key}: "), item) from None
     node[parts[-1]] = value
 
 
