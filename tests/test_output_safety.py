@@ -430,6 +430,44 @@ def test_workers_die_with_their_parent(tmp_path, sig):
             os.kill(w, signal.SIGKILL)
 
 
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process table from /proc")
+def test_reproduces_workers_die_with_it(tmp_path):
+    """``qcontrol reproduce`` itself, killed with SIGTERM and with SIGKILL while its robustness study
+    runs on two workers: no worker is left 2 s later. The two reproductions run at once (each
+    reaches its workers after its examples and studies, about 10 s on an idle machine). Its 1 s
+    runs are short, so this pins the contract for the command; that a worker busy with a long run
+    dies at once is shown by the sweep's test above (600 s runs)."""
+    procs = {}
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        argv = [sys.executable, "-m", "qcontrol.cli", "reproduce", "--duration", "1", "--workers", "2", "-q",
+                "--out", str(tmp_path / sig.name)]
+        procs[sig] = subprocess.Popen(argv, cwd=tmp_path, stdout=subprocess.DEVNULL,
+                                      stderr=subprocess.DEVNULL, env={**os.environ, "HOME": str(tmp_path)})
+    try:
+        workers: dict[signal.Signals, list[int]] = {}
+        deadline = time.monotonic() + 240
+        while len(workers) < len(procs) and time.monotonic() < deadline:
+            for sig, proc in procs.items():  # each signalled as soon as its two workers run
+                found = [] if sig in workers else _children(proc.pid)
+                if len(found) == 2:
+                    workers[sig] = found
+                    proc.send_signal(sig)
+            time.sleep(0.1)
+        assert sorted(workers) == sorted(procs), "reproduce did not start its two workers"
+        for proc in procs.values():
+            proc.wait(timeout=20)
+        time.sleep(2.0)
+        for sig in procs:
+            assert not [w for w in workers[sig] if _alive(w)], f"a worker outlived reproduce ({sig.name})"
+    finally:
+        for proc in procs.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+            for w in _children(proc.pid):
+                os.kill(w, signal.SIGKILL)
+
+
 def test_workers_are_capped_at_the_work_and_the_cores():
     cores = os.cpu_count() or 1
     assert worker_count(64, 1000) == cores
