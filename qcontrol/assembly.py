@@ -13,6 +13,7 @@ from typing import Any
 from .controller import BatchLaw, law_kind
 from .disturbance import Schedule, scaled_changes
 from .engine import Observer, ProgressCallback, RunMetrics, RunSpec, Separation, Trajectory, simulate
+from .engine.results import RunRecord
 from .errors import QcontrolInputError
 from .expr import Expression
 from .plants import BACKENDS, Plant, SceneSource
@@ -143,7 +144,7 @@ def run_variants(
     observer: Observer | None = None,
     plant: Plant | None = None,
     record: str = "full",
-) -> list[Trajectory] | list[RunMetrics]:
+) -> list[RunRecord]:
     """Closed-loop runs of variants that share :func:`batch_structure`, as one batch."""
     first = variants[0]
     plant = plant if plant is not None else build_plants(variants, backend)

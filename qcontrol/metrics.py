@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .engine import RunMetrics, Trajectory
+from .engine import RunRecord, Trajectory
 from .engine.velocity import lemma2_applies
 from .error_rate import TABLE1_OMEGAS, error_rate, omega_key
 from .summary import Summary
@@ -29,12 +29,12 @@ def finite_max_abs(values: np.ndarray) -> float:
     return float(v.max()) if v.size else float("nan")
 
 
-def summary(run: Trajectory | RunMetrics, scenario: str, backend: str) -> dict:
+def summary(run: RunRecord, scenario: str, backend: str) -> dict:
     """The ``summary.json`` object of a run: :func:`run_summary`'s :meth:`Summary.to_json`."""
     return run_summary(run, scenario, backend).to_json()
 
 
-def run_summary(run: Trajectory | RunMetrics, scenario: str, backend: str) -> Summary:
+def run_summary(run: RunRecord, scenario: str, backend: str) -> Summary:
     """The :class:`~qcontrol.summary.Summary` of a run (see the README's output contract).
 
     The metrics are the reductions of the signal table, the same whether the run kept every row

@@ -186,8 +186,8 @@ def test_a_user_law_in_compare_and_in_a_sweep() -> None:
     batched = sweep_summaries(EX2, sets)  # one batch of two copies, one law object each
     for overrides, summary in zip(sets, batched, strict=True):
         alone = qcontrol.run(qcontrol.load_scenario(EX2, overrides), backend="ode").summary
-        assert summary["error_rate"] == alone["error_rate"]
-        assert summary["final_eps_hat"] == pytest.approx(alone["final_eps_hat"], rel=1e-12)
+        assert summary.error_rate == alone["error_rate"]
+        assert summary.final_eps_hat == pytest.approx(alone["final_eps_hat"], rel=1e-12)
 
 
 def test_a_user_laws_factory_refuses_unknown_keys_in_one_line() -> None:

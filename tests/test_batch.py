@@ -12,6 +12,7 @@ from qcontrol.engine import simulate
 from qcontrol.metrics import summary
 from qcontrol.plants.ode import ChainPlant
 from qcontrol.scenario import load_scenario
+from qcontrol.summary import Summary
 from qcontrol.sweep import run_batch, sweep_summaries
 
 SHORT = ["simulation.duration=1.5"]
@@ -67,11 +68,12 @@ def test_sweep_summaries_equal_single_runs():
     sets = [SHORT + v for v in VARIANTS]
     for overrides, s in zip(sets, sweep_summaries(EXAMPLE2, sets), strict=True):
         single = summary(run_scenario(load_scenario(EXAMPLE2, overrides), "ode"), "example2", "ode")
+        assert isinstance(s, Summary)
         for key, value in single["error_rate"].items():
-            assert s["error_rate"][key] == pytest.approx(value, abs=1e-12)
+            assert s.error_rate[key] == pytest.approx(value, abs=1e-12)
         for key in ("max_abs_z1_last_half", "max_abs_u", "lemma2_max_ratio"):
-            assert s[key] == pytest.approx(single[key], rel=1e-12, abs=1e-12)
-        np.testing.assert_allclose(s["final_eps_hat"], single["final_eps_hat"], rtol=1e-12, atol=1e-12)
+            assert getattr(s, key) == pytest.approx(single[key], rel=1e-12, abs=1e-12)
+        np.testing.assert_allclose(s.final_eps_hat, single["final_eps_hat"], rtol=1e-12, atol=1e-12)
 
 
 def test_per_copy_parameters_must_fit_the_batch():
@@ -93,9 +95,9 @@ def test_mujoco_batch_agrees_with_single_mujoco_runs(name):
     batched = run_batch([load_scenario(path, o) for o in sets], "mujoco")
     for overrides, s in zip(sets, batched, strict=True):
         single = summary(run_scenario(load_scenario(path, overrides), "mujoco"), name, "mujoco")
-        assert not s["diverged"]
+        assert not s.diverged
         for key, value in single["error_rate"].items():
-            assert s["error_rate"][key] == pytest.approx(value, abs=MUJOCO_TOLERANCE)
+            assert s.error_rate[key] == pytest.approx(value, abs=MUJOCO_TOLERANCE)
         for key in ("max_abs_z1_last_half", "max_abs_u", "lemma2_max_ratio"):
-            assert s[key] == pytest.approx(single[key], rel=MUJOCO_TOLERANCE)
-        np.testing.assert_allclose(s["final_eps_hat"], single["final_eps_hat"], rtol=MUJOCO_TOLERANCE)
+            assert getattr(s, key) == pytest.approx(single[key], rel=MUJOCO_TOLERANCE)
+        np.testing.assert_allclose(s.final_eps_hat, single["final_eps_hat"], rtol=MUJOCO_TOLERANCE)

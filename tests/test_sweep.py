@@ -78,7 +78,7 @@ SETS = [[SHORT, f"controller.kappa_margin={k}", f"controller.gamma={g}"]
 
 
 def _comparable(summaries):
-    return [{k: v for k, v in s.items() if k != "wall_time_s"} for s in summaries]
+    return [{k: v for k, v in s.to_json().items() if k != "wall_time_s"} for s in summaries]
 
 
 def test_local_workers_give_the_in_process_table(monkeypatch):

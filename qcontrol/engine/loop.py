@@ -28,7 +28,7 @@ from ..timegrid import TimeGrid
 from .divergence import Divergence
 from .fastpath import rows_for
 from .reference_rows import ReferenceRows
-from .results import RunMetrics, Trajectory
+from .results import RunRecord
 from .retention import FullRecord, MetricsRecord, RunParts
 from .row_buffer import NEVER
 from .signals import SignalContext, applied_as_commanded
@@ -112,7 +112,7 @@ class ClosedLoop:
         self.record.at(end, finished, time.perf_counter())
         return finished
 
-    def run(self) -> list[Trajectory] | list[RunMetrics]:
+    def run(self) -> list[RunRecord]:
         """The closed loop, row by row: observe -> quantize -> control -> record -> step -> advance."""
         plant, grid, rows = self.plant, self.grid, self.rows
         quantize, reference_at, keep = self.quantize, self.reference.at, rows.keep
@@ -149,9 +149,10 @@ def simulate(
     dt: float | None = None,
     control_period: float | None = None,
     **options: Any,
-) -> list[Trajectory] | list[RunMetrics]:
+) -> list[RunRecord]:
     """Run the closed loop of ``spec`` (a :class:`~.spec.RunSpec`) for every copy of its plant's
-    batch: one :class:`Trajectory` each, or one :class:`RunMetrics` each with ``record="metrics"``.
+    batch: one :class:`~.results.RunRecord` each, a :class:`~.results.Trajectory` (``record="full"``,
+    the default) or a :class:`~.results.RunMetrics` (``record="metrics"``).
 
     A copy whose state turns non-finite or leaves ``|x_i| <= state_bound`` stops there: its
     record ends with the offending row, ``diverged`` is set and the others run on.

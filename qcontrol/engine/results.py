@@ -1,5 +1,7 @@
-"""What a closed-loop run returns: a full :class:`Trajectory` or, for sweeps and long runs, its
-:class:`RunMetrics`. Their array fields and metrics are made from the signal table
+"""What a closed-loop run returns: one type, a :class:`RunRecord` (how the run went, its ``steps``
+and its metrics, :meth:`RunRecord.reduced`), which is a full :class:`Trajectory` (every row kept)
+or, for sweeps and long runs, a :class:`RunMetrics` (the metrics only), as the run's ``record``
+mode asked. Their array fields and metrics are made from the signal table
 (:data:`~qcontrol.engine.signals.SIGNALS`), so every recorded signal is an attribute here."""
 
 from __future__ import annotations
@@ -18,7 +20,11 @@ from .signals import REDUCTIONS, SIGNALS
 class RunRecord:
     """What every record of a run carries: the adaptive state's name, the Lemma 2 bounds ``L_z``,
     the step and horizon, the control period in steps (``hold``), where the controller's x2 came
-    from (``velocity_source``), whether the actuator could clip u, and how the run ended."""
+    from (``velocity_source``), whether the actuator could clip u, and how the run ended.
+
+    Every record also has ``steps`` (the steps taken) and :meth:`reduced` (the metrics, by the
+    reductions of the signal table), whichever of the two kinds it is: what
+    :func:`qcontrol.metrics.run_summary` reads."""
 
     adaptive_name: str
     L_z: np.ndarray
@@ -41,6 +47,10 @@ class RunRecord:
         name_w`` for one of width w."""
         return tuple(d.name if d.width == 1 else f"{d.name}_{i + 1}"
                      for d in self.law_diagnostics for i in range(d.width))
+
+    def reduced(self) -> dict[str, Any]:
+        """The metrics of the run (each kind of record gives them)."""
+        raise NotImplementedError
 
 
 @dataclass(kw_only=True)

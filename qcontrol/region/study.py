@@ -26,6 +26,7 @@ from ..controller.law import KIND_ALIASES
 from ..errors import QcontrolInputError
 from ..metrics import LEMMA2_TOLERANCE
 from ..scenario import Scenario, load_scenario
+from ..summary import Summary
 from ..sweep.runs import CHUNK, RunsDone, plan, run_batch, sweep_summaries
 
 if TYPE_CHECKING:
@@ -138,12 +139,12 @@ def parse_grid(sc: Scenario, axes: str, box: str, resolution: int) -> RegionGrid
     return RegionGrid(picked, (bounds[0], bounds[2]), (bounds[1], bounds[3]), resolution)  # type: ignore[arg-type]
 
 
-def classify(s: dict) -> str:
+def classify(s: Summary) -> str:
     """``diverged``; ``lemma2`` (bounded, but a Lemma 2 bound was exceeded where it applies); or
     ``bounded``."""
-    if s["diverged"]:
+    if s.diverged:
         return "diverged"
-    if s["lemma2_applies"] and not s["lemma2_max_ratio"] <= 1 + LEMMA2_TOLERANCE:
+    if s.lemma2_applies and not s.lemma2_max_ratio <= 1 + LEMMA2_TOLERANCE:
         return "lemma2"
     return "bounded"
 
@@ -289,7 +290,7 @@ def region_sets(grid: RegionGrid, laws: Sequence[LawSpec], x0: Sequence[float], 
 
 
 def _in_process(path: str, runs: Sequence[tuple[LawSpec, tuple[float, ...]]], overrides: Sequence[str],
-                unset: Sequence[str], backend: str, progress: RunsDone | None) -> list[dict]:
+                unset: Sequence[str], backend: str, progress: RunsDone | None) -> list[Summary]:
     """The summaries :func:`~qcontrol.sweep.sweep_summaries` gives for :func:`region_sets`, from
     the very same batches (grouped by batch structure, cut into chunks of ``CHUNK`` in input
     order), but with the scenario loaded once per law: a start differs from it only in x(0). (A
@@ -303,7 +304,7 @@ def _in_process(path: str, runs: Sequence[tuple[LawSpec, tuple[float, ...]]], ov
         sc = loaded[law.label]
         variant = replace(sc, x0=tuple(x), overrides=(*sc.overrides, _x0_text(x)))
         groups.setdefault(batch_structure(variant, backend), []).append((i, variant))
-    results: list[dict | None] = [None] * len(runs)
+    results: list[Summary | None] = [None] * len(runs)
     done = 0
     for members in groups.values():
         for k in range(0, len(members), CHUNK):
@@ -340,8 +341,8 @@ def measure_region(scenario: str | Path, grid: RegionGrid, laws: Sequence[LawSpe
     else:
         chunks = plan(base.source, sets, backend, unset)
         summaries = sweep_summaries(base.source, sets, backend, workers, scheduler, progress, chunks, unset)
-    points = [RegionPoint(law.label, x, classify(s), s["diverged_time"], s["lemma2_max_ratio"],
-                          s.get("max_gain_period"), s["max_abs_u"])
+    points = [RegionPoint(law.label, x, classify(s), s.diverged_time, s.lemma2_max_ratio,
+                          s.law_diagnostics.get("max_gain_period"), s.max_abs_u)
               for (law, x), s in zip(runs, summaries, strict=True)]
     return Region(base, grid, list(laws), backend, points, time.perf_counter() - started)
 

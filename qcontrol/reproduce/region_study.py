@@ -18,6 +18,7 @@ from typing import Any
 
 from ..plots.region import fig_region
 from ..region import BOX, OUTCOMES, LawSpec, Region, RegionGrid, measure_region, parse_law
+from ..summary import Summary
 from ..sweep import sweep_summaries
 
 EXAMPLES = ("example1", "example2")
@@ -51,7 +52,7 @@ def region_study(scenarios: Path, duration: float | None, log: Callable[[str], N
             "regions": regions}
 
 
-def _row(region: Region, law: LawSpec, s: Mapping[str, Any], dt: float) -> dict[str, Any]:
+def _row(region: Region, law: LawSpec, s: Summary, dt: float) -> dict[str, Any]:
     found = region.law_summary(law)
     return {
         "example": region.scenario.name, "control_period": dt, "law": law.label,
@@ -60,8 +61,8 @@ def _row(region: Region, law: LawSpec, s: Mapping[str, Any], dt: float) -> dict[
         "max_abs_u_in_box": found["max_abs_u_in_box"],
         "max_gain_period_bounded": found["max_gain_period_bounded"],
         "directions": found["directions"],
-        "x0": list(region.scenario.x0), "error_rate": s["error_rate"], "diverged_from_x0": s["diverged"],
-        "max_gain_period_from_x0": s.get("max_gain_period"), "max_abs_u_from_x0": s["max_abs_u"],
+        "x0": list(region.scenario.x0), "error_rate": dict(s.error_rate), "diverged_from_x0": s.diverged,
+        "max_gain_period_from_x0": s.law_diagnostics.get("max_gain_period"), "max_abs_u_from_x0": s.max_abs_u,
     }
 
 

@@ -6,6 +6,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from ..paper import METHOD_LABELS, OMEGA_KEYS, PAPER_TABLE1, PAPER_TABLE1_ROWS
+from ..summary import Summary
 from .region_study import region_section
 from .robustness_report import robustness_section
 
@@ -57,7 +58,7 @@ def _row(method: str, source: str, rates: Mapping[str, float], signed: bool = Fa
     return f"| {method} | {source} | " + " | ".join(fmt.format(rates[w]) for w in OMEGA_KEYS) + " |"
 
 
-def study_markdown(x_label: str, x_values: Sequence, summaries: Sequence[Mapping]) -> str:
+def study_markdown(x_label: str, x_values: Sequence, summaries: Sequence[Summary]) -> str:
     """A sensitivity study as a Markdown table: one row per parameter value."""
     lines = [
         f"| {x_label} | " + " | ".join(f"E({w})" for w in OMEGA_KEYS)
@@ -65,10 +66,10 @@ def study_markdown(x_label: str, x_values: Sequence, summaries: Sequence[Mapping
         "|---|" + "---|" * (len(OMEGA_KEYS) + 4),
     ]
     for x, s in zip(x_values, summaries, strict=True):
-        rates = " | ".join(f"{s['error_rate'][w]:.4f}" for w in OMEGA_KEYS)
+        rates = " | ".join(f"{s.error_rate[w]:.4f}" for w in OMEGA_KEYS)
         lines.append(
-            f"| {x} | {rates} | {s['max_abs_z1_last_half']:.3g} | {s['max_abs_u']:.3g} | "
-            f"{s['lemma2_max_ratio']:.6f} | {'yes' if s['diverged'] else 'no'} |"
+            f"| {x} | {rates} | {s.max_abs_z1_last_half:.3g} | {s.max_abs_u:.3g} | "
+            f"{s.lemma2_max_ratio:.6f} | {'yes' if s.diverged else 'no'} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -88,10 +89,10 @@ class ReportFacts:
     lemma2_ratios: Sequence[float]
     diverged: Sequence[str]
     table: Mapping
-    studies: Mapping
+    studies: Mapping  # each study's values and its runs' summaries (Summary)
     deviations: Mapping[str, Mapping]
-    example1: Mapping  # summaries
-    example2: Mapping
+    example1: Summary
+    example2: Summary
     z2_last_half: float  # max |z_2| over Example 2's last half
     kappa_plus_L: float
     robustness: Mapping | None = None  # robustness.json, when the study ran
@@ -148,7 +149,7 @@ def _findings(f: ReportFacts) -> list[str]:
     kappa, scale = f.studies["kappa_margin"], f.studies["r_scale"]
     at_01 = kappa["summaries"][list(kappa["values"]).index(0.1)]
     best_scale = min(zip(scale["values"], scale["summaries"], strict=True),
-                     key=lambda vs: vs[1]["error_rate"]["0.100"])
+                     key=lambda vs: vs[1].error_rate["0.100"])
     largest = max(abs(v) for v in f.table["difference"][b]["comparison"].values())
     return [
         "## What was reproduced and what was not",
@@ -163,7 +164,7 @@ def _findings(f: ReportFacts) -> list[str]:
         "term of (44), -(zbar_2/kappa)/(kappa - L) (zbar_2^2/kappa + L) eps_hat^T r, is small near "
         "zbar_2 = 0 and the sigma-modification keeps eps_hat far below the true eps "
         "(eps_3 = |theta_3| = 34.3): the "
-        f"loop settles with |z_1| up to {f.example2['max_abs_z1_last_half']:.3f} rad in the last half "
+        f"loop settles with |z_1| up to {f.example2.max_abs_z1_last_half:.3f} rad in the last half "
         f"and |z_2| up to {f.z2_last_half:.2f} (Theorem 1's worst-case figure kappa + L = "
         f"{f.kappa_plus_L:.3f} is exceeded: the ultimate bound carries the sigma |eps|^2 residual; "
         "docs/math.md, 'What the theorem promises').",
@@ -172,15 +173,15 @@ def _findings(f: ReportFacts) -> list[str]:
         "paper leaves open'). Any constant "
         "multiple s >= 1 of r is equally valid, and kappa is a free design constant: the printed "
         "'1.1 + L' may carry an extraction error. Both change the result strongly (studies below): "
-        f"kappa = 0.1 + L gives E(0.100) = {at_01['error_rate']['0.100']:.4f}, and scaling r by "
-        f"{best_scale[0]:g} gives E(0.100) = {best_scale[1]['error_rate']['0.100']:.4f}. We report these "
+        f"kappa = 0.1 + L gives E(0.100) = {at_01.error_rate['0.100']:.4f}, and scaling r by "
+        f"{best_scale[0]:g} gives E(0.100) = {best_scale[1].error_rate['0.100']:.4f}. We report these "
         "as studies; the canonical result above uses the paper's printed numbers.",
         "* **Signs lost in the text extraction.** theta's signs are read as physically sensible "
         "(damping, gravity: theta = [-1, -3.5, -34.3]); the sign of theta_2 cannot be recovered "
         "(see the plant-variant study); Example 1's psi = +0.1 x2^2 (the other sign is a --set away). "
         "docs/math.md, 'Signs', gives the reasoning for every sign.",
-        f"* **Example 1**: |z_1| over the last half <= {f.example1['max_abs_z1_last_half']:.3f} m, max |u| "
-        f"= {f.example1['max_abs_u']:.2f}, final xi_hat = {f.example1['final_eps_hat'][0]:.3f}; the "
+        f"* **Example 1**: |z_1| over the last half <= {f.example1.max_abs_z1_last_half:.3f} m, max |u| "
+        f"= {f.example1.max_abs_u:.2f}, final xi_hat = {f.example1.final_eps_hat[0]:.3f}; the "
         "paper shows the same qualitative picture (Figs. 1-4) without numbers.",
         "",
     ]

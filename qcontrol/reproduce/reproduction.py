@@ -26,12 +26,13 @@ from ..api import observer_for, recording_for
 from ..assembly import run_scenario
 from ..controller import lemma2_L
 from ..engine import Trajectory
-from ..metrics import backend_deviation, summary
+from ..metrics import backend_deviation, run_summary
 from ..outputs import check_output_dir, prepare_output_dir, staged, write_json, write_text
 from ..plants import BACKENDS
 from ..resources import shipped_dir
 from ..scenario import Scenario, load_scenario
 from ..scenario.resolve import scenario_provenance, scenarios_provenance
+from ..summary import Summary
 from ..sweep import sweep_summaries
 from .region_study import region_record, region_study, write_region_study
 from .report import PAPER_TABLE1, ReportFacts, report_markdown, table1, table1_markdown
@@ -58,7 +59,7 @@ class Run:
     scenario: Scenario
     backend: str
     traj: Trajectory
-    summary: dict
+    summary: Summary
 
 
 @dataclass
@@ -83,13 +84,13 @@ class Reproduction:
 
     def run(self, label: str, sc: Scenario, backend: str) -> Run:
         traj = run_scenario(sc, backend)
-        run = Run(label, sc, backend, traj, summary(traj, sc.name, backend))
+        run = Run(label, sc, backend, traj, run_summary(traj, sc.name, backend))
         self.runs.append(run)
-        self.lemma2_ratios.append(run.summary["lemma2_max_ratio"])
-        if run.summary["diverged"]:
+        self.lemma2_ratios.append(run.summary.lemma2_max_ratio)
+        if run.summary.diverged:
             self.diverged.append(f"{label} on {backend}")
-        self.log(f"  {label} on {backend}: E(0.100) = {run.summary['error_rate']['0.100']:.4f}, "
-                 f"Lemma 2 ratio {run.summary['lemma2_max_ratio']:.5f} "
+        self.log(f"  {label} on {backend}: E(0.100) = {run.summary.error_rate['0.100']:.4f}, "
+                 f"Lemma 2 ratio {run.summary.lemma2_max_ratio:.5f} "
                  f"({time.perf_counter() - self.started:.1f} s elapsed)")
         return run
 
@@ -99,15 +100,15 @@ class Reproduction:
         twin = self.run(label, sc, "ode") if self.backend == "mujoco" else None
         return main, twin
 
-    def study(self, label: str, name: str, override_sets: Sequence[Sequence[str]]) -> list[dict]:
+    def study(self, label: str, name: str, override_sets: Sequence[Sequence[str]]) -> list[Summary]:
         """Summaries of one sensitivity study: ODE runs batched by the sweep engine."""
         extra = [f"simulation.duration={self.duration!r}"] if self.duration is not None else []
         summaries = sweep_summaries(self.scenarios / f"{name}.toml", [[*o, *extra] for o in override_sets],
                                     "ode")
         self.study_runs += len(summaries)
-        self.lemma2_ratios += [s["lemma2_max_ratio"] for s in summaries]
+        self.lemma2_ratios += [s.lemma2_max_ratio for s in summaries]
         self.diverged += [f"{label} {' '.join(o)}" for o, s in zip(override_sets, summaries, strict=True)
-                          if s["diverged"]]
+                          if s.diverged]
         self.log(f"study: {label}: {len(summaries)} runs batched on the ODE "
                  f"({time.perf_counter() - self.started:.1f} s elapsed)")
         return summaries
@@ -173,7 +174,8 @@ def _write_all(rep: Reproduction, o: Path, command: str, workers: int | None, qu
         if b is not None
     }
     studied = {name: rep.scenario(name) for name in ("example2", "example2-rigid")}
-    write_json(o / "studies.json", studies | {"provenance": scenarios_provenance(studied, command)})
+    provenance = scenarios_provenance(studied, command)
+    write_json(o / "studies.json", _studies_json(studies) | {"provenance": provenance})
     region = None if quick else region_study(rep.scenarios, rep.duration, rep.log)
     if region is not None:
         write_region_study(region, o / "study_region.png")
@@ -188,10 +190,9 @@ def _write_all(rep: Reproduction, o: Path, command: str, workers: int | None, qu
 def _table1(o: Path, backend: str, ex2: Run, ex2_twin: Run | None, base: Run, base_twin: Run | None,
             command: str) -> dict:
     """Table 1 from Example 2's runs (both methods, both backends): table1.json, .md and .png."""
-    ours = {backend: {"proposed": ex2.summary["error_rate"], "comparison": base.summary["error_rate"]}}
+    ours = {backend: {"proposed": ex2.summary.error_rate, "comparison": base.summary.error_rate}}
     if ex2_twin is not None and base_twin is not None:
-        ours["ode"] = {"proposed": ex2_twin.summary["error_rate"],
-                       "comparison": base_twin.summary["error_rate"]}
+        ours["ode"] = {"proposed": ex2_twin.summary.error_rate, "comparison": base_twin.summary.error_rate}
     table = table1(ours) | {"provenance": scenarios_provenance(
         {"proposed": ex2.scenario, "comparison": base.scenario}, command)}
     write_json(o / "table1.json", table)
@@ -266,9 +267,15 @@ def _record(path: Path, main: Run, ghosts: dict[str, Run | None], command: str) 
                 observer_for(rec, sc, label, twin_of, ghost=True)(0, len(ghost.traj.t), [ghost.traj])
 
 
-def _rates(summaries: Sequence[dict]) -> dict[str, list[float]]:
-    keys = summaries[0]["error_rate"].keys()
-    return {w: [s["error_rate"][w] for s in summaries] for w in keys}
+def _rates(summaries: Sequence[Summary]) -> dict[str, list[float]]:
+    keys = summaries[0].error_rate.keys()
+    return {w: [s.error_rate[w] for s in summaries] for w in keys}
+
+
+def _studies_json(studies: dict) -> dict:
+    """studies.json: each study's values and its runs' summaries as ``summary.json`` writes them."""
+    return {name: study | {"summaries": [s.to_json() for s in study["summaries"]]}
+            for name, study in studies.items()}
 
 
 def _studies(rep: Reproduction) -> dict:
@@ -286,7 +293,7 @@ def _studies(rep: Reproduction) -> dict:
         "Study: Example 2 error rate vs a constant scale of r (kappa = 1.1 + L, ODE)",
         paper_rates=PAPER_TABLE1["proposed"], xscale="log",
     )
-    variants: dict[str, list] = {"labels": [], "summaries": []}
+    variants: dict[str, list] = {"labels": [], "summaries": []}  # labels, and one Summary each
     for label, name, overrides in PLANT_VARIANTS:
         for method, extra in (("proposed", ()), ("[20]", COMPARISON)):
             variants["labels"].append(f"{label}\n{method}")

@@ -30,6 +30,7 @@ import numpy as np
 from ..assembly import run_scenario, scene
 from ..metrics import finite_max_abs
 from ..scenario import Scenario, load_scenario
+from ..summary import Summary
 from ..sweep import run_batch
 from ..workers import worker_count, worker_pool
 
@@ -80,7 +81,7 @@ class StudyJob:
     backend: str
 
 
-def _summary(task: StudyJob) -> dict:
+def _summary(task: StudyJob) -> Summary:
     """Worker entry point: the summary of one run (metrics only)."""
     return run_batch([load_scenario(task.path, list(task.overrides))], task.backend)[0]
 
@@ -251,7 +252,7 @@ def _disturbance_cases(ideal_path: str, real_path: str, duration: float,
     return cases
 
 
-def _execute(tasks: list[StudyJob], full: list[StudyJob], workers: int) -> tuple[list[dict], list[Errors]]:
+def _execute(tasks: list[StudyJob], full: list[StudyJob], workers: int) -> tuple[list[Summary], list[Errors]]:
     """Every task's summary and every full run's tracking error, in order."""
     if workers <= 1:
         return [_summary(t) for t in tasks], [_errors(t) for t in full]
@@ -283,16 +284,16 @@ def _spread(values: Sequence[float]) -> dict[str, float]:
     return {"median": float(statistics.median(finite)), "min": float(min(finite)), "max": float(max(finite))}
 
 
-def aggregate(summaries: Sequence[dict]) -> dict:
+def aggregate(summaries: Sequence[Summary]) -> dict:
     """One row's runs (one, or one per seed): every number as median, min and max over the runs
     (over the finite values: a diverged run has no max |z1| over the last half), and how many
     runs diverged."""
-    omegas = list(summaries[0]["error_rate"])
+    omegas = list(summaries[0].error_rate)
     return {
         "runs": len(summaries),
-        "diverged": sum(bool(s["diverged"]) for s in summaries),
-        "lemma2_applies": all(s["lemma2_applies"] for s in summaries),
-        "error_rate": {w: _spread([s["error_rate"][w] for s in summaries]) for w in omegas},
-        **{key: _spread([s[key] for s in summaries]) for key in NUMBERS},
+        "diverged": sum(bool(s.diverged) for s in summaries),
+        "lemma2_applies": all(s.lemma2_applies for s in summaries),
+        "error_rate": {w: _spread([s.error_rate[w] for s in summaries]) for w in omegas},
+        **{key: _spread([getattr(s, key) for s in summaries]) for key in NUMBERS},  # fields of Summary
     }
 

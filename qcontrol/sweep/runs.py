@@ -29,9 +29,10 @@ from pathlib import Path
 
 from ..assembly import batch_structure, run_variants
 from ..errors import QcontrolInputError, Terminated
-from ..metrics import summary
+from ..metrics import run_summary
 from ..plants import BACKENDS
 from ..scenario import Scenario, load_scenario
+from ..summary import Summary
 from ..workers import worker_count, worker_pool
 
 CHUNK = 250  # runs per batch: fixed, so every executor runs the same batches
@@ -43,42 +44,42 @@ ChunkJob = tuple[str, list[list[str]], str, list[str]]  # (path, override sets o
 class SweepInterrupted(KeyboardInterrupt):
     """Ctrl-C during a sweep: ``summaries`` holds the finished runs' summaries (None elsewhere)."""
 
-    def __init__(self, summaries: list[dict | None], terminated: bool = False) -> None:
+    def __init__(self, summaries: list[Summary | None], terminated: bool = False) -> None:
         super().__init__()
         self.summaries = summaries
         self.terminated = terminated  # SIGTERM rather than Ctrl-C
 
 
-def run_batch(scs: Sequence[Scenario], backend: str) -> list[dict]:
-    """Run variants that share their batch structure as one batch; one summary dict per variant."""
+def run_batch(scs: Sequence[Scenario], backend: str) -> list[Summary]:
+    """Run variants that share their batch structure as one batch; one :class:`Summary` per variant."""
     started = time.perf_counter()
     runs = run_variants(scs, backend, record="metrics")
     share = (time.perf_counter() - started) / len(scs)
     out = []
     for s, run in zip(scs, runs, strict=True):
         run.wall_time_s = share  # the batch's time, per run
-        out.append(summary(run, s.name, backend))
+        out.append(run_summary(run, s.name, backend))
     return out
 
 
-def run_variants_batched(scs: Sequence[Scenario], backend: str) -> list[dict]:
+def run_variants_batched(scs: Sequence[Scenario], backend: str) -> list[Summary]:
     """One summary per variant, in input order, in this process: the variants grouped and
     chunked exactly as :func:`plan` groups a sweep's (so the same batches and numbers)."""
     groups: dict[tuple, list[int]] = {}
     for i, sc in enumerate(scs):
         BACKENDS[backend].require(sc.backends.get(backend), sc.source)
         groups.setdefault(batch_structure(sc, backend), []).append(i)
-    results: list[dict] = [{}] * len(scs)
+    results: list[Summary | None] = [None] * len(scs)
     for ids in groups.values():
         for k in range(0, len(ids), CHUNK):
             chunk = ids[k : k + CHUNK]
             for i, s in zip(chunk, run_batch([scs[i] for i in chunk], backend), strict=True):
                 results[i] = s
-    return results
+    return results  # type: ignore[return-value]
 
 
 def _run_chunk(scenario_path: str, override_sets: list[list[str]], backend: str,
-               unset: Sequence[str] = ()) -> list[dict]:
+               unset: Sequence[str] = ()) -> list[Summary]:
     """Worker entry point (picklable arguments only): load the variants and run them as a batch."""
     return run_batch([load_scenario(scenario_path, o, unset) for o in override_sets], backend)
 
@@ -106,8 +107,8 @@ def sweep_summaries(
     progress: RunsDone | None = None,
     chunks: list[list[int]] | None = None,
     unset: Sequence[str] = (),
-) -> list[dict]:
-    """One :func:`qcontrol.metrics.summary` dict per override set, in input order.
+) -> list[Summary]:
+    """One :class:`~qcontrol.summary.Summary` per override set, in input order.
 
     Variants are batched (see the module docstring); ``workers > 1`` spreads the batches over
     local processes, ``scheduler`` (a Dask ``distributed`` address) over a cluster. Every
@@ -120,10 +121,10 @@ def sweep_summaries(
         raise QcontrolInputError(f"--workers {workers}: must be >= 1")
     path, sets, unset = str(scenario_path), [list(o) for o in override_sets], list(unset)
     chunks = chunks if chunks is not None else plan(path, sets, backend, unset)
-    results: list[dict | None] = [None] * len(sets)
+    results: list[Summary | None] = [None] * len(sets)
     done = 0
 
-    def store(ids: list[int], summaries: list[dict]) -> None:
+    def store(ids: list[int], summaries: list[Summary]) -> None:
         nonlocal done
         for i, s in zip(ids, summaries, strict=True):
             results[i] = s
@@ -147,7 +148,7 @@ def sweep_summaries(
 
 
 def _on_workers(workers: int, chunks: list[list[int]], tasks: list[ChunkJob],
-                store: Callable[[list[int], list[dict]], None]) -> None:
+                store: Callable[[list[int], list[Summary]], None]) -> None:
     """The chunks on local worker processes (copies of this one: registered laws included)."""
     pool = worker_pool(workers)
     try:
@@ -160,7 +161,7 @@ def _on_workers(workers: int, chunks: list[list[int]], tasks: list[ChunkJob],
         pool.join()
 
 
-def _on_dask(address: str, tasks: list[ChunkJob]) -> list[list[dict]]:
+def _on_dask(address: str, tasks: list[ChunkJob]) -> list[list[Summary]]:
     """Run the chunks on an existing Dask cluster (optional extra ``cluster``)."""
     try:
         from distributed import Client

@@ -9,28 +9,31 @@ from collections.abc import Sequence
 from typing import Any
 
 from ..error_rate import TABLE1_OMEGAS, omega_key
+from ..summary import Summary
 
 RUN_METRICS = ["max_abs_z1_last_half", "max_abs_u", "diverged", "diverged_time", "lemma2_max_ratio"]
 CSV_METRICS = [f"error_rate_{omega_key(w)}" for w in TABLE1_OMEGAS] + RUN_METRICS  # the paper's omegas
 
 
-def metric_columns(summaries: Sequence[dict]) -> list[str]:
+def metric_columns(summaries: Sequence[Summary]) -> list[str]:
     """The metric columns: an error rate per omega of the runs (``[metrics] omega``), then the run's
     figures."""
     if not summaries:
         return list(CSV_METRICS)
-    return [f"error_rate_{key}" for key in summaries[0]["error_rate"]] + RUN_METRICS
+    return [f"error_rate_{key}" for key in summaries[0].error_rate] + RUN_METRICS
 
 
-def sweep_rows(points: Sequence[dict[str, str]], summaries: Sequence[dict | None]) -> list[dict]:
+def sweep_rows(points: Sequence[dict[str, str]], summaries: Sequence[Summary | None]) -> list[dict]:
     """One row per finished run: the varied keys, the error rates, and the run's figures."""
     rows = []
     for point, s in zip(points, summaries, strict=True):
         if s is None:  # not run (the sweep was interrupted)
             continue
         row: dict = dict(point)
-        row |= {f"error_rate_{key}": rate for key, rate in s["error_rate"].items()}
-        row |= {key: s[key] for key in RUN_METRICS}
+        row |= {f"error_rate_{key}": rate for key, rate in s.error_rate.items()}
+        row |= {"max_abs_z1_last_half": s.max_abs_z1_last_half, "max_abs_u": s.max_abs_u,  # RUN_METRICS
+                "diverged": s.diverged, "diverged_time": s.diverged_time,
+                "lemma2_max_ratio": s.lemma2_max_ratio}
         rows.append(row)
     return rows
 
