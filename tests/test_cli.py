@@ -1,6 +1,7 @@
 """The `qcontrol` command: output contract, exit statuses, one-line errors."""
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -181,6 +182,20 @@ def test_run_without_rrd_does_not_import_rerun():
             "'-q']); print('rerun' in sys.modules)")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert proc.stdout.strip().splitlines()[-1] == "False", proc.stdout + proc.stderr
+
+
+def test_check_builds_the_mujoco_plant_without_numba_and_run_still_compiles():
+    """check compares the model with eq. (1) through the Python passive callback (bit-identical
+    to the compiled one; nothing runs), so it does not pay numba's import; a run after it in the
+    same process still gets the compiled callback."""
+    code = (f"import sys; from qcontrol.cli import main; main(['check', {str(EX2)!r}, '-q']); "
+            "print('numba' in sys.modules); from qcontrol.assembly import build_plant; "
+            "from qcontrol.scenario import load_scenario; "
+            f"build_plant(load_scenario({str(EX2)!r}), 'mujoco'); "
+            "print('numba' in sys.modules)")
+    env = {k: v for k, v in os.environ.items() if k != "QCONTROL_COMPILE"}
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env)
+    assert proc.stdout.strip().splitlines()[-2:] == ["False", "True"], proc.stdout + proc.stderr
 
 
 @pytest.mark.parametrize("overrides", [[], ['plant.psi="x2**3"', "simulation.state_bound=5.0"]],

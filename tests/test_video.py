@@ -164,3 +164,30 @@ def test_recording_holds_the_camera_view_beside_the_3d_view(tmp_path):
 def test_camera_view_needs_a_recording(capsys):
     assert main(["run", str(EX2), "-q", "--camera-view"]) == 2
     assert "add --rrd FILE" in capsys.readouterr().err
+
+
+def _across(model: mujoco.MjModel, data: mujoco.MjData, camera: int, point: np.ndarray,
+            aspect: float) -> float:
+    """Where ``point`` falls across camera ``camera``'s picture: -1 its left edge, 1 its right."""
+    seen = data.cam_xmat[camera].reshape(3, 3).T @ (point - data.cam_xpos[camera])
+    assert seen[2] < 0  # in front of the camera (it looks along its -z)
+    return seen[0] / -seen[2] / (np.tan(np.radians(model.cam_fovy[camera]) / 2) * aspect)
+
+
+@pytest.mark.parametrize(("camera", "low", "high"), [("side", -1.1, 1.4), ("track", -20.0, 20.0)])
+def test_cart_cameras_keep_the_whole_cart_inside_the_picture(camera, low, high):
+    """The slide's `side` camera frames the travel its model states whole (the shipped runs go
+    from -0.81 m to 1.11 m), with a margin; `track` follows the cart wherever it goes. Checked by
+    projecting the cart's ends, at 4:3 (the default video size), with the model posed as the
+    renderer poses it (kinematics and mj_camlight)."""
+    model = mujoco.MjModel.from_xml_path(str(ROOT / "models" / "slider.xml"))
+    data = mujoco.MjData(model)
+    cid, cart = camera_id(model, camera, "slider.xml"), model.geom("cart_body")
+    for x in np.linspace(low, high, 7):
+        data.qpos[0] = x
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)
+        mujoco.mj_camlight(model, data)
+        for end in (-1, 1):
+            point = data.geom_xpos[cart.id] + end * np.array([cart.size[0], 0.0, 0.0])
+            assert abs(_across(model, data, cid, point, 4 / 3)) <= 0.9, (camera, x, end)

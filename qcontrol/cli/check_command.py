@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 
+from .. import compiled as compiled_paths
 from ..assembly import build_controller, build_plant, runnable_backend
 from ..plants import BACKENDS
 from ..scenario import Scenario
@@ -54,8 +55,11 @@ def _backends_to_build(sc: Scenario, chosen: str) -> list[str]:
 
 
 def _plant_note(sc: Scenario, backend: str) -> str:
-    """Build the plant (MuJoCo checks its model against eq. (1) here) and say what was found."""
-    plant = build_plant(sc, backend)
+    """Build the plant (MuJoCo checks its model against eq. (1) here, with the Python form of its
+    passive callback, bit-identical to the compiled one: nothing runs, so numba is not imported)
+    and say what was found."""
+    with compiled_paths.not_needed():
+        plant = build_plant(sc, backend)
     report = plant.consistency_report
     if not report:
         return f"{backend}: the plant of eq. (1) built"

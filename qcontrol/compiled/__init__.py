@@ -14,14 +14,32 @@ from __future__ import annotations
 
 import os
 import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 ENVIRONMENT_SWITCH = "QCONTROL_COMPILE"
 _SAID: set[str] = set()
+_NOT_NEEDED: list[None] = []  # one entry per open not_needed() block
 
 
 def requested() -> bool:
-    """Whether the environment allows compiled paths (``QCONTROL_COMPILE=0`` forbids them)."""
+    """Whether the environment allows compiled paths (``QCONTROL_COMPILE=0`` forbids them) and no
+    :func:`not_needed` block is open."""
+    if _NOT_NEEDED:
+        return False
     return os.environ.get(ENVIRONMENT_SWITCH, "1").strip().lower() not in ("0", "false", "no", "off")
+
+
+@contextmanager
+def not_needed() -> Iterator[None]:
+    """Compiled paths off while the block is open, silently: for work that runs nothing (building
+    a plant only to check it), so that it neither imports numba nor loads compiled code. The same
+    numbers either way: every compiled path is bit-identical to its Python form."""
+    _NOT_NEEDED.append(None)
+    try:
+        yield
+    finally:
+        _NOT_NEEDED.pop()
 
 
 def numba_missing() -> str | None:

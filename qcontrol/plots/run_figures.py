@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -27,6 +30,9 @@ from .common import (
     time_axis,
     unit,
 )
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
 
 # --------------------------------------------------------------------------------------------
 # Single-run figures (paper Figs. 1-4, 7, 8)
@@ -110,47 +116,70 @@ def fig_input(traj: Trajectory, path: str | os.PathLike, title: str, units: Unit
 DEFAULT_METHOD_LABELS = ("proposed", "comparison law [20]")
 
 
-def fig_compare_output(
-    proposed: Trajectory,
-    comparison: Trajectory,
-    path: str | os.PathLike,
-    title: str,
-    units: Units,
-    labels: tuple[str, str] = DEFAULT_METHOD_LABELS,
-) -> Path:
-    """Fig. 5: output ``y`` of the proposed and the comparison law, with ``y_d``."""
+@dataclass(frozen=True)
+class MethodPair:
+    """The two runs a comparison figure draws, the proposed law's first, with their legend labels."""
+
+    proposed: Trajectory
+    comparison: Trajectory
+    labels: tuple[str, str] = DEFAULT_METHOD_LABELS
+
+    @property
+    def runs(self) -> list[Trajectory]:
+        return [self.proposed, self.comparison]
+
+
+def _methods_figure(pair: MethodPair, path: str | os.PathLike, title: str, units: Units, name: str,
+                    values: Callable[[Trajectory], np.ndarray], ylabel: str,
+                    background: Callable[[Axes], Sequence[np.ndarray]]) -> Path:
+    """One line ``values(run)`` per method (labelled ``name, method``, its divergence marked) over
+    what ``background`` draws first (it returns the arrays it drew, for the finite-values note)."""
     fig, axes = new_figure()
     ax = axes[0, 0]
-    t_ref, yd = reference(proposed, comparison)
-    ax.plot(t_ref, yd, label="$y_d$ (reference)", **REF_STYLE)
-    for traj, label, color in zip((proposed, comparison), labels, COLORS, strict=False):
-        ax.plot(traj.t, traj.y, color=color, linewidth=1.5, label=f"y, {label}")
+    drawn = list(background(ax))
+    for traj, label, color in zip(pair.runs, pair.labels, COLORS, strict=False):
+        drawn.append(values(traj))
+        ax.plot(traj.t, drawn[-1], color=color, linewidth=1.5, label=f"{name}, {label}")
         mark_divergence(ax, traj, label, color=color)
-    finite_or_note(ax, proposed.y, comparison.y, yd)
-    ax.set_ylabel(f"y, $y_d${unit(units.y)}")
-    return finish(fig, ax, [proposed, comparison], units, title, path)
+    finite_or_note(ax, *drawn)
+    ax.set_ylabel(ylabel)
+    return finish(fig, ax, pair.runs, units, title, path)
 
 
-def fig_compare_error(
-    proposed: Trajectory,
-    comparison: Trajectory,
-    path: str | os.PathLike,
-    title: str,
-    units: Units,
-    labels: tuple[str, str] = DEFAULT_METHOD_LABELS,
-    omega: float | None = None,
-) -> Path:
-    """Fig. 6: tracking errors ``y - y_d`` of both methods; ``omega`` optionally shades ``|z_1| <= omega``."""
-    fig, axes = new_figure()
-    ax = axes[0, 0]
+def _reference_line(pair: MethodPair, ax: Axes) -> list[np.ndarray]:
+    t_ref, yd = reference(*pair.runs)
+    ax.plot(t_ref, yd, label="$y_d$ (reference)", **REF_STYLE)
+    return [yd]
+
+
+def _band_and_zero(omega: float | None, ax: Axes) -> list[np.ndarray]:
     omega_band(ax, omega)
     ax.axhline(0.0, color="black", linewidth=0.6)
-    for traj, label, color in zip((proposed, comparison), labels, COLORS, strict=False):
-        ax.plot(traj.t, column(traj.z, 0), color=color, linewidth=1.5, label=f"$y - y_d$, {label}")
-        mark_divergence(ax, traj, label, color=color)
-    finite_or_note(ax, column(proposed.z, 0), column(comparison.z, 0))
-    ax.set_ylabel(f"$y - y_d${unit(units.y)}")
-    return finish(fig, ax, [proposed, comparison], units, title, path)
+    return []
+
+
+def _output(traj: Trajectory) -> np.ndarray:
+    return traj.y
+
+
+def _tracking_error(traj: Trajectory) -> np.ndarray:
+    return column(traj.z, 0)
+
+
+def fig_compare_output(proposed: Trajectory, comparison: Trajectory, path: str | os.PathLike, title: str,
+                       units: Units, labels: tuple[str, str] = DEFAULT_METHOD_LABELS) -> Path:
+    """Fig. 5: output ``y`` of the proposed and the comparison law, with ``y_d``."""
+    pair = MethodPair(proposed, comparison, labels)
+    return _methods_figure(pair, path, title, units, "y", _output, f"y, $y_d${unit(units.y)}",
+                           partial(_reference_line, pair))
+
+
+def fig_compare_error(proposed: Trajectory, comparison: Trajectory, path: str | os.PathLike, title: str,
+                      units: Units, labels: tuple[str, str] = DEFAULT_METHOD_LABELS,
+                      omega: float | None = None) -> Path:
+    """Fig. 6: tracking errors ``y - y_d`` of both methods; ``omega`` optionally shades ``|z_1| <= omega``."""
+    return _methods_figure(MethodPair(proposed, comparison, labels), path, title, units, "$y - y_d$",
+                           _tracking_error, f"$y - y_d${unit(units.y)}", partial(_band_and_zero, omega))
 
 
 # --------------------------------------------------------------------------------------------

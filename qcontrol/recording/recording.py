@@ -11,10 +11,12 @@ static entities are ``info/scenario``, ``info/constants`` and ``info/version``. 
 ``round(t * 1e9)``. Only ``runs[0]`` of a batch is streamed.
 
 The layout (:mod:`.layout`, with the fixed camera of :mod:`.camera`) is sent active and default,
-so every viewer (native, ``--web-viewer``, one already open) shows it. It is sent when the first
-run starts and again only when it changes: a twin run adds its difference panels, and a slide
-that travels beyond what its camera framed gets a camera that frames the whole run when the
-recording is closed.
+so every viewer (native, ``--web-viewer``, one already open) shows it. Streaming to a viewer, it
+is sent when the first run starts and again only when it changes: a twin run adds its difference
+panels, and a slide that travels beyond what its camera framed gets a camera that frames the
+whole run when the recording is closed. A recording that only writes a file sends it once, when
+it is closed (also when a run was interrupted: the partial file has it too); nobody looks at
+the file before then, and a layout costs a recording of a fast run as much as its series.
 
 File handling (:mod:`.rrd_file`): data goes to a temporary file of its own beside ``path``
 (``.NAME.<random>.tmp``) while the recording is open. When the ``with`` block ends cleanly the
@@ -97,6 +99,7 @@ class Recording:
         self.main_series: list[Series] = []  # the main run's, restyled once a twin is drawn on them
         self.main_label = "main"
         self._flush_error: str | None = None  # the first failure to flush, reported at close
+        self._live = False  # streaming to a viewer (the layout is then sent as the runs go on)
         self._open()
 
     @property
@@ -129,6 +132,7 @@ class Recording:
             try:
                 start_viewer()  # reuses the viewer the command line started before the run
                 sinks.append(rr.GrpcSink(viewer_url()))
+                self._live = True
             except QcontrolInputError as exc:  # no viewer available: keep the file, if any
                 warnings.warn(
                     f"could not start a rerun viewer ({exc}); not streaming to a viewer", stacklevel=3
@@ -324,10 +328,16 @@ class Recording:
     def see_values(self, panel: Panel, values: np.ndarray) -> None:
         """Values a panel shows: a panel whose values are all one number gets a fixed range
         around it when the recording closes (rerun would label its axis with that one tick)."""
-        finite = values[np.isfinite(values)]
-        if finite.size:
-            low, high = self._spans.get(panel, (np.inf, -np.inf))
-            self._spans[panel] = (min(low, float(finite.min())), max(high, float(finite.max())))
+        if not values.size:
+            return
+        least, most = float(values.min()), float(values.max())
+        if not (np.isfinite(least) and np.isfinite(most)):  # NaN or inf among them: the finite ones
+            finite = values[np.isfinite(values)]
+            if not finite.size:
+                return
+            least, most = float(finite.min()), float(finite.max())
+        low, high = self._spans.get(panel, (np.inf, -np.inf))
+        self._spans[panel] = (min(low, least), max(high, most))
 
     def _flat_ranges(self) -> dict[Panel, tuple[float, float]]:
         """``value -+ 1`` (or -+ 10 % of it, if larger) for the panels whose values are all one number."""
@@ -362,8 +372,8 @@ class Recording:
         """Send the layout (active and default) if it differs from the one sent last. The camera
         is re-made only for the closing update (``final``) or the first one, so that a live viewer
         does not jump while a run goes on; the closing update also fixes the range of panels whose
-        values are all one number."""
-        if self._stream is None or not self._panels:
+        values are all one number. Without a viewer only the closing update sends it."""
+        if self._stream is None or not self._panels or not (final or self._live):
             return
         camera = self._current_camera() if final or self._layout_sent is None else self._camera
         ranges = self._flat_ranges() if final else {}

@@ -54,6 +54,19 @@ def time_column(t: ArrayLike) -> rr.TimeColumn:
     return rr.TimeColumn(TIMELINE, duration=time_nanoseconds(t).view("timedelta64[ns]"))
 
 
+def scalar_column(values: np.ndarray) -> list[rr.ComponentColumn]:
+    """``values`` (rows,) or (rows, k) as the ``Scalars`` column of ``rows`` rows of k instances:
+    what ``rr.Scalars.columns(scalars=values)`` makes, built directly from one contiguous copy and
+    the rows' offsets (a third of its cost; a recording sends a column per series and batch)."""
+    import rerun as rr
+
+    flat = np.ascontiguousarray(values, dtype=np.float64)
+    width = 1 if flat.ndim == 1 else flat.shape[1]
+    offsets = np.arange(0, width * len(flat) + 1, width, dtype=np.int32)
+    return [rr.ComponentColumn(rr.Scalars.descriptor_scalars(), rr.components.ScalarBatch(flat.reshape(-1)),
+                               offsets=offsets)]
+
+
 # A twin's differences are recorded as log10 |main - twin| (a linear axis would label 5e-14 as
 # "0.000 000 000 000 05"), floored at this value: -16 on the plot means equal to double rounding.
 DIFFERENCE_FLOOR = 1e-16
@@ -119,17 +132,14 @@ class RunStreamer:
         if first:
             self.recording.update_layout()
         times = time_column(run.t[rows])
-        import rerun as rr
-
-        scalars = rr.Scalars.columns
         for s in self.series:
             values = s.values(run, rows)
             self.recording.see_values(s.panel, values)
-            stream.send_columns(s.path, indexes=[times], columns=scalars(scalars=values))
+            stream.send_columns(s.path, indexes=[times], columns=scalar_column(values))
         if first and self.guides:  # constant over the run: its two ends, once
             ends = time_column(np.array([run.t[start], max(run.duration, run.t[stop - 1])]))
             for g in self.guides:
-                stream.send_columns(g.path, indexes=[ends], columns=scalars(scalars=np.array([g.levels] * 2)))
+                stream.send_columns(g.path, indexes=[ends], columns=scalar_column(np.array([g.levels] * 2)))
         if self.differences:
             self._send_differences(run, rows, times)
         if self.scene is not None:
@@ -163,8 +173,6 @@ class RunStreamer:
     def _send_differences(self, run: Trajectory, rows: slice, times: rr.TimeColumn) -> None:
         """``|main - twin|`` at the twin's rows: the main run's row at the same instant, NaN where
         the main run has none (it stopped earlier, or its step differs)."""
-        import rerun as rr
-
         main = self.twin_of
         index = np.rint(run.t[rows] / main.dt).astype(np.int64)
         same = (index < len(main.t)) & np.isclose(main.t[np.minimum(index, len(main.t) - 1)], run.t[rows],
@@ -174,8 +182,7 @@ class RunStreamer:
             against[same] = d.values(main, index[same])
             with np.errstate(invalid="ignore", divide="ignore"):
                 gap = np.log10(np.maximum(np.abs(against - d.values(run, rows)), DIFFERENCE_FLOOR))
-            self.recording.stream.send_columns(d.path, indexes=[times],
-                                                columns=rr.Scalars.columns(scalars=gap))
+            self.recording.stream.send_columns(d.path, indexes=[times], columns=scalar_column(gap))
 
     def _send_poses(self, run: Trajectory, rows: slice) -> None:
         """The bodies' poses (and the target's, for the main run) at the rows of ``rows`` that
