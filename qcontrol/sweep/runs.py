@@ -3,7 +3,8 @@
 How runs are grouped. Variants that share :func:`qcontrol.assembly.batch_structure` (plant
 expressions, controller kind, gains c, delta, r, reference, dt, duration, ...) differ only in
 numbers the law and the backend take per copy (for the proposed law ``kappa``/``kappa_margin``,
-``gamma``, ``sigma``, ``r_scale``; ``x0``; on the ODE ``theta``). Such variants are stepped
+``gamma``, ``sigma``, ``r_scale``; ``x0``; on the ODE ``theta``; on MuJoCo the theta of the
+terms the passive callback adds and the sensor noise's seed). Such variants are stepped
 together as one batch in one :func:`qcontrol.engine.simulate` call (``record="metrics"``).
 Anything else (e.g. a grid over ``controller.c``) splits the runs into groups, each its own batch.
 
