@@ -31,8 +31,8 @@ class SensorNoise:
         self.reset()
 
     def reset(self) -> None:
-        """Every stream back at its seed's start (a run's reset)."""
-        self._streams = [np.random.default_rng(seed) for seed in self._distinct]
+        """Every stream back at its seed's start (a run's reset; no streams without noise)."""
+        self._streams = [np.random.default_rng(seed) for seed in self._distinct] if self.std.any() else []
         self._block = np.empty((0, len(self.seeds), 2))
         self._row = 0
 
