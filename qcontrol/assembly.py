@@ -77,7 +77,8 @@ def build_plants(variants: Sequence[Scenario], backend: str | None = None) -> Pl
     """One plant with a copy per variant, on ``backend`` (default: the first variant's)."""
     first = variants[0]
     entry = BACKENDS[runnable_backend(first, backend)]
-    return entry.build([v.terms for v in variants], first.backends.get(entry.name), first.simulation.dt)
+    return entry.build([v.terms for v in variants], [v.backends.get(entry.name) for v in variants],
+                       first.simulation.dt)
 
 
 def build_plant(sc: Scenario, backend: str | None = None, batch: int = 1) -> Plant:
@@ -87,7 +88,8 @@ def build_plant(sc: Scenario, backend: str | None = None, batch: int = 1) -> Pla
 
 def batch_structure(sc: Scenario, backend: str | None = None) -> Hashable:
     """What variants must share to be stepped as one batch: everything but the numbers the law
-    and the backend take per copy (e.g. kappa, gamma, sigma, r_scale, x0, theta on the ODE)."""
+    and the backend take per copy (e.g. kappa, gamma, sigma, r_scale, x0; theta on the ODE; on
+    MuJoCo the theta of terms the passive callback adds, and the sensor noise's seed)."""
     name = backend_of(sc, backend)
     entry = BACKENDS[name]
     c = sc.controller

@@ -159,3 +159,25 @@ def test_the_region_study_compares_the_three_laws_at_two_rates(reproduction):
                 w: round(v, 4) for w, v in exact["error_rate"].items()}
             assert rows[(example, period, "comparison")]["max_gain_period_from_x0"] is None
     assert rows[("example2", 0.001, "proposed")]["failing_in_box"] > 0
+
+
+def test_the_robustness_study_batches_each_rows_seeds(monkeypatch, tmp_path):
+    """Each row's sensor-noise seeds share everything else: one batch per row (8 of the study's
+    rows), every other run alone."""
+    from pathlib import Path
+
+    from qcontrol.reproduce import robustness_study as study
+
+    planned = {}
+
+    def capture(tasks, full, workers):
+        planned["batches"] = study.batches(tasks)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(study, "_execute", capture)
+    with pytest.raises(KeyboardInterrupt):
+        scenarios = Path(__file__).resolve().parent.parent / "scenarios"
+        study.robustness_study(scenarios, 0.5, 1, log=lambda _: None)
+    sizes = sorted((len(b) for b in planned["batches"]), reverse=True)
+    assert sizes[:8] == [len(study.SEEDS)] * 8 and set(sizes[8:]) == {1}
+    assert sorted(i for b in planned["batches"] for i in b) == list(range(sum(sizes)))

@@ -185,3 +185,19 @@ def test_a_diverged_cell_is_marked_and_does_not_set_the_colour_scale():
     assert (image.norm.vmin, image.norm.vmax) == (20.0, 40.0)
     assert "x" in [t.get_text() for t in ax.texts]
     plt.close(fig)
+
+
+def test_small_groups_run_run_by_run_and_large_ones_in_chunks(monkeypatch):
+    monkeypatch.setattr(sweep, "CHUNK", 4)
+    groups = [list(range(9)), [9, 10], [11, 12, 13, 14, 15]]
+    assert sweep.chunks_of(groups) == [[0, 1, 2, 3], [4, 5, 6, 7], [8], [9], [10], [11, 12, 13, 14], [15]]
+
+
+def test_a_sweep_over_theta_and_noise_seeds_on_mujoco_is_one_batch():
+    """theta2 (the passive callback's term) and the noise seed go per copy: one chunk of 6."""
+    sets = [[SHORT, f"plant.theta=[-1.0, {t}, -34.3]", "plant.mujoco.sensor_noise=0.001",
+             f"plant.mujoco.noise_seed={seed}"] for t in (-3.5, 3.5) for seed in (1, 2, 3)]
+    assert sweep.plan(EXAMPLE2, sets, "mujoco") == [[0, 1, 2, 3, 4, 5]]
+    other_damping = [[*s, "plant.theta=[-2.0, -3.5, -34.3]", "plant.mujoco.parameters={damping = 2.0}"]
+                     for s in sets[:1]]
+    assert len(sweep.plan(EXAMPLE2, sets + other_damping, "mujoco")) == 2

@@ -6,8 +6,9 @@ import pathlib
 
 import pytest
 
-from qcontrol.assembly import build_plant, run_variants
+from qcontrol.assembly import batch_structure, build_plant, build_plants, run_variants
 from qcontrol.compiled import ENVIRONMENT_SWITCH
+from qcontrol.plants.mujoco.plant import MujocoPlant
 from qcontrol.scenario import load_scenario
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
@@ -57,3 +58,45 @@ def test_a_copy_mujoco_resets_stops_as_on_the_per_copy_path(monkeypatch: pytest.
     plant, runs = compare_batches(variants(path, unstable, x0s, duration=0.3), monkeypatch)
     assert all(r.diverged for r in runs) and len({r.steps for r in runs}) == 4
     assert plant.warnings and "unstable" in plant.warnings[0]
+
+
+def assert_batch_equals_single_runs(scs: list) -> MujocoPlant:
+    """One batch of variants against each variant run alone (its own plant of one copy)."""
+    batch_plant = build_plants(scs, "mujoco")
+    batched = run_variants(scs, "mujoco", plant=batch_plant)
+    for sc, a in zip(scs, batched, strict=True):
+        (b,) = run_variants([sc], "mujoco")
+        assert a.diverged == b.diverged and a.steps == b.steps
+        for name in ("x", "x_meas", "u", "adaptive"):
+            assert getattr(a, name).tobytes() == getattr(b, name).tobytes(), (sc.x0, name)
+    return batch_plant
+
+
+THETA_AND_SEEDS = [("[-1.0, -3.5, -34.3]", 1), ("[-1.0, 3.5, -34.3]", 2), ("[-1.0, -7.0, -34.3]", 3),
+                   ("[-1.0, 0.0, -34.3]", 1)]
+
+
+@pytest.mark.parametrize("name, on_batch", [("example2", True), ("example2-arm", False)])
+def test_theta_and_noise_seed_per_copy_equal_single_runs(name: str, on_batch: bool) -> None:
+    """Example 2's theta2 (the passive callback's term) and the noise seed differ per copy: one
+    batch, on mujoco.batch (no sensor history) or one MjData per copy (the arm's delay), gives
+    each variant the numbers of its run alone."""
+    path = ROOT / "scenarios" / f"{name}.toml"
+    noise = ["plant.mujoco.sensor_noise=[0.001, 0.05]"]
+    scs = [load_scenario(path, ["simulation.duration=0.4", "disturbance=[]", f"plant.theta={theta}",
+                                f"plant.mujoco.noise_seed={seed}", *noise])
+           for theta, seed in THETA_AND_SEEDS]
+    assert len({batch_structure(sc, "mujoco") for sc in scs}) == 1  # one batch
+    plant = assert_batch_equals_single_runs(scs)
+    assert (plant._threaded is not None) == on_batch
+    # the copies really differ: theta2's sign changes the path, and so does the seed's noise
+    assert len({r.x_meas.tobytes() for r in run_variants(scs, "mujoco", plant=plant)}) == len(scs)
+
+
+def test_the_theta_of_a_native_term_splits_the_batch() -> None:
+    """theta1 is the model's damping: variants that differ there cannot share one model."""
+    path = ROOT / "scenarios" / "example2.toml"
+    a, b = (load_scenario(path, [f"plant.theta={t}", "plant.mujoco.parameters={damping = 2.0}"])
+            for t in ("[-2.0, -3.5, -34.3]", "[-2.0, 3.5, -34.3]"))
+    c = load_scenario(path)
+    assert batch_structure(a, "mujoco") == batch_structure(b, "mujoco") != batch_structure(c, "mujoco")

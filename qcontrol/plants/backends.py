@@ -48,8 +48,10 @@ class SceneSource:
 class Backend:
     """One plant backend, built with keywords.
 
-    Required: ``name``; ``build(terms, options, dt)`` makes one plant of ``len(terms)`` copies;
-    ``structure(terms, options)`` is what variants stepped as one batch must share; ``summary``
+    Required: ``name``; ``build(terms, options, dt)`` makes one plant of ``len(terms)`` copies
+    from each copy's terms and options (sequences of equal length); ``structure(terms, options)``
+    is what variants stepped as one batch must share (what it leaves out, the plant takes per
+    copy); ``summary``
     says what it is in one line. Optional: ``section``/``parse``, the keys of ``[plant.<name>]``
     and their parsed options (None: the backend takes no section); ``scene(options, dt)`` what
     recordings draw in 3-D (None: nothing to draw); ``inertia(options, dt)`` the joint's
@@ -58,7 +60,7 @@ class Backend:
     """
 
     name: str
-    build: Callable[[Sequence[PlantTerms], Any, float], Plant]
+    build: Callable[[Sequence[PlantTerms], Sequence[Any], float], Plant]
     structure: Callable[[PlantTerms, Any], Hashable]
     summary: str
     section: Section | None = None

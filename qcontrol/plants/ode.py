@@ -199,7 +199,7 @@ def _rk4(x: list[Column], u: Column, h: float, g: Uncertainty) -> list[Column]:
 # The "ode" backend: no keys of its own; theta may differ between the copies of a batch
 
 
-def build(terms: Sequence[PlantTerms], options: Any, dt: float) -> ChainPlant:
+def build(terms: Sequence[PlantTerms], options: Sequence[Any], dt: float) -> ChainPlant:
     """One ChainPlant copy per variant (theta per copy when there is more than one)."""
     first = terms[0]
     theta = first.theta if len(terms) == 1 else np.array([t.theta for t in terms])

@@ -295,7 +295,7 @@ def _studies(rep: Reproduction) -> dict:
     )
     variants: dict[str, list] = {"labels": [], "summaries": []}  # labels, and one Summary each
     for label, name, overrides in PLANT_VARIANTS:
-        for method, extra in (("proposed", ()), ("[20]", COMPARISON)):
+        for method, extra in (("proposed", ()), ("comparison law (46)", COMPARISON)):
             variants["labels"].append(f"{label}\n{method}")
             variants["summaries"].append(rep.study(f"{label} {method}", name, [[*overrides, *extra]])[0])
     plots.fig_sensitivity(

@@ -27,11 +27,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..assembly import run_scenario, scene
+from ..assembly import batch_structure, run_scenario, scene
 from ..metrics import finite_max_abs
 from ..scenario import Scenario, load_scenario
 from ..summary import Summary
 from ..sweep import run_batch
+from ..sweep.runs import chunks_of
 from ..workers import worker_count, worker_pool
 
 SEEDS = tuple(range(1, 21))  # sensor-noise seeds of every row with noise on
@@ -81,9 +82,21 @@ class StudyJob:
     backend: str
 
 
-def _summary(task: StudyJob) -> Summary:
-    """Worker entry point: the summary of one run (metrics only)."""
-    return run_batch([load_scenario(task.path, list(task.overrides))], task.backend)[0]
+def _summaries(tasks: Sequence[StudyJob]) -> list[Summary]:
+    """Worker entry point: the summaries of runs that share a batch (metrics only), stepped as one."""
+    return run_batch([load_scenario(t.path, list(t.overrides)) for t in tasks], tasks[0].backend)
+
+
+def batches(tasks: Sequence[StudyJob]) -> list[list[int]]:
+    """The tasks' indices chunked as a sweep chunks its runs (:func:`~qcontrol.sweep.runs.chunks_of`):
+    runs whose scenarios share :func:`~qcontrol.assembly.batch_structure` on their backend (e.g. a
+    row's sensor-noise seeds) form one batch; the largest come first, so that workers start on the
+    longest work. A run's numbers are its own whatever its batch."""
+    groups: dict[tuple, list[int]] = {}
+    for i, task in enumerate(tasks):
+        sc = load_scenario(task.path, list(task.overrides))
+        groups.setdefault((task.backend, batch_structure(sc, task.backend)), []).append(i)
+    return sorted(chunks_of(groups.values()), key=len, reverse=True)
 
 
 @dataclass(frozen=True)
@@ -253,19 +266,28 @@ def _disturbance_cases(ideal_path: str, real_path: str, duration: float,
 
 
 def _execute(tasks: list[StudyJob], full: list[StudyJob], workers: int) -> tuple[list[Summary], list[Errors]]:
-    """Every task's summary and every full run's tracking error, in order."""
+    """Every task's summary and every full run's tracking error, in order: the summaries batched
+    (:func:`batches`), the full runs one by one."""
+    chunks = batches(tasks)
+    jobs = [[tasks[i] for i in ids] for ids in chunks]
+    summaries: list[Summary] = [None] * len(tasks)  # type: ignore[list-item]
     if workers <= 1:
-        return [_summary(t) for t in tasks], [_errors(t) for t in full]
-    pool = worker_pool(workers)  # workers die with this process (qcontrol.workers)
-    try:
-        errors = [pool.apply_async(_errors, (t,)) for t in full]
-        summaries = pool.map(_summary, tasks, chunksize=max(1, len(tasks) // (8 * workers)))
-        result = summaries, [e.get() for e in errors]
-        pool.close()
-        return result
-    finally:
-        pool.terminate()
-        pool.join()
+        done, errors = [_summaries(job) for job in jobs], [_errors(t) for t in full]
+    else:
+        pool = worker_pool(workers)  # workers die with this process (qcontrol.workers)
+        try:
+            batched = [pool.apply_async(_summaries, (job,)) for job in jobs if len(job) > 1]
+            pending = [pool.apply_async(_errors, (t,)) for t in full]
+            single = [pool.apply_async(_summaries, (job,)) for job in jobs if len(job) == 1]
+            done, errors = [r.get() for r in batched + single], [e.get() for e in pending]
+            pool.close()
+        finally:
+            pool.terminate()
+            pool.join()
+    for ids, results in zip(chunks, done, strict=True):
+        for i, s in zip(ids, results, strict=True):
+            summaries[i] = s
+    return summaries, errors
 
 
 def default_workers() -> int:

@@ -3,12 +3,17 @@
 How runs are grouped. Variants that share :func:`qcontrol.assembly.batch_structure` (plant
 expressions, controller kind, gains c, delta, r, reference, dt, duration, ...) differ only in
 numbers the law and the backend take per copy (for the proposed law ``kappa``/``kappa_margin``,
-``gamma``, ``sigma``, ``r_scale``; ``x0``; on the ODE ``theta``). Such variants are stepped
+``gamma``, ``sigma``, ``r_scale``; ``x0``; on the ODE ``theta``; on MuJoCo the theta of the
+terms the passive callback adds and the sensor noise's seed). Such variants are stepped
 together as one batch in one :func:`qcontrol.engine.simulate` call (``record="metrics"``).
 Anything else (e.g. a grid over ``controller.c``) splits the runs into groups, each its own batch.
 
 Determinism. Groups are cut into chunks of at most ``CHUNK`` runs in input order, whatever the
-executor; a chunk is one batch. So the in-process path, local worker processes and a Dask cluster
+executor; a chunk is one batch. A group of fewer than ``MIN_BATCH`` runs goes run by run instead:
+a batch's array form costs a fixed amount per step, which a run of one (on plain floats) does not
+pay, so small batches are slower than their runs alone (measured on Example 2, 10 s, both
+backends: a batch of 2 costs 2.3-2.8x its two runs, 4 about 1.2x, 8 about 0.6-0.8x). Numbers are
+the same either way. So the in-process path, local worker processes and a Dask cluster
 run the very same batches and give identical numbers (only ``wall_time_s`` differs).
 
 MuJoCo. Chunks run as MuJoCo plant batches, spread over worker processes: on ``mujoco.batch``
@@ -24,7 +29,7 @@ workers (which start as copies of this process); a Dask cluster's workers do not
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
 from ..assembly import batch_structure, run_variants
@@ -36,6 +41,7 @@ from ..summary import Summary
 from ..workers import worker_count, worker_pool
 
 CHUNK = 250  # runs per batch: fixed, so every executor runs the same batches
+MIN_BATCH = 5  # smaller groups run run by run (see the module docstring)
 DASK_CONNECT_TIMEOUT = 10.0  # seconds to reach a --scheduler
 RunsDone = Callable[[int, int], None]  # (runs done, runs in total)
 ChunkJob = tuple[str, list[list[str]], str, list[str]]  # (path, override sets of a chunk, backend, unset)
@@ -62,6 +68,16 @@ def run_batch(scs: Sequence[Scenario], backend: str) -> list[Summary]:
     return out
 
 
+def chunks_of(groups: Iterable[list[int]]) -> list[list[int]]:
+    """Each group (indices of runs that share their batch structure, in input order) cut into
+    chunks of at most :data:`CHUNK`; a group smaller than :data:`MIN_BATCH`, one chunk per run."""
+    out = []
+    for ids in groups:
+        size = CHUNK if len(ids) >= MIN_BATCH else 1
+        out += [ids[k : k + size] for k in range(0, len(ids), size)]
+    return out
+
+
 def run_variants_batched(scs: Sequence[Scenario], backend: str) -> list[Summary]:
     """One summary per variant, in input order, in this process: the variants grouped and
     chunked exactly as :func:`plan` groups a sweep's (so the same batches and numbers)."""
@@ -69,13 +85,11 @@ def run_variants_batched(scs: Sequence[Scenario], backend: str) -> list[Summary]
     for i, sc in enumerate(scs):
         BACKENDS[backend].require(sc.backends.get(backend), sc.source)
         groups.setdefault(batch_structure(sc, backend), []).append(i)
-    results: list[Summary | None] = [None] * len(scs)
-    for ids in groups.values():
-        for k in range(0, len(ids), CHUNK):
-            chunk = ids[k : k + CHUNK]
-            for i, s in zip(chunk, run_batch([scs[i] for i in chunk], backend), strict=True):
-                results[i] = s
-    return results  # type: ignore[return-value]
+    results: list[Summary] = [None] * len(scs)  # type: ignore[list-item]
+    for chunk in chunks_of(groups.values()):
+        for i, s in zip(chunk, run_batch([scs[i] for i in chunk], backend), strict=True):
+            results[i] = s
+    return results
 
 
 def _run_chunk(scenario_path: str, override_sets: list[list[str]], backend: str,
@@ -95,7 +109,7 @@ def plan(scenario_path: str | Path, override_sets: Sequence[Sequence[str]], back
         sc = load_scenario(scenario_path, list(overrides), unset)
         BACKENDS[backend].require(sc.backends.get(backend), sc.source)
         groups.setdefault(batch_structure(sc, backend), []).append(i)
-    return [ids[k : k + CHUNK] for ids in groups.values() for k in range(0, len(ids), CHUNK)]
+    return chunks_of(groups.values())
 
 
 def sweep_summaries(

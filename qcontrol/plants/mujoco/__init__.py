@@ -9,6 +9,7 @@ passive callback and warning handler), :mod:`.plant` (the runtime plant), :mod:`
 from __future__ import annotations
 
 from collections.abc import Hashable, Sequence
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from ...schema import Table
@@ -31,17 +32,24 @@ def parse(table: Table, ctx: PlantContext) -> MujocoOptions:
     return options
 
 
-def build(terms: Sequence[PlantTerms], options: MujocoOptions, dt: float) -> MujocoPlant:
-    """A batch of ``len(terms)`` MuJoCo copies (the variants share their terms: see ``structure``)."""
+def build(terms: Sequence[PlantTerms], options: Sequence[MujocoOptions], dt: float) -> MujocoPlant:
+    """A batch of ``len(terms)`` MuJoCo copies of variants that share ``structure``: each copy
+    with its own theta for the terms the passive callback adds, and its own noise seed."""
     from .plant import MujocoPlant
 
-    return MujocoPlant(options, terms[0], batch=len(terms), timestep=dt)
+    return MujocoPlant(options[0], terms[0], batch=len(terms), timestep=dt, copies=terms,
+                       noise_seeds=[o.noise_seed for o in options])
 
 
 def structure(terms: PlantTerms, options: MujocoOptions) -> Hashable:
-    """Everything but x0 is shared: the model's own physics cannot take theta per copy."""
+    """What copies share: the terms' form, the theta of the terms MuJoCo's own physics makes (the
+    model holds them) and the model's options. Per copy: x0, the theta of the terms the passive
+    callback adds (each copy's coefficients in its userdata) and the sensor noise's seed (each
+    copy its own stream)."""
     psi = None if terms.psi is None else terms.psi.source
-    return terms.order, psi, tuple(p.source for p in terms.phi), terms.theta, options
+    native = tuple(c for name, c in zip(terms.names, terms.coefficients, strict=True)
+                   if name in options.native_terms)
+    return terms.order, psi, tuple(p.source for p in terms.phi), native, replace(options, noise_seed=None)
 
 
 def scene(options: MujocoOptions, dt: float) -> SceneSource:

@@ -112,12 +112,14 @@ def _install(native: NativeForce | None) -> None:
 
 @contextmanager
 def passive_forces(model: mujoco.MjModel, datas: Sequence[mujoco.MjData], qadr: int, dof: int,
-                   force: GeneralizedForce | None, native: NativeForce | None = None) -> Iterator[None]:
-    """Register ``datas`` for the passive force, installing the callback if needed; undo
-    everything on exit. With ``native`` (whose numbers the caller keeps in each copy's userdata)
-    MuJoCo calls compiled code directly while every plant in use shares its terms; otherwise the
-    Python dispatcher serves every plant, calling the native callbacks through ctypes."""
-    if force is None:
+                   forces: Sequence[GeneralizedForce] | None,
+                   native: NativeForce | None = None) -> Iterator[None]:
+    """Register ``datas`` for the passive force (``forces``: one per data), installing the
+    callback if needed; undo everything on exit. With ``native`` (whose numbers the caller keeps
+    in each copy's userdata) MuJoCo calls compiled code directly while every plant in use shares
+    its terms; otherwise the Python dispatcher serves every plant, calling the native callbacks
+    through ctypes."""
+    if forces is None:
         yield
         return
     if not _ENTRIES:
@@ -127,7 +129,7 @@ def passive_forces(model: mujoco.MjModel, datas: Sequence[mujoco.MjData], qadr: 
         _NATIVE.clear()
     keys = []
     try:
-        for data in datas:
+        for data, force in zip(datas, forces, strict=True):
             _ENTRIES[id(data)] = (NativeApplier(model, data, native).apply if native is not None
                                   else PassiveApplier(data, qadr, dof, force).apply)
             keys.append(id(data))

@@ -70,7 +70,7 @@ def _accelerations(compiled: CompiledModel, x: np.ndarray, u: np.ndarray,
     model, ids = compiled.model, compiled.ids
     qacc = np.empty(len(u))
     data = mujoco.MjData(model)
-    with passive_forces(model, [data], ids.qpos, ids.dof, force):
+    with passive_forces(model, [data], ids.qpos, ids.dof, None if force is None else [force]):
         for i in range(len(u)):
             data.qpos[ids.qpos], data.qvel[ids.dof] = x[i]
             data.ctrl[ids.actuator] = compiled.inertia / ids.actuator_gain * u[i]

@@ -143,10 +143,11 @@ class NativeForce:
         data.userdata[:FIRST_COEFFICIENT] = (self.tag, qadr, dof)
         data.userdata[FIRST_COEFFICIENT:FIRST_COEFFICIENT + len(coefficients)] = coefficients
 
-    def fill_rows(self, userdata: np.ndarray, qadr: int, dof: int, coefficients: Sequence[float]) -> None:
-        """:meth:`fill` for every row of a batch's ``(copies, nuserdata)`` userdata."""
+    def fill_rows(self, userdata: np.ndarray, qadr: int, dof: int, coefficients: np.ndarray) -> None:
+        """:meth:`fill` for every row of a batch's ``(copies, nuserdata)`` userdata; row ``b`` of
+        ``coefficients`` (``(copies, terms)``) is copy b's (theta per copy)."""
         userdata[:, :FIRST_COEFFICIENT] = (self.tag, qadr, dof)
-        userdata[:, FIRST_COEFFICIENT:FIRST_COEFFICIENT + len(coefficients)] = coefficients
+        userdata[:, FIRST_COEFFICIENT:FIRST_COEFFICIENT + coefficients.shape[1]] = coefficients
 
 
 def native_force(terms: Sequence[Expression]) -> NativeForce | None:

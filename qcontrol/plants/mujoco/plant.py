@@ -19,13 +19,15 @@ inertia. So:
 Realism options (each off by default) make the model differ from eq. (1) as hardware would; the
 actuator gain and the callback keep using the nominal inertia, so armature and rod mass act as
 unmodelled dynamics. ``sensor_noise`` is added by the plant (MuJoCo's sensor ``noise`` attribute
-is metadata only), seeded by ``noise_seed``; ``sensor_delay`` and ``sensor_period`` use MuJoCo's
+is metadata only), seeded by ``noise_seed``, each copy of a batch from its own seed's stream
+(:mod:`.noise`); ``sensor_delay`` and ``sensor_period`` use MuJoCo's
 sensor history (``nsample``/``delay``/``interval``); the readings before t = delay are x(0).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import mujoco
@@ -46,6 +48,7 @@ from .callbacks import (
 from .consistency import consistency_report
 from .mjcf import compiled
 from .native import native_force
+from .noise import SensorNoise
 from .options import MujocoOptions
 from .threaded import ThreadedCopies, threadable
 
@@ -58,10 +61,15 @@ class MujocoPlant:
     ``timestep`` is the scenario's dt: ``model.opt.timestep`` is set to it, so ``step(u, dt)`` is
     one ``mj_step``; a step ``h`` that is a multiple of it takes several. After construction,
     ``consistency_report`` holds the measured agreement of MuJoCo's acceleration with eq. (1).
+    ``copies`` (one per copy, default ``terms`` for all) may differ from ``terms`` in theta: each
+    copy's coefficients of the terms the passive callback adds are its own (the model's own
+    physics, which makes the native terms, is shared); ``noise_seeds``: each copy's seed of its
+    sensor noise (default ``options.noise_seed`` for all).
     """
 
     def __init__(self, options: MujocoOptions, terms: PlantTerms, batch: int = 1,
-                 timestep: float | None = None) -> None:
+                 timestep: float | None = None, copies: Sequence[PlantTerms] | None = None,
+                 noise_seeds: Sequence[int | None] | None = None) -> None:
         where = options.where
         if terms.order != 2:
             raise QcontrolInputError(
@@ -83,28 +91,34 @@ class MujocoPlant:
         self._ctrl_range = _ctrl_range(self.model, self._ids.actuator)  # (low, high) or None
         self.actuator_limited = self._ctrl_range is not None
         native = tuple(name in options.native_terms for name in terms.names)
-        exprs, coefficients = terms.expressions, terms.coefficients
-        applied = [(c, e) for c, e, n in zip(coefficients, exprs, native, strict=True) if not n]
-        self._force = GeneralizedForce(applied, self.inertia) if applied else None
-        self._native = native_force([e for _, e in applied]) if applied else None
-        self._userdata = [self.inertia * c for c, _ in applied]  # the products the Python force uses
+        copies = _copies(terms, copies, self.batch, where)
+        applied = [e for e, n in zip(terms.expressions, native, strict=True) if not n]
+        coefficients = [tuple(c for c, n in zip(t.coefficients, native, strict=True) if not n)
+                        for t in copies]
+        self._forces = _forces(applied, coefficients, self.inertia) if applied else None
+        self._native = native_force(applied) if applied else None
+        # each copy's products I c_i, the numbers the Python force uses (theta per copy)
+        self._userdata = [[self.inertia * c for c in row] for row in coefficients]
         self._datas = [mujoco.MjData(self.model) for _ in range(self.batch)]
         self._views = [(d.ctrl, d.sensordata, d.qpos, d.qvel) for d in self._datas]
         self._sadr = (int(self.model.sensor_adr[self._ids.position_sensor]),
                       int(self.model.sensor_adr[self._ids.velocity_sensor]))
         self._dead = [False] * self.batch
         self._steppers: dict[float, list[CopyStepper]] = {}  # h -> one per copy
-        self._noise = np.asarray(options.sensor_noise, dtype=float)
-        self._noisy = bool(self._noise.any())
-        self._rng = np.random.default_rng(options.noise_seed)
+        seeds = list(noise_seeds) if noise_seeds is not None else [options.noise_seed] * self.batch
+        if len(seeds) != self.batch:
+            raise ValueError(f"{where}: {len(seeds)} noise seeds for {self.batch} copies")
+        self._noise = SensorNoise(options.sensor_noise, seeds)
+        self._noisy = bool(self._noise.std.any())
         self._entered: list[Any] = []
-        eligible = threadable(self.model, self.batch, self._native, self._force is not None)
+        eligible = threadable(self.model, self.batch, self._native, self._forces is not None)
         self._threaded = (ThreadedCopies(self.model, self._ids, self.batch, self._ctrl_per_u, self._native,
                                          self._userdata) if eligible and compiled_paths.requested() else None)
         self._threads = False  # whether this run steps the copies on the batch (set at __enter__)
         self.warnings: list[str] = []  # MuJoCo's warnings during the last run
         with kept_aside():  # the model check's warnings, outside any run
-            self.consistency_report = consistency_report(built, options, terms, native, self._force)
+            self.consistency_report = consistency_report(built, options, terms, native,
+                                                         None if self._forces is None else self._forces[0])
 
     # ---- context manager: the process-global passive callback, and the run's warnings
     def __enter__(self) -> MujocoPlant:
@@ -112,9 +126,10 @@ class MujocoPlant:
             raise RuntimeError("MujocoPlant is already in use by a 'with' block")
         self.warnings = []
         self._steppers = {}  # (they hold the warnings list)
-        for data in self._datas if self._native is not None else ():
-            self._native.fill(data, self._ids.qpos, self._ids.dof, self._userdata)
-        self._entered = [passive_forces(self.model, self._datas, self._ids.qpos, self._ids.dof, self._force,
+        if self._native is not None:
+            for data, userdata in zip(self._datas, self._userdata, strict=True):
+                self._native.fill(data, self._ids.qpos, self._ids.dof, userdata)
+        self._entered = [passive_forces(self.model, self._datas, self._ids.qpos, self._ids.dof, self._forces,
                                         self._native),
                          collect_warnings(self.warnings)]
         for manager in self._entered:
@@ -135,7 +150,7 @@ class MujocoPlant:
     def reset(self, x0: np.ndarray) -> None:
         """Put every copy at ``x0`` (shape ``(batch, 2)``); sensor histories are filled with it."""
         x0 = np.broadcast_to(np.asarray(x0, dtype=float), (self.batch, 2))
-        self._rng = np.random.default_rng(self.options.noise_seed)
+        self._noise.reset()
         if self._threads:
             self._threaded.reset(x0)
             return
@@ -143,7 +158,7 @@ class MujocoPlant:
         for b, data in enumerate(self._datas):
             mujoco.mj_resetData(model, data)
             if self._native is not None:  # (reset zeroes userdata)
-                self._native.fill(data, ids.qpos, ids.dof, self._userdata)
+                self._native.fill(data, ids.qpos, ids.dof, self._userdata[b])
             data.qpos[ids.qpos] = x0[b, 0]
             data.qvel[ids.dof] = x0[b, 1]
             mujoco.mj_forward(model, data)
@@ -201,8 +216,9 @@ class MujocoPlant:
 
     def sensor_noise(self) -> np.ndarray:
         """The noise of one reading of every copy, ``(batch, 2)``: the one place it is drawn (one
-        draw per reading from the plant's seeded stream, whichever form reads the sensors)."""
-        return self._rng.normal(0.0, 1.0, size=(self.batch, 2)) * self._noise
+        draw per reading from each copy's seeded stream, whichever form reads the sensors; see
+        :mod:`.noise`)."""
+        return self._noise.draw()
 
     def observe(self) -> tuple[np.ndarray, np.ndarray]:
         """The true state and the sensors' reading of every copy."""
@@ -215,7 +231,7 @@ class MujocoPlant:
         ``mj_sensorPos``/``mj_sensorVel`` then bring the (joint position and velocity) sensors to
         the new state; with a sensor delay they read MuJoCo's history buffer instead.
         """
-        if not self._entered and self._force is not None:
+        if not self._entered and self._forces is not None:
             raise RuntimeError("use MujocoPlant in a 'with' block: its passive callback is installed there")
         if self._threads:
             substeps = whole_steps(h, self.timestep, f"{self.options.where}: step", "the model timestep")
@@ -290,6 +306,34 @@ class MujocoFloatIO:
         if self.noisy:
             return x, [data.item(self.p) + e[0], data.item(self.v) + e[1]]
         return x, [data.item(self.p), data.item(self.v)]
+
+
+def _copies(terms: PlantTerms, copies: Sequence[PlantTerms] | None, batch: int,
+            where: str) -> list[PlantTerms]:
+    """Each copy's terms: ``copies`` (variants that differ at most in theta), else ``terms`` for all."""
+    if copies is None:
+        return [terms] * batch
+    copies = list(copies)
+    form = _form(terms)
+    same_form = all(_form(t) == form for t in copies)
+    if len(copies) != batch or not same_form:
+        raise ValueError(f"{where}: a batch's copies must be {batch} variants of one plant, "
+                         "differing at most in theta")
+    return copies
+
+
+def _form(terms: PlantTerms) -> tuple:
+    return terms.order, None if terms.psi is None else terms.psi.source, tuple(p.source for p in terms.phi)
+
+
+def _forces(applied: Sequence, coefficients: Sequence[tuple[float, ...]],
+            inertia: float) -> list[GeneralizedForce]:
+    """One Python force per copy (copies with the same coefficients share one)."""
+    made: dict[tuple[float, ...], GeneralizedForce] = {}
+    for row in coefficients:
+        if row not in made:
+            made[row] = GeneralizedForce(list(zip(row, applied, strict=True)), inertia)
+    return [made[row] for row in coefficients]
 
 
 def _ctrl_range(model: mujoco.MjModel, actuator: int) -> tuple[float, float] | None:

@@ -45,9 +45,10 @@ class ThreadedCopies:
     """The copies of a :class:`~.plant.MujocoPlant` as rows of a ``mujoco.batch.Batch``."""
 
     def __init__(self, model: mujoco.MjModel, ids: Ids, batch: int, ctrl_per_u: float,
-                 native: NativeForce | None, userdata: Sequence[float], threads: int = 1) -> None:
+                 native: NativeForce | None, userdata: Sequence[Sequence[float]], threads: int = 1) -> None:
         self.model, self.ids, self.ctrl_per_u = model, ids, ctrl_per_u
-        self.native, self.userdata = native, list(userdata)
+        self.native = native
+        self.userdata = np.array(userdata, dtype=float).reshape(batch, -1)  # each copy's coefficients
         self.sim = mj_batch.Batch(model, batch, nthread=threads)
         sim = self.sim
         # every field is bound before the first call (an output bound later reads zero until the next)
