@@ -18,11 +18,21 @@ The Python API (see the README's "Python API"):
   :func:`lemma2_bounds` help write one; :func:`load_law_module` runs a file that registers laws
   (``--law-module``), :func:`load_law_plugins` the installed plugins (entry points ``qcontrol.laws``);
   :func:`expression` compiles a math expression as scenarios do (for a law's bounding function r).
+* :class:`PaperLaw` (law (44)-(45)), :class:`ComparisonLaw` (law (46)) and their base
+  :class:`BacksteppingLaw`: the built-in laws as public classes to subclass, registered with
+  :func:`register_law_class` and built from a :class:`LawContext`; :class:`Diagnostic` declares a
+  law's own recorded signal.
 """
 
 from ._version import __version__
 from .api import Comparison, Result, compare, lemma2_bounds, quantized_backstepping, run, sweep
+from .controller.backstepping import Backstepping as BacksteppingLaw
+from .controller.backstepping import ControlOutput
+from .controller.classes import register_law_class
+from .controller.comparison import ComparisonLaw
+from .controller.law import Diagnostic, LawContext
 from .controller.plugins import load_law_module, load_law_plugins
+from .controller.proposed import PaperLaw
 from .controller.user import Law, check_keys, register_law
 from .errors import QcontrolInputError
 from .expr import expression
@@ -31,9 +41,15 @@ from .scenario import Scenario, load_scenario
 from .summary import Summary
 
 __all__ = [
+    "BacksteppingLaw",
     "Comparison",
+    "ComparisonLaw",
+    "ControlOutput",
+    "Diagnostic",
     "Law",
     "LawComparison",
+    "LawContext",
+    "PaperLaw",
     "QcontrolInputError",
     "Result",
     "Scenario",
@@ -49,6 +65,7 @@ __all__ = [
     "load_scenario",
     "quantized_backstepping",
     "register_law",
+    "register_law_class",
     "run",
     "sweep",
 ]

@@ -3,7 +3,8 @@
 
 * :mod:`.backstepping`: coefficients, Lemma 2 bounds, the coordinates z / zbar / alphabar.
 * :mod:`.law`: the :class:`BatchLaw` protocol the engine drives, and the kind registry.
-* :mod:`.proposed`: law (44)-(45); :mod:`.comparison`: law (46) of reference [20].
+* :mod:`.proposed`: law (44)-(45), :class:`PaperLaw`; :mod:`.comparison`: law (46) of reference
+  [20], :class:`ComparisonLaw`: public classes to subclass (:mod:`.classes` registers them).
 """
 
 from . import comparison, proposed
@@ -14,9 +15,9 @@ from .backstepping import (
     lemma2_bounds,
     lemma2_L,
 )
-from .comparison import ComparisonController
+from .comparison import ComparisonController, ComparisonLaw
 from .law import LAW_KINDS, BatchLaw, FloatColumns, LawContext, LawKind, law_kind, register_kind
-from .proposed import ProposedController
+from .proposed import PaperLaw, ProposedController
 
 for _kind in (proposed.KIND, comparison.KIND):
     register_kind(_kind)
@@ -25,11 +26,13 @@ __all__ = [
     "LAW_KINDS",
     "Backstepping",
     "ComparisonController",
+    "ComparisonLaw",
     "BatchLaw",
     "ControlOutput",
     "FloatColumns",
     "LawContext",
     "LawKind",
+    "PaperLaw",
     "ProposedController",
     "backstepping_coefficients",
     "law_kind",

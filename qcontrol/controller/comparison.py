@@ -9,7 +9,7 @@ outputs label it so (docs/math.md, 'The comparison law').
 from __future__ import annotations
 
 from collections.abc import Hashable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import reduce
 from operator import add, mul
 from typing import Any
@@ -21,19 +21,41 @@ from ..expr import Expression
 from ..quantizer import QuantizedReading
 from ..schema import Key, KindKeys, Table, number, read_keys, string
 from .backstepping import Advance, Backstepping, Columns, ControlOutput, output, stack
-from .law import LawContext, LawKind
+from .law import LawContext, LawKind, overrides_any
 
 
-class ComparisonController(Backstepping):
+class ComparisonLaw(Backstepping):
     """Comparison law of reference [20], eq. (46), with our reconstructed adaptive law.
 
     ``u = alphabar_n - psi(x_q) - theta_hat^T phi(x_q)`` with
     ``theta_hat' = Gamma phi(x_q) zbar_n`` (our reconstruction; the paper does not print it), or
     ``theta_hat = theta`` held fixed when ``known_theta`` is given.
+
+    A public class to subclass: :meth:`adaptive_rate` (the adaptive law), or :meth:`control`,
+    :meth:`initial_state` and :meth:`advancer` to change the input or add a state
+    (docs/laws.md); :meth:`from_context` builds it from ``[controller.comparison]``.
     """
 
     state_name = "theta_hat"
     copies = None  # no per-copy parameters
+
+    @classmethod
+    def from_context(cls, context: LawContext) -> ComparisonLaw:
+        """The law of the scenario's ``[controller.comparison]`` settings (``context.base``), its
+        ``c``, ``delta`` and plant terms."""
+        s = context.base
+        if not isinstance(s, ComparisonSettings):
+            raise QcontrolInputError(f"{cls.__name__}.from_context: the context carries no "
+                                     "[controller.comparison] settings; register the law with "
+                                     "extends=\"comparison\"")
+        return cls(context.c, context.max_error, context.psi, context.phi, adaptation_gain=s.gain,
+                   known_theta=context.theta if s.theta == "known" else None)
+
+    @property
+    def has_compiled_equivalent(self) -> bool:
+        """True only for this class itself, or a subclass overriding none of the members that
+        compute u and the state (:data:`~.law.CONTROL_MEMBERS`)."""
+        return not overrides_any(self, ComparisonLaw)
 
     def __init__(
         self,
@@ -64,7 +86,7 @@ class ComparisonController(Backstepping):
         """``theta_hat(0) = 0``, or the true theta in the known-parameter case."""
         if self.known_theta is not None:
             return np.tile(self.known_theta, (batch, 1))
-        return np.zeros((batch, self.state_size))
+        return np.zeros((batch, len(self.phi)))
 
     def constants(self) -> dict[str, Any]:
         return {"comparison_gain": self.adaptation_gain}
@@ -90,9 +112,13 @@ class ComparisonController(Backstepping):
             phi_q = [p(q) for p in phi]
             u = u - reduce(add, map(mul, theta_hat, phi_q))  # eq. (46): theta_hat^T phi(x_q)
             if self.known_theta is None:
-                zn = zbar[-1]
-                rate = tuple([self.adaptation_gain * p * zn for p in phi_q])
+                rate = self.adaptive_rate(zbar, phi_q)
         return output((u, tuple(zbar), rate, 0.0))
+
+    def adaptive_rate(self, zbar: Sequence, phi_q: Sequence) -> tuple:
+        """``theta_hat' = Gamma phi(x_q) zbar_n``, held until the next sample (columns)."""
+        zn = zbar[-1]
+        return tuple([self.adaptation_gain * p * zn for p in phi_q])
 
     def advance(self, state: np.ndarray | Columns, out: ControlOutput, h: float) -> np.ndarray | Columns:
         """``theta_hat`` grows at the held rate (exact for ``x_q`` held over ``h``)."""
@@ -101,12 +127,13 @@ class ComparisonController(Backstepping):
             return stack(grown, len(state))
         return self.advancer(h)(state, out)
 
-    @staticmethod
-    def advancer(h: float) -> Advance:
+    def advancer(self, h: float) -> Advance:
         """:meth:`advance` over a fixed ``h`` in column form (arrays or floats), made once per run."""
         return RateAdvance(h).advance
 
-    float_advancer = advancer  # the same lines on floats (:class:`~.law.FloatColumns`)
+    def float_advancer(self, h: float) -> Advance:
+        """The same lines on floats (:class:`~.law.FloatColumns`)."""
+        return self.advancer(h)
 
 
 class RateAdvance:
@@ -148,11 +175,9 @@ def parse(table: Table, ctx: LawContext) -> ComparisonSettings:
     return ComparisonSettings(v["gain"], v["theta"])
 
 
-def build(settings: Sequence[ComparisonSettings], ctx: LawContext) -> ComparisonController:
+def build(settings: Sequence[ComparisonSettings], ctx: LawContext) -> ComparisonLaw:
     """One controller for the whole batch: the variants share its settings (see :func:`structure`)."""
-    s = settings[0]
-    return ComparisonController(ctx.c, ctx.max_error, ctx.psi, ctx.phi, adaptation_gain=s.gain,
-                              known_theta=ctx.theta if s.theta == "known" else None)
+    return ComparisonLaw.from_context(replace(ctx, base=settings[0]))
 
 
 def structure(settings: ComparisonSettings, ctx: LawContext) -> Hashable:
@@ -166,3 +191,6 @@ KIND = LawKind(
     "Lipschitz differs there from its true value by more the larger the state (docs/math.md, "
     "'The comparison law')",
 )
+
+
+ComparisonController = ComparisonLaw  # the former name, kept for code written against it

@@ -9,8 +9,9 @@ law is one module with its class and its :class:`LawKind`, plus one :func:`regis
 from __future__ import annotations
 
 import re
-from collections.abc import Callable, Hashable, Sequence
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -112,12 +113,24 @@ class FloatColumns(Protocol):
 
 @dataclass(frozen=True)
 class LawContext:
-    """What a law's keys are checked against and what its builder may read of the scenario:
-    the common controller keys (``delta``, ``c``), the plant's terms, the simulation step ``dt``
-    and the control period ``control_period`` (``T``: the time u is held, a whole number of steps;
-    ``dt`` when the scenario gives none). The proposed law counts the terms and, with
-    ``hold = "exact"``, uses T; the comparison law (46) evaluates the terms at the quantized
-    state."""
+    """What a law is built from (public: a law class's ``from_context(context)`` reads it).
+
+    * ``n`` (``order``): the plant order; ``delta`` and ``c``: the common controller keys
+      (``max_error = delta / 2``, property (4));
+    * ``dt``: the simulation step; ``control_period`` (``T``): the time u is held, a whole number
+      of steps (``dt`` when the scenario gives none);
+    * ``psi``, ``phi``, ``theta``: the plant's terms (the comparison law (46) evaluates them at the
+      quantized state; the paper's law counts them);
+    * ``settings``: the law's own keys, from ``[controller.<kind>]`` and ``[controller]``, as a
+      read-only mapping (empty for the built-in kinds, whose keys are parsed into ``base``);
+    * ``base``: the parsed, checked settings of the built-in kind the law is or extends
+      (``[controller.proposed]`` for :class:`~.proposed.PaperLaw` and its subclasses, as a
+      :class:`~.proposed.ProposedSettings`; ``[controller.comparison]`` for
+      :class:`~.comparison.ComparisonLaw`), else None.
+
+    ``source`` names the scenario in messages; ``controller`` is the whole ``[controller]`` table
+    while a scenario is read (None afterwards).
+    """
 
     source: str
     order: int
@@ -128,6 +141,14 @@ class LawContext:
     theta: tuple[float, ...]
     dt: float = 1e-3
     control_period: float = 1e-3
+    settings: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
+    base: Any = None
+    controller: Table | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def n(self) -> int:
+        """The plant order (``order``)."""
+        return self.order
 
     @property
     def uncertain_terms(self) -> int:
@@ -161,6 +182,7 @@ class LawKind:
     structure: Callable[[Any, LawContext], Hashable]
     bounds: Callable[[Any], tuple[Expression, ...]] | None = None  # its bounding functions r, if any
     divergence_hint: str = ""
+    extends: str | None = None  # the built-in kind whose [controller.<kind>] settings it reads, if any
 
 
 LAW_KINDS: dict[str, LawKind] = {}
@@ -199,3 +221,16 @@ KIND_ALIASES: dict[str, str] = {"baseline": "comparison"}
 def law_kind(name: str) -> LawKind:
     """The registered kind ``name`` (the scenario loader has checked that it exists)."""
     return LAW_KINDS[name]
+
+
+# The members through which a law computes its input and advances its state: a law class that
+# overrides none of them relative to a built-in class computes exactly what that class does.
+CONTROL_MEMBERS = ("control", "advancer", "float_advancer", "advance", "initial_state", "robust_term",
+                   "adaptive_target", "adaptive_rate", "bounding_terms", "recursion", "state_size")
+
+
+def overrides_any(law: object, builtin: type, members: Sequence[str] = CONTROL_MEMBERS) -> bool:
+    """True when ``type(law)`` defines one of ``members`` differently from the built-in class
+    ``builtin`` (which it subclasses): then only its Python form computes it."""
+    kind = type(law)
+    return any(getattr(kind, m, None) is not getattr(builtin, m, None) for m in members)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Hashable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import reduce
 from operator import add, mul
 from typing import Any, NamedTuple
@@ -33,15 +33,15 @@ from .backstepping import (
     parameter,
     stack,
 )
-from .law import Diagnostic, LawContext, LawKind
+from .law import Diagnostic, LawContext, LawKind, overrides_any
 
-HOLDS = ("paper", "exact")  # how law (44) is held over a control period (see ProposedController)
+HOLDS = ("paper", "exact")  # how law (44) is held over a control period (see PaperLaw)
 
 R_CHECK_SAMPLES = 2000  # quantized states at which every r_i is checked to be finite and >= 1
 R_CHECK_RANGE = 10.0  # ... drawn uniformly from [-R_CHECK_RANGE, R_CHECK_RANGE]^n (and the origin)
 
 
-class _Law(NamedTuple):
+class LawConstants(NamedTuple):
     """The constants the column formulas read, for one kind of column (arrays, or floats)."""
 
     kappa: Parameter
@@ -53,7 +53,7 @@ class _Law(NamedTuple):
     expm1: Any  # math.expm1 for floats, numpy.expm1 for arrays (the exact hold's 1 - exp(-K T))
 
 
-class ProposedController(Backstepping):
+class PaperLaw(Backstepping):
     """The paper's quantized adaptive controller, control law (44) and adaptive law (45).
 
     ``s = zbar_n^2 / kappa + L``,
@@ -69,9 +69,36 @@ class ProposedController(Backstepping):
     ``K_T = (1 - exp(-K T)) / T``, the gain whose held input maps ``zbar_n`` over one period as the
     continuous-time robust term ``zbar_n' = -K zbar_n`` would (docs/math.md, 'Sampling the law').
     Either way the law declares the diagnostic ``gain_period``, ``K T`` at every control sample.
+
+    A public class to subclass: :meth:`robust_term` (the term subtracted from ``alphabar_n``),
+    :meth:`adaptive_target` (eq. (45)'s held target), :meth:`bounding_terms`, or
+    :meth:`control`, :meth:`initial_state` and :meth:`advancer` to add a state (docs/laws.md).
+    Every formula takes columns: a float each for a single run, a ``(batch,)`` array for a batch.
+    :meth:`from_context` builds it from a scenario's ``[controller.proposed]`` settings.
     """
 
     state_name = "eps_hat"
+
+    @classmethod
+    def from_context(cls, context: LawContext) -> PaperLaw:
+        """The law of the scenario's ``[controller.proposed]`` settings (``context.base``, a
+        :class:`ProposedSettings`), its ``c``, ``delta`` and control period. A subclass with keys
+        of its own reads them from ``context.settings`` in its ``__init__`` or here."""
+        s = context.base
+        if not isinstance(s, ProposedSettings):
+            raise QcontrolInputError(f"{cls.__name__}.from_context: the context carries no "
+                                     "[controller.proposed] settings; register the law with "
+                                     "extends=\"proposed\"")
+        return cls(context.c, context.max_error, kappa=s.kappa, gamma=s.gamma, sigma=s.sigma, r=s.r_expr,
+                   r_scale=s.r_scale, expected_terms=context.uncertain_terms, hold=s.hold,
+                   period=context.control_period)
+
+    @property
+    def has_compiled_equivalent(self) -> bool:
+        """True only for this class itself, or a subclass that overrides none of the members that
+        compute u and the state (:data:`~.law.CONTROL_MEMBERS`): then a compiled form of law
+        (44)-(45) may stand in for this object. False for every subclass that changes the law."""
+        return not overrides_any(self, PaperLaw)
 
     def __init__(
         self,
@@ -120,7 +147,7 @@ class ProposedController(Backstepping):
         self.state_size = len(self.r)
         self._on_arrays, self._on_floats = self._constants_by_column_kind()
 
-    def _constants_by_column_kind(self) -> tuple[_Law, _Law | None]:
+    def _constants_by_column_kind(self) -> tuple[LawConstants, LawConstants | None]:
         """The constants of the column formulas, computed once: eq. (45)'s decay rate
         ``gamma sigma`` and eq. (44)'s gain ``1 / (kappa (kappa - L))``, for arrays and (for a
         batch of one) as floats with ``math``'s evaluation of r (where ``math`` raises,
@@ -130,16 +157,17 @@ class ProposedController(Backstepping):
         self._rate = rate[:, None] if isinstance(rate, np.ndarray) else rate  # array form of ControlOutput
         gain = 1.0 / (kappa * (kappa - self.L))  # (44): u = -zbar_n s eps^T r / (kappa (kappa - L))
         scaled = not np.all(np.asarray(r_scale) == 1.0)
-        on_arrays = _Law(kappa, gain, sigma, r_scale if scaled else None, rate,
+        on_arrays = LawConstants(kappa, gain, sigma, r_scale if scaled else None, rate,
                          tuple(e.on_columns for e in self.r), np.expm1)
-        on_floats = None if self.copies not in (None, 1) else _Law(
+        on_floats = None if self.copies not in (None, 1) else LawConstants(
             as_float(kappa), as_float(gain), as_float(sigma), as_float(r_scale) if scaled else None,
             as_float(rate), tuple(scalar_function(e) for e in self.r), math.expm1)
         return on_arrays, on_floats
 
     def initial_state(self, batch: int) -> np.ndarray:
-        """``eps_hat(0) = 0``."""
-        return np.zeros((batch, self.state_size))
+        """``eps_hat(0) = 0``: one estimate per bounding function r_i (a subclass that adds states
+        appends its own columns to these)."""
+        return np.zeros((batch, len(self.r)))
 
     def constants(self) -> dict[str, Any]:
         return {"kappa": self.kappa, "gamma": self.gamma, "sigma": self.sigma, "r_scale": self.r_scale}
@@ -170,7 +198,8 @@ class ProposedController(Backstepping):
 
     def control(self, reading: QuantizedReading, yd: Sequence[float],
                 eps_hat: np.ndarray | Columns, t: float = 0.0) -> ControlOutput:
-        """Eq. (44) for the current quantized reading; eq. (45)'s held terms for :meth:`advance`.
+        """Eq. (44) for the current quantized reading; eq. (45)'s held terms for :meth:`advance`:
+        ``u = alphabar_n - robust_term(...)``, targets from :meth:`adaptive_target`.
 
         ``eps_hat`` is a tuple of m columns (column form, as the engine passes it; floats when
         ``reading.floats``), or a ``(batch, m)`` array: the same formulas then run on the array's
@@ -187,21 +216,40 @@ class ProposedController(Backstepping):
             raise ValueError(f"the controller has per-copy parameters for {self.copies} copies, not one")
         q = reading.columns
         zbar, alphabar = self.recursion(q, yd)  # eqs. (31)-(34)
+        r = self.bounding_terms(q, law)
+        u = alphabar[-1] - self.robust_term(zbar, r, eps_hat, law)  # eq. (44)
+        return output((u, zbar, self.adaptive_target(zbar, r, law), law.rate))
+
+    def bounding_terms(self, q: Columns, law: LawConstants) -> list[Column]:
+        """``r(x_q)`` of eqs. (37)-(43), each times ``r_scale``."""
         try:
             r = [term(q) for term in law.terms]  # r(x_q)
         except FLOAT_REFUSED:  # math refused (floats only): numpy's answer, the one fallback rule
             r = [e.on_floats(q) for e in self.r]
         if law.r_scale is not None:
             r = [ri * law.r_scale for ri in r]
+        return r
+
+    def robust_term(self, zbar: Sequence[Column], r: Sequence[Column], eps_hat: Columns,
+                    law: LawConstants) -> Column:
+        """The term law (44) subtracts from ``alphabar_n``: ``zbar_n K`` with
+        ``K = s eps_hat^T r / (kappa (kappa - L))``, ``s = zbar_n^2 / kappa + L`` (``K_T`` in
+        place of K with ``hold = "exact"``). ``law`` holds the constants in the columns' form
+        (``law.kappa``, ``law.gain = 1 / (kappa (kappa - L))``, ``law.sigma``, ``law.rate``)."""
         zn = zbar[-1]
         s = zn * zn / law.kappa + self.L
         robust = reduce(add, map(mul, eps_hat, r))  # eps_hat^T r(x_q), per copy, summed in order
         if self.hold == "paper":
-            u = alphabar[-1] - zn * s * robust * law.gain  # eq. (44)
-        else:  # K_T = (1 - exp(-K T)) / T in place of K
-            u = alphabar[-1] - zn * (-law.expm1(-(s * robust * law.gain) * self.period) / self.period)
+            return zn * s * robust * law.gain
+        return zn * (-law.expm1(-(s * robust * law.gain) * self.period) / self.period)
+
+    def adaptive_target(self, zbar: Sequence[Column], r: Sequence[Column], law: LawConstants) -> list[Column]:
+        """What eq. (45) drives each estimate towards while the sample is held, ``s r_i / sigma``
+        (``eps_hat' = gamma sigma (target - eps_hat)``)."""
+        zn = zbar[-1]
+        s = zn * zn / law.kappa + self.L
         sigma = law.sigma
-        return output((u, zbar, [s * ri / sigma for ri in r], law.rate))
+        return [s * ri / sigma for ri in r]
 
     def advance(self, state: np.ndarray | Columns, out: ControlOutput, h: float) -> np.ndarray | Columns:
         """Integrate eq. (45) over ``h`` with ``x_q`` held: exact for the linear ODE
@@ -218,10 +266,13 @@ class ProposedController(Backstepping):
         return self._decay_advance(self._on_arrays, h)
 
     def float_advancer(self, h: float) -> Advance:
-        """:meth:`advancer` for a batch of one on floats (:class:`~.law.FloatColumns`)."""
+        """:meth:`advancer` for a batch of one on floats (:class:`~.law.FloatColumns`); a
+        subclass's own :meth:`advancer` when it overrides it (its formulas take floats too)."""
+        if type(self).advancer is not PaperLaw.advancer:
+            return self.advancer(h)
         return self._decay_advance(self._on_floats, h)
 
-    def _decay_advance(self, law: _Law | None, h: float) -> Advance:
+    def _decay_advance(self, law: LawConstants | None, h: float) -> Advance:
         if law is None:
             raise ValueError(f"the controller has per-copy parameters for {self.copies} copies, not one")
         decay = np.exp(-np.asarray(law.rate) * h)
@@ -347,15 +398,18 @@ def _check_bounding_functions(table: Table, r_expr: Sequence[Expression], ctx: L
                               f"{samples[first].tolist()}", "e.g. add 1 to it")
 
 
-def build(settings: Sequence[ProposedSettings], ctx: LawContext) -> ProposedController:
+def build(settings: Sequence[ProposedSettings], ctx: LawContext) -> PaperLaw:
     """One controller for a batch of variants: kappa, gamma, sigma and r_scale per copy."""
-    return ProposedController(
-        ctx.c, ctx.max_error,
-        kappa=_per_copy([s.kappa for s in settings]), gamma=_per_copy([s.gamma for s in settings]),
-        sigma=_per_copy([s.sigma for s in settings]), r=settings[0].r_expr,
-        r_scale=_per_copy([s.r_scale for s in settings]), expected_terms=ctx.uncertain_terms,
-        hold=settings[0].hold, period=ctx.control_period,
-    )
+    return PaperLaw.from_context(replace(ctx, base=per_copy_settings(settings)))
+
+
+def per_copy_settings(settings: Sequence[ProposedSettings]) -> ProposedSettings:
+    """The variants of one batch as one settings object: kappa, gamma, sigma and r_scale as
+    per-copy arrays (a float for a batch of one); r and the hold shared (see :func:`structure`)."""
+    first = settings[0]
+    return replace(first, kappa=_per_copy([s.kappa for s in settings]),
+                   gamma=_per_copy([s.gamma for s in settings]), sigma=_per_copy([s.sigma for s in settings]),
+                   r_scale=_per_copy([s.r_scale for s in settings]))
 
 
 def _per_copy(values: list[float]) -> float | np.ndarray:
@@ -374,3 +428,6 @@ KIND = LawKind(
     "state destabilizes the sampled loop once K T > 2 (docs/math.md, 'Sampling the law'); "
     "[controller.proposed] hold = \"exact\" holds its robust term exactly",
 )
+
+
+ProposedController = PaperLaw  # the former name, kept for code written against it

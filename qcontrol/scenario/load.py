@@ -429,7 +429,7 @@ def _controller(table: Table, terms: PlantTerms, simulation: SimulationConfig) -
     v, merged = _chosen(table, controller_section(), {"n": terms.order})
     kind = v["kind"]
     ctx = LawContext(table.source, terms.order, v["delta"], v["c"], terms.psi, terms.phi, terms.theta,
-                     simulation.dt, simulation.period)
+                     simulation.dt, simulation.period, controller=table)
     return ControllerConfig(kind, v["delta"], v["c"], law_kind(kind).parse(merged, ctx))
 
 
