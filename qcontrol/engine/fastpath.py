@@ -36,8 +36,11 @@ from ..controller.law import BatchLaw, FloatColumns
 from ..expr import FLOAT_REFUSED
 from ..plants.base import FloatIO, FloatStepping, Plant
 from ..quantizer import QuantizedReading, Quantizer, UniformQuantizer
+from .compiled_loop import CompiledLoop
+from .compiled_loop import compiled_loop as compiled_loop_of
 from .row_buffer import ArrayRows, RowBuffer
 from .signals import RECORDED
+from .spec import RunSpec
 
 Quantize = Callable[[Any], QuantizedReading]
 FLUSH_ROWS = 1000  # a batch of one: rows kept as Python tuples before they are written to arrays
@@ -197,6 +200,13 @@ class FloatRows:
     def next_event(self, k: int) -> int:
         """The next row at which the pending rows must be flushed."""
         return ((k + 1) // FLUSH_ROWS + 1) * FLUSH_ROWS - 1
+
+
+def compiled_loop(spec: RunSpec) -> CompiledLoop | None:
+    """The compiled form of a batch of one (:mod:`.compiled_loop`: numba, rows written into the
+    same buffer between the same rare rows), or None where the run keeps the Python loop: the
+    other place the form of a run is chosen."""
+    return compiled_loop_of(spec)
 
 
 def rows_for(buffer: RowBuffer, batch: int, state_bound: float) -> FloatRows | ArrayRows:
