@@ -3,6 +3,8 @@ derived signal identical to the last bit, row by row, on every shipped scenario 
 and for each built-in law; the runs it must leave to Python; the hand-over to Python where the
 compiled code cannot reproduce an evaluation."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from conftest import SCENARIOS
@@ -67,6 +69,31 @@ def test_compiled_and_python_loops_agree_for_each_built_in_law(monkeypatch, back
         (loop, compiled), (_, python) = _both(monkeypatch, _scenario(name, LAWS[law]), backend)
         assert loop.handover is None
         _assert_identical(compiled, python)
+
+
+@pytest.mark.parametrize("realism", [["plant.mujoco.sensor_delay=0.002"],
+                                     ["plant.mujoco.sensor_period=0.002"],
+                                     ["simulation.control_period=0.003"]])
+def test_sensors_with_history_and_held_samples_are_compiled_too(monkeypatch, realism: list[str]) -> None:
+    """Sensors reading MuJoCo's history (the loop then calls mj_sensorPos/Vel) and a control
+    period of several steps."""
+    (loop, compiled), (_, python) = _both(monkeypatch, _scenario("example2", realism), "mujoco")
+    assert loop.handover is None
+    _assert_identical(compiled, python)
+
+
+@pytest.mark.parametrize("backend", ["ode", "mujoco"])
+def test_a_load_changing_mid_run_is_applied_between_the_chunks(monkeypatch, backend: str) -> None:
+    sc = _scenario("example2")
+    runs = []
+    for compiled in ("1", "0", "0"):
+        monkeypatch.setenv("QCONTROL_COMPILE", compiled)
+        spec = run_spec(sc, build_plant(sc, backend), build_controller(sc), [sc.x0], None)
+        loop = ClosedLoop(dataclasses.replace(spec, loads=[(123, 2.5), (251, 0.0)] if len(runs) < 2 else []))
+        runs.append((loop, loop.run()[0]))
+    assert runs[0][0].handover is None
+    _assert_identical(runs[0][1], runs[1][1])
+    assert runs[1][1].signals["x"].tobytes() != runs[2][1].signals["x"].tobytes()  # the load did act
 
 
 def test_a_metrics_run_reduces_the_same_rows(monkeypatch) -> None:

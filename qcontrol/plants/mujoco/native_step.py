@@ -5,10 +5,13 @@ compiled code without the Python interpreter: ``ctrl = (I / gain) u``, ``mj_step
 times, ``mj_sensorPos``, ``mj_sensorVel``, all called by symbol from MuJoCo's own library (which
 the process has loaded with the bindings) on ``model._address`` / ``data._address``; the readings
 are the two sensors' ``sensordata`` and the state ``qpos``/``qvel``, read at the addresses the
-bindings report. A copy is dead (NaN from then on, no longer stepped) when one of MuJoCo's
-"unstable" warning counters goes from 0 to nonzero during a step: exactly when MuJoCo sends the
-message the Python stepper reads. The passive terms run as the native callback, which MuJoCo calls
-itself; a run with the Python callback, or with sensor noise, is not compiled.
+bindings report. Sensors that copy the state (a joint position and velocity sensor without
+history or cutoff: the shipped models') read ``qpos``/``qvel`` themselves, so the loop skips the
+two sensor calls and brings ``sensordata`` up to date once per call instead. A copy is dead (NaN
+from then on, no longer stepped) when one of MuJoCo's "unstable" warning counters goes from 0 to
+nonzero during a step: exactly when MuJoCo sends the message the Python stepper reads. The
+passive terms run as the native callback, which MuJoCo calls itself; a run with the Python
+callback, or with sensor noise, is not compiled.
 """
 
 from __future__ import annotations
@@ -51,6 +54,8 @@ OBSERVE = [
     "    m1 = sensordata[pi[8]]",
     "    m2 = sensordata[pi[9]]",
 ]
+# sensors that copy the state (no history, no cutoff): their reading is qpos/qvel itself
+OBSERVE_PLAIN = [*OBSERVE[:-2], "    m1 = x1", "    m2 = x2"]
 _NEWLY = " or ".join(f"(calm{w} and warning[{2 * w}] != 0)" for w in UNSTABLE_WARNINGS)
 STEP = [
     "if pi[13] == 0:",
@@ -63,6 +68,24 @@ STEP = [
     f"    if {_NEWLY}:",
     "        pi[13] = 1",
 ]
+
+
+def step_lines(plain: bool) -> list[str]:
+    """:data:`STEP`; with ``plain`` sensors without the sensor calls (their reading is the state,
+    :data:`OBSERVE_PLAIN`; ``sensordata`` is brought up to date after each call instead)."""
+    return [line for line in STEP if not (plain and "mj_sensor" in line)]
+
+
+def plain_sensors(plant) -> bool:  # noqa: ANN001 (a MujocoPlant)
+    """Whether the two sensors are a joint position and velocity sensor that copy ``qpos`` and
+    ``qvel`` as they are (no history, no cutoff): the readings are then the state itself (as on
+    ``mujoco.batch``, :mod:`.threaded`)."""
+    model, ids = plant.model, plant._ids
+    p, v = ids.position_sensor, ids.velocity_sensor
+    return (not model.nhistory and not model.sensor_cutoff[[p, v]].any()
+            and int(model.sensor_type[p]) == int(mujoco.mjtSensor.mjSENS_JOINTPOS)
+            and int(model.sensor_type[v]) == int(mujoco.mjtSensor.mjSENS_JOINTVEL)
+            and int(model.sensor_objid[p]) == ids.joint == int(model.sensor_objid[v]))
 
 
 @cache
@@ -93,14 +116,20 @@ class MujocoNativeForm:
                               data.warning.number.ctypes.data, ids.actuator, p, v, ids.qpos, ids.dof,
                               substeps, int(plant._dead[0])], dtype=np.int64)
         self.floats = np.array([plant._ctrl_per_u], dtype=float)
+        self.plain = plain_sensors(plant)
 
     def sync_in(self) -> None:
         self.ints[DEAD] = int(self.plant._dead[0])
 
     def sync_out(self) -> None:
-        self.plant._dead[0] = bool(self.ints[DEAD])
+        plant = self.plant
+        plant._dead[0] = bool(self.ints[DEAD])
+        if self.plain and not plant._dead[0]:  # sensordata as the Python step leaves it
+            mujoco.mj_sensorPos(plant.model, plant._datas[0])
+            mujoco.mj_sensorVel(plant.model, plant._datas[0])
 
     def stepper(self) -> NativeStepper:
-        key = f"mujoco {load_mujoco_library()} {mujoco.__version__}"
-        return NativeStepper(key, HELPERS, SETUP, OBSERVE, STEP, self.floats, self.ints,
+        key = f"mujoco {load_mujoco_library()} {mujoco.__version__} plain sensors={self.plain}"
+        observe = OBSERVE_PLAIN if self.plain else OBSERVE
+        return NativeStepper(key, HELPERS, SETUP, observe, step_lines(self.plain), self.floats, self.ints,
                              np.zeros(0), self.sync_in, self.sync_out)
