@@ -96,6 +96,16 @@ def test_a_load_changing_mid_run_is_applied_between_the_chunks(monkeypatch, back
     assert runs[1][1].signals["x"].tobytes() != runs[2][1].signals["x"].tobytes()  # the load did act
 
 
+@pytest.mark.parametrize("backend", ["ode", "mujoco"])
+@pytest.mark.parametrize("x0", ["[10.0, 10.0]", "[3.0, 3.0]"])
+def test_a_diverging_run_stops_at_the_same_row(monkeypatch, backend: str, x0: str) -> None:
+    """Example 2 from a large state: the sampled loop blows up within milliseconds (on MuJoCo the
+    copy is reset by MuJoCo and read as NaN from then on)."""
+    (loop, compiled), (_, python) = _both(monkeypatch, _scenario("example2", [f"plant.x0={x0}"]), backend)
+    assert compiled.diverged and len(compiled.t) < 100
+    _assert_identical(compiled, python)
+
+
 def test_a_metrics_run_reduces_the_same_rows(monkeypatch) -> None:
     sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=3.2"])
     (loop, compiled), (_, python) = _both(monkeypatch, sc, "mujoco", record="metrics")
