@@ -16,6 +16,12 @@ choice is made for a run and where the float form of the engine's own parts live
   one, else its array form seen as floats (:class:`ArrayLawAsFloats`), so a law that implements
   only the array form runs at every batch size too.
 
+One step further, :func:`compiled_loop`: a batch of one whose parts all have a compiled form (the
+uniform quantizer, a built-in law, a plant with :class:`~qcontrol.plants.base.NativeStepping`)
+runs the same loop body as one generated numba function (:mod:`.compiled_loop`) between the
+engine's scheduled rows, writing the same rows into the same buffer; everything else runs the
+float form below.
+
 The one fallback rule: where ``math`` refuses an evaluation that numpy answers with NaN or Inf
 (:data:`qcontrol.expr.FLOAT_REFUSED`), numpy's answer is taken. The laws' formulas are written once
 over columns (:mod:`qcontrol.controller.backstepping`): the same lines take floats here and
