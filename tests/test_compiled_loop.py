@@ -176,3 +176,18 @@ def test_the_python_loop_takes_over_where_math_refuses(monkeypatch, psi: str, r:
     python = ClosedLoop(_refusing_run(psi, r, x0)).run()[0]
     assert loop.handover is not None and loop.handover > 0
     _assert_identical(compiled, python)
+
+
+def test_expression_text_never_becomes_code(monkeypatch, tmp_path) -> None:
+    """An expression's text (a comment may hold anything) appears in generated modules only as a
+    string literal: a comment that would close a docstring runs nothing."""
+    monkeypatch.setenv("QCONTROL_CACHE_DIR", str(tmp_path))
+    payload = '# """; import os; os.environ["QCONTROL_INJECTED"] = "1"; """'
+    sc = _scenario("example2", [f"controller.r=['1 + q2**2 {payload}', '1 + 2*q2**2', '1']",
+                                f"plant.phi=['x2', 'x2**2*cos(x1) {payload}', 'sin(x1)']"])
+    for backend in ("ode", "mujoco"):
+        (loop, compiled), (_, python) = _both(monkeypatch, sc, backend)
+        assert loop.handover is None
+        _assert_identical(compiled, python)
+    assert "QCONTROL_INJECTED" not in __import__("os").environ
+    assert any(payload in path.read_text() for path in tmp_path.glob("*.py"))  # it was there, as text

@@ -96,8 +96,9 @@ def loop_source(law: LawSource, plant: NativeStepper, n: int, m: int) -> str:
         "return 0, stop",
     ]
     return "\n".join([
-        f'"""qcontrol\'s compiled loop: {law.key}; {plant.key} (generated)."""',
+        '"""qcontrol\'s compiled loop (generated): see KEY."""',  # (user text only as a repr literal)
         "import math", "", "import numba", "import numpy as np", "",
+        f"KEY = {law.key + '; ' + plant.key!r}", "",
         "from qcontrol.compiled.pointers import as_pointer, carray", "",
         plant.helpers, "",
         '@numba.njit(cache=True, error_model="numpy", nogil=True)',
