@@ -4,11 +4,13 @@ and for each built-in law; the runs it must leave to Python; the hand-over to Py
 compiled code cannot reproduce an evaluation."""
 
 import dataclasses
+import sys
 
 import numpy as np
 import pytest
 from conftest import SCENARIOS
 
+import qcontrol.engine.compiled_loop as compiled_loop
 from qcontrol.assembly import build_controller, build_plant, build_separation, run_spec
 from qcontrol.controller import ProposedController
 from qcontrol.engine import ClosedLoop, RunSpec
@@ -22,6 +24,13 @@ from qcontrol.timegrid import TimeGrid
 SHIPPED = sorted(p.stem for p in SCENARIOS.glob("*.toml"))
 CASES = [(name, backend) for name in SHIPPED for backend in ("ode", "mujoco")
          if backend == "ode" or "chain" not in name]
+@pytest.fixture(autouse=True)
+def _compile_short_runs(monkeypatch) -> None:
+    """Short runs here (which the engine would leave to Python) run the compiled loop."""
+    monkeypatch.setattr(compiled_loop, "MIN_ROWS", 0)
+    monkeypatch.setattr(compiled_loop, "COLD_MIN_ROWS", 0)
+
+
 LAWS = {"exact hold": ["controller.hold=\"exact\""], "comparison law": ["controller.kind=\"comparison\""]}
 
 
@@ -104,6 +113,25 @@ def test_a_diverging_run_stops_at_the_same_row(monkeypatch, backend: str, x0: st
     (loop, compiled), (_, python) = _both(monkeypatch, _scenario("example2", [f"plant.x0={x0}"]), backend)
     assert compiled.diverged and len(compiled.t) < 100
     _assert_identical(compiled, python)
+
+
+def test_a_short_run_stays_in_python(monkeypatch) -> None:
+    monkeypatch.setattr(compiled_loop, "MIN_ROWS", 5000)
+    loop, _ = _loop(_scenario("example2"), "ode")
+    assert loop.handover == 0
+
+
+def test_a_process_without_numba_compiles_only_long_runs(monkeypatch) -> None:
+    import numba  # noqa: F401 (in sys.modules, as after any compiled run)
+
+    monkeypatch.setattr(compiled_loop, "COLD_MIN_ROWS", 50_000)
+    sc = _scenario("example2")
+    spec = run_spec(sc, build_plant(sc, "ode"), build_controller(sc), [sc.x0], None)
+    assert compiled_loop.compiled_loop(spec) is not None
+    monkeypatch.setattr(compiled_loop.compiled_paths, "enabled", lambda: True)  # (it imports numba)
+    monkeypatch.delitem(sys.modules, "numba")  # only looked up below, never imported
+    assert compiled_loop.compiled_loop(spec) is None
+    assert compiled_loop.compiled_loop(dataclasses.replace(spec, grid=TimeGrid.of(50.0, 1e-3))) is not None
 
 
 def test_a_metrics_run_reduces_the_same_rows(monkeypatch) -> None:

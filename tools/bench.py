@@ -109,7 +109,7 @@ import sys, time
 started = time.perf_counter()
 from qcontrol.assembly import run_scenario
 from qcontrol.scenario import load_scenario
-sc = load_scenario(sys.argv[1], ["simulation.duration=1.0"])
+sc = load_scenario(sys.argv[1], ["simulation.duration=10.0"])
 loaded = time.perf_counter()
 run_scenario(sc, sys.argv[2])
 print(time.perf_counter() - loaded, loaded - started)
@@ -117,7 +117,7 @@ print(time.perf_counter() - loaded, loaded - started)
 
 
 def compile_times(backend: str) -> dict:
-    """A 1 s Example 2 run in a new process with an empty cache folder (the loop, and on MuJoCo
+    """A 10 s Example 2 run in a new process with an empty cache folder (the loop, and on MuJoCo
     the passive callback, compiled), again in a new process (loaded from the disk cache), and
     with ``QCONTROL_COMPILE=0`` (the Python loop): seconds of the run call itself."""
     times = {}
@@ -402,7 +402,7 @@ def report(result: dict, args: argparse.Namespace) -> None:
         print(f"{'ODE run / compiled bare RK4 of the rhs, ' + name:52s} {o['ratio_to_compiled_rk4']:10.1f}  "
               f"         ({o['engine_s']:.4f} s vs {o['compiled_rk4_s']:.5f} s)")
     for backend, times in details["compile"].items():
-        print(f"{'compiled loop, 1 s Example 2 on ' + backend + ': first run [s]':52s} "
+        print(f"{'compiled loop, 10 s Example 2 on ' + backend + ': first run [s]':52s} "
               f"{times['first_run_s']:10.3f}           (empty cache: compiles; cached, new process: "
               f"{times['cached_run_s']:.3f} s; Python loop: {times['python_loop_s']:.3f} s)")
     batches = details["batch"]

@@ -15,7 +15,9 @@ Where the compiled code cannot give the Python loop's numbers (``math`` refusing
 the Python form answers with numpy), it stops before the row (or the step) and the Python loop
 runs on from there (:class:`Resume`). Everything else runs in Python from the start: user laws
 and subclasses that change a built-in law, sensor noise, velocity differencing, other
-quantizers, batches, and every run when ``QCONTROL_COMPILE=0`` or numba is missing.
+quantizers, batches, runs shorter than :data:`MIN_ROWS` rows (:data:`COLD_MIN_ROWS` in a
+process that has not started numba), and every run when ``QCONTROL_COMPILE=0`` or numba is
+missing.
 
 The generated text is kept in the user's cache folder (:mod:`qcontrol.compiled.cache`), keyed by
 the text and the versions; the numbers (gains, theta, addresses) are arguments, so one compiled
@@ -24,6 +26,7 @@ function serves every run of the same structure.
 
 from __future__ import annotations
 
+import sys
 from typing import Any, NamedTuple, Protocol
 
 import numpy as np
@@ -36,6 +39,13 @@ from .compiled_laws import LawSource, law_source
 from .reference_rows import ReferenceRows
 from .spec import RunSpec
 
+# Runs shorter than MIN_ROWS stay in Python: the Python loop takes 15-50 us a row, the compiled
+# one about 1 us, but numba costs about 0.5 s to start in a process and 1-2 s to compile a new
+# structure (once, then cached), so a short run (a test, a quick check) would spend more on the
+# compiler than it saves. In a process that has not started numba yet (an ODE run from the
+# command line; MuJoCo's native callback starts it) only a run of COLD_MIN_ROWS pays for the start.
+MIN_ROWS = 5000
+COLD_MIN_ROWS = 50_000
 DONE, CONTROL_REFUSED, STEP_REFUSED = 0, 1, 2  # what a call returns, with the row it stopped at
 
 
@@ -156,7 +166,10 @@ class CompiledLoop:
 def compiled_loop(spec: RunSpec) -> CompiledLoop | None:
     """The compiled form of ``spec``'s law and quantizer for a batch of one, or None where the
     run keeps the Python loop (see the module docstring)."""
-    if spec.plant.batch != 1 or spec.velocity_source != "sensor":
+    rows = spec.grid.rows
+    if spec.plant.batch != 1 or spec.velocity_source != "sensor" or rows < MIN_ROWS:
+        return None
+    if "numba" not in sys.modules and rows < COLD_MIN_ROWS:  # (before enabled(), which imports it)
         return None
     if type(spec.quantizer) is not UniformQuantizer:  # (a subclass may quantize otherwise)
         return None
