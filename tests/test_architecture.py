@@ -22,7 +22,16 @@ from qcontrol.controller.user import Law
 from qcontrol.engine import SIGNALS, ClosedLoop
 from qcontrol.engine.signals import DERIVED, RECORDED, REDUCTIONS, needed
 from qcontrol.errors import QcontrolInputError
-from qcontrol.plants import Actuated, Backend, Disturbable, FloatIO, FloatStepping, PhysicsReport, Plant
+from qcontrol.plants import (
+    Actuated,
+    Backend,
+    Disturbable,
+    FloatIO,
+    FloatStepping,
+    NativeStepping,
+    PhysicsReport,
+    Plant,
+)
 from qcontrol.quantizer import Quantizer
 from qcontrol.scenario import load_scenario
 
@@ -179,6 +188,7 @@ def _members(protocol: type) -> set[str]:
     (Actuated, {"actuator", "actuator_limited"}),
     (PhysicsReport, {"warnings", "consistency_report"}),
     (FloatStepping, {"float_io"}),
+    (NativeStepping, {"native_stepper"}),
     (Quantizer, {"max_error", "__call__"}),
     (FloatIO, {"observe", "step"}),
     (BatchLaw, {"state_name", "state_size", "copies", "coordinates", "initial_state", "control", "advancer",

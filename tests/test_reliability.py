@@ -191,7 +191,8 @@ def test_atomic_path_into_a_missing_folder_is_an_output_error(tmp_path: Path) ->
 
 
 def _interrupt(tmp_path: Path, argv: list[str], ready: Path | str | None,
-               settle: float = 1.0, sig: int = signal.SIGINT) -> tuple[int, str, float]:
+               settle: float = 1.0, sig: int = signal.SIGINT,
+               environment: dict[str, str] | None = None) -> tuple[int, str, float]:
     """Start ``qcontrol argv`` (SIGINT at its default: Python's KeyboardInterrupt), wait until the
     run has started plus ``settle`` seconds, send SIGINT; return (exit status, stderr, seconds from
     the signal to the exit). The run has started when ``ready`` exists (a glob pattern in
@@ -205,7 +206,7 @@ def _interrupt(tmp_path: Path, argv: list[str], ready: Path | str | None,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE if terminal is None else terminal,
         text=True,
-        env={**os.environ, "HOME": str(tmp_path)},
+        env={**os.environ, "HOME": str(tmp_path), **(environment or {})},
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # not inherited as ignored
     )
     if terminal is not None:
@@ -251,15 +252,18 @@ def _drain(master: int) -> str:
     return text
 
 
-@pytest.mark.parametrize("command, backend", [("run", "ode"), ("run", "mujoco"), ("compare", None)])
+# (600 s of the ODE in the compiled loop take about a second: too short to interrupt; the MuJoCo
+# run and compare interrupt the compiled loop, the ODE run the Python loop)
+@pytest.mark.parametrize("command, backend, compiled", [("run", "ode", "0"), ("run", "mujoco", "1"),
+                                                        ("compare", None, "1")])
 def test_ctrl_c_stops_promptly_exit_130_no_temporary_files(
-    tmp_path: Path, command: str, backend: str | None
+    tmp_path: Path, command: str, backend: str | None, compiled: str
 ) -> None:
     out = tmp_path / "out"
     argv = [command, str(EX2), "--duration", "600", "--out", str(out)]
     if backend is not None:
         argv += ["--backend", backend]
-    status, err, seconds = _interrupt(tmp_path, argv, ready=None)
+    status, err, seconds = _interrupt(tmp_path, argv, ready=None, environment={"QCONTROL_COMPILE": compiled})
     assert status == 130, err
     assert seconds < 5.0
     assert "Traceback" not in err and "interrupted" in err

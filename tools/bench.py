@@ -95,6 +95,44 @@ def _mj_step_loop(plant, steps: int, installed: bool) -> Callable[[], None]:
     return loop
 
 
+def compiled_loop_in_use(sc: Scenario, backend: str) -> bool:
+    """Whether a single run of ``sc`` on ``backend`` runs the compiled loop to its end."""
+    from qcontrol.assembly import build_controller, run_spec
+    from qcontrol.engine import ClosedLoop
+
+    loop = ClosedLoop(run_spec(sc, build_plant(sc, backend), build_controller(sc), [sc.x0], None))
+    loop.run()
+    return loop.handover is None
+
+
+_FIRST_RUN = """
+import sys, time
+started = time.perf_counter()
+import numba  # a process that has started numba (else a 10 s ODE run stays in Python)
+from qcontrol.assembly import run_scenario
+from qcontrol.scenario import load_scenario
+sc = load_scenario(sys.argv[1], ["simulation.duration=10.0"])
+loaded = time.perf_counter()
+run_scenario(sc, sys.argv[2])
+print(time.perf_counter() - loaded, loaded - started)
+"""
+
+
+def compile_times(backend: str) -> dict:
+    """A 10 s Example 2 run in a new process with an empty cache folder (the loop, and on MuJoCo
+    the passive callback, compiled), again in a new process (loaded from the disk cache), and
+    with ``QCONTROL_COMPILE=0`` (the Python loop): seconds of the run call itself, numba imported
+    before it (its import, about 0.3 s, not counted; its set-up at the first compiled call is)."""
+    times = {}
+    with tempfile.TemporaryDirectory() as cache:
+        for label, compiled in (("first_run_s", "1"), ("cached_run_s", "1"), ("python_loop_s", "0")):
+            env = {**os.environ, "QCONTROL_CACHE_DIR": cache, "QCONTROL_COMPILE": compiled}
+            out = subprocess.run([sys.executable, "-c", _FIRST_RUN, str(ROOT / "scenarios" / "example2.toml"),
+                                  backend], env=env, capture_output=True, text=True, check=True).stdout
+            times[label] = float(out.split()[0])
+    return times
+
+
 def mujoco_ratio(sc: Scenario, repeat: int) -> dict:
     """The closed loop on MuJoCo against the physical limit, a bare C ``mj_step`` loop (no passive
     callback); and ``mj_step`` with the plant's passive callback (native, and Python) against it."""
@@ -106,7 +144,10 @@ def mujoco_ratio(sc: Scenario, repeat: int) -> dict:
     with compiled_off():
         python_plant = build_plant(sc, "mujoco")
         python = best_of(repeat, _mj_step_loop(python_plant, steps, installed=True)) / steps
+        python_loop = best_of(repeat, lambda: run_scenario(sc, "mujoco", plant=python_plant)) / steps
     return {"closed_loop_us_per_step": closed * 1e6, "bare_mj_step_us_per_step": bare * 1e6,
+            "compiled_loop": compiled_loop_in_use(sc, "mujoco"), "python_loop_us_per_step": python_loop * 1e6,
+            "python_loop_ratio": python_loop / bare,
             "native_callback_us_per_step": native * 1e6, "python_callback_us_per_step": python * 1e6,
             "ratio": closed / bare, "native_callback_ratio": native / bare,
             "python_callback_ratio": python / bare, "native_in_use": plant._native is not None,
@@ -191,11 +232,15 @@ def compiled_rk4(sc: Scenario) -> Callable[[int], None]:
 def ode_speedup(sc: Scenario, repeat: int) -> dict:
     """One ODE run against scipy's solve_ivp, and against a compiled bare RK4 of the same rhs."""
     engine = best_of(repeat, lambda: run_scenario(sc, "ode"))
+    with compiled_off():
+        python_loop = best_of(repeat, lambda: run_scenario(sc, "ode"))
     scipy_s = best_of(max(1, repeat // 2), lambda: solve_ivp_closed_loop(sc))
     steps = round(sc.simulation.duration / sc.simulation.dt)
     rk4 = compiled_rk4(sc)
     bare = best_of(repeat, lambda: rk4(steps))
     return {"engine_s": engine, "solve_ivp_s": scipy_s, "speedup": scipy_s / engine,
+            "compiled_loop": compiled_loop_in_use(sc, "ode"), "python_loop_s": python_loop,
+            "python_loop_speedup": scipy_s / python_loop,
             "compiled_rk4_s": bare, "ratio_to_compiled_rk4": engine / bare, "target": ">= 300 (vs solve_ivp)"}
 
 
@@ -214,8 +259,12 @@ def batch_times(duration: float, sizes: list[int], repeat: int) -> dict:
                      build_reference(sc), sc.x0, duration, sc.simulation.dt, record="metrics")
 
         times[str(size)] = best_of(repeat if size <= 100 else max(1, repeat // 2), run)
+        if size == 1:  # the one run in the Python loop too (the target was set against it)
+            with compiled_off():
+                python_one = best_of(repeat, run)
     one = times["1"]
-    return {"seconds": times, "ratio_to_one": {k: v / one for k, v in times.items()}}
+    return {"seconds": times, "ratio_to_one": {k: v / one for k, v in times.items()},
+            "python_one_s": python_one, "ratio_to_python_one": {k: v / python_one for k, v in times.items()}}
 
 
 def mujoco_batch(duration: float, size: int, repeat: int) -> dict:
@@ -320,6 +369,7 @@ def measure(args: argparse.Namespace) -> dict:
         result["mujoco_step_ratio"][name] = details["mujoco"][name]["ratio"]
         details["ode"][name] = ode_speedup(sc, repeat)
         result["ode_speedup_vs_solve_ivp"][name] = details["ode"][name]["speedup"]
+    details["compile"] = {backend: compile_times(backend) for backend in ("ode", "mujoco")}
     details["batch"] = batch_times(duration, sizes, repeat)
     result["batch1000_ratio"] = details["batch"]["ratio_to_one"].get("1000")
     # 1000 MuJoCo copies of 10 s are 1e7 copy-steps (about a minute): 1 s runs unless --quick (100)
@@ -350,6 +400,9 @@ def report(result: dict, args: argparse.Namespace) -> None:
         m, o = details["mujoco"][name], details["ode"][name]
         print(f"{'MuJoCo closed loop / bare C mj_step, ' + name:52s} {m['ratio']:10.2f}  <= 1.3  "
               f"({m['closed_loop_us_per_step']:.2f} vs {m['bare_mj_step_us_per_step']:.2f} us/step)")
+        print(f"{'MuJoCo Python loop (QCONTROL_COMPILE=0) / bare, ' + name:52s} "
+              f"{m['python_loop_ratio']:10.2f}           ({m['python_loop_us_per_step']:.2f} us/step; "
+              f"the line above ran the compiled loop: {m['compiled_loop']})")
         print(f"{'mj_step with native callback / bare, ' + name:52s} {m['native_callback_ratio']:10.3f}  "
               f"<= 1.05 ({m['native_callback_us_per_step']:.2f} us/step; "
               f"native in use: {m['native_in_use']})")
@@ -357,13 +410,23 @@ def report(result: dict, args: argparse.Namespace) -> None:
               f"         ({m['python_callback_us_per_step']:.2f} us/step)")
         print(f"{'ODE speed-up vs solve_ivp RK45, ' + name:52s} {o['speedup']:10.1f}  >= 300  "
               f"({o['engine_s']:.4f} s vs {o['solve_ivp_s']:.3f} s)")
+        print(f"{'ODE Python loop (QCONTROL_COMPILE=0) vs solve_ivp, ' + name:52s} "
+              f"{o['python_loop_speedup']:10.1f}           ({o['python_loop_s']:.4f} s; "
+              f"the line above ran the compiled loop: {o['compiled_loop']})")
         print(f"{'ODE run / compiled bare RK4 of the rhs, ' + name:52s} {o['ratio_to_compiled_rk4']:10.1f}  "
               f"         ({o['engine_s']:.4f} s vs {o['compiled_rk4_s']:.5f} s)")
+    for backend, times in details["compile"].items():
+        print(f"{'compiled loop, 10 s Example 2 on ' + backend + ': first run [s]':52s} "
+              f"{times['first_run_s']:10.3f}           (empty cache: compiles; cached, new process: "
+              f"{times['cached_run_s']:.3f} s; Python loop: {times['python_loop_s']:.3f} s)")
     batches = details["batch"]
     for size, ratio in batches["ratio_to_one"].items():
         target = "<= 20" if size == "1000" else ""
         print(f"{'ODE Example 2 batch of ' + size + ' / one run':52s} {ratio:10.2f}  {target:7s} "
-              f"({batches['seconds'][size]:.3f} s)")
+              f"({batches['seconds'][size]:.3f} s; one run in the compiled loop)")
+    for size, ratio in batches["ratio_to_python_one"].items():
+        print(f"{'ODE Example 2 batch of ' + size + ' / one run in the Python loop':52s} {ratio:10.2f}  "
+              f"{'<= 20' if size == '1000' else '':7s} ({batches['python_one_s']:.3f} s the Python run)")
     mb = details["mujoco_batch"]
     print(f"{'MuJoCo batch of ' + str(mb['size']) + ' (per copy-step) / bare mj_step':52s} "
           f"{mb['ratio_to_bare_mj_step']:10.2f}           "

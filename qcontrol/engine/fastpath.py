@@ -16,6 +16,12 @@ choice is made for a run and where the float form of the engine's own parts live
   one, else its array form seen as floats (:class:`ArrayLawAsFloats`), so a law that implements
   only the array form runs at every batch size too.
 
+One step further, :func:`compiled_loop`: a batch of one whose parts all have a compiled form (the
+uniform quantizer, a built-in law, a plant with :class:`~qcontrol.plants.base.NativeStepping`)
+runs the same loop body as one generated numba function (:mod:`.compiled_loop`) between the
+engine's scheduled rows, writing the same rows into the same buffer; everything else runs the
+float form below.
+
 The one fallback rule: where ``math`` refuses an evaluation that numpy answers with NaN or Inf
 (:data:`qcontrol.expr.FLOAT_REFUSED`), numpy's answer is taken. The laws' formulas are written once
 over columns (:mod:`qcontrol.controller.backstepping`): the same lines take floats here and
@@ -36,8 +42,11 @@ from ..controller.law import BatchLaw, FloatColumns
 from ..expr import FLOAT_REFUSED
 from ..plants.base import FloatIO, FloatStepping, Plant
 from ..quantizer import QuantizedReading, Quantizer, UniformQuantizer
+from .compiled_loop import CompiledLoop
+from .compiled_loop import compiled_loop as compiled_loop_of
 from .row_buffer import ArrayRows, RowBuffer
 from .signals import RECORDED
+from .spec import RunSpec
 
 Quantize = Callable[[Any], QuantizedReading]
 FLUSH_ROWS = 1000  # a batch of one: rows kept as Python tuples before they are written to arrays
@@ -197,6 +206,13 @@ class FloatRows:
     def next_event(self, k: int) -> int:
         """The next row at which the pending rows must be flushed."""
         return ((k + 1) // FLUSH_ROWS + 1) * FLUSH_ROWS - 1
+
+
+def compiled_loop(spec: RunSpec) -> CompiledLoop | None:
+    """The compiled form of a batch of one (:mod:`.compiled_loop`: numba, rows written into the
+    same buffer between the same rare rows), or None where the run keeps the Python loop: the
+    other place the form of a run is chosen."""
+    return compiled_loop_of(spec)
 
 
 def rows_for(buffer: RowBuffer, batch: int, state_bound: float) -> FloatRows | ArrayRows:

@@ -25,8 +25,9 @@ from ..plants.base import Actuated, Disturbable, Plant
 from ..quantizer import Quantizer
 from ..reference import Reference
 from ..timegrid import TimeGrid
+from .compiled_loop import START, Resume
 from .divergence import Divergence
-from .fastpath import rows_for
+from .fastpath import compiled_loop, rows_for
 from .reference_rows import ReferenceRows
 from .results import RunRecord
 from .retention import FullRecord, MetricsRecord, RunParts
@@ -92,6 +93,8 @@ class ClosedLoop:
             self.quantize = self.rows.differenced(self.quantize, grid.hold, grid.hold * grid.dt)
         self.progress = ProgressReports(spec.progress, grid.rows)
         self.loads = Loads(plant, spec.loads)
+        self.compiled = compiled_loop(spec)  # None: the Python loop (see .compiled_loop)
+        self.handover: int | None = None  # the row the Python loop took over from (None: none)
 
     def next_event(self, k: int) -> int:
         """The first row after ``k`` at which the loop has more to do than step."""
@@ -113,30 +116,45 @@ class ClosedLoop:
         return finished
 
     def run(self) -> list[RunRecord]:
-        """The closed loop, row by row: observe -> quantize -> control -> record -> step -> advance."""
+        """The closed loop, row by row: compiled (:mod:`.compiled_loop`) where the run's parts all
+        have a compiled form, then (or else) in Python from the row it hands over."""
+        plant = self.plant
+        adaptive = self.rows.initial_state(self.law)
+        self.record.started = time.perf_counter()
+        with plant, np.errstate(all="ignore"):
+            plant.reset(np.broadcast_to(np.asarray(self.x0, dtype=float), (plant.batch, plant.n)))
+            resume = (START._replace(adaptive=adaptive) if self.compiled is None
+                      else self.compiled.run(self, plant, adaptive))
+            self.handover = None if resume is None else resume.row
+            if resume is not None:
+                self.python_rows(resume)
+        return self.record.results(time.perf_counter())
+
+    def python_rows(self, resume: Resume) -> None:
+        """The loop in Python from row ``resume.row``: observe -> quantize -> control -> record ->
+        step -> advance."""
         plant, grid, rows = self.plant, self.grid, self.rows
         quantize, reference_at, keep = self.quantize, self.reference.at, rows.keep
         control, advance = rows.law(self.law, grid.dt)
         hold, dt = grid.hold, grid.dt
-        adaptive = rows.initial_state(self.law)
-        self.record.started = time.perf_counter()
-        with plant, np.errstate(all="ignore"):
-            plant.reset(np.broadcast_to(np.asarray(self.x0, dtype=float), (plant.batch, plant.n)))
-            io = rows.plant_io(plant, dt)
-            observe, step = io.observe, io.step
-            due = self.next_event(-1)
-            for k in range(grid.rows):
-                x, reading = observe()
-                quantized = quantize(reading)
-                if k % hold == 0:  # a control sample; u is held until the next one
-                    out = control(quantized, reference_at(k), adaptive, k * dt)
-                if keep(k, x, reading, quantized, out.u, adaptive) or k == due:
-                    if self.rare_work(k):
-                        break
-                    due = self.next_event(k)
-                step(out.u)
-                adaptive = advance(adaptive, out)
-        return self.record.results(time.perf_counter())
+        adaptive, out = resume.adaptive, resume.out
+        io = rows.plant_io(plant, dt)
+        observe, step = io.observe, io.step
+        if resume.step_first:  # the step from the row before, which the compiled loop left
+            step(out.u)
+            adaptive = advance(adaptive, out)
+        due = self.next_event(resume.row - 1)
+        for k in range(resume.row, grid.rows):
+            x, reading = observe()
+            quantized = quantize(reading)
+            if k % hold == 0:  # a control sample; u is held until the next one
+                out = control(quantized, reference_at(k), adaptive, k * dt)
+            if keep(k, x, reading, quantized, out.u, adaptive) or k == due:
+                if self.rare_work(k):
+                    break
+                due = self.next_event(k)
+            step(out.u)
+            adaptive = advance(adaptive, out)
 
 
 def simulate(

@@ -3,10 +3,21 @@ the ideal ODE chain of eq. (1) (:mod:`.ode`) and the MuJoCo model (:mod:`.mujoco
 
 from . import mujoco, ode
 from .backends import BACKENDS, Backend, PlantContext, SceneSource, register_backend
-from .base import Actuated, Disturbable, FloatIO, FloatStepping, PhysicsReport, Plant, PlantTerms
+from .base import (
+    Actuated,
+    Disturbable,
+    FloatIO,
+    FloatStepping,
+    NativeStepper,
+    NativeStepping,
+    PhysicsReport,
+    Plant,
+    PlantTerms,
+)
 
 for _backend in (ode.BACKEND, mujoco.BACKEND):
     register_backend(_backend)
 
-__all__ = ["BACKENDS", "Actuated", "Backend", "Disturbable", "FloatIO", "FloatStepping", "PhysicsReport",
-           "Plant", "PlantContext", "PlantTerms", "SceneSource", "register_backend"]
+__all__ = ["BACKENDS", "Actuated", "Backend", "Disturbable", "FloatIO", "FloatStepping", "NativeStepper",
+           "NativeStepping", "PhysicsReport", "Plant", "PlantContext", "PlantTerms", "SceneSource",
+           "register_backend"]

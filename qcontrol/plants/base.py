@@ -127,3 +127,39 @@ class FloatStepping(Protocol):
     def float_io(self, h: float) -> FloatIO:
         """The one copy's :class:`FloatIO` for steps of ``h``, made once per run inside the ``with``
         block after :meth:`Plant.reset`; it must give the numbers the array form gives."""
+
+
+@dataclass
+class NativeStepper:
+    """One copy's observe and step as source text for the engine's compiled loop
+    (:mod:`qcontrol.engine.compiled_loop`), with the numbers that text reads.
+
+    The lines run inside the generated loop function: ``setup`` once per call, ``observe`` to set
+    the locals ``x1 .. xn`` (true state) and ``m1 .. mn`` (reading), ``step`` to hold the local
+    ``u`` over one step; ``step`` may ``return 2, k`` where it cannot give the Python form's
+    numbers (the Python step then runs instead). They read the arrays ``pf`` (floats), ``pi``
+    (integers) and ``xs`` (a state the compiled code keeps); ``helpers`` is module-level text
+    (functions the lines call). ``key`` names what the text depends on besides itself.
+    ``sync_in`` runs before each call (what Python may have changed: a load), ``sync_out``
+    after it (what the plant's Python form reads: its state)."""
+
+    key: str
+    helpers: str
+    setup: list[str]
+    observe: list[str]
+    step: list[str]
+    floats: np.ndarray
+    ints: np.ndarray
+    state: np.ndarray
+    sync_in: Any
+    sync_out: Any
+
+
+@runtime_checkable
+class NativeStepping(Protocol):
+    """A plant whose batch of one can run inside the engine's compiled loop."""
+
+    def native_stepper(self, h: float) -> NativeStepper | None:
+        """The one copy's :class:`NativeStepper` for steps of ``h`` (inside the ``with`` block,
+        after :meth:`Plant.reset`), or None where this run cannot be compiled (then the Python
+        loop runs); it must give, bit for bit, the numbers of :meth:`FloatStepping.float_io`."""

@@ -21,9 +21,10 @@ from typing import Any
 import numpy as np
 
 from ..expr import FLOAT_REFUSED, Expression, ScalarFn, scalar_function
+from ..expr.source import FLAG, Statements, float_source
 from ..quantizer import Column
 from .backends import Backend
-from .base import PlantTerms
+from .base import NativeStepper, PlantTerms
 
 Uncertainty = Callable[[list[Column]], Column]  # psi + theta^T phi on the state's columns
 
@@ -136,6 +137,70 @@ class ChainPlant:
         if not self._floats:
             raise ValueError(f"float_io is for a batch of one; this plant has {self.batch} copies")
         return ChainFloatIO(self, h)
+
+    def native_stepper(self, h: float) -> NativeStepper | None:
+        """The batch of one as source text for the engine's compiled loop: the same RK4 on the
+        same terms (:class:`ChainNativeForm`); None for a batch."""
+        return ChainNativeForm(self, h).stepper() if self._floats else None
+
+
+class ChainNativeForm:
+    """:func:`_rk4` and :class:`FloatUncertainty` as numba source, generated from the terms'
+    expression trees (:func:`qcontrol.expr.source.float_source`, as MuJoCo's native callback):
+    the same operations in the same order. ``pf`` holds the load d, ``h`` and theta (so one
+    compiled text serves every theta); ``xs`` the state. Where ``math`` would refuse a term (the
+    Python form then takes numpy's answer), the step returns 2 before writing the state, and the
+    Python step runs."""
+
+    def __init__(self, plant: ChainPlant, h: float) -> None:
+        self.plant = plant
+        row = plant.theta[0] if plant.theta.ndim == 2 else plant.theta
+        self.floats = np.array([plant._load, h, *[float(c) for c in row]], dtype=float)
+        self.state = np.array(plant._x, dtype=float)
+
+    def helpers(self) -> str:
+        """``plant_uncertainty(x1, .., xn, pf) -> (psi + theta^T phi, refused)``."""
+        plant, names = self.plant, [f"x{i + 1}" for i in range(self.plant.n)]
+        body = Statements("g")
+        value = float_source(plant.psi._tree, names, body) if plant.psi is not None else "0.0"
+        body.lines.append(f"value = {value}")
+        for i, term in enumerate(plant.phi):
+            text = float_source(term._tree, names, body)
+            body.lines.append(f"value = value + pf[{2 + i}] * {text}")
+        lines = [f"{FLAG} = False", *body.lines, f"return value, {FLAG}"]
+        head = ("@numba.njit(cache=True, error_model=\"numpy\", nogil=True)\n"
+                f"def plant_uncertainty({', '.join(names)}, pf):\n")
+        return head + "".join(f"    {line}\n" for line in lines)
+
+    def step_lines(self) -> list[str]:
+        """One RK4 step of ``h`` with ``u + d`` held (``u`` if d is 0), as :func:`_rk4`."""
+        n = self.plant.n
+        lines = ["uu = u + pf[0] if pf[0] != 0.0 else u", "h = pf[1]", "half = 0.5 * h"]
+        lines += [f"a{i} = xs[{i - 1}]" for i in range(1, n + 1)]
+        stages = (("a", None), ("b", "half"), ("c", "half"), ("d", "h"))
+        for s, (name, scale) in enumerate(stages, start=1):
+            if scale is not None:
+                lines += [f"{name}{i} = a{i} + {scale} * k{s - 1}_{i}" for i in range(1, n + 1)]
+            args = ", ".join(f"{name}{i}" for i in range(1, n + 1))
+            lines.append(f"gv, bad{s} = plant_uncertainty({args}, pf)")
+            lines += [f"k{s}_{i} = {name}{i + 1}" for i in range(1, n)] + [f"k{s}_{n} = uu + gv"]
+        lines += ["sixth = h / 6.0", "if bad1 or bad2 or bad3 or bad4:", "    return 2, k"]
+        lines += [f"xs[{i - 1}] = a{i} + sixth * (k1_{i} + 2.0 * (k2_{i} + k3_{i}) + k4_{i})"
+                  for i in range(1, n + 1)]
+        return lines
+
+    def sync_in(self) -> None:
+        self.floats[0] = self.plant._load
+
+    def sync_out(self) -> None:
+        self.plant._x = self.state.tolist()
+
+    def stepper(self) -> NativeStepper:
+        n = self.plant.n
+        observe = [f"x{i} = xs[{i - 1}]" for i in range(1, n + 1)] + [f"m{i} = x{i}" for i in range(1, n + 1)]
+        key = f"ode n={n} psi={self.plant.psi is not None} phi={len(self.plant.phi)}"
+        return NativeStepper(key, self.helpers(), [], observe, self.step_lines(), self.floats,
+                             np.zeros(1, dtype=np.int64), self.state, self.sync_in, self.sync_out)
 
 
 class ChainFloatIO:

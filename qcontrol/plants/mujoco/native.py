@@ -94,7 +94,8 @@ def callback_source(terms: Sequence[Expression], offsets: dict[str, int]) -> tup
     tag = float(int(hashlib.sha256(key.encode()).hexdigest()[:12], 16))
     slots = userdata_size(len(terms))
     indented = "\n".join("    " + line for line in lines)
-    source = f'''"""qcontrol's passive force for: {"; ".join(t.source for t in terms)} (generated)."""
+    shown = "; ".join(t.source for t in terms)  # user text, so only as a repr literal
+    source = f'''"""qcontrol's passive force (generated): see TERMS."""
 import math
 
 import numba
@@ -104,6 +105,7 @@ from numba import types
 from qcontrol.compiled.pointers import as_address, as_pointer, carray
 
 TAG = {tag!r}
+TERMS = {shown!r}
 
 
 @numba.cfunc(types.void(types.voidptr, types.voidptr), cache=True, error_model="numpy")

@@ -36,7 +36,7 @@ import numpy as np
 from ... import compiled as compiled_paths
 from ...errors import QcontrolInputError
 from ...timegrid import whole_steps
-from ..base import PlantTerms
+from ..base import NativeStepper, PlantTerms
 from .callbacks import (
     GeneralizedForce,
     collect_warnings,
@@ -48,6 +48,7 @@ from .callbacks import (
 from .consistency import consistency_report
 from .mjcf import compiled
 from .native import native_force
+from .native_step import MujocoNativeForm
 from .noise import SensorNoise
 from .options import MujocoOptions
 from .threaded import ThreadedCopies, threadable
@@ -259,6 +260,17 @@ class MujocoPlant:
         if self.batch != 1:
             raise ValueError(f"float_io is for a batch of one; this plant has {self.batch} copies")
         return MujocoFloatIO(self, (self._steppers.get(h) or self._make_steppers(h))[0])
+
+    def native_stepper(self, h: float) -> NativeStepper | None:
+        """The batch of one as source text for the engine's compiled loop (:mod:`.native_step`),
+        where compiled code can give :meth:`float_io`'s numbers: one copy, no sensor noise (drawn
+        in Python), and the passive terms, if any, in the native callback MuJoCo calls itself."""
+        if not self._entered or self.batch != 1 or self._noisy or self._threads:
+            return None
+        if python_callback_installed() or (self._force is not None and self._native is None):
+            return None
+        substeps = whole_steps(h, self.timestep, f"{self.options.where}: step", "the model timestep")
+        return MujocoNativeForm(self, substeps).stepper()
 
 
 class CopyStepper:

@@ -1,0 +1,181 @@
+"""The compiled loop: a batch of one with a built-in law, run in numba between the engine's
+scheduled rows.
+
+The engine's float path (:mod:`.fastpath`) chooses it for a run whose parts all have a compiled
+form: the uniform quantizer, a built-in law (:mod:`.compiled_laws`), the plant's
+:class:`~qcontrol.plants.base.NativeStepper` (the ODE's RK4 on its terms, or MuJoCo's own
+``mj_step`` called from compiled code), the sensors' velocity. The generated function runs the
+loop body of :meth:`~.loop.ClosedLoop.run` for rows ``[start, stop]`` (observe, quantize
+``delta * floor(x / delta + 1/2)``, control every ``hold`` rows, the row written into the run's
+buffer, step, advance) with the same operations in the same order (numpy's error model, no
+fast-math contraction), so every row is the Python loop's to the last bit. Between calls the
+engine does its rare work (:meth:`~.loop.ClosedLoop.rare_work`) at the rows it schedules, as ever.
+
+Where the compiled code cannot give the Python loop's numbers (``math`` refusing an evaluation
+the Python form answers with numpy), it stops before the row (or the step) and the Python loop
+runs on from there (:class:`Resume`). Everything else runs in Python from the start: user laws
+and subclasses that change a built-in law, sensor noise, velocity differencing, other
+quantizers, batches, runs shorter than :data:`MIN_ROWS` rows (:data:`COLD_MIN_ROWS` in a
+process that has not started numba), and every run when ``QCONTROL_COMPILE=0`` or numba is
+missing.
+
+The generated text is kept in the user's cache folder (:mod:`qcontrol.compiled.cache`), keyed by
+the text and the versions; the numbers (gains, theta, addresses) are arguments, so one compiled
+function serves every run of the same structure.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Any, NamedTuple, Protocol
+
+import numpy as np
+
+from .. import compiled as compiled_paths
+from ..controller.backstepping import ControlOutput
+from ..plants.base import NativeStepper, NativeStepping, Plant
+from ..quantizer import UniformQuantizer
+from .compiled_laws import LawSource, law_source
+from .reference_rows import ReferenceRows
+from .spec import RunSpec
+
+# Runs shorter than MIN_ROWS stay in Python: the Python loop takes 15-50 us a row, the compiled
+# one about 1 us, but numba costs about 0.5 s to start in a process and 1-2 s to compile a new
+# structure (once, then cached), so a short run (a test, a quick check) would spend more on the
+# compiler than it saves. In a process that has not started numba yet (an ODE run from the
+# command line; MuJoCo's native callback starts it) only a run of COLD_MIN_ROWS pays for the start.
+MIN_ROWS = 5000
+COLD_MIN_ROWS = 50_000
+DONE, CONTROL_REFUSED, STEP_REFUSED = 0, 1, 2  # what a call returns, with the row it stopped at
+
+
+class Resume(NamedTuple):
+    """Where the Python loop takes over: at ``row``, with the adaptive state there and, when
+    ``step_first``, the step and advance of the row before still to do with the held ``out``."""
+
+    row: int
+    step_first: bool
+    adaptive: tuple
+    out: ControlOutput | None
+
+
+START = Resume(0, False, (), None)
+
+
+class Schedule(Protocol):
+    """What the compiled loop uses of the engine's :class:`~.loop.ClosedLoop`: its grid, record
+    and reference rows, and its rare rows (:meth:`next_event`, :meth:`rare_work`)."""
+
+    grid: Any
+    record: Any
+    reference: ReferenceRows
+
+    def next_event(self, k: int) -> int: ...
+
+    def rare_work(self, k: int) -> bool: ...
+
+
+def _indented(lines: list[str], depth: int) -> list[str]:
+    return ["    " * depth + line for line in lines]
+
+
+def loop_source(law: LawSource, plant: NativeStepper, n: int, m: int) -> str:
+    """The module text of the loop function ``rows(...) -> (status, row)``."""
+    quantize = [f"q{i} = delta * np.floor(m{i} / delta + 0.5)" for i in range(1, n + 1)]
+    record = ([f"xb[j, 0, {i - 1}] = x{i}" for i in range(1, n + 1)]
+              + [f"mb[j, 0, {i - 1}] = m{i}" for i in range(1, n + 1)]
+              + [f"qb[j, 0, {i - 1}] = q{i}" for i in range(1, n + 1)]
+              + ["ub[j, 0] = u"] + [f"ab[j, 0, {i}] = adaptive[{i}]" for i in range(m)])
+    body = [
+        *plant.setup,
+        "u = held[0]",
+        "if step_first:",
+        "    k = start - 1",
+        *_indented(plant.step + law.advance, 1),
+        "for k in range(start, stop + 1):",
+        "    r = k - start",
+        *_indented(plant.observe + quantize, 1),
+        "    if k % hold == 0:",
+        *_indented(law.control, 2),
+        "        u = held[0]",
+        "    j = k - base",
+        *_indented(record, 1),
+        "    if k == stop:",
+        "        return 0, k",
+        *_indented(plant.step + law.advance, 1),
+        "return 0, stop",
+    ]
+    return "\n".join([
+        '"""qcontrol\'s compiled loop (generated): see KEY."""',  # (user text only as a repr literal)
+        "import math", "", "import numba", "import numpy as np", "",
+        f"KEY = {law.key + '; ' + plant.key!r}", "",
+        "from qcontrol.compiled.pointers import as_pointer, carray", "",
+        plant.helpers, "",
+        '@numba.njit(cache=True, error_model="numpy", nogil=True)',
+        "def rows(start, stop, step_first, hold, base, delta, yd, xb, mb, qb, ub, ab, adaptive, held, lp, pf,"
+        " pi, xs):",
+        *_indented(body, 1), "",
+    ])
+
+
+class CompiledLoop:
+    """The compiled form of one run's law and quantizer; :meth:`run` adds the plant's."""
+
+    def __init__(self, law: LawSource, delta: float, n: int, m: int) -> None:
+        self.law, self.delta, self.n, self.m = law, delta, n, m
+
+    def function(self, plant: NativeStepper):  # noqa: ANN201 (a numba dispatcher)
+        """The generated loop for this law and plant, compiled or loaded from the disk cache."""
+        from ..compiled.cache import generated_module
+
+        return generated_module("loop", loop_source(self.law, plant, self.n, self.m)).rows
+
+    def run(self, loop: Schedule, plant: Plant, adaptive: tuple) -> Resume | None:
+        """The run from row 0 in compiled chunks, the engine's rare work between them; None when
+        the run is over, else where the Python loop takes over (all of the run when the plant has
+        no compiled form for it)."""
+        stepper = plant.native_stepper(loop.grid.dt) if isinstance(plant, NativeStepping) else None
+        if stepper is None:
+            return START._replace(adaptive=adaptive)
+        try:
+            rows = self.function(stepper)
+        except Exception as exc:  # numba refusing a construct: the Python loop, said once
+            compiled_paths.fallback("the closed loop", f"{type(exc).__name__}: {exc}")
+            return START._replace(adaptive=adaptive)
+        state, held = np.array(adaptive, dtype=float), np.zeros(1 + self.m + self.n)
+        arrays, hold = loop.record.buffer.arrays, loop.grid.hold
+        buffers = (arrays["x"], arrays["x_meas"], arrays["x_q"], arrays["u"], arrays["adaptive"])
+        start, step_first = 0, False
+        while True:
+            stop = loop.next_event(start - 1)
+            yd = np.ascontiguousarray(loop.reference.block(start, stop + 1))
+            stepper.sync_in()
+            status, row = rows(start, stop, step_first, hold, loop.record.buffer.base, self.delta, yd,
+                               *buffers, state, held, self.law.constants, stepper.floats, stepper.ints,
+                               stepper.state)
+            stepper.sync_out()
+            if status == CONTROL_REFUSED:
+                return Resume(row, False, tuple(state.tolist()), None)
+            if status == STEP_REFUSED:
+                return Resume(row + 1, True, tuple(state.tolist()), self.law.held_output(held))
+            if loop.rare_work(stop):
+                return None
+            start, step_first = stop + 1, True
+
+
+def compiled_loop(spec: RunSpec) -> CompiledLoop | None:
+    """The compiled form of ``spec``'s law and quantizer for a batch of one, or None where the
+    run keeps the Python loop (see the module docstring)."""
+    rows = spec.grid.rows
+    if spec.plant.batch != 1 or spec.velocity_source != "sensor" or rows < MIN_ROWS:
+        return None
+    if "numba" not in sys.modules and rows < COLD_MIN_ROWS:  # (before enabled(), which imports it)
+        return None
+    if type(spec.quantizer) is not UniformQuantizer:  # (a subclass may quantize otherwise)
+        return None
+    if not compiled_paths.enabled():
+        return None
+    law = law_source(spec.law, spec.grid.dt)
+    if law is None:
+        return None
+    return CompiledLoop(law, spec.quantizer.delta, spec.plant.n, spec.law.state_size)

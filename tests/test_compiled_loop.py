@@ -1,0 +1,221 @@
+"""The compiled loop (qcontrol.engine.compiled_loop) against the Python loop: every recorded and
+derived signal identical to the last bit, row by row, on every shipped scenario on both backends
+and for each built-in law; the runs it must leave to Python; the hand-over to Python where the
+compiled code cannot reproduce an evaluation."""
+
+import dataclasses
+import sys
+
+import numpy as np
+import pytest
+from conftest import SCENARIOS
+
+import qcontrol.engine.compiled_loop as compiled_loop
+from qcontrol.assembly import build_controller, build_plant, build_separation, run_spec
+from qcontrol.controller import ProposedController
+from qcontrol.engine import ClosedLoop, RunSpec
+from qcontrol.expr import compile_expression
+from qcontrol.plants.ode import ChainPlant
+from qcontrol.quantizer import UniformQuantizer
+from qcontrol.reference import Constant
+from qcontrol.scenario import load_scenario
+from qcontrol.timegrid import TimeGrid
+
+SHIPPED = sorted(p.stem for p in SCENARIOS.glob("*.toml"))
+CASES = [(name, backend) for name in SHIPPED for backend in ("ode", "mujoco")
+         if backend == "ode" or "chain" not in name]
+@pytest.fixture(autouse=True)
+def _compile_short_runs(monkeypatch) -> None:
+    """Short runs here (which the engine would leave to Python) run the compiled loop."""
+    monkeypatch.setattr(compiled_loop, "MIN_ROWS", 0)
+    monkeypatch.setattr(compiled_loop, "COLD_MIN_ROWS", 0)
+
+
+LAWS = {"exact hold": ["controller.hold=\"exact\""], "comparison law": ["controller.kind=\"comparison\""]}
+
+
+def _loop(sc, backend: str, record: str = "full", law=None) -> tuple[ClosedLoop, object]:
+    spec = run_spec(sc, build_plant(sc, backend), law or build_controller(sc), [sc.x0], build_separation(sc),
+                    record)
+    loop = ClosedLoop(spec)
+    return loop, loop.run()[0]
+
+
+def _both(monkeypatch, sc, backend: str, record: str = "full", law=None):
+    compiled = _loop(sc, backend, record, law)
+    monkeypatch.setenv("QCONTROL_COMPILE", "0")
+    python = _loop(sc, backend, record, law)
+    monkeypatch.delenv("QCONTROL_COMPILE")
+    return compiled, python
+
+
+def _assert_identical(a, b) -> None:
+    assert a.diverged == b.diverged and a.divergence_reason == b.divergence_reason
+    assert a.t.tobytes() == b.t.tobytes()
+    for name, values in a.signals.items():
+        assert np.asarray(values).tobytes() == np.asarray(b.signals[name]).tobytes(), name
+
+
+def _scenario(name: str, extra: list[str] = ()):
+    return load_scenario(SCENARIOS / f"{name}.toml", ["simulation.duration=0.4", *extra])
+
+
+@pytest.mark.parametrize(("name", "backend"), CASES)
+def test_compiled_and_python_loops_agree_on_every_shipped_scenario(monkeypatch, name: str,
+                                                                   backend: str) -> None:
+    sc = _scenario(name)
+    (loop, compiled), (python_loop, python) = _both(monkeypatch, sc, backend)
+    assert python_loop.handover == 0  # QCONTROL_COMPILE=0: all of it in Python
+    noisy = backend == "mujoco" and any(sc.data["plant"]["mujoco"].get("sensor_noise", [0, 0]))
+    assert loop.handover == (0 if noisy else None)  # noise is drawn in Python: the Python loop
+    _assert_identical(compiled, python)
+
+
+@pytest.mark.parametrize("backend", ["ode", "mujoco"])
+@pytest.mark.parametrize("law", list(LAWS))
+def test_compiled_and_python_loops_agree_for_each_built_in_law(monkeypatch, backend: str, law: str) -> None:
+    for name in ("example1", "example2"):
+        (loop, compiled), (_, python) = _both(monkeypatch, _scenario(name, LAWS[law]), backend)
+        assert loop.handover is None
+        _assert_identical(compiled, python)
+
+
+@pytest.mark.parametrize("realism", [["plant.mujoco.sensor_delay=0.002"],
+                                     ["plant.mujoco.sensor_period=0.002"],
+                                     ["simulation.control_period=0.003"]])
+def test_sensors_with_history_and_held_samples_are_compiled_too(monkeypatch, realism: list[str]) -> None:
+    """Sensors reading MuJoCo's history (the loop then calls mj_sensorPos/Vel) and a control
+    period of several steps."""
+    (loop, compiled), (_, python) = _both(monkeypatch, _scenario("example2", realism), "mujoco")
+    assert loop.handover is None
+    _assert_identical(compiled, python)
+
+
+@pytest.mark.parametrize("backend", ["ode", "mujoco"])
+def test_a_load_changing_mid_run_is_applied_between_the_chunks(monkeypatch, backend: str) -> None:
+    sc = _scenario("example2")
+    runs = []
+    for compiled in ("1", "0", "0"):
+        monkeypatch.setenv("QCONTROL_COMPILE", compiled)
+        spec = run_spec(sc, build_plant(sc, backend), build_controller(sc), [sc.x0], None)
+        loop = ClosedLoop(dataclasses.replace(spec, loads=[(123, 2.5), (251, 0.0)] if len(runs) < 2 else []))
+        runs.append((loop, loop.run()[0]))
+    assert runs[0][0].handover is None
+    _assert_identical(runs[0][1], runs[1][1])
+    assert runs[1][1].signals["x"].tobytes() != runs[2][1].signals["x"].tobytes()  # the load did act
+
+
+@pytest.mark.parametrize("backend", ["ode", "mujoco"])
+@pytest.mark.parametrize("x0", ["[10.0, 10.0]", "[3.0, 3.0]"])
+def test_a_diverging_run_stops_at_the_same_row(monkeypatch, backend: str, x0: str) -> None:
+    """Example 2 from a large state: the sampled loop blows up within milliseconds (on MuJoCo the
+    copy is reset by MuJoCo and read as NaN from then on)."""
+    (loop, compiled), (_, python) = _both(monkeypatch, _scenario("example2", [f"plant.x0={x0}"]), backend)
+    assert compiled.diverged and len(compiled.t) < 100
+    _assert_identical(compiled, python)
+
+
+def test_a_short_run_stays_in_python(monkeypatch) -> None:
+    monkeypatch.setattr(compiled_loop, "MIN_ROWS", 5000)
+    loop, _ = _loop(_scenario("example2"), "ode")
+    assert loop.handover == 0
+
+
+def test_a_process_without_numba_compiles_only_long_runs(monkeypatch) -> None:
+    import numba  # noqa: F401 (in sys.modules, as after any compiled run)
+
+    monkeypatch.setattr(compiled_loop, "COLD_MIN_ROWS", 50_000)
+    sc = _scenario("example2")
+    spec = run_spec(sc, build_plant(sc, "ode"), build_controller(sc), [sc.x0], None)
+    assert compiled_loop.compiled_loop(spec) is not None
+    monkeypatch.setattr(compiled_loop.compiled_paths, "enabled", lambda: True)  # (it imports numba)
+    monkeypatch.delitem(sys.modules, "numba")  # only looked up below, never imported
+    assert compiled_loop.compiled_loop(spec) is None
+    assert compiled_loop.compiled_loop(dataclasses.replace(spec, grid=TimeGrid.of(50.0, 1e-3))) is not None
+
+
+def test_a_metrics_run_reduces_the_same_rows(monkeypatch) -> None:
+    sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=3.2"])
+    (loop, compiled), (_, python) = _both(monkeypatch, sc, "mujoco", record="metrics")
+    assert loop.handover is None
+    assert compiled.steps == python.steps and compiled.values.keys() == python.values.keys()
+    for name, value in compiled.values.items():
+        other = python.values[name]
+        same = (np.asarray(value).tobytes() == np.asarray(other).tobytes() if isinstance(value, np.ndarray)
+                else repr(value) == repr(other))  # floats and dicts of floats: repr is exact
+        assert same, name
+
+
+class Integral(ProposedController):
+    def control(self, reading, yd, state, t=0.0):
+        return super().control(reading, yd, state, t)
+
+
+class Renamed(ProposedController):
+    """Changes nothing of the law's numbers."""
+
+
+@pytest.mark.parametrize(("what", "overrides", "backend", "law_class"), [
+    ("velocity differencing", ["simulation.velocity_source=\"difference\""], "mujoco", None),
+    ("a subclass that overrides a method", [], "ode", Integral),
+])
+def test_what_keeps_the_python_loop(monkeypatch, what: str, overrides: list[str], backend: str,
+                                    law_class) -> None:
+    sc = _scenario("example2", overrides)
+    law = None
+    if law_class is not None:
+        base = build_controller(sc)
+        law = law_class(base.c, base.max_error, kappa=base.kappa, gamma=base.gamma, sigma=base.sigma,
+                        r=base.r)
+    (loop, compiled), (_, python) = _both(monkeypatch, sc, backend, law=law)
+    assert loop.handover == 0, what
+    _assert_identical(compiled, python)
+
+
+def test_a_subclass_that_changes_nothing_is_compiled(monkeypatch) -> None:
+    sc = _scenario("example2")
+    base = build_controller(sc)
+    law = Renamed(base.c, base.max_error, kappa=base.kappa, gamma=base.gamma, sigma=base.sigma, r=base.r)
+    (loop, compiled), (_, python) = _both(monkeypatch, sc, "ode", law=law)
+    assert loop.handover is None
+    _assert_identical(compiled, python)
+
+
+def _refusing_run(psi: str, r: str, x0: list[float]) -> RunSpec:
+    """An ODE run whose plant term or bounding function overflows ``math`` (the Python form then
+    takes numpy's inf) part of the way through."""
+    x = ["x1", "x2"]
+    plant = ChainPlant(2, compile_expression(psi, x), [compile_expression("x2", x)], [1.0])
+    law = ProposedController([1.0, 1.0], 0.005, kappa=3.0, gamma=1.0, sigma=1.0,
+                             r=[compile_expression(r, ["q1", "q2"]), compile_expression("1", ["q1", "q2"])])
+    return RunSpec(plant=plant, law=law, quantizer=UniformQuantizer(0.01), reference=Constant(0.0),
+                   x0=x0, grid=TimeGrid.of(0.5, 1e-3, None), state_bound=1e300)
+
+
+@pytest.mark.parametrize(("psi", "r", "x0"), [
+    ("exp(x1)", "1", [700.0, 2000.0]),  # the plant's term overflows inside a step
+    ("0", "1 + exp(q1 / 2)", [0.0, 2000.0]),  # the bounding function overflows at a sample
+])
+def test_the_python_loop_takes_over_where_math_refuses(monkeypatch, psi: str, r: str,
+                                                       x0: list[float]) -> None:
+    loop = ClosedLoop(_refusing_run(psi, r, x0))
+    compiled = loop.run()[0]
+    monkeypatch.setenv("QCONTROL_COMPILE", "0")
+    python = ClosedLoop(_refusing_run(psi, r, x0)).run()[0]
+    assert loop.handover is not None and loop.handover > 0
+    _assert_identical(compiled, python)
+
+
+def test_expression_text_never_becomes_code(monkeypatch, tmp_path) -> None:
+    """An expression's text (a comment may hold anything) appears in generated modules only as a
+    string literal: a comment that would close a docstring runs nothing."""
+    monkeypatch.setenv("QCONTROL_CACHE_DIR", str(tmp_path))
+    payload = '# """; import os; os.environ["QCONTROL_INJECTED"] = "1"; """'
+    sc = _scenario("example2", [f"controller.r=['1 + q2**2 {payload}', '1 + 2*q2**2', '1']",
+                                f"plant.phi=['x2', 'x2**2*cos(x1) {payload}', 'sin(x1)']"])
+    for backend in ("ode", "mujoco"):
+        (loop, compiled), (_, python) = _both(monkeypatch, sc, backend)
+        assert loop.handover is None
+        _assert_identical(compiled, python)
+    assert "QCONTROL_INJECTED" not in __import__("os").environ
+    assert any(payload in path.read_text() for path in tmp_path.glob("*.py"))  # it was there, as text
