@@ -131,7 +131,7 @@ def test_a_sweep_over_a_subclass_key() -> None:
     (lambda: qcontrol.register_law_class("x law", HalfRobust), "must be letters, digits"),
     (lambda: qcontrol.register_law_class("proposed", HalfRobust), "is built in and cannot be replaced"),
     (lambda: _run("paper-integral", **{"controller.paper-integral.k_j": 1.0}),
-     "controller.paper-integral.k_j: unknown key for kind 'paper-integral'; keys of this kind are k_i"),
+     "controller.paper-integral.k_j=1.0: unknown key for kind 'paper-integral'; keys of this kind are k_i"),
     (lambda: _run("half-robust", **{"controller.proposed.kappa_margin": -1.0}),
      "controller.proposed.kappa_margin"),
 ])

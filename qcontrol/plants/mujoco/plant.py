@@ -267,7 +267,7 @@ class MujocoPlant:
         in Python), and the passive terms, if any, in the native callback MuJoCo calls itself."""
         if not self._entered or self.batch != 1 or self._noisy or self._threads:
             return None
-        if python_callback_installed() or (self._force is not None and self._native is None):
+        if python_callback_installed() or (self._forces is not None and self._native is None):
             return None
         substeps = whole_steps(h, self.timestep, f"{self.options.where}: step", "the model timestep")
         return MujocoNativeForm(self, substeps).stepper()
