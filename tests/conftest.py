@@ -41,3 +41,25 @@ def short_example2():
     from qcontrol.scenario import load_scenario
 
     return load_scenario(EX2, ["simulation.duration=0.2"])
+
+
+@pytest.fixture
+def ctrl_c_on_second_chunk(monkeypatch):
+    """Call it to make the sweeps that follow run one run per chunk and be interrupted
+    (KeyboardInterrupt, as Ctrl-C) when their second chunk starts: the first chunk's rows are
+    finished, the rest are not."""
+    from qcontrol.sweep import runs
+
+    def arm() -> None:
+        original, calls = runs._run_chunk, []
+
+        def stop_on_the_second_chunk(*args):
+            calls.append(1)
+            if len(calls) == 2:
+                raise KeyboardInterrupt
+            return original(*args)
+
+        monkeypatch.setattr(runs, "CHUNK", 1)
+        monkeypatch.setattr(runs, "_run_chunk", stop_on_the_second_chunk)
+
+    return arm

@@ -27,7 +27,6 @@ from qcontrol.errors import QcontrolInputError, QcontrolOutputError
 from qcontrol.outputs import AtomicFile, partial_path, write_json, write_text
 from qcontrol.recording.rrd_file import rrd_problem
 from qcontrol.scenario import load_scenario
-from qcontrol.sweep import runs as sweep_runs
 from qcontrol.sweep.grid import parse_grid
 from qcontrol.workers import worker_count
 
@@ -281,23 +280,13 @@ def test_an_interrupted_recording_keeps_the_complete_one(tmp_path, sig, status):
     assert not _temporaries(tmp_path)
 
 
-def test_an_interrupted_sweep_leaves_the_complete_one(tmp_path, monkeypatch):
+def test_an_interrupted_sweep_leaves_the_complete_one(tmp_path, ctrl_c_on_second_chunk):
     out = tmp_path / "sw"
     grid = ["--grid", "controller.gamma=1,2,3", "--set", "simulation.duration=0.05", "--backend", "ode", "-q",
             "--out", str(out)]
     assert main(["sweep", str(EX2), *grid]) == 0
     before = {p.name: p.read_bytes() for p in out.iterdir()}
-    calls: list[int] = []
-    original = sweep_runs._run_chunk
-
-    def stop_on_the_second_chunk(*args):
-        calls.append(1)
-        if len(calls) == 2:
-            raise KeyboardInterrupt
-        return original(*args)
-
-    monkeypatch.setattr(sweep_runs, "CHUNK", 1)
-    monkeypatch.setattr(sweep_runs, "_run_chunk", stop_on_the_second_chunk)
+    ctrl_c_on_second_chunk()
     assert main(["sweep", str(EX2), *grid]) == 130
     assert {p.name: p.read_bytes() for p in out.iterdir() if p.name in before} == before
     record = json.loads((out / "sweep.partial.json").read_text())

@@ -123,18 +123,8 @@ def test_the_scenarios_backend_is_the_default(tmp_path, capsys):
     assert "--backend ode steps the runs together" in capsys.readouterr().out
 
 
-def test_ctrl_c_keeps_the_finished_rows(tmp_path, monkeypatch):
-    calls = []
-    original = sweep._run_chunk
-
-    def stop_on_the_second_chunk(*args):
-        calls.append(1)
-        if len(calls) == 2:
-            raise KeyboardInterrupt
-        return original(*args)
-
-    monkeypatch.setattr(sweep, "CHUNK", 1)
-    monkeypatch.setattr(sweep, "_run_chunk", stop_on_the_second_chunk)
+def test_ctrl_c_keeps_the_finished_rows(tmp_path, ctrl_c_on_second_chunk):
+    ctrl_c_on_second_chunk()
     (tmp_path / "sweep.csv").write_text("a complete sweep's table\n")
     with pytest.raises(KeyboardInterrupt):
         _sweep(str(EXAMPLE2), "--grid", "controller.gamma=1,2,3", "--set", SHORT, "--backend", "ode",
