@@ -13,7 +13,8 @@ The Python API (see the README's "Python API"):
   :func:`compare_laws` -> :class:`LawComparison` (several laws side by side: ``table``,
   ``runs``, ``plot``); :func:`sweep` -> the sweep's table (a dict per run). ``qcontrol.sweep``
   is this function; the package of the same name stays importable (``from qcontrol.sweep import``).
-* :class:`Law` and :func:`register_law`: a control law of your own, selected by
+* :class:`Law` (its state by RK4 of a rate) or :class:`SteppedLaw` (its own update) and
+  :func:`register_law`: a control law of your own, selected by
   ``controller.kind``; :func:`check_keys`, :func:`quantized_backstepping` and
   :func:`lemma2_bounds` help write one; :func:`load_law_module` runs a file that registers laws
   (``--law-module``), :func:`load_law_plugins` the installed plugins (entry points ``qcontrol.laws``);
@@ -26,14 +27,13 @@ The Python API (see the README's "Python API"):
 
 from ._version import __version__
 from .api import Comparison, Result, compare, lemma2_bounds, quantized_backstepping, run, sweep
-from .controller.backstepping import Backstepping as BacksteppingLaw
-from .controller.backstepping import ControlOutput
+from .controller.backstepping import BacksteppingLaw, ControlOutput
 from .controller.classes import register_law_class
 from .controller.comparison import ComparisonLaw
 from .controller.law import Diagnostic, LawContext
 from .controller.plugins import load_law_module, load_law_plugins
 from .controller.proposed import PaperLaw
-from .controller.user import Law, check_keys, register_law
+from .controller.user import Law, SteppedLaw, check_keys, register_law
 from .errors import QcontrolInputError
 from .expr import expression
 from .law_comparison import LawComparison, compare_laws
@@ -53,6 +53,7 @@ __all__ = [
     "QcontrolInputError",
     "Result",
     "Scenario",
+    "SteppedLaw",
     "Summary",
     "__version__",
     "check_keys",

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from functools import partial
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -240,3 +240,50 @@ class ControlOutput(NamedTuple):
 output = partial(tuple.__new__, ControlOutput)
 
 Advance = Callable[[Columns, ControlOutput], Columns]  # (state, held output) -> state one step on
+
+
+class BacksteppingLaw(Backstepping):
+    """The base of a law written in column form, the form the built-in laws are written in (the
+    paper's law and the comparison law derive from it): subclass it, set ``state_size`` and write
+    :meth:`initial_state`, :meth:`control` (returning a :class:`ControlOutput`, ``u`` first) and
+    :meth:`advancer`; register it with ``qcontrol.register_law_class``.
+
+    Column form: :meth:`control` receives the reading's columns ``reading.columns`` (``q_1 ..
+    q_n``) and the state as a tuple of columns, each a float for a single run and a ``(batch,)``
+    array for a batch; formulas written with elementwise arithmetic (and ``numpy`` functions, or
+    an expression's ``on_columns``) take both, so one class serves every batch size. Its
+    :meth:`float_advancer` is therefore its :meth:`advancer`, and a single run steps on floats
+    (the engine's fast path) without an array in between.
+    """
+
+    state_name = "state"  # names the state in outputs (the summary's final_<state_name>)
+    state_size = 0
+    copies: int | None = None  # the batch size per-copy parameters fix, or None
+
+    @classmethod
+    def from_context(cls, context: Any) -> BacksteppingLaw:
+        """The law for a scenario (``context``: a :class:`~.law.LawContext` with n, dt, the
+        control period, delta, c and the kind's own keys in ``context.settings``). This default
+        builds the coordinates only; a law with settings reads them here."""
+        return cls(context.c, context.max_error)
+
+    def initial_state(self, batch: int) -> np.ndarray:
+        """The state at t = 0, shape ``(batch, state_size)``: zeros unless overridden."""
+        return np.zeros((batch, self.state_size))
+
+    def control(self, reading: QuantizedReading, yd: Sequence[float], state: Columns,
+                t: float = 0.0) -> ControlOutput:
+        """``u`` at a control sample, and what :meth:`advancer`'s update holds until the next."""
+        raise NotImplementedError(f"{type(self).__name__} must define control(reading, yd, state, t)")
+
+    def advancer(self, h: float) -> Advance:
+        """``(state, output) -> state`` one step ``h`` on, the output held (column form)."""
+        raise NotImplementedError(f"{type(self).__name__} must define advancer(h)")
+
+    def float_advancer(self, h: float) -> Advance:
+        """:meth:`advancer` for a single run: the same function, its formulas taking floats."""
+        return self.advancer(h)
+
+    def constants(self) -> dict[str, Any]:
+        """The law's constants as a recording shows them: none unless overridden."""
+        return {}

@@ -1,6 +1,6 @@
 """Law classes registered from Python: :func:`register_law_class` makes a subclass of the paper's
 law (:class:`~.proposed.PaperLaw`), of the comparison law (:class:`~.comparison.ComparisonLaw`)
-or of the shared coordinates (:class:`~.backstepping.Backstepping`) a controller kind.
+or of the shared coordinates (:class:`~.backstepping.BacksteppingLaw`) a controller kind.
 
 Such a class is written in the column form the built-in laws are written in (a float per column
 for a single run, a ``(batch,)`` array per column for a batch), so it runs on the engine's float
@@ -19,7 +19,7 @@ from typing import Any
 
 from ..errors import QcontrolInputError
 from ..schema import Table
-from .backstepping import Backstepping
+from .backstepping import BacksteppingLaw
 from .law import LAW_KINDS, LawContext, LawKind, check_kind_name, register_kind
 from .user import _freeze, _thaw
 
@@ -43,14 +43,14 @@ def register_law_class(kind: str, cls: type, *, extends: str | None = None, keys
     """Make ``controller.kind = "<kind>"`` select the law ``cls.from_context(context)``.
 
     ``cls`` subclasses :class:`~.proposed.PaperLaw`, :class:`~.comparison.ComparisonLaw` or
-    :class:`~.backstepping.Backstepping`. ``extends`` (``"proposed"`` or ``"comparison"``): the
+    :class:`~.backstepping.BacksteppingLaw`. ``extends`` (``"proposed"`` or ``"comparison"``): the
     kind whose ``[controller.<extends>]`` settings are parsed, checked and handed on as
     ``context.base`` (keys of that kind given in ``[controller.<kind>]`` take precedence).
     ``keys``: the law's own keys, read from ``[controller.<kind>]`` into ``context.settings``
     (others are refused). ``replace=True`` replaces a law registered before under this name.
     """
     check_kind_name(kind, "register_law_class")
-    if not (isinstance(cls, type) and issubclass(cls, Backstepping)):
+    if not (isinstance(cls, type) and issubclass(cls, BacksteppingLaw)):
         raise QcontrolInputError(f"register_law_class: {cls!r} for {kind!r} must be a class deriving from "
                                  "qcontrol.PaperLaw, qcontrol.ComparisonLaw or qcontrol.BacksteppingLaw")
     if extends is not None and extends not in EXTENDABLE:
@@ -101,10 +101,10 @@ class ClassKind:
         where = root.path(self.extends) if root is not None else f"controller.{self.extends}"
         return LAW_KINDS[self.extends].parse(Table(data, table.source, where, base_names), ctx)
 
-    def build(self, settings: Sequence[ClassSettings], ctx: LawContext) -> Backstepping:
+    def build(self, settings: Sequence[ClassSettings], ctx: LawContext) -> BacksteppingLaw:
         first = settings[0]
         law = self.cls.from_context(replace(ctx, settings=first.table, base=first.base, controller=None))
-        if not isinstance(law, Backstepping):
+        if not isinstance(law, BacksteppingLaw):
             raise QcontrolInputError(f"{self.cls.__name__}.from_context must return the law, got "
                                      f"{type(law).__name__}")
         return law

@@ -20,11 +20,11 @@ from ..errors import QcontrolInputError
 from ..expr import Expression
 from ..quantizer import QuantizedReading
 from ..schema import Key, KindKeys, Table, number, read_keys, string
-from .backstepping import Advance, Backstepping, Columns, ControlOutput, output, stack
+from .backstepping import Advance, BacksteppingLaw, Columns, ControlOutput, output, stack
 from .law import LawContext, LawKind, overrides_any
 
 
-class ComparisonLaw(Backstepping):
+class ComparisonLaw(BacksteppingLaw):
     """Comparison law of reference [20], eq. (46), with our reconstructed adaptive law.
 
     ``u = alphabar_n - psi(x_q) - theta_hat^T phi(x_q)`` with

@@ -22,7 +22,7 @@ from ..quantizer import QuantizedReading
 from ..schema import OPTIONAL, Key, KindKeys, Table, expressions, number, read_keys, string
 from .backstepping import (
     Advance,
-    Backstepping,
+    BacksteppingLaw,
     Column,
     Columns,
     ControlOutput,
@@ -53,7 +53,7 @@ class LawConstants(NamedTuple):
     expm1: Any  # math.expm1 for floats, numpy.expm1 for arrays (the exact hold's 1 - exp(-K T))
 
 
-class PaperLaw(Backstepping):
+class PaperLaw(BacksteppingLaw):
     """The paper's quantized adaptive controller, control law (44) and adaptive law (45).
 
     ``s = zbar_n^2 / kappa + L``,

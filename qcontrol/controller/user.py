@@ -1,16 +1,22 @@
-"""Control laws written by users: the :class:`Law` protocol, :func:`register_law`, and the adapter
-that lets the engine drive such a law like a built-in one.
+"""Control laws written by users: the :class:`Law` and :class:`SteppedLaw` protocols,
+:func:`register_law`, and the adapter that lets the engine drive such a law like a built-in one.
 
 A user law sees, at each control sample ``t_k``, the quantized reading ``x_q`` (shape ``(n,)``),
 ``yd = [y_d, y_d', ..., y_d^(n)]`` and its own state (shape ``(m,)``), and returns the input ``u``,
-which is held over the control period like any law's. Its state is advanced between samples by
-classical RK4 steps of ``dt``, with ``state' = state_rate(t_k, x_q, yd, state)``: the reading,
-the reference and the time of the last sample held (the same zero-order hold as the input). The
-engine records the law's errors z, zbar and the Lemma 2 check in the backstepping coordinates of
-the scenario's ``c`` and ``delta``, as for the built-in laws.
+which is held over the control period like any law's. Between samples its state moves on every
+step ``h`` (the simulation step dt) with the sample (``t_k``, ``x_q``, ``yd``) held, in one of two
+ways the law chooses:
 
-The adapter implements the array form only (a batch of one runs through it as a batch of one
-array); it calls Python per copy and per step, so it is slower than the built-in laws.
+* a :class:`Law` gives ``state_rate(t_k, x_q, yd, state)``: the engine takes one classical RK4
+  step of it (four calls per step);
+* a :class:`SteppedLaw` gives ``advance(t_k, x_q, yd, state, h)``: the state one step on, its own
+  update (an exact solution, a discrete-time law, a reset); one call per step.
+
+The engine records the law's errors z, zbar and the Lemma 2 check in the backstepping coordinates
+of the scenario's ``c`` and ``delta``, as for the built-in laws.
+
+The adapter has both forms the engine drives (:class:`~.law.FloatColumns`): a single run hands
+the law fresh ``(n,)`` arrays made from the engine's floats, a batch calls each copy's law in turn.
 """
 
 from __future__ import annotations
@@ -30,7 +36,8 @@ from .law import LawContext, LawKind, check_kind_name, register_kind
 
 @runtime_checkable
 class Law(Protocol):
-    """A control law for one copy of the plant (see the module docstring)."""
+    """A control law for one copy of the plant whose state moves by RK4 of its rate (see the
+    module docstring)."""
 
     state_size: int  # m >= 0 states of the law (adaptive estimates, integrators, ...)
 
@@ -44,32 +51,55 @@ class Law(Protocol):
         """``d state / dt``, shape ``(m,)``, with ``x_q``, ``yd`` and ``t`` held until the next sample."""
 
 
-LawFactory = Callable[[dict, int], Law]  # (the [controller] table, the plant order n) -> a Law
+@runtime_checkable
+class SteppedLaw(Protocol):
+    """A control law for one copy of the plant that updates its own state (see the module
+    docstring): ``advance`` in place of :meth:`Law.state_rate`. A law with both is advanced by
+    ``advance``."""
+
+    state_size: int
+
+    def initial_state(self) -> np.ndarray:
+        """The law's state at t = 0, shape ``(m,)``."""
+
+    def control(self, t: float, x_q: np.ndarray, yd: np.ndarray, state: np.ndarray) -> float:
+        """The input u at a control sample."""
+
+    def advance(self, t: float, x_q: np.ndarray, yd: np.ndarray, state: np.ndarray, h: float) -> np.ndarray:
+        """The state one step ``h`` on, shape ``(m,)``, with ``x_q``, ``yd`` and ``t`` held."""
+
+
+AnyLaw = Law | SteppedLaw
+LawFactory = Callable[[dict, int], AnyLaw]  # (the [controller] table, the plant order n) -> a law
 
 
 class _Sample(NamedTuple):
-    """What one evaluation hands the engine: ``u``, and what the state's RK4 steps hold."""
+    """What one evaluation hands the engine: ``u``, and the sample the state's update holds.
+    A single run: ``u`` a float, ``x_q`` ``(n,)``; a batch: ``u`` ``(batch,)``, ``x_q``
+    ``(batch, n)``."""
 
-    u: np.ndarray  # (batch,)
+    u: np.ndarray | float
     t: float
-    x_q: np.ndarray  # (batch, n)
+    x_q: np.ndarray
     yd: np.ndarray  # (n + 1,)
 
 
 class UserLaw(Backstepping):
-    """A batch of user laws (one per copy) driven by the engine (:class:`~.law.BatchLaw`)."""
+    """A batch of user laws (one per copy) driven by the engine (:class:`~.law.BatchLaw`, with
+    the float form :class:`~.law.FloatColumns` for a single run)."""
 
-    def __init__(self, laws: Sequence[Law], c: Sequence[float], max_error: float, state_name: str,
+    def __init__(self, laws: Sequence[AnyLaw], c: Sequence[float], max_error: float, state_name: str,
                  kind: str = "user law") -> None:
         super().__init__(c, max_error)
         self.laws, self.kind = list(laws), kind
-        self._control_checked = self._rate_checked = False  # each output is checked at its first call
+        self._checked: set[str] = set()  # the methods whose output has been checked (at its first call)
         sizes = {_state_size(law) for law in self.laws}
         if len(sizes) != 1:
             raise QcontrolInputError(f"the copies of a user law have different state sizes {sorted(sizes)}")
         self.state_size = sizes.pop()
         self.state_name = state_name
         self.copies = len(self.laws) if len(self.laws) > 1 else None
+        self.stepped = all(isinstance(law, SteppedLaw) for law in self.laws)
 
     def initial_state(self, batch: int) -> np.ndarray:
         rows = [self._checked_array(law.initial_state(), "initial_state()") for law in self.laws]
@@ -80,45 +110,60 @@ class UserLaw(Backstepping):
 
     def control(self, reading: QuantizedReading, yd: Sequence[float], state: Columns,
                 t: float = 0.0) -> _Sample:
-        """``u`` of every copy at the sample ``t`` (its law called with that copy's reading)."""
+        """``u`` of every copy at the sample ``t`` (its law called with that copy's reading); a
+        reading of floats (a single run) gives ``u`` as a float."""
         if not isinstance(reading, QuantizedReading) or reading.max_error != self.max_error:
             self.check_reading(reading)
-        x_q, yd_row = reading.values, np.asarray(yd, dtype=float)
+        yd_row = np.array(yd, dtype=float)
+        if reading.floats:
+            x_q = np.array(reading.columns, dtype=float)
+            u = self._number(self.laws[0].control(t, x_q.copy(), yd_row.copy(), np.array(state, dtype=float)))
+            return _Sample(u, t, x_q, yd_row)
+        x_q = reading.values
         states = stack(state, len(x_q))
-        outputs = [self._law(b).control(t, x_q[b].copy(), yd_row.copy(), states[b].copy())
-                   for b in range(len(x_q))]
-        if not self._control_checked:
-            for value in outputs:
-                self._check_number(value)
-            self._control_checked = True
-        u = np.array([float(v) for v in outputs])
+        u = np.array([self._number(self._law(b).control(t, x_q[b].copy(), yd_row.copy(), states[b].copy()))
+                      for b in range(len(x_q))])
         return _Sample(u, t, x_q, yd_row)
 
-    def _law(self, b: int) -> Law:
+    def _law(self, b: int) -> AnyLaw:
         return self.laws[b] if len(self.laws) > 1 else self.laws[0]
 
-    def _rates(self, sample: _Sample, states: np.ndarray) -> np.ndarray:
-        rates = [self._law(b).state_rate(sample.t, sample.x_q[b].copy(), sample.yd.copy(), states[b].copy())
-                 for b in range(len(states))]
-        if not self._rate_checked:
-            rates = [self._checked_array(r, "state_rate()") for r in rates]
-            self._rate_checked = True
-        return np.array([np.asarray(r, dtype=float).reshape(-1) for r in rates]).reshape(states.shape)
+    def step_state(self, law: AnyLaw, sample: _Sample, x_q: np.ndarray, state: np.ndarray,
+                   h: float) -> np.ndarray:
+        """One copy's state one step ``h`` on: its own ``advance``, else one classical RK4 step of
+        its ``state_rate`` (``s + h/6 (k1 + 2 (k2 + k3) + k4)``), with the sample held."""
+        t, yd = sample.t, sample.yd
+        if self.stepped:
+            return self._checked_array(law.advance(t, x_q.copy(), yd.copy(), state.copy(), h), "advance()")
+        rate, half = law.state_rate, 0.5 * h
+        k1 = self._checked_array(rate(t, x_q.copy(), yd.copy(), state.copy()), "state_rate()")
+        k2 = self._checked_array(rate(t, x_q.copy(), yd.copy(), state + half * k1), "state_rate()")
+        k3 = self._checked_array(rate(t, x_q.copy(), yd.copy(), state + half * k2), "state_rate()")
+        k4 = self._checked_array(rate(t, x_q.copy(), yd.copy(), state + h * k3), "state_rate()")
+        return state + h / 6.0 * (k1 + 2.0 * (k2 + k3) + k4)
 
     def _refuse(self, field: str, problem: str) -> QcontrolInputError:
         return QcontrolInputError(f"controller kind {self.kind!r}: {field} {problem}; fix the law")
 
-    def _check_number(self, value: object) -> None:
-        """``control()``'s u: a real, finite number (a numpy scalar or a 0-d array too)."""
+    def _number(self, value: object) -> float:
+        """``control()``'s u as a float, checked at the first call: a real, finite number (a
+        numpy scalar or a 0-d array too)."""
+        if "control()" in self._checked:
+            return float(value)
         if isinstance(value, bool) or not isinstance(value, int | float | np.number | np.ndarray) \
                 or np.ndim(value) != 0 or not np.isrealobj(value):
             raise self._refuse("control()", f"must return a real number u, got {type(value).__name__} "
                                             f"{value!r}")
         if not np.isfinite(float(value)):
             raise self._refuse("control()", f"returned {float(value)} at the first control sample")
+        self._checked.add("control()")
+        return float(value)
 
     def _checked_array(self, value: object, field: str) -> np.ndarray:
-        """An ``(m,)`` array of finite real numbers from ``initial_state()`` or ``state_rate()``."""
+        """An ``(m,)`` array of finite real numbers from ``initial_state()``, ``state_rate()`` or
+        ``advance()``, checked at the method's first call (later calls: only made an array)."""
+        if field in self._checked:
+            return np.asarray(value, dtype=float).reshape(self.state_size)
         arrays = np.ndarray | np.number | list | tuple | float
         array = np.asarray(value) if isinstance(value, arrays) else None
         if array is None or array.dtype.kind not in "iuf":
@@ -129,16 +174,21 @@ class UserLaw(Backstepping):
                                       f"got shape {array.shape}")
         if not np.all(np.isfinite(array)):
             raise self._refuse(field, f"returned a value that is not finite: {array.tolist()}")
+        if field != "initial_state()":
+            self._checked.add(field)
         return array.astype(float).reshape(self.state_size)
 
     def advancer(self, h: float) -> Callable[[Columns, _Sample], Columns]:
-        """One classical RK4 step of ``h`` of ``state' = state_rate(t_k, x_q, yd, state)``."""
-        return UserRK4(self, h).advance
+        """The state of every copy one step ``h`` on (:meth:`step_state`), in column form."""
+        return BatchUpdate(self, h).advance
+
+    def float_advancer(self, h: float) -> Callable[[tuple, _Sample], tuple]:
+        """:meth:`advancer` for a single run, its state a tuple of floats."""
+        return OneCopyUpdate(self, h).advance
 
 
-class UserRK4:
-    """The state of a batch of user laws over one step ``h``: classical RK4 of its ``state_rate``
-    with the sample (``t_k``, ``x_q``, ``yd``) held."""
+class BatchUpdate:
+    """The state of a batch of user laws over one step ``h``, copy by copy (:meth:`UserLaw.step_state`)."""
 
     def __init__(self, law: UserLaw, h: float) -> None:
         self.law, self.h = law, h
@@ -148,19 +198,29 @@ class UserRK4:
         if not law.state_size:
             return state
         s = stack(state, len(sample.x_q))
-        k1 = law._rates(sample, s)
-        k2 = law._rates(sample, s + 0.5 * h * k1)
-        k3 = law._rates(sample, s + 0.5 * h * k2)
-        k4 = law._rates(sample, s + h * k3)
-        s = s + h / 6.0 * (k1 + 2.0 * (k2 + k3) + k4)
+        s = np.array([law.step_state(law._law(b), sample, sample.x_q[b], s[b], h) for b in range(len(s))])
         return tuple(np.ascontiguousarray(s.T))
 
 
+class OneCopyUpdate:
+    """The state of one user law over one step ``h``, as a tuple of floats (a single run)."""
+
+    def __init__(self, law: UserLaw, h: float) -> None:
+        self.law, self.one, self.h = law, law.laws[0], h
+
+    def advance(self, state: tuple, sample: _Sample) -> tuple:
+        law = self.law
+        if not law.state_size:
+            return state
+        moved = law.step_state(self.one, sample, sample.x_q, np.array(state, dtype=float), self.h)
+        return tuple(moved.tolist())
+
+
 def _state_size(law: object) -> int:
-    if not isinstance(law, Law):
+    if not isinstance(law, Law | SteppedLaw):
         raise QcontrolInputError(
             f"a user law must have state_size, initial_state(), control() and state_rate() (the qcontrol.Law "
-            f"protocol); the factory returned {type(law).__name__}"
+            f"protocol) or advance() (qcontrol.SteppedLaw); the factory returned {type(law).__name__}"
         )
     size = law.state_size
     if isinstance(size, bool) or not isinstance(size, int) or size < 0:
@@ -242,7 +302,7 @@ class UserKind:
         return None
 
 
-def _call(factory: LawFactory, settings: UserSettings, ctx: LawContext, table: Table | None) -> Law:
+def _call(factory: LawFactory, settings: UserSettings, ctx: LawContext, table: Table | None) -> AnyLaw:
     """The factory's law; its input errors become one line naming the file and the table."""
     try:
         law = factory(settings.table, ctx.order)
