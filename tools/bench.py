@@ -17,6 +17,8 @@
 * Recording overhead: the seconds ``--rrd`` adds to ``qcontrol run`` of Example 2 (MuJoCo) and
   their fraction of the run without it (target <= 0.25); the peak traced memory of a 10 s,
   10 kHz run (full record).
+* User laws: the paper's law (44)-(45) written by hand in each documented form of a user law
+  against the built-in kind, single run and batch (tools/bench_laws.py; target <= 2x).
 * ``--sweep1000``: wall time of a 1000-run ``sweep_summaries`` on each backend (slow).
 
 Timings are best-of-N (the machine may be shared); ``--quick`` shortens every horizon.
@@ -39,6 +41,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+import bench_laws
 import mujoco
 import numpy as np
 
@@ -380,6 +383,9 @@ def measure(args: argparse.Namespace) -> dict:
         details["recording"]["note"] += "; quick: per-file costs dominate a 1 s run, the target is for 10 s"
     result["recording_overhead"] = details["recording"]["ratio"]
     result["recording_s"] = details["recording"]["recording_s"]
+    details["user_laws"] = bench_laws.measure(duration, duration / 5, 10 if args.quick else 50, repeat)
+    result["user_law_ratio"] = {"single": details["user_laws"]["single_ratio"],
+                                "batch": details["user_laws"]["batch_ratio"]}
     result["peak_memory_mb"] = peak_memory_mb(duration)
     result["peak_memory_note"] = f"Example 2, ODE, full record, {duration:g} s at dt = 1e-4 (tracemalloc)"
     if args.sweep1000:
@@ -436,6 +442,7 @@ def report(result: dict, args: argparse.Namespace) -> None:
     print(f"{'recording overhead (fraction of the run)':52s} {rec['ratio']:10.3f}  <= 0.25 "
           f"({rec['recording_s']:.4f} s of recording on a {rec['run_s']:.3f} s run, "
           f"{rec['file_mb']:.1f} MB; {rec['note']})")
+    bench_laws.report(details["user_laws"])
     print(f"{'peak memory, 10 kHz run [MB]':52s} {result['peak_memory_mb']:10.1f}  "
           f"({result['peak_memory_note']})")
     if "sweep1000" in result:
