@@ -1,5 +1,6 @@
 """The figure of a law comparison: y and y_d, the tracking error z1 and the input u of every law on
-the same scenario and backend, overlaid (one colour per law)."""
+the same scenario and backend, overlaid (one colour and one dash pattern per law, so that two laws
+whose curves coincide both stay visible)."""
 
 from __future__ import annotations
 
@@ -10,19 +11,22 @@ from pathlib import Path
 from ..engine import Trajectory
 from .common import COLORS, REF_STYLE, column, legend, new_figure, reference, save
 
+DASHES = ("-", "--", (0, (1, 1.5)), "-.")  # solid, dashed, dotted, dash-dot: law i's pattern
+
 
 def fig_law_overlay(runs: Mapping[str, Trajectory], path: str | os.PathLike, title: str) -> Path:
-    """Three panels, each law a colour: y (with y_d), z1 = y - y_d, and u (held: steps)."""
+    """Three panels, each law a colour and a dash pattern: y (with y_d), z1 = y - y_d, and u
+    (held: steps)."""
     fig, grid = new_figure(3, 1)
     axes = grid.ravel()
     first = next(iter(runs.values()))
     t_ref, yd = reference(first)
     axes[0].plot(t_ref, yd, label="$y_d$", **REF_STYLE)
     for i, (kind, traj) in enumerate(runs.items()):
-        color = COLORS[i % len(COLORS)]
-        axes[0].plot(traj.t, traj.y, color=color, linewidth=1.2, label=kind)
-        axes[1].plot(traj.t, column(traj.z, 0), color=color, linewidth=1.2, label=kind)
-        axes[2].step(traj.t, traj.signals["u"], where="post", color=color, linewidth=1.0, label=kind)
+        style = {"color": COLORS[i % len(COLORS)], "linestyle": DASHES[i % len(DASHES)], "label": kind}
+        axes[0].plot(traj.t, traj.y, linewidth=1.2, **style)
+        axes[1].plot(traj.t, column(traj.z, 0), linewidth=1.2, **style)
+        axes[2].step(traj.t, traj.signals["u"], where="post", linewidth=1.0, **style)
     for ax, label in zip(axes, ("y, $y_d$", "$z_1 = y - y_d$", "u"), strict=True):
         ax.set_ylabel(label)
         ax.grid(True, alpha=0.3)

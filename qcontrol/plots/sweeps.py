@@ -106,6 +106,7 @@ def _lines(rows: Sequence[dict], points: _Points, rate_columns: Sequence[str], p
             ax.set_xticks(xs, labels, rotation=30, ha="right", fontsize=7)
             ax.set_xlim(-0.5, len(labels) - 0.5)
         ax.set_xlabel(key)
+        ax.ticklabel_format(axis="y", useOffset=False)  # 0.99998, not "1e-5 + 9.999e-1" above the axis
         ax.grid(True, alpha=0.3)
         legend(ax, fontsize=7)
     fig.suptitle(title)
