@@ -52,7 +52,7 @@ PANELS: dict[str, PanelStyle] = {  # keyed by panel (a series path's parent), in
                                 "Lemma 2", (0.0, 1.1)),
     "theory/law": PanelStyle("law diagnostics: gain_period = K T of (44) (> 1: the held input overshoots)",
                              "Lemma 2"),
-    "signals/difference/y": PanelStyle("log10 |y - y_twin|: MuJoCo against its ODE twin (-16: equal to "
+    "signals/difference/y": PanelStyle("log10 |y - y_twin|: the main run against its twin (-16: equal to "
                                        "rounding)", "twin difference", (-17.0, 1.0)),
     "signals/difference/u": PanelStyle("log10 |u - u_twin| (-16: equal to rounding)", "twin difference",
                                        (-17.0, 3.0)),

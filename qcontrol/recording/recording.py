@@ -45,7 +45,7 @@ from .camera import TRAVEL_MARGIN, Camera, fixed_camera
 from .layout import default_blueprint
 from .rrd_file import RrdFile, quiet_rerun_logging
 from .scene import Scene
-from .series import GREEN, LIGHT, RED, Panel, Series
+from .series import COMPARISON_COLORS, RED, TWIN_COLORS, Panel, Series, shade_of
 from .streamer import RunStreamer
 from .viewer import start_viewer, viewer_url
 
@@ -246,6 +246,7 @@ class Recording:
             raise ValueError("twin_of names the main run a ghost run is the twin of: pass ghost=True")
         if self._stream is None:
             return _ignore
+        shade = len(self._ghosts)  # the how-many-th ghost this run is (its colour)
         if ghost:
             suffix = _label_suffix(label)
             if suffix in self._ghosts:
@@ -259,9 +260,9 @@ class Recording:
             suffix, world, role = "", "world/bodies", "main"
         scene = None if model is None else self.scene_of(model, joint)
         if scene is not None:
-            self._log_scene(scene, world, role)
+            self._log_scene(scene, world, role, shade)
             self._scene = self._scene or scene
-        return RunStreamer(self, label, suffix, role, scene, world, twin_of)
+        return RunStreamer(self, label, suffix, role, scene, world, twin_of, shade)
 
     def scene_of(self, model: mujoco.MjModel, joint: str | None) -> Scene:
         """The model's :class:`Scene` for ``joint``, made once per recording (the main run, its
@@ -272,7 +273,7 @@ class Recording:
             self._scenes[key] = Scene(model, joint)
         return self._scenes[key]
 
-    def _log_scene(self, scene: Scene, world: str, role: str) -> None:
+    def _log_scene(self, scene: Scene, world: str, role: str, shade: int = 0) -> None:
         """The static geometry: shapes in their bodies, world-body geoms, the target marker."""
         import rerun as rr
 
@@ -282,8 +283,9 @@ class Recording:
                 continue
             parent = "world/fixed" if geom.body == 0 else f"{world}/{scene.body_names[geom.body]}"
             moving = geom.body != 0  # a ghost's look is for its bodies; the world's geoms are shared
-            rgba = {"main": geom.rgba, "twin": (*LIGHT, 255), "comparison": (*GREEN, _COMPARISON_ALPHA)}[
-                role if moving else "main"]
+            looks = {"main": geom.rgba, "twin": (*shade_of(TWIN_COLORS, shade), 255),
+                     "comparison": (*shade_of(COMPARISON_COLORS, shade), _COMPARISON_ALPHA)}
+            rgba = looks[role if moving else "main"]
             stream.log(
                 f"{parent}/{geom.name}",
                 rr.Transform3D(translation=geom.pos, quaternion=rr.Quaternion(xyzw=geom.quat_xyzw)),

@@ -39,6 +39,16 @@ BLUE, ORANGE, GREEN, RED = (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 
 PURPLE, BROWN, OLIVE, LIGHT = (148, 103, 189), (140, 86, 75), (188, 189, 34), (245, 245, 245)
 PALETTE = (BLUE, ORANGE, GREEN, RED, PURPLE, BROWN)
 ROLE_COLORS = {"main": BLUE, "reference": ORANGE, "quantized": RED, "applied": OLIVE}
+# the colour of the k-th ghost run (k = 0, 1, ...): a twin (light first, the ODE beside MuJoCo),
+# another law beside the main one (green first), and a twin's |main - twin| series
+TWIN_COLORS = (LIGHT, PURPLE, OLIVE, BROWN)
+COMPARISON_COLORS = (GREEN, PURPLE, BROWN, OLIVE)
+DIFFERENCE_COLORS = (BLUE, PURPLE, OLIVE, BROWN)
+
+
+def shade_of(colors: tuple, k: int) -> tuple[int, int, int]:
+    """The colour of the ``k``-th ghost run among ``colors`` (cycling)."""
+    return colors[k % len(colors)]
 WIDE, THIN = 5.0, 1.5  # line widths (points) of a main run beside its twin, and of the twin
 
 
@@ -129,10 +139,12 @@ def _plots(run: Trajectory, twin_drawn_only: bool):
                 yield signal, plot, shown
 
 
-def run_series(run: Trajectory, label: str, role: str = "main", suffix: str = "") -> list[Series]:
+def run_series(run: Trajectory, label: str, role: str = "main", suffix: str = "",
+               shade: int = 0) -> list[Series]:
     """The series of a run: every plot of the table for the main run (its twin-drawn series
-    tagged with ``label``); for a ghost run (``role`` "twin" or "comparison", entity ``suffix``),
-    the twin-drawn plots at ``<path>_<suffix>``, thin and light for a twin, green otherwise."""
+    tagged with ``label``); for a ghost run (``role`` "twin" or "comparison", entity ``suffix``,
+    the ``shade``-th ghost of the recording), the twin-drawn plots at ``<path>_<suffix>``, thin and
+    light for the first twin, green for the first other run, each further ghost a colour of its own."""
     series = []
     for signal, plot, shown in _plots(run, role != "main"):
         first = shown[0]
@@ -146,11 +158,12 @@ def run_series(run: Trajectory, label: str, role: str = "main", suffix: str = ""
             series.append(Series(path, labels, label if plot.twin else "", colors, signal.held, values, panel,
                                  plot.twin))
         elif role == "twin":
-            series.append(Series(f"{path}_{suffix}", labels, f"{label}, thin", (LIGHT,) * len(shown),
-                                 signal.held, values, panel, True, THIN))
+            colors = (shade_of(TWIN_COLORS, shade),) * len(shown)
+            series.append(Series(f"{path}_{suffix}", labels, f"{label}, thin", colors, signal.held, values,
+                                 panel, True, THIN))
         else:
-            series.append(Series(f"{path}_{suffix}", labels, label, (GREEN,) * len(shown), signal.held,
-                                 values, panel, True))
+            colors = (shade_of(COMPARISON_COLORS, shade),) * len(shown)
+            series.append(Series(f"{path}_{suffix}", labels, label, colors, signal.held, values, panel, True))
     return series
 
 
@@ -170,7 +183,8 @@ def guide_lines(run: Trajectory) -> list[GuideLine]:
     return lines
 
 
-def differences(run: Trajectory, main_label: str, twin_label: str, suffix: str) -> list[Series]:
+def differences(run: Trajectory, main_label: str, twin_label: str, suffix: str,
+                shade: int = 0) -> list[Series]:
     """The series ``|main - twin|`` of every plot that names a difference panel (one component
     each), for a twin run; their ``values`` read either run's column."""
     found = []
@@ -181,6 +195,7 @@ def differences(run: Trajectory, main_label: str, twin_label: str, suffix: str) 
         text = plot.label.format(**_names(run, i))
         name = f"log10 |{text} ({main_label}) - {text} ({twin_label})|"
         values = _columns(signal, shown, plot.per_bound)
-        found.append(Series(f"{plot.difference}/{suffix}", (name,), "", (BLUE,), signal.held, values,
+        found.append(Series(f"{plot.difference}/{suffix}", (name,), "", (shade_of(DIFFERENCE_COLORS, shade),),
+                            signal.held, values,
                             Panel(plot.difference, plot.difference)))
     return found

@@ -100,8 +100,9 @@ class RunStreamer:
     """The observer of one run (``role``: "main", "twin" or "comparison"); see the module docstring."""
 
     def __init__(self, recording: StreamTarget, label: str, suffix: str, role: str, scene: Scene | None,
-                 world: str, twin_of: Trajectory | None) -> None:
+                 world: str, twin_of: Trajectory | None, shade: int = 0) -> None:
         self.recording = recording
+        self.shade = shade  # the how-many-th ghost run of the recording (its colour)
         self.label = label
         self.suffix = suffix
         self.role = role
@@ -152,7 +153,7 @@ class RunStreamer:
         import rerun as rr
 
         stream, recording = self.recording.stream, self.recording
-        self.series = run_series(run, self.label, self.role, self.suffix)
+        self.series = run_series(run, self.label, self.role, self.suffix, self.shade)
         for s in self.series:
             log_style(stream, s)
         if self.role == "main":
@@ -165,7 +166,7 @@ class RunStreamer:
             for s in recording.main_series:
                 if s.drawn_for_twin:
                     log_style(stream, s.beside_twin())
-            self.differences = differences(run, recording.main_label, self.label, self.suffix)
+            self.differences = differences(run, recording.main_label, self.label, self.suffix, self.shade)
             for d in self.differences:
                 log_style(stream, d)
         recording.add_panels([s.panel for s in self.series] + [d.panel for d in self.differences])
