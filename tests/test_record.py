@@ -475,3 +475,20 @@ def test_a_recording_needs_a_file_or_a_viewer_and_opening_none_imports_nothing(t
     )
     assert result.returncode == 0, result.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+def test_each_law_of_a_law_comparison_has_a_colour_of_its_own(tmp_path):
+    """Three laws in one recording: the two drawn on the main one are told apart by colour, in
+    their series and in their differences from it (they were both white, both blue)."""
+    sc = qcontrol.load_scenario("example1", {"simulation.duration": 0.3})
+    qcontrol.register_law_class("same-paper-again", type("SamePaper", (qcontrol.PaperLaw,), {}),
+                                extends="proposed", replace=True)
+    qcontrol.compare_laws(sc, ["proposed", "comparison", "same-paper-again"], backend="ode",
+                          rrd=tmp_path / "laws.rrd")
+    entities = read_entities(tmp_path / "laws.rrd")
+    for family in ("signals/tracking/y", "signals/input/u", "signals/difference/y"):
+        ghosts = [f"{family}_comparison", f"{family}_same-paper-again"]
+        if family.endswith("difference/y"):
+            ghosts = [f"{family}/comparison", f"{family}/same-paper-again"]
+        colors = [static_value(entities[path], "SeriesLines:colors") for path in ghosts]
+        assert colors[0] != colors[1], (family, colors)
