@@ -52,10 +52,8 @@ def build_separation(sc: Scenario) -> Separation | None:
     r = kind.bounds(sc.controller.settings) if kind.bounds is not None else None
     if r is None:
         return None
-    names = tuple(f"phi{i + 1}" for i in range(len(sc.phi_expr))) + (("psi",
-                                                                      ) if sc.psi_expr is not None else ())
-    terms = tuple(sc.phi_expr) + ((sc.psi_expr,) if sc.psi_expr is not None else ())
-    return Separation(names, terms, tuple(r))
+    bounded = sc.terms.bounded
+    return Separation(tuple(name for name, _ in bounded), tuple(e for _, e in bounded), tuple(r))
 
 
 def backend_of(sc: Scenario, backend: str | None = None) -> str:
@@ -170,9 +168,9 @@ def run_spec(sc: Scenario, plant: Plant, law: BatchLaw, x0: Sequence, separation
 
 
 def named_terms(sc: Scenario) -> list[tuple[str, Expression]]:
-    """The plant's expressions of eq. (1) by their scenario keys, ``plant.phi[1]`` .. ``plant.psi``."""
-    named = [(f"plant.phi[{i + 1}]", phi) for i, phi in enumerate(sc.phi_expr)]
-    return named + ([("plant.psi", sc.psi_expr)] if sc.psi_expr is not None else [])
+    """The plant's expressions of eq. (1) by their scenario keys, ``plant.phi[1]`` .. ``plant.psi``
+    (the order of eqs. (37)-(43))."""
+    return [("plant.psi" if name == "psi" else f"plant.phi[{name[3:]}]", e) for name, e in sc.terms.bounded]
 
 
 def run_scenario(

@@ -32,9 +32,21 @@ class PlantTerms:
     phi: tuple[Expression, ...]
     theta: tuple[float, ...]
 
+    # Two orders, each defined here once: eq. (1)'s sum ``psi + theta^T phi`` (psi first; the plants
+    # add the terms in this order), and eqs. (37)-(43)'s, the order of eps and of a law's bounding
+    # functions r (phi_1 .. phi_l, then psi; :attr:`bounded`).
+
+    @property
+    def bounded(self) -> list[tuple[str, Expression]]:
+        """``(name, expression)`` of the terms in the order of eqs. (37)-(43): ``phi1`` .. ``phil``,
+        then ``psi`` (if present); the order of eps and of the bounding functions r."""
+        return [(f"phi{i + 1}", e) for i, e in enumerate(self.phi)] + (
+            [("psi", self.psi)] if self.psi is not None else [])
+
     @property
     def names(self) -> list[str]:
-        """Names of the terms of ``psi + theta^T phi``: ``psi`` (if present), ``phi1`` .. ``phil``."""
+        """Names of the terms of ``psi + theta^T phi`` in eq. (1)'s order: ``psi`` (if present),
+        ``phi1`` .. ``phil``."""
         return (["psi"] if self.psi is not None else []) + [f"phi{i + 1}" for i in range(len(self.phi))]
 
     @property
