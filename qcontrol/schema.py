@@ -121,12 +121,15 @@ class Table:
             raise self.error(key, f"must be at most {maximum}, got {value}", f"use a value <= {maximum}")
         return value
 
-    def string(self, key: str, default: Any = REQUIRED, choices: Sequence[str] | None = None) -> str:
+    def string(self, key: str, default: Any = REQUIRED, choices: Sequence[str] | None = None,
+               more: str = "") -> str:
+        """A string, one of ``choices`` if given (``more``: how else a choice can be made, appended to
+        the refusal's fix)."""
         value = self.get(key, default)
         if not isinstance(value, str):
             raise self.error(key, f"must be a string, got {type_name(value)}", 'write e.g. "text"')
         if choices is not None and value not in choices:
-            raise self.error(key, f"{value!r} is not allowed", f"use one of {', '.join(choices)}")
+            raise self.error(key, f"{value!r} is not allowed", f"use one of {', '.join(choices)}{more}")
         return value
 
     def strings(self, key: str, default: Any = REQUIRED) -> tuple[str, ...]:
@@ -182,9 +185,11 @@ def integer(minimum: int | None = None, maximum: int | None = None) -> ValueType
     return ValueType(text, lambda t, k, d, s: t.integer(k, d, minimum, maximum))
 
 
-def string(choices: Sequence[str] | None = None) -> ValueType:
+def string(choices: Sequence[str] | None = None, more: str = "") -> ValueType:
+    """A string, one of ``choices`` if given; ``more`` completes the refusal of another value (e.g.
+    how to register a controller kind)."""
     text = "string" if choices is None else "one of " + ", ".join(f'"{c}"' for c in choices)
-    return ValueType(text, lambda t, k, d, s: t.string(k, d, choices))
+    return ValueType(text, lambda t, k, d, s: t.string(k, d, choices, more))
 
 
 def numbers(size: str | None = None, *, positive: bool = False) -> ValueType:

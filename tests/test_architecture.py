@@ -51,7 +51,7 @@ LAYERS = [
     {"sweep", "api", "explain", "region"},
     {"law_comparison"},
     {"reproduce"},
-    {"cli", "_entry"},
+    {"cli", "_entry", "__main__"},
 ]
 
 

@@ -334,3 +334,17 @@ def test_the_laws_command_with_a_law_module(tmp_path: Path, capsys: pytest.Captu
     assert [row["kind"] for row in record["table"]] == ["proposed", "cli-law"]
     assert "final_integral" in record["runs"]["cli-law"]
     assert (tmp_path / "out" / "laws.png").is_file()
+
+
+def test_an_unknown_kind_on_the_command_line_says_how_to_register_one() -> None:
+    """``python -m qcontrol`` is the command; an unknown kind is refused with one line that names
+    the registered kinds and the ways to add one (--law-module first)."""
+    import subprocess
+    import sys
+
+    command = [sys.executable, "-m", "qcontrol", "run", "example2", "--set", "controller.kind=bs_pi"]
+    done = subprocess.run(command, capture_output=True, text=True)
+    assert done.returncode == 2
+    (line,) = done.stderr.strip().splitlines()
+    assert "'bs_pi' is not allowed; use one of proposed, comparison" in line
+    assert "--law-module FILE" in line and "Traceback" not in done.stderr

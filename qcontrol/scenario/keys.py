@@ -77,12 +77,17 @@ PLANT = Section(
 )
 
 
+REGISTER_A_KIND = (", or register yours: --law-module FILE (a Python file that calls qcontrol.register_law), "
+                   "an installed plugin, or qcontrol.register_law from Python")
+
+
 def controller_section() -> Section:
     """``[controller]``: the keys every kind takes, and each registered kind's own keys."""
     return Section(
         "controller",
         (
-            Key("kind", string(tuple(LAW_KINDS)), "proposed", meaning="the control law"),
+            Key("kind", string(tuple(LAW_KINDS), more=REGISTER_A_KIND), "proposed",
+                meaning="the control law"),
             Key("delta", number(positive=True), unit="state", meaning="quantizer step delta, eq. (3)",
                 example="0.01"),
             Key("c", numbers("n", positive=True), meaning="backstepping gains c_1..c_n > 0, eqs. (7)-(27)",

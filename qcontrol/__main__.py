@@ -1,0 +1,7 @@
+"""``python -m qcontrol``: the ``qcontrol`` command (the same entry point as the console script)."""
+
+import sys
+
+from ._entry import main
+
+sys.exit(main())
