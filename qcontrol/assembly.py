@@ -46,7 +46,8 @@ def build_law(variants: Sequence[Scenario]) -> BatchLaw:
     return law
 
 
-RESERVED_NAMES = ("t", "y", "summary")  # beside the signals: names a saved file or a Result gives
+# beside the signals: names a saved file or a Result gives, and the npz writer's own arguments
+RESERVED_NAMES = ("t", "y", "summary", "file", "allow_pickle")
 
 
 def check_diagnostic_names(law: BatchLaw, sc: Scenario) -> None:

@@ -222,6 +222,7 @@ def _run_declaring(diagnostics: object, record: str = "full") -> qcontrol.Result
     ([_diagnostic("integral_1")], "diagnostic 'integral_1': 'integral_1' already names"),  # a state column
     ([_diagnostic("yd", 2)], "diagnostic 'yd': 'yd' already names"),
     ([_diagnostic("t")], "diagnostic 't': 't' already names"),
+    ([_diagnostic("allow_pickle")], "diagnostic 'allow_pickle': 'allow_pickle' already names"),  # np.savez's
     ([_diagnostic("abs_u")], f"{BAD}diagnostic 'abs_u': its summary key 'max_abs_u' is already a summary "
                              "field; rename the diagnostic"),
 ])
