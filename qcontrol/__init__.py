@@ -16,7 +16,9 @@ The Python API (see the README's "Python API"):
 * :class:`Law` (its state by RK4 of a rate) or :class:`SteppedLaw` (its own update) and
   :func:`register_law`: a control law of your own, selected by
   ``controller.kind``; :func:`check_keys`, :func:`quantized_backstepping` and
-  :func:`lemma2_bounds` help write one; :func:`load_law_module` runs a file that registers laws
+  :func:`lemma2_bounds` help write one; a law with :class:`LawDiagnostics` declares
+  :class:`Diagnostic` signals of its own (``Result.diagnostic(name)``, the summary, saved
+  files); :func:`load_law_module` runs a file that registers laws
   (``--law-module``), :func:`load_law_plugins` the installed plugins (entry points ``qcontrol.laws``);
   :func:`expression` compiles a math expression as scenarios do (for a law's bounding function r).
 * :class:`PaperLaw` (law (44)-(45)), :class:`ComparisonLaw` (law (46)) and their base
@@ -34,6 +36,7 @@ from .controller.law import Diagnostic, LawContext
 from .controller.plugins import load_law_module, load_law_plugins
 from .controller.proposed import PaperLaw
 from .controller.user import Law, SteppedLaw, check_keys, register_law
+from .controller.user_diagnostics import LawDiagnostics
 from .errors import QcontrolInputError
 from .expr import expression
 from .law_comparison import LawComparison, compare_laws
@@ -49,6 +52,7 @@ __all__ = [
     "Law",
     "LawComparison",
     "LawContext",
+    "LawDiagnostics",
     "PaperLaw",
     "QcontrolInputError",
     "Result",

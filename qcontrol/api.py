@@ -30,6 +30,7 @@ from .attribution import realism_attribution
 from .controller import Backstepping
 from .controller import lemma2_bounds as _lemma2_bounds
 from .engine import SIGNALS, ProgressCallback, RunMetrics, Trajectory
+from .engine.signals import column_names
 from .errors import QcontrolInputError
 from .metrics import backend_deviation, summary
 from .outputs import check_output_file, clean, prepare_output_dir, write_file, write_text
@@ -82,8 +83,9 @@ class Result:
 
     def save(self, path: str | Path) -> Path:
         """Write the run's signals, by the file's suffix: ``.npz`` (one array per signal, by its
-        name, plus ``t`` and the summary as JSON) or ``.csv`` (one header row, a column per
-        component: ``t, x1, x2, x_meas1, ...``). Written atomically."""
+        name, plus ``t``, the summary as JSON and each of the law's diagnostics by its own name)
+        or ``.csv`` (one header row, a column per component: ``t, x1, x2, x_meas1, ...``, the
+        diagnostics by name). Written atomically."""
         path = check_output_file(path, "save")
         if path.suffix not in SAVE_FORMATS:
             raise QcontrolInputError(f"{path}: unknown format {path.suffix!r}; save as .npz or .csv")
@@ -92,7 +94,13 @@ class Result:
         if path.suffix == ".csv":
             return write_text(path, _csv_text(traj))
         meta = np.array(json.dumps(clean(self.summary)))
-        return write_file(path, lambda file: np.savez(file, t=traj.t, summary=meta, **traj.signals))
+        named = {d.name: traj.diagnostic(d.name) for d in traj.law_diagnostics}  # each by its own name too
+        return write_file(path, lambda file: np.savez(file, t=traj.t, summary=meta, **traj.signals, **named))
+
+    def diagnostic(self, name: str) -> np.ndarray:
+        """The law's own diagnostic ``name`` (one it declares, :class:`~qcontrol.Diagnostic`) at
+        every row: ``(rows,)`` for a width of 1, else ``(rows, width)``."""
+        return self.trajectory.diagnostic(name)
 
     def plot(self, path: str | Path) -> Path:
         """Draw the run's figure (y and y_d, the errors, u, the law's state; the figure
@@ -127,18 +135,8 @@ def columns(traj: Trajectory) -> list[tuple[str, np.ndarray]]:
         if array.ndim == 1:
             out.append((signal.name, array))
             continue
-        for i in range(array.shape[1]):
-            if signal.width == "m":
-                name = f"{traj.adaptive_name}_{i + 1}"
-            elif signal.width == "n+1":
-                name = f"{signal.name}_{i}"
-            elif signal.width == "terms":
-                name = f"{signal.name}_{traj.bound_names[i]}"
-            elif signal.width == "diagnostics":
-                name = traj.diagnostic_columns[i]
-            else:
-                name = f"{signal.name}{i + 1}"
-            out.append((name, array[:, i]))
+        names = column_names(signal, array.shape[1], traj.naming)
+        out += [(name, array[:, i]) for i, name in enumerate(names)]
     return out
 
 

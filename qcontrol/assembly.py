@@ -8,18 +8,22 @@ The law and the plant come from the registries (:data:`~qcontrol.controller.LAW_
 from __future__ import annotations
 
 from collections.abc import Hashable, Sequence
+from dataclasses import fields
 from typing import Any
 
 from .controller import BatchLaw, law_kind
+from .controller.user_diagnostics import diagnostic_columns
 from .disturbance import Schedule, scaled_changes
 from .engine import Observer, ProgressCallback, RunMetrics, RunSpec, Separation, Trajectory, simulate
 from .engine.results import RunRecord
+from .engine.signals import SIGNALS, ColumnNaming, column_names
 from .errors import QcontrolInputError
 from .expr import Expression
 from .plants import BACKENDS, Plant, SceneSource
 from .quantizer import UniformQuantizer
 from .reference import Reference
 from .scenario import Scenario
+from .summary import Summary
 from .timegrid import TimeGrid
 
 
@@ -37,7 +41,36 @@ def build_law(variants: Sequence[Scenario]) -> BatchLaw:
     """One law for a batch of variants of the same kind (their settings that may differ become
     per-copy parameters; see :func:`batch_structure`)."""
     first = variants[0]
-    return law_kind(first.controller.kind).build([v.controller.settings for v in variants], first.law_context)
+    law = law_kind(first.controller.kind).build([v.controller.settings for v in variants], first.law_context)
+    check_diagnostic_names(law, first)
+    return law
+
+
+# beside the signals: names a saved file or a Result gives, and the npz writer's own arguments
+RESERVED_NAMES = ("t", "y", "summary", "file", "allow_pickle")
+
+
+def check_diagnostic_names(law: BatchLaw, sc: Scenario) -> None:
+    """Refuse a diagnostic of the law whose name (or a column of it) is already the name of a
+    signal, of a signal's column in the saved files, or whose summary key ``<reduce>_<name>`` is a
+    field of the summary: one line naming the law and the diagnostic."""
+    separation = build_separation(sc)
+    naming = ColumnNaming(law.state_name, () if separation is None else separation.names)
+    sizes = (sc.law_context.order, law.state_size, len(naming.bound_names))
+    taken = set(RESERVED_NAMES) | {s.name for s in SIGNALS}
+    taken.update(name for s in SIGNALS if s.width != "diagnostics"
+                 for name in column_names(s, s.size(*sizes), naming))
+    keys = {f.name for f in fields(Summary)}
+    for d in law.diagnostics:
+        clash = next((c for c in (d.name, *diagnostic_columns((d,))) if c in taken), None)
+        if clash is not None:
+            raise QcontrolInputError(f"controller kind {sc.controller.kind!r}: diagnostic {d.name!r}: "
+                                     f"{clash!r} already names a recorded signal or its column in the saved "
+                                     "files; rename the diagnostic")
+        if d.summary_key in keys:
+            raise QcontrolInputError(f"controller kind {sc.controller.kind!r}: diagnostic {d.name!r}: its "
+                                     f"summary key {d.summary_key!r} is already a summary field; rename the "
+                                     "diagnostic")
 
 
 def build_controller(sc: Scenario) -> BatchLaw:

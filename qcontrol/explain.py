@@ -26,6 +26,9 @@ SAMPLED_WARNING = ("the sampled loop is outside the range where it behaves like 
                    "continuous-time law")
 
 
+MONITORED_DIAGNOSTICS = ("max_gain_period",)  # the law diagnostics with lines of their own (below)
+
+
 def gain_period_lines(s: Mapping) -> list[str]:
     """The gain-period monitor of a law that declares one (``max_gain_period``): its value, and a
     warning once K T > 1. Nothing for a law without it."""

@@ -19,6 +19,7 @@ from conftest import EX2, PACKAGE, ROOT
 from qcontrol.assembly import build_plant, run_scenario
 from qcontrol.controller import BatchLaw, FloatColumns
 from qcontrol.controller.user import Law
+from qcontrol.controller.user_diagnostics import LawDiagnostics
 from qcontrol.engine import SIGNALS, ClosedLoop
 from qcontrol.engine.signals import DERIVED, RECORDED, REDUCTIONS, needed
 from qcontrol.errors import QcontrolInputError
@@ -195,6 +196,7 @@ def _members(protocol: type) -> set[str]:
                 "constants", "diagnostics"}),
     (FloatColumns, {"float_advancer"}),
     (Law, {"state_size", "initial_state", "control", "state_rate"}),
+    (LawDiagnostics, {"diagnostics"}),
 ])
 def test_the_protocols_stay_narrow(protocol: type, members: set[str]) -> None:
     assert _members(protocol) == members

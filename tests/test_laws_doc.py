@@ -24,6 +24,9 @@ def test_the_laws_tutorial_runs(tmp_path: Path) -> None:
                           capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
     assert "integral [" in done.stdout and "-5.0" in done.stdout
+    (largest,) = [line.split()[1:] for line in done.stdout.splitlines()
+                  if line.startswith("max_abs_integral")]
+    assert largest[0] == largest[1] and float(largest[0]) > 0  # the summary's max is the array's
     assert (tmp_path / "integral.png").stat().st_size > 10_000
     for command in COMMANDS:
         ran = subprocess.run([sys.executable, "-m", "qcontrol.cli", *shlex.split(command)[1:]], cwd=tmp_path,

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import sys
 
-from ..explain import divergence_lines, gain_period_lines, paper_line
+from ..explain import MONITORED_DIAGNOSTICS, divergence_lines, gain_period_lines, paper_line
 from ..metrics import LEMMA2_TOLERANCE
 from ..scenario import Scenario
 from ..summary import Summary
@@ -40,10 +40,27 @@ def format_summary(s: dict, sc: Scenario) -> str:
         f"  final {f.adaptive_state}: [{', '.join(f'{v:.4g}' for v in final_state(f))}]",
         _lemma2_line(f),
         *gain_period_lines(s),
+        *law_diagnostic_lines(f),
     ]
     if f.diverged:
         lines += divergence_lines(s, sc)
     return "\n".join(lines)
+
+
+def law_diagnostic_lines(f: Summary) -> list[str]:
+    """The law's own diagnostics as the summary reports them (``max_<name>``, ``last_<name>``),
+    on one line; those with a monitor of their own (K T) are printed there instead."""
+    shown = {key: value for key, value in f.law_diagnostics.items() if key not in MONITORED_DIAGNOSTICS}
+    if not shown:
+        return []
+    return ["  law diagnostics: " + "    ".join(f"{key} = {_number(value)}" for key, value in shown.items())]
+
+
+def _number(value: object) -> str:
+    """A diagnostic's reduced value: ``n/a`` where the run had none, a list for one of width > 1."""
+    if isinstance(value, list):
+        return f"[{', '.join(_number(v) for v in value)}]"
+    return "n/a" if value is None else f"{value:.4g}"
 
 
 def _saturation(fraction: float) -> str:

@@ -22,6 +22,7 @@ from ..schema import Table
 from .backstepping import BacksteppingLaw
 from .law import LAW_KINDS, LawContext, LawKind, check_kind_name, register_kind
 from .user import _freeze, _thaw
+from .user_diagnostics import checked_class_diagnostics
 
 EXTENDABLE = ("proposed", "comparison")
 
@@ -107,6 +108,7 @@ class ClassKind:
         if not isinstance(law, BacksteppingLaw):
             raise QcontrolInputError(f"{self.cls.__name__}.from_context must return the law, got "
                                      f"{type(law).__name__}")
+        law.diagnostics = checked_class_diagnostics(law.diagnostics, self.kind)
         return law
 
     @staticmethod

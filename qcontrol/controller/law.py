@@ -40,7 +40,11 @@ class Diagnostic:
     ``evaluate(x_q, yd, state)``, for many rows at once after the loop recorded them).
 
     Computing it from the record keeps the law's hot path untouched: a run gives the same
-    numbers with or without its diagnostics.
+    numbers with or without its diagnostics. ``label`` is how a recording's panel title names it
+    (default: its name, with its unit unless that is ``"-"``).
+
+    A law written against the :class:`~.user.Law` protocol declares its diagnostics the same way
+    (:class:`~.user_diagnostics.LawDiagnostics`), its ``evaluate`` then taking one copy's arrays.
     """
 
     name: str
@@ -49,6 +53,7 @@ class Diagnostic:
     reduce: str
     meaning: str
     evaluate: Evaluate = field(repr=False, compare=False)
+    label: str = ""
 
     def __post_init__(self) -> None:
         if not self.name.isidentifier():
@@ -58,6 +63,13 @@ class Diagnostic:
         if self.reduce not in DIAGNOSTIC_REDUCTIONS:
             raise QcontrolInputError(f"diagnostic {self.name}: reduce must be one of "
                                      f"{', '.join(DIAGNOSTIC_REDUCTIONS)}, got {self.reduce!r}")
+
+    @property
+    def caption(self) -> str:
+        """How a recording's panel title names it: ``label``, else its name (and unit)."""
+        if self.label:
+            return self.label
+        return self.name if self.unit in ("", "-") else f"{self.name} [{self.unit}]"
 
     @property
     def summary_key(self) -> str:

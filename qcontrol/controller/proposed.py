@@ -68,7 +68,8 @@ class PaperLaw(BacksteppingLaw):
     period ``period`` (T): ``"paper"`` applies (44) as printed; ``"exact"`` replaces K by
     ``K_T = (1 - exp(-K T)) / T``, the gain whose held input maps ``zbar_n`` over one period as the
     continuous-time robust term ``zbar_n' = -K zbar_n`` would (docs/math.md, 'Sampling the law').
-    Either way the law declares the diagnostic ``gain_period``, ``K T`` at every control sample.
+    Either way the law declares the diagnostic ``gain_period``, ``K T`` at every control sample;
+    a subclass's class attribute ``diagnostics`` adds its own after it.
 
     A public class to subclass: :meth:`robust_term` (the term subtracted from ``alphabar_n``),
     :meth:`adaptive_target` (eq. (45)'s held target), :meth:`bounding_terms`, or
@@ -119,10 +120,11 @@ class PaperLaw(BacksteppingLaw):
         if not (math.isfinite(period) and period > 0):
             raise QcontrolInputError(f"controller period must be a finite number > 0, got {period!r}")
         self.hold, self.period = hold, float(period)
-        self.diagnostics = (Diagnostic(
+        self.diagnostics = (Diagnostic(  # then those a subclass declares as a class attribute
             "gain_period", 1, "-", "max", "K T: the robust gain K of law (44) times the control period T; "
             "above 1 the held input overshoots the continuous-time law's decay of zbar_n over one period",
-            self._gain_period),)
+            self._gain_period, "gain_period = K T of (44) (> 1: the held input overshoots)"),
+            *type(self).diagnostics)
         gamma, sigma, r_scale = (parameter(k, v) for k, v in (("gamma", gamma), ("sigma", sigma),
                                                                 ("r_scale", r_scale)))
         kappa_array = np.asarray(kappa, dtype=float)

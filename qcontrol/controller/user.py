@@ -32,6 +32,7 @@ from ..quantizer import QuantizedReading
 from ..schema import Table
 from .backstepping import Backstepping, Columns, stack
 from .law import LawContext, LawKind, check_kind_name, register_kind
+from .user_diagnostics import declared_diagnostics
 
 
 @runtime_checkable
@@ -100,6 +101,7 @@ class UserLaw(Backstepping):
         self.state_name = state_name
         self.copies = len(self.laws) if len(self.laws) > 1 else None
         self.stepped = all(isinstance(law, SteppedLaw) for law in self.laws)
+        self.diagnostics = declared_diagnostics(self.laws, kind)  # a law's own, if it declares them
 
     def initial_state(self, batch: int) -> np.ndarray:
         rows = [self._checked_array(law.initial_state(), "initial_state()") for law in self.laws]

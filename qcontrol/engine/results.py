@@ -12,8 +12,10 @@ from typing import Any
 import numpy as np
 
 from ..controller.law import Diagnostic
+from ..controller.user_diagnostics import diagnostic_columns
+from ..errors import QcontrolInputError
 from .reductions import Chunk, MetricSettings
-from .signals import REDUCTIONS, SIGNALS
+from .signals import REDUCTIONS, SIGNALS, ColumnNaming
 
 
 @dataclass(kw_only=True)
@@ -45,8 +47,12 @@ class RunRecord:
     def diagnostic_columns(self) -> tuple[str, ...]:
         """The names of the diagnostics signal's columns: a diagnostic's name, or ``name_1 ..
         name_w`` for one of width w."""
-        return tuple(d.name if d.width == 1 else f"{d.name}_{i + 1}"
-                     for d in self.law_diagnostics for i in range(d.width))
+        return diagnostic_columns(self.law_diagnostics)
+
+    @property
+    def naming(self) -> ColumnNaming:
+        """What names the columns of its signals in saved files (:func:`~.signals.column_names`)."""
+        return ColumnNaming(self.adaptive_name, self.bound_names, self.diagnostic_columns)
 
     def reduced(self) -> dict[str, Any]:
         """The metrics of the run (each kind of record gives them)."""
@@ -74,6 +80,19 @@ class Trajectory(RunRecord):
     @property
     def steps(self) -> int:
         return len(self.t) - 1
+
+    def diagnostic(self, name: str) -> np.ndarray:
+        """The law's diagnostic ``name`` at every row: ``(rows,)`` for a width of 1, else
+        ``(rows, width)`` (NaN-free only where the run was)."""
+        first = 0
+        for d in self.law_diagnostics:
+            if d.name == name:
+                values = self.signals["diagnostics"][:, first : first + d.width]
+                return values[:, 0] if d.width == 1 else values
+            first += d.width
+        declared = ", ".join(d.name for d in self.law_diagnostics) or "none"
+        raise QcontrolInputError(f"diagnostic {name!r}: the law declares no diagnostic of that name "
+                                 f"(its diagnostics: {declared})")
 
     def with_signals(self, **arrays: np.ndarray) -> Trajectory:
         """A copy with the named signals replaced (e.g. ``traj.with_signals(x=x, u=u)``)."""

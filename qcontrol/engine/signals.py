@@ -234,6 +234,34 @@ assert tuple(s.name for s in RECORDED) == ("x", "x_meas", "x_q", "u", "adaptive"
     "the loop records exactly these, in this order (see qcontrol.engine.row_buffer)")
 
 
+@dataclass(frozen=True)
+class ColumnNaming:
+    """What names a run's columns in saved files besides the signal table: the adaptive state's
+    name, the terms whose separation is checked and the law's diagnostic columns."""
+
+    adaptive_name: str
+    bound_names: tuple[str, ...] = ()
+    diagnostic_columns: tuple[str, ...] = ()
+
+
+COLUMN_NAMES: dict[str, Callable[[Signal, int, ColumnNaming], str]] = {  # by width: column i's name
+    "n": lambda signal, i, naming: f"{signal.name}{i + 1}",
+    "n+1": lambda signal, i, naming: f"{signal.name}_{i}",
+    "m": lambda signal, i, naming: f"{naming.adaptive_name}_{i + 1}",
+    "terms": lambda signal, i, naming: f"{signal.name}_{naming.bound_names[i]}",
+    "diagnostics": lambda signal, i, naming: naming.diagnostic_columns[i],
+}
+
+
+def column_names(signal: Signal, count: int, naming: ColumnNaming) -> tuple[str, ...]:
+    """The names of a signal's ``count`` columns in saved files: ``x1 .. xn``, ``yd_0 .. yd_n``,
+    ``<adaptive name>_1 ..``, ``bound_ratio_<term>``, the law's diagnostics by name; a scalar
+    signal's one column is its name."""
+    if signal.width == "1":
+        return (signal.name,)
+    return tuple(COLUMN_NAMES[signal.width](signal, i, naming) for i in range(count))
+
+
 def needed(names: tuple[str, ...]) -> tuple[str, ...]:
     """The derived signals that ``names`` need, directly or through what they read, in table order."""
     wanted = set(names)

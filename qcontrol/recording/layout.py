@@ -50,8 +50,7 @@ PANELS: dict[str, PanelStyle] = {  # keyed by panel (a series path's parent), in
     "signals/adaptive": PanelStyle("adaptive estimates", "adaptive"),
     "theory/lemma2": PanelStyle("Lemma 2: |e_zi| / L_zi <= 1 at every step (the bound 1: red line)",
                                 "Lemma 2", (0.0, 1.1)),
-    "theory/law": PanelStyle("law diagnostics: gain_period = K T of (44) (> 1: the held input overshoots)",
-                             "Lemma 2"),
+    "theory/law": PanelStyle("law diagnostics", "Lemma 2"),  # titled by the law's own (styles.PLOTS)
     "signals/difference/y": PanelStyle("log10 |y - y_twin|: the main run against its twin (-16: equal to "
                                        "rounding)", "twin difference", (-17.0, 1.0)),
     "signals/difference/u": PanelStyle("log10 |u - u_twin| (-16: equal to rounding)", "twin difference",
@@ -64,8 +63,8 @@ def _style(panel: Panel) -> PanelStyle:
     style = PANELS.get(panel.key)
     if style is None:
         return PanelStyle(panel.origin, panel.origin.rsplit("/", 1)[-1])
-    return PanelStyle(style.title.format(i=panel.index), style.group.format(i=panel.index), style.y_range,
-                      style.height)
+    title = panel.title or style.title.format(i=panel.index)
+    return PanelStyle(title, style.group.format(i=panel.index), style.y_range, style.height)
 
 
 def _order(panel: Panel) -> tuple[int, int, str]:

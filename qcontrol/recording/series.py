@@ -55,11 +55,13 @@ WIDE, THIN = 5.0, 1.5  # line widths (points) of a main run beside its twin, and
 @dataclass(frozen=True)
 class Panel:
     """One plot of the layout: its entity ``origin``, the ``key`` it is styled by (the origin
-    before ``{i}`` is filled in) and the component ``index`` it shows (from 1; 0 for all)."""
+    before ``{i}`` is filled in), the component ``index`` it shows (from 1; 0 for all) and a
+    ``title`` made from the run (empty: the layout's title for the key)."""
 
     origin: str
     key: str
     index: int = 0
+    title: str = ""
 
 
 @dataclass(frozen=True)
@@ -124,9 +126,10 @@ def _names(run: Trajectory, i: int) -> dict[str, str | int]:
     return {"i": i + 1, "a": run.adaptive_name, "d": columns[i] if i < len(columns) else ""}
 
 
-def _panel(template: str, i: int, run: Trajectory) -> Panel:
-    key = template.rsplit("/", 1)[0]
-    return Panel(key.format(**_names(run, i)), key, i + 1 if "{i}" in key else 0)
+def _panel(plot: Plot, i: int, run: Trajectory) -> Panel:
+    key = plot.path.rsplit("/", 1)[0]
+    title = "" if plot.title is None else plot.title(run)
+    return Panel(key.format(**_names(run, i)), key, i + 1 if "{i}" in key else 0, title)
 
 
 def _plots(run: Trajectory, twin_drawn_only: bool):
@@ -150,7 +153,7 @@ def run_series(run: Trajectory, label: str, role: str = "main", suffix: str = ""
         first = shown[0]
         path = plot.path.format(**_names(run, first))
         labels = tuple(plot.label.format(**_names(run, i)) for i in shown)
-        panel = _panel(plot.path, first, run)
+        panel = _panel(plot, first, run)
         values = _columns(signal, shown, plot.per_bound)
         if role == "main":
             colors = tuple(PALETTE[i % len(PALETTE)] if plot.color == "palette" else ROLE_COLORS[plot.color]
@@ -174,7 +177,7 @@ def guide_lines(run: Trajectory) -> list[GuideLine]:
     for _, plot, shown in _plots(run, False):
         if plot.guide is None:
             continue
-        panel = _panel(plot.path, shown[0], run)
+        panel = _panel(plot, shown[0], run)
         if panel.origin not in seen:
             seen.add(panel.origin)
             guide = plot.guide

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -34,6 +35,12 @@ LEMMA2_BOUND = Guide("bound", ("bound 1",), _lemma2_bound)
 HALF_STEP = Guide("band", ("+delta/2", "-delta/2"), _half_step)
 
 
+def law_panel_title(run: Any) -> str:
+    """The title of the law's panel: the diagnostics the run's law declared, each by its caption
+    (the paper's law: ``gain_period = K T of (44) ...``; a user's law: its own names)."""
+    return "law diagnostics: " + "; ".join(d.caption for d in run.law_diagnostics)
+
+
 @dataclass(frozen=True)
 class Plot:
     """Where recordings draw a signal: one series per shown component, at ``path`` with the legend
@@ -47,7 +54,8 @@ class Plot:
     top); ``difference``: the panel where a twin's ``|main - twin|`` of it is drawn; ``guide``: the
     bound drawn as constant lines in the panel; ``color``: "main", "reference", "quantized",
     "applied" or "palette" (one colour per component); ``only_if_clipping``: drawn only for runs
-    whose actuator could clip u (else ``u applied`` is u and is not drawn twice)."""
+    whose actuator could clip u (else ``u applied`` is u and is not drawn twice); ``title``: the
+    title of the series' panel, made from the run (None: the layout's own title for the panel)."""
 
     path: str
     label: str
@@ -58,6 +66,7 @@ class Plot:
     guide: Guide | None = None
     color: str = "main"
     only_if_clipping: bool = False
+    title: Callable[[Any], str] | None = None
 
 
 PLOTS: Mapping[str, tuple[Plot, ...]] = {
@@ -72,5 +81,5 @@ PLOTS: Mapping[str, tuple[Plot, ...]] = {
     "e_z": (Plot("theory/lemma2/ratios", "|e_z{i}| / L_z{i}", per_bound=True, guide=LEMMA2_BOUND,
                  color="palette"),),
     "quantization_error": (Plot("signals/quantization/x{i}/error", "x{i} - q(x{i})", guide=HALF_STEP),),
-    "diagnostics": (Plot("theory/law/{d}", "{d}", color="palette"),),
+    "diagnostics": (Plot("theory/law/{d}", "{d}", color="palette", title=law_panel_title),),
 }
