@@ -57,7 +57,7 @@ class ComparisonLaw(Backstepping):
         :class:`ComparisonLaw`, or of a subclass whose class body defines nothing but a docstring,
         and holds no instance attribute that :meth:`__init__` did not set
         (:func:`~.law.unchanged_from`)."""
-        return unchanged_from(self, ComparisonLaw, self._built_attributes)
+        return unchanged_from(self, ComparisonLaw, vars(self).get("_built_attributes", ()))
 
     def __init__(
         self,

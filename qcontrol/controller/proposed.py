@@ -100,7 +100,7 @@ class PaperLaw(Backstepping):
         holds no instance attribute that :meth:`__init__` did not set (:func:`~.law.unchanged_from`).
         A subclass that defines any method or attribute of its own (``robust_gain``, a helper,
         ``from_context`` adding an attribute) is False and always runs its own Python."""
-        return unchanged_from(self, PaperLaw, self._built_attributes)
+        return unchanged_from(self, PaperLaw, vars(self).get("_built_attributes", ()))
 
     def __init__(
         self,
