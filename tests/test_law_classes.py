@@ -139,3 +139,153 @@ def test_misuse_is_one_line(call, message: str) -> None:
     with pytest.raises(QcontrolInputError, match=None) as caught:
         call()
     assert message in str(caught.value) and "\n" not in str(caught.value)
+
+
+# --------------------------------------------------------------------------------------------
+# One rule for "a compiled form of the built-in law may stand in for this object": the property,
+# which the engine's compiled loop asks (qcontrol.engine.compiled_laws.law_source)
+
+LONG = ["simulation.duration=5.0"]  # 5001 rows: the engine compiles the built-in law's run
+
+
+class DoubledRobustGain(qcontrol.PaperLaw):
+    """Law (44)'s K doubled where it is reported (the diagnostic gain_period)."""
+
+    def robust_gain(self, q, yd, eps_hat):
+        return 2.0 * super().robust_gain(q, yd, eps_hat)
+
+
+class FlippedHeldFactor(qcontrol.PaperLaw):
+    def held_factor(self, gain_period):
+        return -super().held_factor(gain_period)
+
+
+class WithHelper(qcontrol.PaperLaw):
+    def describe(self) -> str:
+        return "law (44)"
+
+
+class NotedInFromContext(qcontrol.PaperLaw):
+    @classmethod
+    def from_context(cls, context):
+        law = super().from_context(context)
+        law.note = "tuned by hand"
+        return law
+
+
+class ComparisonWithHelper(qcontrol.ComparisonLaw):
+    def describe(self) -> str:
+        return "law (46)"
+
+
+class DocumentedOnly(qcontrol.PaperLaw):
+    """Nothing but this docstring: the built-in law."""
+
+
+class DocumentedComparison(qcontrol.ComparisonLaw):
+    """Nothing but this docstring: the built-in comparison law."""
+
+
+OWN = {"doubled-gain": DoubledRobustGain, "flipped-held": FlippedHeldFactor, "with-helper": WithHelper,
+       "noted": NotedInFromContext, "comparison-helper": ComparisonWithHelper}
+SAME = {"documented": DocumentedOnly, "documented-comparison": DocumentedComparison}
+
+
+@pytest.fixture
+def equivalence_kinds(monkeypatch) -> None:
+    import qcontrol.engine.compiled_loop as compiled_loop
+    monkeypatch.delenv("QCONTROL_COMPILE", raising=False)
+    monkeypatch.setattr(compiled_loop, "COLD_MIN_ROWS", compiled_loop.MIN_ROWS)  # numba may not be started
+    for kind, cls in {**OWN, **SAME}.items():
+        extends = "comparison" if issubclass(cls, qcontrol.ComparisonLaw) else "proposed"
+        qcontrol.register_law_class(kind, cls, extends=extends, replace=True)
+
+
+def _closed_loop(kind: str, law=None):
+    """The loop of example 2 over 5 s with ``kind``'s law (or ``law``) and its record."""
+    from qcontrol.assembly import build_controller, build_plant, build_separation, run_spec
+    from qcontrol.engine import ClosedLoop
+    sc = qcontrol.load_scenario("example2", [f"controller.kind=\"{kind}\"", *LONG])
+    law = law or build_controller(sc)
+    loop = ClosedLoop(run_spec(sc, build_plant(sc, "ode"), law, [sc.x0], build_separation(sc), "full"))
+    return law, loop, loop.run()[0]
+
+
+def _signal(record, name: str) -> bytes:
+    return np.asarray(record.signals[name]).tobytes()
+
+
+@pytest.mark.parametrize("kind", list(OWN))
+def test_a_subclass_with_anything_of_its_own_runs_its_own_python(equivalence_kinds, kind: str) -> None:
+    from qcontrol.engine.compiled_laws import law_source
+    law, loop, record = _closed_loop(kind)
+    builtin = "comparison" if kind.startswith("comparison") else "proposed"
+    _, builtin_loop, builtin_record = _closed_loop(builtin)
+    assert builtin_loop.handover is None  # the built-in law's run of the same length is compiled
+    assert law.has_compiled_equivalent is False and law_source(law, 1e-3) is None
+    assert loop.handover == 0  # this one runs in Python from its first row
+    assert _signal(record, "u") == _signal(builtin_record, "u")  # none of these members enters u
+
+
+def test_a_doubled_robust_gain_reports_its_own_gain_period(equivalence_kinds) -> None:
+    builtin, doubled = (qcontrol.run(qcontrol.load_scenario("example2", {"controller.kind": kind,
+                                                                         "simulation.duration": 5.0}),
+                                     backend="ode") for kind in ("proposed", "doubled-gain"))
+    assert doubled.summary["max_gain_period"] == 2.0 * builtin.summary["max_gain_period"] > 0.0
+
+
+def test_the_noted_law_keeps_its_attribute_and_a_helper_is_callable(equivalence_kinds) -> None:
+    noted, _, _ = _closed_loop("noted")
+    assert noted.note == "tuned by hand" and "note" not in noted._built_attributes
+    flipped, _, _ = _closed_loop("flipped-held")
+    assert flipped.held_factor(0.25) == -0.75  # its own held factor, not 1 - K T
+
+
+def test_an_instance_attribute_alone_makes_the_object_not_equivalent(equivalence_kinds) -> None:
+    """A built-in object given an attribute of its own, here a ``control`` that shifts u: the
+    compiled loop would not see it, so it must not stand in."""
+    from qcontrol.assembly import build_controller
+    law = build_controller(qcontrol.load_scenario("example2", LONG))
+    assert law.has_compiled_equivalent
+    paper = law.control
+
+    def shifted_control(reading, yd, state, t=0.0):
+        out = paper(reading, yd, state, t)
+        return out._replace(u=out.u + 1.0)
+    law.control = shifted_control
+    assert not law.has_compiled_equivalent
+    _, loop, shifted = _closed_loop("proposed", law)
+    _, _, builtin = _closed_loop("proposed")
+    assert loop.handover == 0
+    assert np.asarray(shifted.signals["u"])[0] == np.asarray(builtin.signals["u"])[0] + 1.0
+
+
+@pytest.mark.parametrize("kind", list(SAME))
+def test_a_subclass_with_only_a_docstring_is_the_compiled_built_in_law(equivalence_kinds, kind: str) -> None:
+    from qcontrol.engine.compiled_laws import law_source
+    SAME[kind].__annotations__  # noqa: B018 (Python then adds an empty __annotations__ to the class)
+    law, loop, record = _closed_loop(kind)
+    _, _, builtin = _closed_loop("comparison" if "comparison" in kind else "proposed")
+    assert law.has_compiled_equivalent and law_source(law, 1e-3) is not None
+    assert loop.handover is None
+    for name in record.signals:
+        assert _signal(record, name) == _signal(builtin, name), name
+
+
+class OwnAdvancer(qcontrol.PaperLaw):
+    def advancer(self, h):
+        return ("own advancer", h)
+
+
+class ComparisonOwnAdvancer(qcontrol.ComparisonLaw):
+    def advancer(self, h):
+        return ("own advancer", h)
+
+
+@pytest.mark.parametrize(("cls", "extends"), [(OwnAdvancer, "proposed"),
+                                              (ComparisonOwnAdvancer, "comparison")])
+def test_float_advancer_defers_to_an_overridden_advancer(cls, extends: str) -> None:
+    from qcontrol.assembly import build_law
+    qcontrol.register_law_class("own-advancer", cls, extends=extends, replace=True)
+    law = build_law([qcontrol.load_scenario("example2", {"controller.kind": "own-advancer", **SHORT})])
+    assert law.float_advancer(1e-3) == ("own advancer", 1e-3)  # the engine's float path uses it

@@ -19,7 +19,7 @@ COMMANDS = [line.strip() for block in re.findall(r"```bash\n(.*?)```", DOC, re.S
 def test_the_laws_tutorial_runs(tmp_path: Path) -> None:
     for name in ("scenarios", "models"):
         (tmp_path / name).symlink_to(ROOT / name)
-    assert len(PYTHON_BLOCKS) >= 5 and len(COMMANDS) == 6
+    assert len(PYTHON_BLOCKS) >= 5 and len(COMMANDS) == 7
     done = subprocess.run([sys.executable, "-c", "\n".join(PYTHON_BLOCKS)], cwd=tmp_path,
                           capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
@@ -35,6 +35,8 @@ def test_the_laws_tutorial_runs(tmp_path: Path) -> None:
     sweep = (tmp_path / "sweep-laws" / "sweep.csv").read_text()
     assert "integral-bs" in sweep and "comparison" in sweep
     assert (tmp_path / "region-laws" / "region.csv").is_file()
+    table1 = (tmp_path / "reproduce-laws" / "table1.json").read_text()
+    assert '"beyond_the_paper"' in table1 and '"integral-bs"' in table1
     assert "paper-integral [" in done.stdout
     compared = (tmp_path / "laws-cmp" / "laws.json").read_text()
     assert all(kind in compared for kind in ("proposed", "comparison", "paper-integral"))

@@ -48,6 +48,14 @@ def add_reproduce_parser(sub: argparse._SubParsersAction) -> None:
                      help=f"folder holding {', '.join(SCENARIO_FILES)} (default: the shipped ones)")
     rep.add_argument("--workers", type=int, default=None, metavar="N",
                      help="worker processes for the robustness study (default: the cores, at most 4)")
+    rep.add_argument("--law-module", dest="law_modules", action="append", default=[], type=Path,
+                     metavar="FILE", help="a Python file that registers control laws with "
+                     "qcontrol.register_law, run first, e.g. --law-module mylaws.py --law mine (repeatable)")
+    rep.add_argument("--law", dest="laws", action="append", default=[], metavar="KIND",
+                     help="a controller kind (built in, from --law-module or an installed plugin) studied "
+                     "beside the paper's law and the comparison law: its Example 2 runs in table1.json "
+                     "(marked as not from the paper), its runs of both examples in the region and "
+                     "robustness studies (repeatable; each adds about half of those studies' time)")
     rep.add_argument("-q", "--quiet", action="store_true", help="no progress output")
 
 
@@ -70,5 +78,5 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     scenarios = args.scenarios or SCENARIO_DIR
     log = (lambda line: None) if args.quiet else (lambda line: print(line, flush=True))
     reproduce(args.out, args.backend, args.duration, scenarios, log, command=args.command_line,
-              workers=args.workers, quick=args.quick)
+              workers=args.workers, quick=args.quick, laws=args.laws)
     return EXIT_OK

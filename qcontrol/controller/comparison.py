@@ -21,7 +21,7 @@ from ..expr import Expression
 from ..quantizer import QuantizedReading
 from ..schema import Key, KindKeys, Table, number, read_keys, string
 from .backstepping import Advance, BacksteppingLaw, Columns, ControlOutput, output, stack
-from .law import LawContext, LawKind, overrides_any
+from .law import LawContext, LawKind, unchanged_from
 
 
 class ComparisonLaw(BacksteppingLaw):
@@ -53,9 +53,11 @@ class ComparisonLaw(BacksteppingLaw):
 
     @property
     def has_compiled_equivalent(self) -> bool:
-        """True only for this class itself, or a subclass overriding none of the members that
-        compute u and the state (:data:`~.law.CONTROL_MEMBERS`)."""
-        return not overrides_any(self, ComparisonLaw)
+        """True only when a compiled form of law (46) may stand in for this object: it is a
+        :class:`ComparisonLaw`, or of a subclass whose class body defines nothing but a docstring,
+        and holds no instance attribute that :meth:`__init__` did not set
+        (:func:`~.law.unchanged_from`)."""
+        return unchanged_from(self, ComparisonLaw, vars(self).get("_built_attributes", ()))
 
     def __init__(
         self,
@@ -81,6 +83,7 @@ class ComparisonLaw(BacksteppingLaw):
         exprs = (self.psi, *self.phi)
         self._on_arrays = tuple(None if e is None else e.on_columns for e in exprs)
         self._on_floats = tuple(None if e is None else e.on_floats for e in exprs)
+        self._built_attributes = frozenset(vars(self)) | {"_built_attributes"}  # (has_compiled_equivalent)
 
     def initial_state(self, batch: int) -> np.ndarray:
         """``theta_hat(0) = 0``, or the true theta in the known-parameter case."""

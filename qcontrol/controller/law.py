@@ -9,7 +9,7 @@ law is one module with its class and its :class:`LawKind`, plus one :func:`regis
 from __future__ import annotations
 
 import re
-from collections.abc import Callable, Hashable, Mapping, Sequence
+from collections.abc import Callable, Collection, Hashable, Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, Protocol, runtime_checkable
@@ -235,14 +235,28 @@ def law_kind(name: str) -> LawKind:
     return LAW_KINDS[name]
 
 
-# The members through which a law computes its input and advances its state: a law class that
-# overrides none of them relative to a built-in class computes exactly what that class does.
-CONTROL_MEMBERS = ("control", "advancer", "float_advancer", "advance", "initial_state", "robust_term",
-                   "adaptive_target", "adaptive_rate", "bounding_terms", "recursion", "state_size")
+# What every class body holds without defining anything of a law: a docstring, and the names
+# Python itself puts there (an empty ``__annotations__`` too: Python 3.10+ adds one to a class
+# the first time anything reads its annotations).
+CLASS_BOOKKEEPING = frozenset({"__module__", "__doc__", "__qualname__", "__firstlineno__",
+                               "__static_attributes__", "__dict__", "__weakref__"})
 
 
-def overrides_any(law: object, builtin: type, members: Sequence[str] = CONTROL_MEMBERS) -> bool:
-    """True when ``type(law)`` defines one of ``members`` differently from the built-in class
-    ``builtin`` (which it subclasses): then only its Python form computes it."""
-    kind = type(law)
-    return any(getattr(kind, m, None) is not getattr(builtin, m, None) for m in members)
+def defines_anything(cls: type) -> bool:
+    """True when the body of ``cls`` defines something beyond :data:`CLASS_BOOKKEEPING`: a method,
+    a property, a class attribute, an annotation."""
+    own = vars(cls)
+    empty = set() if own.get("__annotations__") else {"__annotations__"}
+    return bool(set(own) - CLASS_BOOKKEEPING - empty)
+
+
+def unchanged_from(law: object, builtin: type, attributes: Collection[str]) -> bool:
+    """True when ``law`` computes exactly what the built-in class ``builtin`` computes, so that the
+    compiled form of the built-in law may stand in for it: ``law`` is a ``builtin``; no class of
+    its type's method resolution order that is not one of ``builtin``'s defines anything
+    (:func:`defines_anything`: whatever it defines may change the numbers, so anything counts);
+    and it holds no instance attribute beyond ``attributes``, the ones ``builtin.__init__`` set."""
+    if not isinstance(law, builtin):
+        return False
+    own = [c for c in type(law).__mro__ if c not in builtin.__mro__ and defines_anything(c)]
+    return not own and set(vars(law)) <= set(attributes)

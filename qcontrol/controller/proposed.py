@@ -33,7 +33,7 @@ from .backstepping import (
     parameter,
     stack,
 )
-from .law import Diagnostic, LawContext, LawKind, overrides_any
+from .law import Diagnostic, LawContext, LawKind, unchanged_from
 
 HOLDS = ("paper", "exact")  # how law (44) is held over a control period (see PaperLaw)
 
@@ -96,10 +96,12 @@ class PaperLaw(BacksteppingLaw):
 
     @property
     def has_compiled_equivalent(self) -> bool:
-        """True only for this class itself, or a subclass that overrides none of the members that
-        compute u and the state (:data:`~.law.CONTROL_MEMBERS`): then a compiled form of law
-        (44)-(45) may stand in for this object. False for every subclass that changes the law."""
-        return not overrides_any(self, PaperLaw)
+        """True only when a compiled form of law (44)-(45) may stand in for this object: it is a
+        :class:`PaperLaw`, or of a subclass whose class body defines nothing but a docstring, and
+        holds no instance attribute that :meth:`__init__` did not set (:func:`~.law.unchanged_from`).
+        A subclass that defines any method or attribute of its own (``robust_gain``, a helper,
+        ``from_context`` adding an attribute) is False and always runs its own Python."""
+        return unchanged_from(self, PaperLaw, vars(self).get("_built_attributes", ()))
 
     def __init__(
         self,
@@ -148,6 +150,7 @@ class PaperLaw(BacksteppingLaw):
         self.r = tuple(r)
         self.state_size = len(self.r)
         self._on_arrays, self._on_floats = self._constants_by_column_kind()
+        self._built_attributes = frozenset(vars(self)) | {"_built_attributes"}  # (has_compiled_equivalent)
 
     def _constants_by_column_kind(self) -> tuple[LawConstants, LawConstants | None]:
         """The constants of the column formulas, computed once: eq. (45)'s decay rate

@@ -11,8 +11,8 @@ are read from the law and kept in the array ``lp`` (one compiled text serves eve
 evaluation (the Python form then takes numpy's answer), the lines ``return 1, k``: the row is not
 written, and the Python loop runs from it.
 
-A law is compiled only when it is one of these classes, or a subclass that changes nothing of
-them (:func:`law_source`); anything else keeps the Python loop.
+A law is compiled only when its built-in class's ``has_compiled_equivalent`` says the compiled form
+may stand in for it (:func:`law_source`); anything else keeps the Python loop.
 """
 
 from __future__ import annotations
@@ -159,16 +159,14 @@ SOURCES: dict[type, Callable[..., LawSource]] = {
 
 
 def law_source(law: BatchLaw, h: float) -> LawSource | None:
-    """The law's compiled form, or None: a law of another class, a subclass that defines anything
-    of its own (a method, a property, a class attribute: it may change the numbers), or
-    per-copy parameters for more than one copy."""
-    cls = type(law)
+    """The law's compiled form, or None: a law of another class, one whose built-in class's
+    ``has_compiled_equivalent`` is False (a subclass that defines anything of its own, an instance
+    attribute the built-in class does not set: it may change the numbers), or per-copy
+    parameters for more than one copy."""
     for base, make in SOURCES.items():
         if isinstance(law, base):
-            own = [c for c in cls.__mro__[: cls.__mro__.index(base)]
-                   if set(vars(c)) - {"__module__", "__doc__", "__qualname__", "__firstlineno__",
-                                      "__static_attributes__", "__dict__", "__weakref__"}]
-            if own or law.copies not in (None, 1):
+            # the built-in class's definition: a subclass's own property is itself a change
+            if not base.has_compiled_equivalent.fget(law) or law.copies not in (None, 1):
                 return None
             return make(law, h)
     return None

@@ -44,7 +44,8 @@ def _edges(values: np.ndarray) -> np.ndarray:
     return np.concatenate([[2 * values[0] - mid[0]], mid, [2 * values[-1] - mid[-1]]])
 
 
-def _panel(ax, m: RegionMap, outcomes: Sequence[str], show_ylabel: bool, show_xlabel: bool) -> None:
+def _panel(ax, m: RegionMap, outcomes: Sequence[str], show_ylabel: bool, show_xlabel: bool,
+           narrow: bool = False) -> None:
     cmap = ListedColormap([OUTCOME_COLORS[o] for o in outcomes])
     norm = BoundaryNorm(np.arange(len(outcomes) + 1) - 0.5, len(outcomes))
     ax.pcolormesh(_edges(m.xs), _edges(m.ys), m.codes, cmap=cmap, norm=norm, shading="flat")
@@ -54,7 +55,7 @@ def _panel(ax, m: RegionMap, outcomes: Sequence[str], show_ylabel: bool, show_xl
     ax.add_patch(Rectangle((-m.box, -m.box), 2 * m.box, 2 * m.box, fill=False, edgecolor="black",
                            linestyle="--", linewidth=1.0))
     ax.plot([m.marker[0]], [m.marker[1]], marker="*", color="black", markersize=10, linestyle="none")
-    ax.set_title(m.title, fontsize=8)
+    ax.set_title(m.title.replace(": ", ":\n", 1) if narrow else m.title, fontsize=8)  # (law: what failed)
     if show_xlabel:
         ax.set_xlabel(m.xlabel, fontsize=8)
     if show_ylabel:
@@ -74,7 +75,7 @@ def fig_region(rows: Sequence[Sequence[RegionMap]], outcomes: Sequence[str], pat
     for i, maps in enumerate(rows):
         for j in range(cols):
             if j < len(maps):
-                _panel(axes[i, j], maps[j], outcomes, j == 0, i == len(rows) - 1)
+                _panel(axes[i, j], maps[j], outcomes, j == 0, i == len(rows) - 1, narrow=cols > 3)
             else:
                 axes[i, j].set_visible(False)
     box = rows[0][0].box

@@ -1,6 +1,6 @@
 """The reproduction's region study: where the paper's law (44) as printed, its exact hold over the
-control period and the comparison law (46) keep the loop bounded, on both examples, at 1 kHz and
-at one faster rate (docs/math.md, 'Sampling the law').
+control period and the comparison law (46) (and any law given with ``--law``) keep the loop
+bounded, on both examples, at 1 kHz and at one faster rate (docs/math.md, 'Sampling the law').
 
 Kept cheap on purpose, so that ``qcontrol reproduce`` stays quick: a coarse grid
 (:data:`RESOLUTION` x :data:`RESOLUTION` starts over the box |x_i(0)| <= 10) and short runs (the
@@ -29,10 +29,13 @@ LAW_NAMES = {"proposed": "paper's law (44)", "proposed:hold=exact": "(44), exact
              "comparison": "comparison (46)"}
 
 
-def region_study(scenarios: Path, duration: float | None, log: Callable[[str], None]) -> dict[str, Any]:
-    """Every example at every rate: a coarse region per law, and each law's run from x(0). Returns
-    what region.json holds (without provenance); the maps themselves are ``regions``."""
-    laws = [parse_law(text) for text in LAWS]
+def region_study(scenarios: Path, duration: float | None, log: Callable[[str], None],
+                 law_texts: Sequence[str] = LAWS) -> dict[str, Any]:
+    """Every example at every rate: a coarse region per law of ``law_texts`` (default: the paper's
+    law, its exact hold and the comparison law; ``KIND`` or ``KIND:KEY=VALUE,...``), and each
+    law's run from x(0). Returns what region.json holds (without provenance); the maps themselves
+    are ``regions``."""
+    laws = [parse_law(text) for text in law_texts]
     grid = RegionGrid((0, 1), (-BOX, -BOX), (BOX, BOX), RESOLUTION)
     rows, regions = [], []
     for name in EXAMPLES:
@@ -47,7 +50,7 @@ def region_study(scenarios: Path, duration: float | None, log: Callable[[str], N
             rows += [_row(region, law, s, dt) for law, s in zip(laws, from_x0, strict=True)]
             log(f"study: region of {name} at T = {dt * 1e3:g} ms: {len(region.points)} starts and "
                 f"{len(laws)} runs from x(0) on the ODE")
-    return {"examples": list(EXAMPLES), "laws": list(LAWS), "resolution": RESOLUTION, "box": BOX,
+    return {"examples": list(EXAMPLES), "laws": list(law_texts), "resolution": RESOLUTION, "box": BOX,
             "rates": [{"control_period": dt, "grid_duration": d} for dt, d in RATES], "rows": rows,
             "regions": regions}
 

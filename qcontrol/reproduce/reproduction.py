@@ -9,13 +9,15 @@ hardware (:mod:`qcontrol.robustness`, MuJoCo, in worker processes). Writes PNG f
 recording per example into the output folder, all put in place together at the end
 (:func:`qcontrol.outputs.staged`): an interrupted or failed reproduction leaves the folder's
 previous files as they were, never a mix of old and new. Parameters come from the paper's Section 4
-(docs/math.md, 'The paper's examples'); nothing is fitted to Table 1.
+(docs/math.md, 'The paper's examples'); nothing is fitted to Table 1. Laws of one's own (``laws``,
+``--law KIND``) join Table 1's json as entries not from the paper, and the region and robustness
+studies, beside the two built-in laws.
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -25,7 +27,9 @@ from .. import plots
 from ..api import observer_for, recording_for
 from ..assembly import run_scenario
 from ..controller import lemma2_L
+from ..controller.law import KIND_ALIASES, LAW_KINDS
 from ..engine import Trajectory
+from ..errors import QcontrolInputError
 from ..metrics import backend_deviation, run_summary
 from ..outputs import check_output_dir, prepare_output_dir, staged, write_json, write_text
 from ..plants import BACKENDS
@@ -34,10 +38,11 @@ from ..scenario import Scenario, load_scenario
 from ..scenario.resolve import scenario_provenance, scenarios_provenance
 from ..summary import Summary
 from ..sweep import sweep_summaries
+from .region_study import LAWS as REGION_LAWS
 from .region_study import region_record, region_study, write_region_study
-from .report import PAPER_TABLE1, ReportFacts, report_markdown, table1, table1_markdown
+from .report import PAPER_TABLE1, ReportFacts, beyond_the_paper, report_markdown, table1, table1_markdown
 from .robustness_figures import fig_margins, fig_robustness
-from .robustness_study import EXAMPLES, default_workers, robustness_study
+from .robustness_study import EXAMPLES, LAWS, default_workers, robustness_study, study_law
 
 SCENARIO_DIR = shipped_dir("scenarios")
 KAPPA_MARGINS = (0.05, 0.1, 0.2, 0.3, 0.5, 0.75, 1.1, 1.5, 2.0)
@@ -48,6 +53,7 @@ PLANT_VARIANTS = (
     ("rigid pendulum", "example2-rigid", ()),
 )
 COMPARISON = ("controller.kind=comparison",)
+BUILT_IN_LAWS = ("proposed", "comparison")  # in every study; --law adds others beside them
 ROBUSTNESS_SCENARIOS = tuple(name for pair in EXAMPLES for name in pair)
 
 
@@ -72,6 +78,7 @@ class Reproduction:
     scenarios: Path = SCENARIO_DIR
     log: Callable[[str], None] = print
     command: str = ""
+    laws: tuple[str, ...] = ()  # controller kinds studied beside the built-in laws (--law)
     runs: list[Run] = field(default_factory=list)
     started: float = field(default_factory=time.perf_counter)
     study_runs: int = 0
@@ -126,18 +133,24 @@ def reproduce(
     command: str | None = None,
     workers: int | None = None,
     quick: bool = False,
+    laws: Sequence[str] = (),
 ) -> dict:
     """Run the whole reproduction into ``out``; returns Table 1 as written to ``table1.json``.
     ``command`` is what the outputs' provenance names as the command (default: this call);
     ``workers``: processes for the robustness study (default: the machine's cores, at most 4);
     ``quick``: a first look: ``QUICK_DURATION`` unless ``duration`` is given, and no robustness study
-    (its 248 MuJoCo runs are most of the time). Every scenario it uses is validated before the
-    folder is made: bad input creates nothing."""
+    (its 248 MuJoCo runs are most of the time). ``laws``: registered controller kinds (from a law
+    module, ``--law KIND``) that join the studies beside the paper's law and the comparison law:
+    Example 2's Table 1 runs (as entries marked as not from the paper), the region study and the
+    robustness study. Every scenario it uses is validated before the folder is made: bad input
+    creates nothing."""
+    laws = study_kinds(laws)
     if quick and duration is None:
         duration = QUICK_DURATION
     command = command or (f"qcontrol.reproduce.reproduce({str(out)!r}, backend={backend!r}, "
                           f"duration={duration!r})")
-    rep = Reproduction(check_output_dir(out), backend, duration, Path(scenarios), log, command=command)
+    rep = Reproduction(check_output_dir(out), backend, duration, Path(scenarios), log, command=command,
+                       laws=laws)
     _validate(rep)
     o = prepare_output_dir(out)
     with staged():  # every file is put in place at the end, together: the folder is never mixed
@@ -163,20 +176,23 @@ def _write_all(rep: Reproduction, o: Path, command: str, workers: int | None, qu
     base, base_twin = rep.twins("example 2 comparison", rep.scenario("example2", COMPARISON))
     _example2_figures(o, ex2, ex2_twin, base)
     _record(o / "example2.rrd", ex2, {"ode": ex2_twin, "comparison": base}, command)
+    others = {kind: rep.twins(f"example 2 {kind}", rep.scenario("example2", study_law(kind)[1]))
+              for kind in rep.laws}
 
-    table = _table1(o, backend, ex2, ex2_twin, base, base_twin, command)
+    table = _table1(o, backend, ex2, ex2_twin, base, base_twin, command, others)
 
     studies = _studies(rep)
     deviations = {
         name: backend_deviation(a.traj, b.traj)
         for name, a, b in (("example1", ex1, ex1_twin), ("example2", ex2, ex2_twin),
-                           ("example2 comparison", base, base_twin))
+                           ("example2 comparison", base, base_twin),
+                           *((f"example2 {kind}", *runs) for kind, runs in others.items()))
         if b is not None
     }
     studied = {name: rep.scenario(name) for name in ("example2", "example2-rigid")}
     provenance = scenarios_provenance(studied, command)
     write_json(o / "studies.json", _studies_json(studies) | {"provenance": provenance})
-    region = None if quick else region_study(rep.scenarios, rep.duration, rep.log)
+    region = None if quick else region_study(rep.scenarios, rep.duration, rep.log, (*REGION_LAWS, *rep.laws))
     if region is not None:
         write_region_study(region, o / "study_region.png")
         examples = {name: rep.scenario(name) for name in ("example1", "example2")}
@@ -188,13 +204,23 @@ def _write_all(rep: Reproduction, o: Path, command: str, workers: int | None, qu
 
 
 def _table1(o: Path, backend: str, ex2: Run, ex2_twin: Run | None, base: Run, base_twin: Run | None,
-            command: str) -> dict:
-    """Table 1 from Example 2's runs (both methods, both backends): table1.json, .md and .png."""
+            command: str, others: Mapping[str, tuple[Run, Run | None]]) -> dict:
+    """Table 1 from Example 2's runs (both methods, both backends): table1.json, .md and .png.
+    ``others``: the runs of the laws given with ``--law``, by kind, added to the json and the
+    Markdown as entries not from the paper (:func:`~.report.beyond_the_paper`); table1.png stays
+    the paper's two methods."""
     ours = {backend: {"proposed": ex2.summary.error_rate, "comparison": base.summary.error_rate}}
     if ex2_twin is not None and base_twin is not None:
         ours["ode"] = {"proposed": ex2_twin.summary.error_rate, "comparison": base_twin.summary.error_rate}
-    table = table1(ours) | {"provenance": scenarios_provenance(
-        {"proposed": ex2.scenario, "comparison": base.scenario}, command)}
+    table = table1(ours)
+    if others:
+        extra = {backend: {kind: main.summary.error_rate for kind, (main, _) in others.items()}}
+        if "ode" in ours and backend != "ode":  # the ODE twins
+            extra["ode"] = {kind: twin.summary.error_rate for kind, (_, twin) in others.items()}
+        table |= beyond_the_paper(extra)
+    table |= {"provenance": scenarios_provenance(
+        {"proposed": ex2.scenario, "comparison": base.scenario,
+         **{kind: runs[0].scenario for kind, runs in others.items()}}, command)}
     write_json(o / "table1.json", table)
     write_text(o / "table1.md", table1_markdown(table))
     names = {"ode": "ODE", "mujoco": "MuJoCo"}
@@ -208,7 +234,8 @@ def _table1(o: Path, backend: str, ex2: Run, ex2_twin: Run | None, base: Run, ba
 
 def _robustness(o: Path, rep: Reproduction, workers: int | None) -> dict:
     """The robustness study on realistic hardware: robustness.json and its two figures."""
-    robustness = robustness_study(rep.scenarios, rep.duration, workers or default_workers(), rep.log)
+    robustness = robustness_study(rep.scenarios, rep.duration, workers or default_workers(), rep.log,
+                                  (*LAWS, *map(study_law, rep.laws)))
     hardware = {name: rep.scenario(name) for name in ROBUSTNESS_SCENARIOS}
     provenance = scenarios_provenance(hardware, rep.command)
     write_json(o / "robustness.json", robustness | {"provenance": provenance})
@@ -229,6 +256,27 @@ def _validate(rep: Reproduction) -> None:
     for name in ROBUSTNESS_SCENARIOS:  # the robustness study's plants, with their MuJoCo models
         sc = rep.scenario(name)
         BACKENDS["mujoco"].require(sc.backends.get("mujoco"), sc.source)
+    for kind in rep.laws:  # each law given with --law on every scenario it runs on
+        for name in ("example1", "example2", *ROBUSTNESS_SCENARIOS):
+            rep.scenario(name, study_law(kind)[1])
+
+
+def study_kinds(kinds: Sequence[str]) -> tuple[str, ...]:
+    """``--law`` kinds checked: registered, distinct, and not one of the built-in laws every study
+    has already."""
+    if isinstance(kinds, str):
+        raise QcontrolInputError(f"reproduce: laws must be a list of controller kinds, got {kinds!r}")
+    known = ", ".join(LAW_KINDS)
+    for i, kind in enumerate(kinds):
+        if kind not in LAW_KINDS and kind not in KIND_ALIASES:
+            raise QcontrolInputError(f"--law {kind!r}: unknown controller kind; known kinds: {known} "
+                                     "(a kind of your own: load its file with --law-module FILE)")
+        if KIND_ALIASES.get(kind, kind) in BUILT_IN_LAWS:
+            raise QcontrolInputError(f"--law {kind}: the paper's law and the comparison law are in every "
+                                     f"study already; give another kind (known kinds: {known})")
+        if kind in kinds[:i]:
+            raise QcontrolInputError(f"--law {kind}: given twice; give each kind once")
+    return tuple(kinds)
 
 
 def _example1_figures(o: Path, run: Run, twin: Run | None) -> None:

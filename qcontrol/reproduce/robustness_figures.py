@@ -19,6 +19,11 @@ EXAMPLE_TITLES = {"example2": "Example 2, the arm", "example1": "Example 1, the 
 Z_FLOOR = 1e-3  # the log axis of max |z1| starts here
 
 
+def _law_color(law: str, index: int) -> str:
+    """The built-in laws' colours; a law given with ``--law`` takes the next colour of the cycle."""
+    return LAW_COLORS.get(law, COLORS[index % len(COLORS)])
+
+
 def _value(cell: Mapping, metric: str) -> tuple[float, float, float]:
     """(median, min, max) of a metric of an aggregated row (NaN when there is none)."""
     spread = cell["error_rate"][E] if metric == "E" else cell[metric]
@@ -42,8 +47,8 @@ def _bars(ax: Axes, labels: Sequence[str], cells: Mapping[str, Sequence[Mapping]
             median = np.maximum(median, Z_FLOOR)
         low = np.clip(median - values[:, 1], 0, None)
         high = np.clip(values[:, 2] - median, 0, None)
-        note = " (median; whisker: range over the seeds)" if j and seeded else ""
-        ax.barh(offset, np.nan_to_num(median, nan=0.0), height=height * 0.9, color=LAW_COLORS[law],
+        note = " (median; whisker: range over the seeds)" if j == len(cells) - 1 > 0 and seeded else ""
+        ax.barh(offset, np.nan_to_num(median, nan=0.0), height=height * 0.9, color=_law_color(law, j),
                 xerr=[np.nan_to_num(low), np.nan_to_num(high)], error_kw={"elinewidth": 1, "capsize": 2},
                 label=f"{law} law on MuJoCo{note}")
         if twins is not None:
@@ -94,7 +99,9 @@ def fig_robustness(study: Mapping, path: str | os.PathLike) -> Path:
 
 def _figure_legend(fig, ax: Axes) -> None:
     handles, names = ax.get_legend_handles_labels()
-    fig.legend(handles, names, loc="outside lower center", ncols=len(names), fontsize=7, frameon=False)
+    # three a row: the built-in laws and the ODE twin; a law given with --law starts a second row
+    fig.legend(handles, names, loc="outside lower center", ncols=min(len(names), 3), fontsize=7,
+               frameon=False)
 
 
 def fig_margins(study: Mapping, path: str | os.PathLike) -> Path:

@@ -1,8 +1,8 @@
 """The robustness study of ``qcontrol reproduce``: both examples on realistic hardware.
 
 For Example 2 (the arm, ``example2-arm.toml``) and Example 1 (the cart, ``example1-cart.toml``),
-with the proposed law (44)-(45) and the comparison law (46), on MuJoCo with the ODE twin's numbers
-beside:
+with the proposed law (44)-(45) and the comparison law (46) (and any law given with ``--law``:
+``laws``), on MuJoCo with the ODE twin's numbers beside:
 
 * **each imperfection alone** on the paper's ideal scenario, with the realistic scenario's value
   (each number has one source: the realistic file), the x2 differenced from the encoder, and
@@ -36,7 +36,8 @@ from ..sweep.runs import chunks_of
 from ..workers import worker_count, worker_pool
 
 SEEDS = tuple(range(1, 21))  # sensor-noise seeds of every row with noise on
-LAWS = (("proposed", ()), ("comparison", ("controller.kind=comparison",)))
+StudyLaw = tuple[str, tuple[str, ...]]  # a law of the study: its name and the overrides that select it
+LAWS: tuple[StudyLaw, ...] = (("proposed", ()), ("comparison", ("controller.kind=comparison",)))
 EXAMPLES = (("example2", "example2-arm"), ("example1", "example1-cart"))  # (ideal, realistic)
 NUMBERS = ("max_abs_z1_last_half", "max_abs_u_applied", "saturated_fraction", "lemma2_max_ratio")
 RECOVERY_BAND = 0.1  # |z1| < 0.1: Table 1's smallest omega
@@ -196,9 +197,15 @@ class Plan:
         return task
 
 
+def study_law(kind: str) -> StudyLaw:
+    """A registered controller kind as a law of the study (one given with ``--law``)."""
+    return kind, (f"controller.kind={kind!r}",)
+
+
 def robustness_study(scenarios: Path, duration: float | None, workers: int,
-                     log: Callable[[str], None] = print) -> dict:
-    """Run the whole study; the object written to ``robustness.json``."""
+                     log: Callable[[str], None] = print, laws: Sequence[StudyLaw] = LAWS) -> dict:
+    """Run the whole study for each of ``laws`` (default: the paper's law and the comparison law);
+    the object written to ``robustness.json``."""
     extra = (f"simulation.duration={duration!r}",) if duration is not None else ()
     plan = Plan([], {})
     rows, margins, disturbances = [], [], []
@@ -208,7 +215,7 @@ def robustness_study(scenarios: Path, duration: float | None, workers: int,
         noisy_real = "sensor_noise" in real.backends["mujoco"].realism
         cases = [("ideal", ideal_path, ()), *((label, ideal_path, o) for label, o in imperfections(real)),
                  ("all together", real_path, ("disturbance=[]",))]
-        for law, law_overrides in LAWS:
+        for law, law_overrides in laws:
             for label, path, overrides in cases:
                 noisy = label == "sensor noise" or (label == "all together" and noisy_real)
                 sets = _seeded((*overrides, *law_overrides, *extra), noisy)
@@ -226,7 +233,7 @@ def robustness_study(scenarios: Path, duration: float | None, workers: int,
                                                                  (*overrides, *law_overrides, *extra),
                                                                  "mujoco"))]})
         if ideal == "example2":
-            disturbances += _disturbance_cases(ideal_path, real_path, real.simulation.duration, extra)
+            disturbances += _disturbance_cases(ideal_path, real_path, real.simulation.duration, extra, laws)
     workers = worker_count(workers, len(plan.tasks))
     log(f"study: robustness: {len(plan.tasks)} runs, {len(disturbances)} disturbance cases, "
         f"on {workers} worker(s)")
@@ -245,16 +252,16 @@ def robustness_study(scenarios: Path, duration: float | None, workers: int,
             "disturbances": disturbances}
 
 
-def _disturbance_cases(ideal_path: str, real_path: str, duration: float,
-                       extra: tuple[str, ...]) -> list[dict]:
-    """An impulse and a load step at half the run on the ideal and the realistic arm, both laws,
+def _disturbance_cases(ideal_path: str, real_path: str, duration: float, extra: tuple[str, ...],
+                       laws: Sequence[StudyLaw]) -> list[dict]:
+    """An impulse and a load step at half the run on the ideal and the realistic arm, each law,
     on MuJoCo and on the ODE twin."""
     start = duration / 2.0
     cases = []
     for plant, path in (("ideal arm", ideal_path), ("realistic arm", real_path)):
         delta = load_scenario(path, list(extra)).controller.delta
         for kind, template in DISTURBANCES:
-            for law, law_overrides in LAWS:
+            for law, law_overrides in laws:
                 for backend in ("mujoco", "ode"):
                     overrides = (template.format(t=start), *law_overrides, *extra)
                     cases.append({"plant": plant, "scenario": Path(path).stem, "disturbance": kind,
