@@ -108,7 +108,8 @@ class ClassKind:
         if not isinstance(law, BacksteppingLaw):
             raise QcontrolInputError(f"{self.cls.__name__}.from_context must return the law, got "
                                      f"{type(law).__name__}")
-        law.diagnostics = checked_class_diagnostics(law.diagnostics, self.kind)
+        if law.diagnostics != ():  # none declared: nothing to check (and no attribute of its own added)
+            law.diagnostics = checked_class_diagnostics(law.diagnostics, self.kind)
         return law
 
     @staticmethod
