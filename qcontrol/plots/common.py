@@ -91,15 +91,19 @@ def fit_titles(fig: Figure, most_lines: int = 4) -> None:
     """Wrap each title of ``fig`` (its axes' and its suptitle) that would run past the figure's
     edges onto as few lines as keep it inside (at most ``most_lines``); constrained layout then
     makes room for the extra lines. Only the titles' text changes, never what is drawn."""
-    fig.draw_without_rendering()  # lays the figure out: where each title would be drawn
     renderer = fig.canvas.get_renderer()
     suptitle = fig._suptitle  # matplotlib keeps the Text of fig.suptitle here (None without one)
-    titles = [ax.title for ax in fig.axes] + ([] if suptitle is None else [suptitle])
+    titles = [ax.title for ax in fig.axes if ax.title.get_text()] + ([] if suptitle is None else [suptitle])
+    width, margin = fig.bbox.width, 0.1 * fig.bbox.width  # the layout moves an axes by less than margin
+    if all(margin <= box.x0 and box.x1 <= width - margin for box in
+           (title.get_window_extent(renderer) for title in titles)):
+        return  # every title well inside: the figure is drawn exactly as without this check
+    fig.draw_without_rendering()  # lays the figure out: where each title would be drawn
     for title in titles:
         text = title.get_text()
         for lines in range(2, most_lines + 1):
             box = title.get_window_extent(renderer)
-            if box.x0 >= 0 and box.x1 <= fig.bbox.width:
+            if box.x0 >= 0 and box.x1 <= width:
                 break
             title.set_text(wrap_title(text, lines))
 
