@@ -177,6 +177,23 @@ def test_no_nested_functions_in_the_hot_packages() -> None:
     assert not nested, nested
 
 
+def test_no_lambdas_at_all_in_the_hot_packages() -> None:
+    """Not even at module or class level: a getter or a default is a named function or class."""
+    found = [f"{path.relative_to(ROOT)}:{node.lineno}" for package in HOT_PACKAGES
+             for path in sorted((PACKAGE / package).rglob("*.py"))
+             for node in ast.walk(ast.parse(path.read_text())) if isinstance(node, ast.Lambda)]
+    assert not found, found
+
+
+def test_the_signal_attributes_read_the_record_tables(short_example2) -> None:
+    full = run_scenario(short_example2, "ode")
+    metrics = run_scenario(short_example2, "ode", record="metrics")
+    assert all(getattr(full, s.name) is full.signals[s.name] for s in SIGNALS)
+    assert all(getattr(metrics, r.name) is metrics.values[r.name] for r in REDUCTIONS)
+    with pytest.raises(AttributeError):
+        full.x = np.zeros(3)  # read-only, as before
+
+
 def _members(protocol: type) -> set[str]:
     own = set(vars(protocol)) | set(getattr(protocol, "__annotations__", {}))
     return {m for m in own if not m.startswith("_") or m in ("__enter__", "__exit__", "__call__")}
