@@ -20,6 +20,7 @@ from qcontrol.assembly import build_plant, run_scenario
 from qcontrol.controller import BatchLaw, FloatColumns
 from qcontrol.controller.user import Law
 from qcontrol.engine import SIGNALS, ClosedLoop
+from qcontrol.engine.compiled_loop import Schedule
 from qcontrol.engine.signals import DERIVED, RECORDED, REDUCTIONS, needed
 from qcontrol.errors import QcontrolInputError
 from qcontrol.plants import (
@@ -33,6 +34,8 @@ from qcontrol.plants import (
     Plant,
 )
 from qcontrol.quantizer import Quantizer
+from qcontrol.recording.streamer import StreamTarget
+from qcontrol.reference import Reference
 from qcontrol.scenario import load_scenario
 
 # Each layer may import only from the layers before it (docs/architecture.md, "Modules").
@@ -212,6 +215,10 @@ def _members(protocol: type) -> set[str]:
                 "constants", "diagnostics"}),
     (FloatColumns, {"float_advancer"}),
     (Law, {"state_size", "initial_state", "control", "state_rate"}),
+    (Schedule, {"grid", "record", "reference", "next_event", "rare_work"}),
+    (StreamTarget, {"main_series", "main_label", "stream", "flush", "see_motion", "update_layout",
+                    "add_panels"}),
+    (Reference, {"derivatives"}),
 ])
 def test_the_protocols_stay_narrow(protocol: type, members: set[str]) -> None:
     assert _members(protocol) == members
