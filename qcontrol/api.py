@@ -17,7 +17,7 @@ import io
 import itertools
 import json
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -32,7 +32,7 @@ from .controller import lemma2_bounds as _lemma2_bounds
 from .engine import SIGNALS, ProgressCallback, RunMetrics, Trajectory
 from .engine.signals import column_names
 from .errors import QcontrolInputError
-from .metrics import backend_deviation, summary
+from .metrics import backend_deviation, run_summary, summary
 from .outputs import check_output_file, clean, prepare_output_dir, write_file, write_text
 from .scenario import Scenario
 from .scenario.resolve import scenario_provenance
@@ -108,14 +108,14 @@ class Result:
         from .plots import fig_run  # matplotlib: imported only when a figure is drawn
 
         path = check_output_file(path, "plot")
-        s = self.summary
-        notes = [f"{s['scenario']} on {s['backend']}, {s['duration']:g} s, dt = {s['dt']:g} s"]
-        notes += [f"E({k}) = {v:.4f}" for k, v in s["error_rate"].items()]
-        notes += [f"max |z1|, last half = {s['max_abs_z1_last_half']:.4g}", f"max |u| = {s['max_abs_u']:.4g}",
-                  f"Lemma 2 ratio = {s['lemma2_max_ratio']:.6f}"]
-        if s["diverged"]:
-            notes.append(f"diverged at t = {s['diverged_time']:g} s")
-        return fig_run(self.trajectory, path, f"{s['scenario']} ({s['backend']})", notes=notes)
+        s = self.typed_summary
+        notes = [f"{s.scenario} on {s.backend}, {s.duration:g} s, dt = {s.dt:g} s"]
+        notes += [f"E({k}) = {v:.4f}" for k, v in s.error_rate.items()]
+        notes += [f"max |z1|, last half = {s.max_abs_z1_last_half:.4g}", f"max |u| = {s.max_abs_u:.4g}",
+                  f"Lemma 2 ratio = {s.lemma2_max_ratio:.6f}"]
+        if s.diverged:
+            notes.append(f"diverged at t = {s.diverged_time:g} s")
+        return fig_run(self.trajectory, path, f"{s.scenario} ({s.backend})", notes=notes)
 
 
 for _signal in SIGNALS:
@@ -188,9 +188,9 @@ def run(scenario: Scenario, backend: str | None = None, *, rrd: str | Path | Non
                             record="full" if camera_view and rec is not None else record, progress=progress)
         if camera_view and rec is not None:
             _log_camera_view(rec, scenario, traj)
-    result = summary(traj, scenario.name, backend) | {"provenance": provenance}
-    result["physics_warnings"] = list(plant.warnings)
-    return Result(result, scenario, backend, traj)
+    result = replace(run_summary(traj, scenario.name, backend), provenance=provenance,
+                     physics_warnings=tuple(plant.warnings))
+    return Result(result.to_json(), scenario, backend, traj)
 
 
 @dataclass(frozen=True)

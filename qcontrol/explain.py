@@ -19,22 +19,24 @@ from .paper import OMEGA_KEYS, PAPER_TABLE1, PAPER_TABLE1_ROWS
 from .resources import resolve_file, shipped_scenarios
 from .scenario import Scenario
 from .scenario.load import plain_data
+from .summary import Summary
 
 README_SECTION = "README.md, section 'Reproducing the paper'"
+GAIN_PERIOD_DIAGNOSTIC = "max_gain_period"  # the summary's key of the paper's law's K T monitor
 GAIN_PERIOD_LIMIT = 1.0  # K T above this: the held input overshoots the continuous-time decay
 SAMPLED_WARNING = ("the sampled loop is outside the range where it behaves like the paper's "
                    "continuous-time law")
 
 
-MONITORED_DIAGNOSTICS = ("max_gain_period",)  # the law diagnostics with lines of their own (below)
+MONITORED_DIAGNOSTICS = (GAIN_PERIOD_DIAGNOSTIC,)  # the law diagnostics with lines of their own (below)
 
 
-def gain_period_lines(s: Mapping) -> list[str]:
-    """The gain-period monitor of a law that declares one (``max_gain_period``): its value, and a
-    warning once K T > 1. Nothing for a law without it."""
-    if "max_gain_period" not in s:
+def gain_period_lines(s: Summary) -> list[str]:
+    """The gain-period monitor of a law that declares one (its diagnostic ``max_gain_period``): its
+    value, and a warning once K T > 1. Nothing for a law without it."""
+    if GAIN_PERIOD_DIAGNOSTIC not in s.law_diagnostics:
         return []
-    value = s["max_gain_period"]
+    value = s.law_diagnostics[GAIN_PERIOD_DIAGNOSTIC]
     shown = "n/a" if value is None else f"{value:.4g}"
     lines = [f"  sampled loop: max K T = {shown} (the robust gain K of law (44) times the control period T)"]
     if value is not None and value > GAIN_PERIOD_LIMIT:
@@ -42,11 +44,11 @@ def gain_period_lines(s: Mapping) -> list[str]:
     return lines
 
 
-def divergence_lines(s: Mapping, sc: Scenario) -> list[str]:
+def divergence_lines(s: Summary, sc: Scenario) -> list[str]:
     """Two lines for a diverged run: when and why it stopped, and what usually helps."""
-    lines = [f"  DIVERGED: stopped at t = {s['diverged_time']:g} s of {sc.simulation.duration:g} s: "
-             f"{s['divergence_reason']}"]
-    if s["divergence_reason"].endswith(DOMAIN_ERROR):  # a term's domain, which no step size fixes
+    lines = [f"  DIVERGED: stopped at t = {s.diverged_time:g} s of {sc.simulation.duration:g} s: "
+             f"{s.divergence_reason}"]
+    if s.divergence_reason.endswith(DOMAIN_ERROR):  # a term's domain, which no step size fixes
         return lines
     helps = ["a smaller --dt or simulation.control_period"]
     hint = law_kind(sc.controller.kind).divergence_hint
@@ -118,7 +120,7 @@ def _shown(value: Any) -> str:
     return value.name if isinstance(value, Path) else repr(value)
 
 
-def paper_line(s: Mapping, sc: Scenario) -> str | None:
+def paper_line(sc: Scenario) -> str | None:
     """One line with what the paper reports for this scenario, or None for a scenario that does
     not reproduce one of the paper's examples. A run that leaves the paper's setting (another
     delta, reference, horizon, sign of psi, ...) gets no paper numbers but what differs."""

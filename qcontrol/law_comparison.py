@@ -16,7 +16,7 @@ from .errors import QcontrolInputError
 from .metrics import summary
 from .scenario import Scenario
 from .scenario.resolve import scenario_provenance
-from .sweep.table import RUN_METRICS
+from .sweep.table import metric_row
 
 TABLE_METRICS = ("max_abs_z1_last_half", "max_abs_u", "lemma2_max_ratio", "diverged")
 
@@ -66,6 +66,5 @@ def compare_laws(scenario: Scenario, kinds: Sequence[str], *, backend: str | Non
             observer = None if rec is None else observer_for(rec, sc, kind, main)
             traj = run_scenario(sc, backend, observer=observer)
             runs[kind] = Result(summary(traj, sc.name, backend), sc, backend, traj)
-    table = [{"kind": k, **{f"error_rate_{w}": v for w, v in r.summary["error_rate"].items()},
-              **{m: r.summary[m] for m in RUN_METRICS}} for k, r in runs.items()]
+    table = [{"kind": k} | metric_row(r.typed_summary) for k, r in runs.items()]
     return LawComparison(runs, table, provenance)

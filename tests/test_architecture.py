@@ -18,9 +18,10 @@ from conftest import EX2, PACKAGE, ROOT
 
 from qcontrol.assembly import build_plant, run_scenario
 from qcontrol.controller import BatchLaw, FloatColumns
-from qcontrol.controller.user import Law
+from qcontrol.controller.user import Law, SteppedLaw
 from qcontrol.controller.user_diagnostics import LawDiagnostics
 from qcontrol.engine import SIGNALS, ClosedLoop
+from qcontrol.engine.compiled_loop import Schedule
 from qcontrol.engine.signals import DERIVED, RECORDED, REDUCTIONS, needed
 from qcontrol.errors import QcontrolInputError
 from qcontrol.plants import (
@@ -34,6 +35,8 @@ from qcontrol.plants import (
     Plant,
 )
 from qcontrol.quantizer import Quantizer
+from qcontrol.recording.streamer import StreamTarget
+from qcontrol.reference import Reference
 from qcontrol.scenario import load_scenario
 
 # Each layer may import only from the layers before it (docs/architecture.md, "Modules").
@@ -178,6 +181,23 @@ def test_no_nested_functions_in_the_hot_packages() -> None:
     assert not nested, nested
 
 
+def test_no_lambdas_at_all_in_the_hot_packages() -> None:
+    """Not even at module or class level: a getter or a default is a named function or class."""
+    found = [f"{path.relative_to(ROOT)}:{node.lineno}" for package in HOT_PACKAGES
+             for path in sorted((PACKAGE / package).rglob("*.py"))
+             for node in ast.walk(ast.parse(path.read_text())) if isinstance(node, ast.Lambda)]
+    assert not found, found
+
+
+def test_the_signal_attributes_read_the_record_tables(short_example2) -> None:
+    full = run_scenario(short_example2, "ode")
+    metrics = run_scenario(short_example2, "ode", record="metrics")
+    assert all(getattr(full, s.name) is full.signals[s.name] for s in SIGNALS)
+    assert all(getattr(metrics, r.name) is metrics.values[r.name] for r in REDUCTIONS)
+    with pytest.raises(AttributeError):
+        full.x = np.zeros(3)  # read-only, as before
+
+
 def _members(protocol: type) -> set[str]:
     own = set(vars(protocol)) | set(getattr(protocol, "__annotations__", {}))
     return {m for m in own if not m.startswith("_") or m in ("__enter__", "__exit__", "__call__")}
@@ -197,6 +217,11 @@ def _members(protocol: type) -> set[str]:
     (FloatColumns, {"float_advancer"}),
     (Law, {"state_size", "initial_state", "control", "state_rate"}),
     (LawDiagnostics, {"diagnostics"}),
+    (Schedule, {"grid", "record", "reference", "next_event", "rare_work"}),
+    (StreamTarget, {"main_series", "main_label", "stream", "flush", "see_motion", "update_layout",
+                    "add_panels"}),
+    (Reference, {"derivatives"}),
+    (SteppedLaw, {"state_size", "initial_state", "control", "advance"}),
 ])
 def test_the_protocols_stay_narrow(protocol: type, members: set[str]) -> None:
     assert _members(protocol) == members

@@ -215,3 +215,35 @@ def test_no_pyplot_state_is_touched(runs, tmp_path):
         import matplotlib.pyplot as plt
 
         assert plt.get_fignums() == []
+
+
+@pytest.mark.parametrize("number", sorted(P.PAPER_TITLES))
+def test_every_paper_title_lies_inside_its_figure(number: int) -> None:
+    """Figs. 5 and 6's captions are wider than the figure: they are wrapped, word for word, never
+    inside a formula; the short ones stay on one line."""
+    from qcontrol.plots.common import fit_titles, new_figure
+
+    fig, axes = new_figure()
+    axes[0, 0].set_ylabel("y, $y_d$ [rad]")
+    title = axes[0, 0].set_title(P.PAPER_TITLES[number])
+    fit_titles(fig)
+    fig.draw_without_rendering()
+    box = title.get_window_extent(fig.canvas.get_renderer())
+    assert 0 <= box.x0 and box.x1 <= fig.bbox.width and box.y1 <= fig.bbox.height
+    text = title.get_text()
+    assert text.replace("\n", " ") == P.PAPER_TITLES[number]
+    assert all(line.count("$") % 2 == 0 for line in text.split("\n"))
+    assert ("\n" in text) == (number in (5, 6))
+
+
+def test_a_long_suptitle_is_wrapped_inside_a_grid_of_axes() -> None:
+    from qcontrol.plots.common import fit_titles, new_figure
+
+    fig, _ = new_figure(2, 2)
+    long = " ".join(["a long title about $|z_1| \\leq \\omega$ and the rest"] * 4)
+    sup = fig.suptitle(long)
+    fit_titles(fig)
+    fig.draw_without_rendering()
+    box = sup.get_window_extent(fig.canvas.get_renderer())
+    assert 0 <= box.x0 and box.x1 <= fig.bbox.width
+    assert sup.get_text().count("\n") >= 1 and sup.get_text().replace("\n", " ") == long

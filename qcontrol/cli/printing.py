@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import sys
+from collections.abc import Mapping, Sequence
 
 from ..explain import MONITORED_DIAGNOSTICS, divergence_lines, gain_period_lines, paper_line
 from ..metrics import LEMMA2_TOLERANCE
@@ -12,20 +13,20 @@ from ..summary import Summary
 from .arguments import EXIT_FAILED, EXIT_OK
 
 
-def print_warnings(s: dict) -> None:
-    for warning in s.get("warnings", []):
+def print_warnings(warnings: Sequence[str], physics: Sequence[str]) -> None:
+    """The separation's ``warnings`` of a run, then the first three of MuJoCo's ``physics`` ones."""
+    for warning in warnings:
         print(f"  warning: {warning}")
-    physics = s.get("physics_warnings", [])
     for message in physics[:3]:
         print(f"  MuJoCo warned: {message}")
     if len(physics) > 3:
         print(f"  ... and {len(physics) - 3} more MuJoCo warnings")
 
 
-def format_summary(s: dict, sc: Scenario) -> str:
-    """The printed summary of a run; a diverged run says when and why it stopped and what usually
-    helps (:mod:`qcontrol.explain`)."""
-    f = Summary.from_json(s)
+def format_summary(s: Summary | Mapping, sc: Scenario) -> str:
+    """The printed summary of a run (a :class:`Summary`, or its ``summary.json`` object); a diverged
+    run says when and why it stopped and what usually helps (:mod:`qcontrol.explain`)."""
+    f = typed(s)
     rates = "  ".join(f"E({k})={v:.4f}" for k, v in f.error_rate.items())
     if f.diverged:
         simulated = (f"stopped after {f.steps} of {round(f.duration / f.dt)} steps of {f.dt:g} s "
@@ -39,11 +40,11 @@ def format_summary(s: dict, sc: Scenario) -> str:
         f"  actuator: max |u applied|: {f.max_abs_u_applied:.4g}    {_saturation(f.saturated_fraction)}",
         f"  final {f.adaptive_state}: [{', '.join(f'{v:.4g}' for v in final_state(f))}]",
         _lemma2_line(f),
-        *gain_period_lines(s),
+        *gain_period_lines(f),
         *law_diagnostic_lines(f),
     ]
     if f.diverged:
-        lines += divergence_lines(s, sc)
+        lines += divergence_lines(f, sc)
     return "\n".join(lines)
 
 
@@ -83,16 +84,16 @@ def lemma2_holds(f: Summary) -> bool:
     return f.lemma2_max_ratio <= 1 + LEMMA2_TOLERANCE
 
 
-def print_paper_line(s: dict, sc: Scenario) -> None:
+def print_paper_line(sc: Scenario) -> None:
     """For a scenario of the paper, what the paper reports and where the difference is explained."""
-    told = paper_line(s, sc)
+    told = paper_line(sc)
     if told is not None:
         print(told)
 
 
-def status(s: dict | Summary) -> int:
+def status(s: Summary | Mapping) -> int:
     """The exit status a run's summary gives: 1 when it diverged or broke a Lemma 2 bound, else 0."""
-    f = s if isinstance(s, Summary) else Summary.from_json(s)
+    f = typed(s)
     if f.diverged:
         return EXIT_FAILED
     if f.lemma2_applies and not lemma2_holds(f):
@@ -104,3 +105,8 @@ def status(s: dict | Summary) -> int:
 def final_state(f: Summary) -> tuple[float, ...]:
     """The law's final state (the summary's ``final_<adaptive_state>``)."""
     return f.final_eps_hat if f.final_state is None else f.final_state
+
+
+def typed(s: Summary | Mapping) -> Summary:
+    """``s`` as a :class:`Summary` (read from its ``summary.json`` object if it is one)."""
+    return s if isinstance(s, Summary) else Summary.from_json(s)

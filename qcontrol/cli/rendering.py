@@ -61,6 +61,7 @@ def write_video(args: argparse.Namespace, result: api.Result, twin: api.Result |
                      size=args.video_size, twin=twin, progress=progress)
     progress.finish()
     seconds = time.perf_counter() - started
-    simulated = max(result.summary["steps"] * result.summary["dt"], 1e-9)
+    run = result.typed_summary
+    simulated = max(run.steps * run.dt, 1e-9)
     print(f"  wrote {path} ({path.stat().st_size / 1e6:.2f} MB, rendered in {seconds:.1f} s: "
           f"{seconds / simulated:.2f} s per simulated second)")

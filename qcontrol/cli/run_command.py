@@ -59,13 +59,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     result = api.run(sc, backend, rrd=args.rrd, spawn=args.spawn, record=record, progress=progress,
                      command=args.command_line, camera_view=args.camera_view)
     progress.finish()
-    s = result.summary
+    s = result.typed_summary
     print(format_summary(s, sc))
-    print_paper_line(s, sc)
-    print_warnings(s)
+    print_paper_line(sc)
+    print_warnings(s.warnings, s.physics_warnings or ())
     if args.out is not None:
         out = prepare_output_dir(args.out)
-        write_json(out / "summary.json", s)
+        write_json(out / "summary.json", result.summary)
         print(f"  wrote {out / 'summary.json'}")
     if args.save is not None:
         print(f"  wrote {result.save(args.save)}")

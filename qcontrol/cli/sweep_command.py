@@ -26,7 +26,7 @@ from ..outputs import (
 from ..plants import BACKENDS
 from ..progress import ProgressLine
 from ..provenance import command_line
-from ..scenario import load_scenario
+from ..scenario import Scenario, load_scenario
 from ..scenario.resolve import scenario_provenance
 from ..sweep.grid import check_size, grid_points, parse_grid
 from ..sweep.runs import SweepInterrupted, plan, sweep_summaries
@@ -73,8 +73,8 @@ def add_sweep_parser(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(command_line=None)  # the command line's main() names the command it runs
 
 
-def cmd_sweep(args: argparse.Namespace) -> int:
-    """Every variant is loaded (so checked) before the output folder is made."""
+def _checked_request(args: argparse.Namespace) -> tuple[list[tuple[str, list[str]]], Scenario]:
+    """The sweep's grid and base scenario, once the options and the output folder are checked."""
     if args.workers < 1:
         raise QcontrolInputError(f"--workers {args.workers}: must be >= 1; e.g. --workers 2")
     grid = parse_grid(args.grid)
@@ -85,6 +85,12 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     base = load_scenario(args.scenario, args.overrides, args.unset)
     if args.random_initial and any(k == "plant.x0" for k, _ in grid):
         raise QcontrolInputError("--random-initial and --grid plant.x0=...: give one of them")
+    return grid, base
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    """Every variant is loaded (so checked) before the output folder is made."""
+    grid, base = _checked_request(args)
     backend = args.backend or base.simulation.backend
     points = grid_points(grid, args.random_initial, args.seed, order=base.order)
     keys = list(points[0]) if points else []

@@ -123,6 +123,11 @@ class FloatColumns(Protocol):
         """:meth:`~BatchLaw.advancer` for a state of floats."""
 
 
+def no_settings() -> Mapping[str, Any]:
+    """The settings of a context without a law's own table: an empty, read-only mapping."""
+    return MappingProxyType({})
+
+
 @dataclass(frozen=True)
 class LawContext:
     """What a law is built from (public: a law class's ``from_context(context)`` reads it).
@@ -153,7 +158,7 @@ class LawContext:
     theta: tuple[float, ...]
     dt: float = 1e-3
     control_period: float = 1e-3
-    settings: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
+    settings: Mapping[str, Any] = field(default_factory=no_settings)
     base: Any = None
     controller: Table | None = field(default=None, repr=False, compare=False)
 

@@ -427,8 +427,13 @@ def structure(settings: ProposedSettings, ctx: LawContext) -> Hashable:
     return settings.r, settings.hold
 
 
+def bounding_functions(settings: ProposedSettings) -> tuple[Expression, ...]:
+    """The law's bounding functions r_i(x_q) of (37)-(43), compiled from ``r``."""
+    return settings.r_expr
+
+
 KIND = LawKind(
-    "proposed", KEYS, parse, build, structure, bounds=lambda settings: settings.r_expr,
+    "proposed", KEYS, parse, build, structure, bounds=bounding_functions,
     divergence_hint="the law's gain grows with |x_q| (eq. (44)), so at a fixed sampling period a large "
     "state destabilizes the sampled loop once K T > 2 (docs/math.md, 'Sampling the law'); "
     "[controller.proposed] hold = \"exact\" holds its robust term exactly",

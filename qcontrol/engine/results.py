@@ -115,8 +115,21 @@ class Trajectory(RunRecord):
         return values
 
 
+class Entry:
+    """Reads one entry of a record's table: ``Entry("signals", "x")(traj)`` is
+    ``traj.signals["x"]``; the getter of the attributes made from the signal table."""
+
+    __slots__ = ("table", "key")
+
+    def __init__(self, table: str, key: str) -> None:
+        self.table, self.key = table, key
+
+    def __call__(self, record: RunRecord) -> Any:
+        return getattr(record, self.table)[self.key]
+
+
 for _signal in SIGNALS:
-    setattr(Trajectory, _signal.name, property(lambda traj, key=_signal.name: traj.signals[key],
+    setattr(Trajectory, _signal.name, property(Entry("signals", _signal.name),
                                                doc=f"{_signal.meaning} ({_signal.width} wide)"))
 
 
@@ -134,5 +147,6 @@ class RunMetrics(RunRecord):
 
 
 for _reduction in REDUCTIONS:
-    setattr(RunMetrics, _reduction.name, property(lambda run, key=_reduction.name: run.values[key]))
+    setattr(RunMetrics, _reduction.name, property(Entry("values", _reduction.name),
+                                                  doc=f"{_reduction.name}, reduced from {_reduction.signal}"))
 del _signal, _reduction

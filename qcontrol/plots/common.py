@@ -81,9 +81,51 @@ def save(fig: Figure, path: str | os.PathLike) -> Path:
     suffix; the command line refuses those before the run); missing folders are created."""
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
+    fit_titles(fig)
     suffix = target.suffix.lower()
     kind = suffix[1:] if suffix in FIGURE_FORMATS else "png"
     return write_file(target, lambda handle: fig.savefig(handle, format=kind, dpi=FIG_DPI))
+
+
+def fit_titles(fig: Figure, most_lines: int = 4) -> None:
+    """Wrap each title of ``fig`` (its axes' and its suptitle) that would run past the figure's
+    edges onto as few lines as keep it inside (at most ``most_lines``); constrained layout then
+    makes room for the extra lines. Only the titles' text changes, never what is drawn."""
+    renderer = fig.canvas.get_renderer()
+    suptitle = fig._suptitle  # matplotlib keeps the Text of fig.suptitle here (None without one)
+    titles = [ax.title for ax in fig.axes if ax.title.get_text()] + ([] if suptitle is None else [suptitle])
+    width, margin = fig.bbox.width, 0.1 * fig.bbox.width  # the layout moves an axes by less than margin
+    if all(margin <= box.x0 and box.x1 <= width - margin for box in
+           (title.get_window_extent(renderer) for title in titles)):
+        return  # every title well inside: the figure is drawn exactly as without this check
+    fig.draw_without_rendering()  # lays the figure out: where each title would be drawn
+    for title in titles:
+        text = title.get_text()
+        for lines in range(2, most_lines + 1):
+            box = title.get_window_extent(renderer)
+            if box.x0 >= 0 and box.x1 <= width:
+                break
+            title.set_text(wrap_title(text, lines))
+
+
+def wrap_title(text: str, lines: int) -> str:
+    """``text`` on about ``lines`` lines of equal length, broken between words, never inside a
+    ``$...$`` formula."""
+    words: list[str] = []
+    for word in text.split(" "):
+        if words and words[-1].count("$") % 2:  # inside a formula: keep it one word
+            words[-1] += " " + word
+        else:
+            words.append(word)
+    target = len(text) / lines
+    out = [words[0]]
+    for word in words[1:]:
+        longer = len(out[-1]) + 1 + len(word)
+        if len(out) < lines and abs(longer - target) > abs(len(out[-1]) - target):  # break nearer target
+            out.append(word)
+        else:
+            out[-1] += " " + word
+    return "\n".join(out)
 
 
 def unit(unit: str) -> str:

@@ -29,13 +29,16 @@ def sweep_rows(points: Sequence[dict[str, str]], summaries: Sequence[Summary | N
     for point, s in zip(points, summaries, strict=True):
         if s is None:  # not run (the sweep was interrupted)
             continue
-        row: dict = dict(point)
-        row |= {f"error_rate_{key}": rate for key, rate in s.error_rate.items()}
-        row |= {"max_abs_z1_last_half": s.max_abs_z1_last_half, "max_abs_u": s.max_abs_u,  # RUN_METRICS
-                "diverged": s.diverged, "diverged_time": s.diverged_time,
-                "lemma2_max_ratio": s.lemma2_max_ratio}
-        rows.append(row)
+        rows.append(dict(point) | metric_row(s))
     return rows
+
+
+def metric_row(s: Summary) -> dict[str, Any]:
+    """A run's metric columns: the error rate per omega (``error_rate_0.100``, ...), then
+    :data:`RUN_METRICS`."""
+    return {f"error_rate_{key}": rate for key, rate in s.error_rate.items()} | {
+        "max_abs_z1_last_half": s.max_abs_z1_last_half, "max_abs_u": s.max_abs_u,  # RUN_METRICS
+        "diverged": s.diverged, "diverged_time": s.diverged_time, "lemma2_max_ratio": s.lemma2_max_ratio}
 
 
 def csv_text(rows: Sequence[dict], keys: Sequence[str], metrics: Sequence[str]) -> str:
