@@ -244,12 +244,32 @@ class ColumnNaming:
     diagnostic_columns: tuple[str, ...] = ()
 
 
+def _state_column(signal: Signal, i: int, naming: ColumnNaming) -> str:
+    return f"{signal.name}{i + 1}"  # x1 .. xn
+
+
+def _reference_column(signal: Signal, i: int, naming: ColumnNaming) -> str:
+    return f"{signal.name}_{i}"  # yd_0 .. yd_n
+
+
+def _adaptive_column(signal: Signal, i: int, naming: ColumnNaming) -> str:
+    return f"{naming.adaptive_name}_{i + 1}"
+
+
+def _term_column(signal: Signal, i: int, naming: ColumnNaming) -> str:
+    return f"{signal.name}_{naming.bound_names[i]}"
+
+
+def _diagnostic_column(signal: Signal, i: int, naming: ColumnNaming) -> str:
+    return naming.diagnostic_columns[i]
+
+
 COLUMN_NAMES: dict[str, Callable[[Signal, int, ColumnNaming], str]] = {  # by width: column i's name
-    "n": lambda signal, i, naming: f"{signal.name}{i + 1}",
-    "n+1": lambda signal, i, naming: f"{signal.name}_{i}",
-    "m": lambda signal, i, naming: f"{naming.adaptive_name}_{i + 1}",
-    "terms": lambda signal, i, naming: f"{signal.name}_{naming.bound_names[i]}",
-    "diagnostics": lambda signal, i, naming: naming.diagnostic_columns[i],
+    "n": _state_column,
+    "n+1": _reference_column,
+    "m": _adaptive_column,
+    "terms": _term_column,
+    "diagnostics": _diagnostic_column,
 }
 
 
