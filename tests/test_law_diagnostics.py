@@ -132,7 +132,7 @@ def test_the_recording_draws_them_in_a_panel_titled_by_them(cli_run: dict) -> No
     assert_scalars_exact(entities, "theory/law/abs_integral", saved["abs_integral"], saved["t"])
     assert_scalars_exact(entities, "theory/law/err_sign_1", saved["err_sign"][:, 0], saved["t"])
     assert_scalars_exact(entities, "theory/law/err_sign_2", saved["err_sign"][:, 1], saved["t"])
-    assert static_value(entities["theory/law/err_sign_2"], "SeriesLines:names") == ["err_sign_2"]
+    assert static_value(entities["theory/law/err_sign_2"], "SeriesLines:names") == ["err_sign_2 (ode)"]
     assert "theory/law/gain_period" not in entities
     shown = views(active_blueprint(rrd))
     title = "law diagnostics: abs_integral; err_sign; ki_integral"

@@ -193,7 +193,11 @@ def test_signals_equal_the_run_bitwise(compare_recording):
     ratios = np.stack([main.e_z[:, i] / main.L_z[i] for i in range(2)], axis=1)
     assert_scalars_exact(entities, "theory/lemma2/ratios", ratios, main.t)
     assert_scalars_exact(entities, "theory/law/gain_period", main.diagnostics[:, 0], main.t)  # K T
-    assert static_value(entities["theory/law/gain_period"], "SeriesLines:names") == ["gain_period"]
+    # the main run's legend names its run (the twin's K T is drawn thin beside it, and says so)
+    assert static_value(entities["theory/law/gain_period"], "SeriesLines:names") == ["gain_period (mujoco)"]
+    twin_legend = static_value(entities["theory/law/gain_period_ode"], "SeriesLines:names")
+    assert twin_legend == ["gain_period (ode, thin)"]
+    assert_scalars_exact(entities, "theory/law/gain_period_ode", ghost.diagnostics[:, 0], ghost.t)
     legend = static_value(entities["theory/lemma2/ratios"], "SeriesLines:names")
     assert legend == ["|e_z1| / L_z1", "|e_z2| / L_z2"]
     assert_scalars_exact(entities, "signals/tracking/y_ode", ghost.y, ghost.t)
@@ -492,3 +496,6 @@ def test_each_law_of_a_law_comparison_has_a_colour_of_its_own(tmp_path):
             ghosts = [f"{family}/comparison", f"{family}/same-paper-again"]
         colors = [static_value(entities[path], "SeriesLines:colors") for path in ghosts]
         assert colors[0] != colors[1], (family, colors)
+    # each law's own diagnostics are drawn too: the third law's K T beside the first's; law (46) has none
+    assert "theory/law/gain_period_same-paper-again" in entities
+    assert not any(path.startswith("theory/law/") and path.endswith("_comparison") for path in entities)

@@ -81,5 +81,5 @@ PLOTS: Mapping[str, tuple[Plot, ...]] = {
     "e_z": (Plot("theory/lemma2/ratios", "|e_z{i}| / L_z{i}", per_bound=True, guide=LEMMA2_BOUND,
                  color="palette"),),
     "quantization_error": (Plot("signals/quantization/x{i}/error", "x{i} - q(x{i})", guide=HALF_STEP),),
-    "diagnostics": (Plot("theory/law/{d}", "{d}", color="palette", title=law_panel_title),),
+    "diagnostics": (Plot("theory/law/{d}", "{d}", twin=True, color="palette", title=law_panel_title),),
 }
