@@ -37,13 +37,13 @@ import sys
 import tempfile
 import time
 import tracemalloc
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from pathlib import Path
 
 import bench_laws
 import mujoco
 import numpy as np
+from bench_laws import python_loop as compiled_off  # QCONTROL_COMPILE=0 inside the block
 
 from qcontrol.assembly import (
     build_controller,
@@ -155,20 +155,6 @@ def mujoco_ratio(sc: Scenario, repeat: int) -> dict:
             "ratio": closed / bare, "native_callback_ratio": native / bare,
             "python_callback_ratio": python / bare, "native_in_use": plant._native is not None,
             "target": "closed loop <= 1.3, native callback <= 1.05 (x bare mj_step)"}
-
-
-@contextmanager
-def compiled_off() -> Iterator[None]:
-    """``QCONTROL_COMPILE=0`` inside the block (plants built there use the Python paths)."""
-    previous = os.environ.get("QCONTROL_COMPILE")
-    os.environ["QCONTROL_COMPILE"] = "0"
-    try:
-        yield
-    finally:
-        if previous is None:
-            del os.environ["QCONTROL_COMPILE"]
-        else:
-            os.environ["QCONTROL_COMPILE"] = previous
 
 
 def solve_ivp_closed_loop(sc: Scenario) -> None:
