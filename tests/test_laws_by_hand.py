@@ -139,3 +139,32 @@ def test_an_advance_of_the_wrong_shape_is_refused_naming_the_law_and_the_method(
     with pytest.raises(qcontrol.QcontrolInputError,
                        match=r"'wrong-advance': advance\(\) must return shape \(2,\).*got shape \(3,\)"):
         qcontrol.run(sc, backend="ode")
+
+
+def test_a_law_registered_with_context_sees_the_runs_sampling() -> None:
+    """``with_context=True``: the factory gets the LawContext, so --dt and the control period
+    reach the law (a law that needs T no longer assumes 1 ms)."""
+    seen = []
+
+    class Sampled:
+        state_size = 0
+
+        def __init__(self, table: dict, context: qcontrol.LawContext) -> None:
+            seen.append((context.n, context.dt, context.control_period, context.delta, tuple(context.c)))
+
+        def initial_state(self) -> np.ndarray:
+            return np.zeros(0)
+
+        def control(self, t, x_q, yd, state) -> float:
+            return 0.0
+
+        def advance(self, t, x_q, yd, state, h):
+            return state
+
+    qcontrol.register_law("sampled-law", Sampled, with_context=True, replace=True)
+    sc = qcontrol.load_scenario("example2", {"controller.kind": "sampled-law", "simulation.dt": 0.002,
+                                             "simulation.control_period": 0.006, "simulation.duration": 0.1})
+    qcontrol.run(sc, backend="ode")
+    assert set(seen) == {(2, 0.002, 0.006, 0.01, (4.0, 3.0))}  # at load and at the run
+    with pytest.raises(qcontrol.QcontrolInputError, match=r"^register_law: with_context must be True or"):
+        qcontrol.register_law("sampled-law", Sampled, with_context="yes", replace=True)

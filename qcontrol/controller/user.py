@@ -21,6 +21,7 @@ the law fresh ``(n,)`` arrays made from the engine's floats, a batch calls each 
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple, Protocol, runtime_checkable
@@ -257,7 +258,8 @@ def _thaw(value: Any) -> Any:
     return value
 
 
-def register_law(kind: str, factory: LawFactory, *, state_name: str = "state", replace: bool = False) -> None:
+def register_law(kind: str, factory: LawFactory, *, state_name: str = "state", replace: bool = False,
+                 with_context: bool = False) -> None:
     """Make ``controller.kind = "<kind>"`` select a law built by ``factory(table, n)``.
 
     ``table`` is the scenario's ``[controller]`` table as a dict (``kind``, ``delta``, ``c`` and
@@ -268,6 +270,10 @@ def register_law(kind: str, factory: LawFactory, *, state_name: str = "state", r
     (the summary's ``final_<state_name>``). ``kind`` is letters, digits, ``_`` and ``-``, starting
     with a letter or ``_``. ``replace=True`` replaces a law registered before under the same
     name (editing a law in a notebook); the built-in kinds are never replaced.
+    ``with_context=True`` calls ``factory(table, context)`` instead, ``context`` a
+    :class:`~.law.LawContext` with the run's sampling: ``context.n``, ``context.dt``,
+    ``context.control_period`` (T), ``context.delta``, ``context.c`` (a law that needs T reads it
+    there, so ``--dt`` or a control period in the scenario reaches it).
     """
     check_kind_name(kind, "register_law")
     if not callable(factory):
@@ -276,9 +282,10 @@ def register_law(kind: str, factory: LawFactory, *, state_name: str = "state", r
     if not isinstance(state_name, str) or not state_name.isidentifier():
         raise QcontrolInputError(f"register_law: state_name {state_name!r} must be letters, digits and _, "
                                  "starting with a letter or _")
-    if not isinstance(replace, bool):
-        raise QcontrolInputError(f"register_law: replace must be True or False, got {replace!r}")
-    user = UserKind(kind, factory, state_name)
+    for name, flag in (("replace", replace), ("with_context", with_context)):
+        if not isinstance(flag, bool):
+            raise QcontrolInputError(f"register_law: {name} must be True or False, got {flag!r}")
+    user = UserKind(kind, factory, state_name, with_context)
     register_kind(LawKind(kind, None, user.parse, user.build, user.structure), replace=replace)
 
 
@@ -286,17 +293,18 @@ class UserKind:
     """A controller kind made by :func:`register_law`: its table checked by the factory when a
     scenario loads, one law per copy built when it runs; variants of it always share a batch."""
 
-    def __init__(self, kind: str, factory: LawFactory, state_name: str) -> None:
+    def __init__(self, kind: str, factory: LawFactory, state_name: str, with_context: bool = False) -> None:
         self.kind, self.factory, self.state_name = kind, factory, state_name
+        self.with_context = with_context  # the factory's second argument: the LawContext, else n
 
     def parse(self, table: Table, ctx: LawContext) -> UserSettings:
         given = {"kind": self.kind, "delta": ctx.delta, "c": list(ctx.c)} | table.data
         settings = UserSettings(_freeze(given))
-        _call(self.factory, settings, ctx, table)
+        _call(self.factory, settings, ctx, self.with_context)
         return settings
 
     def build(self, settings: Sequence[UserSettings], ctx: LawContext) -> UserLaw:
-        laws = [_call(self.factory, s, ctx, None) for s in settings]
+        laws = [_call(self.factory, s, ctx, self.with_context) for s in settings]
         return UserLaw(laws, ctx.c, ctx.max_error, self.state_name, self.kind)
 
     @staticmethod
@@ -304,10 +312,12 @@ class UserKind:
         return None
 
 
-def _call(factory: LawFactory, settings: UserSettings, ctx: LawContext, table: Table | None) -> AnyLaw:
-    """The factory's law; its input errors become one line naming the file and the table."""
+def _call(factory: LawFactory, settings: UserSettings, ctx: LawContext, with_context: bool) -> AnyLaw:
+    """The factory's law (given the context, or the order n); its input errors become one line
+    naming the file and the table."""
+    second = dataclasses.replace(ctx, controller=None) if with_context else ctx.order
     try:
-        law = factory(settings.table, ctx.order)
+        law = factory(settings.table, second)
     except QcontrolInputError as exc:
         raise QcontrolInputError(f"{ctx.source}: {exc}") from None
     except (KeyError, ValueError, TypeError) as exc:
