@@ -289,3 +289,43 @@ def test_float_advancer_defers_to_an_overridden_advancer(cls, extends: str) -> N
     qcontrol.register_law_class("own-advancer", cls, extends=extends, replace=True)
     law = build_law([qcontrol.load_scenario("example2", {"controller.kind": "own-advancer", **SHORT})])
     assert law.float_advancer(1e-3) == ("own advancer", 1e-3)  # the engine's float path uses it
+
+
+class SaturatedPaperLaw(qcontrol.BacksteppingLaw):
+    """The paper's law wrapped (not subclassed): its u clipped to [-u_max, u_max]."""
+
+    @classmethod
+    def from_context(cls, context: qcontrol.LawContext) -> SaturatedPaperLaw:
+        law = cls(context.c, context.max_error)
+        law.paper = qcontrol.PaperLaw.from_context(context)
+        law.u_max = float(context.settings.get("u_max", 10.0))
+        law.state_name, law.state_size = law.paper.state_name, law.paper.state_size
+        return law
+
+    def initial_state(self, batch):
+        return self.paper.initial_state(batch)
+
+    def control(self, reading, yd, state, t=0.0):
+        out = self.paper.control(reading, yd, state, t)
+        return out._replace(u=np.clip(out.u, -self.u_max, self.u_max))
+
+    def advancer(self, h):
+        return self.paper.advancer(h)
+
+    def float_advancer(self, h):
+        return self.paper.float_advancer(h)
+
+
+@pytest.mark.parametrize("u_max", [1e9, 5.0])
+def test_a_law_that_wraps_the_paper_law_runs_its_numbers_or_clips_them(u_max: float) -> None:
+    """Wrapping: with a bound it never reaches, the wrapped law computes the paper's law bit for bit;
+    with 5, |u| stays at most 5 and the run differs."""
+    qcontrol.register_law_class("paper-wrapped", SaturatedPaperLaw, extends="proposed", keys=["u_max"],
+                                replace=True)
+    builtin = _run("proposed")
+    wrapped = _run("paper-wrapped", **{"controller.paper-wrapped.u_max": u_max})
+    if u_max > 1e6:
+        for name in ("x", "u", "adaptive"):
+            assert np.array_equal(getattr(wrapped, name), getattr(builtin, name)), name
+    else:
+        assert np.max(np.abs(wrapped.u)) <= 5.0 < np.max(np.abs(builtin.u))
