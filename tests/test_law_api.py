@@ -9,13 +9,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import EX1
 
 import qcontrol
 from qcontrol.cli import main
 from qcontrol.errors import QcontrolInputError
 
-ROOT = Path(__file__).resolve().parents[1]
-EX1 = ROOT / "scenarios" / "example1.toml"
 SHORT = {"simulation.duration": 0.5}
 
 

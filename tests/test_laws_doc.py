@@ -9,7 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from conftest import ROOT
+
 DOC = (ROOT / "docs" / "laws.md").read_text()
 PYTHON_BLOCKS = re.findall(r"```python\n(.*?)```", DOC, re.S)
 COMMANDS = [line.strip() for block in re.findall(r"```bash\n(.*?)```", DOC, re.S)

@@ -11,6 +11,7 @@ import warnings
 import mujoco
 import numpy as np
 import pytest
+from conftest import ROOT
 
 from qcontrol.assembly import run_scenario
 from qcontrol.compiled import ENVIRONMENT_SWITCH
@@ -19,7 +20,6 @@ from qcontrol.plants.mujoco import callbacks
 from qcontrol.plants.mujoco.native import native_force, struct_offsets
 from qcontrol.scenario import load_scenario
 
-ROOT = pathlib.Path(__file__).resolve().parent.parent
 SCENARIOS = [p for p in sorted(ROOT.glob("scenarios/*.toml")) if load_scenario(p).order == 2]  # MuJoCo's
 PROBE = """<mujoco><size nuserdata="32"/><worldbody><body><joint type="slide" axis="1 0 0"/>
 <geom size="0.1" mass="1"/></body></worldbody></mujoco>"""

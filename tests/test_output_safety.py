@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import EX2, ROOT
 
 import qcontrol
 from qcontrol import outputs
@@ -30,8 +31,6 @@ from qcontrol.scenario import load_scenario
 from qcontrol.sweep.grid import parse_grid
 from qcontrol.workers import worker_count
 
-ROOT = Path(__file__).resolve().parents[1]
-EX2 = ROOT / "scenarios" / "example2.toml"
 SHORT = ["--backend", "ode", "--duration", "0.05", "-q"]
 ROOT_ONLY = pytest.mark.skipif(os.geteuid() != 0, reason="mknod and mount need root; the injected "
                                "write errors below cover the same paths")

@@ -3,10 +3,9 @@ arrow on the body while one acts, a marker on the time axis, the load beside u).
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
+from conftest import SCENARIOS
 from test_record import read_entities, temporal
 
 from qcontrol.assembly import scene
@@ -14,7 +13,7 @@ from qcontrol.cli import main
 from qcontrol.recording.scene import Scene
 from qcontrol.scenario import load_scenario
 
-ARM = Path(__file__).resolve().parents[1] / "scenarios" / "example2-arm.toml"
+ARM = SCENARIOS / "example2-arm.toml"
 
 LIMIT = 15.0  # N m: low enough that the arm's controller meets it
 

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import EX1, EX2
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -20,9 +21,6 @@ from qcontrol.metrics import summary
 from qcontrol.quantizer import UniformQuantizer, quantize
 from qcontrol.scenario import load_scenario
 
-ROOT = Path(__file__).resolve().parents[1]
-EX1 = ROOT / "scenarios" / "example1.toml"
-EX2 = ROOT / "scenarios" / "example2.toml"
 ODE = "simulation.backend='ode'"
 
 

@@ -5,13 +5,13 @@ from __future__ import annotations
 import pathlib
 
 import pytest
+from conftest import ROOT
 
 from qcontrol.assembly import batch_structure, build_plant, build_plants, run_variants
 from qcontrol.compiled import ENVIRONMENT_SWITCH
 from qcontrol.plants.mujoco.plant import MujocoPlant
 from qcontrol.scenario import load_scenario
 
-ROOT = pathlib.Path(__file__).resolve().parent.parent
 SCENARIOS = [p for p in sorted(ROOT.glob("scenarios/*.toml")) if load_scenario(p).order == 2]  # MuJoCo's
 
 

@@ -11,6 +11,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
+from conftest import ROOT
 
 from qcontrol.cli import main
 from qcontrol.errors import QcontrolInputError
@@ -18,7 +19,6 @@ from qcontrol.render import context
 from qcontrol.render.frames import FrameRenderer, Instant, camera_id
 from qcontrol.render.video import frame_rows
 
-ROOT = Path(__file__).resolve().parents[1]
 EX1, EX2 = ROOT / "scenarios" / "example1.toml", ROOT / "scenarios" / "example2.toml"
 CHAIN3 = ROOT / "scenarios" / "chain3.toml"
 
