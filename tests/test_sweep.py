@@ -33,7 +33,8 @@ def test_sweep_csv_has_one_row_per_grid_point(tmp_path):
     assert _sweep(str(EXAMPLE2), "--grid", "controller.kappa_margin=0.1,1.1", "--grid",
                   "controller.r_scale=1,2,4", "--set", SHORT, "--out", str(tmp_path), "-q") == 0
     rows = _table(tmp_path / "sweep.csv")
-    assert list(rows[0]) == ["controller.kappa_margin", "controller.r_scale"] + CSV_METRICS
+    keys = ["controller.kappa_margin", "controller.r_scale"]
+    assert list(rows[0]) == keys + CSV_METRICS + ["max_gain_period"]  # the law's diagnostic last
     assert [(r["controller.kappa_margin"], r["controller.r_scale"]) for r in rows] == [
         (k, s) for k in ("0.1", "1.1") for s in ("1", "2", "4")]
     assert {r["diverged"] for r in rows} == {"False"}
@@ -41,6 +42,24 @@ def test_sweep_csv_has_one_row_per_grid_point(tmp_path):
     assert all(float(r["lemma2_max_ratio"]) <= 1.0 + 1e-9 for r in rows)
     assert (tmp_path / "sweep.png").stat().st_size > 1000
     assert not list(tmp_path.glob(".*part"))  # atomic writes leave no temporaries
+
+
+def test_the_laws_diagnostics_are_columns_equal_to_each_runs_summary(tmp_path):
+    """A batched sweep's max_gain_period equals the run's alone; a law without the diagnostic (the
+    comparison law) leaves the cell empty."""
+    import qcontrol
+
+    assert _sweep(str(EXAMPLE2), "--grid", "controller.kind=proposed,comparison", "--grid",
+                  "controller.proposed.kappa_margin=0.1,0.3,0.5,0.7,0.9", "--set", SHORT, "--backend", "ode",
+                  "--out", str(tmp_path), "-q") == 0
+    rows = _table(tmp_path / "sweep.csv")
+    for row in rows:
+        if row["controller.kind"] == "comparison":
+            assert row["max_gain_period"] == ""
+            continue
+        alone = qcontrol.run(qcontrol.load_scenario(EXAMPLE2, {"controller.kappa_margin": float(
+            row["controller.proposed.kappa_margin"]), "simulation.duration": 1.0}), backend="ode")
+        assert float(row["max_gain_period"]) == alone.summary["max_gain_period"] > 0
 
 
 def test_a_diverging_grid_point_is_a_row_not_a_stop(tmp_path):

@@ -17,10 +17,12 @@ CSV_METRICS = [f"error_rate_{omega_key(w)}" for w in TABLE1_OMEGAS] + RUN_METRIC
 
 def metric_columns(summaries: Sequence[Summary]) -> list[str]:
     """The metric columns: an error rate per omega of the runs (``[metrics] omega``), then the run's
-    figures."""
+    figures, then the laws' own diagnostics as their summaries report them (``max_gain_period``;
+    every column any run has, in the order first seen: a run whose law lacks one leaves it empty)."""
     if not summaries:
         return list(CSV_METRICS)
-    return [f"error_rate_{key}" for key in summaries[0].error_rate] + RUN_METRICS
+    diagnostics = dict.fromkeys(key for s in summaries for key in diagnostic_cells(s))
+    return [f"error_rate_{key}" for key in summaries[0].error_rate] + RUN_METRICS + list(diagnostics)
 
 
 def sweep_rows(points: Sequence[dict[str, str]], summaries: Sequence[Summary | None]) -> list[dict]:
@@ -35,10 +37,23 @@ def sweep_rows(points: Sequence[dict[str, str]], summaries: Sequence[Summary | N
 
 def metric_row(s: Summary) -> dict[str, Any]:
     """A run's metric columns: the error rate per omega (``error_rate_0.100``, ...), then
-    :data:`RUN_METRICS`."""
+    :data:`RUN_METRICS`, then its law's diagnostics (:func:`diagnostic_cells`)."""
     return {f"error_rate_{key}": rate for key, rate in s.error_rate.items()} | {
         "max_abs_z1_last_half": s.max_abs_z1_last_half, "max_abs_u": s.max_abs_u,  # RUN_METRICS
-        "diverged": s.diverged, "diverged_time": s.diverged_time, "lemma2_max_ratio": s.lemma2_max_ratio}
+        "diverged": s.diverged, "diverged_time": s.diverged_time, "lemma2_max_ratio": s.lemma2_max_ratio,
+    } | diagnostic_cells(s)
+
+
+def diagnostic_cells(s: Summary) -> dict[str, Any]:
+    """The law's diagnostics of a run, one cell each: ``max_gain_period``, or ``last_<name>_1 ..``
+    for a diagnostic of width > 1 (None where the run had no value)."""
+    cells: dict[str, Any] = {}
+    for key, value in s.law_diagnostics.items():
+        if isinstance(value, list):
+            cells |= {f"{key}_{i + 1}": v for i, v in enumerate(value)}
+        else:
+            cells[key] = value
+    return cells
 
 
 def csv_text(rows: Sequence[dict], keys: Sequence[str], metrics: Sequence[str]) -> str:
