@@ -43,7 +43,8 @@ from pathlib import Path
 import bench_laws
 import mujoco
 import numpy as np
-from bench_laws import python_loop as compiled_off  # QCONTROL_COMPILE=0 inside the block
+from bench_timing import best_of
+from bench_timing import python_loop as compiled_off  # QCONTROL_COMPILE=0 inside the block
 
 from qcontrol.assembly import (
     build_controller,
@@ -60,15 +61,6 @@ from qcontrol.sweep import sweep_summaries
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIOS = ("example1", "example2")
-
-
-def best_of(repeat: int, fn: Callable[[], object]) -> float:
-    times = []
-    for _ in range(repeat):
-        started = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - started)
-    return min(times)
 
 
 def scenario(name: str, duration: float, dt: float | None = None) -> Scenario:

@@ -16,46 +16,20 @@ The target: a user law within 2x of the built-in law, single run and batch. Timi
 from __future__ import annotations
 
 import argparse
-import os
 import sys
-import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import laws_by_hand  # noqa: E402
+from bench_timing import best_of, python_loop  # noqa: E402
 
 from qcontrol.assembly import build_law, build_plant, build_quantizer, build_reference  # noqa: E402
 from qcontrol.engine import simulate  # noqa: E402
 from qcontrol.scenario import Scenario, load_scenario  # noqa: E402
 
 FORMS = laws_by_hand.FORMS
-
-
-def best_of(repeat: int, fn: Callable[[], object]) -> float:
-    best = float("inf")
-    for _ in range(repeat):
-        start = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - start)
-    return best
-
-
-@contextmanager
-def python_loop() -> Iterator[None]:
-    """Every law on the engine's Python loop (the compiled loop serves only built-in laws)."""
-    saved = os.environ.get("QCONTROL_COMPILE")
-    os.environ["QCONTROL_COMPILE"] = "0"
-    try:
-        yield
-    finally:
-        if saved is None:
-            del os.environ["QCONTROL_COMPILE"]
-        else:
-            os.environ["QCONTROL_COMPILE"] = saved
 
 
 def scenarios(duration: float, copies: int) -> dict[str, list[Scenario]]:
