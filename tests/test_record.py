@@ -371,8 +371,8 @@ def _rows_on_disk(part: Path, entity: str, expected: int, timeout: float = 10.0)
     while time.monotonic() < deadline:
         try:
             rows = len(temporal(read_entities(part)[entity], "Scalars:scalars")[0])
-        except (RuntimeError, KeyError):  # a frame being written, or the entity not there yet
-            rows = -1
+        except (RuntimeError, KeyError, ValueError):  # a frame being written, the entity not there
+            rows = -1  # yet, or only its static style there yet (no timed rows to concatenate)
         if rows == expected:
             break
         time.sleep(0.01)

@@ -122,7 +122,8 @@ class PerCopy:
             d = self.copies[b if len(self.copies) > 1 else 0]
             values = _numbers(d.evaluate(readings[:, b].copy(), references[:, b].copy(), states[:, b].copy()),
                               self.law, d)
-            if values.shape not in {(rows, width), (rows,) if width == 1 else (rows, width)}:
+            allowed = {(rows, width), (rows,)} if width == 1 else {(rows, width)}
+            if values.shape not in allowed:
                 wanted = f"({rows},) or ({rows}, 1)" if width == 1 else f"({rows}, {width})"
                 raise _refuse(self.law, d, f"must return shape {wanted} for {rows} rows (width {width}), got "
                                            f"shape {values.shape}")

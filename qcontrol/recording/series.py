@@ -46,10 +46,12 @@ COMPARISON_COLORS = (GREEN, PURPLE, BROWN, OLIVE)
 DIFFERENCE_COLORS = (BLUE, PURPLE, OLIVE, BROWN)
 
 
+WIDE, THIN = 5.0, 1.5  # line widths (points) of a main run beside its twin, and of the twin
+
+
 def shade_of(colors: tuple, k: int) -> tuple[int, int, int]:
     """The colour of the ``k``-th ghost run among ``colors`` (cycling)."""
     return colors[k % len(colors)]
-WIDE, THIN = 5.0, 1.5  # line widths (points) of a main run beside its twin, and of the twin
 
 
 @dataclass(frozen=True)
