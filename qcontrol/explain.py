@@ -23,12 +23,10 @@ from .summary import Summary
 
 README_SECTION = "README.md, section 'Reproducing the paper'"
 GAIN_PERIOD_DIAGNOSTIC = "max_gain_period"  # the summary's key of the paper's law's K T monitor
+MONITORED_DIAGNOSTICS = (GAIN_PERIOD_DIAGNOSTIC,)  # the law diagnostics with lines of their own (below)
 GAIN_PERIOD_LIMIT = 1.0  # K T above this: the held input overshoots the continuous-time decay
 SAMPLED_WARNING = ("the sampled loop is outside the range where it behaves like the paper's "
                    "continuous-time law")
-
-
-MONITORED_DIAGNOSTICS = (GAIN_PERIOD_DIAGNOSTIC,)  # the law diagnostics with lines of their own (below)
 
 
 def gain_period_lines(s: Summary) -> list[str]:
