@@ -46,7 +46,7 @@ class ErrorRateStream:
 
     def add(self, t: np.ndarray, z1: np.ndarray) -> None:
         """The next rows: instants ``t`` (rows,) and errors ``z1`` (rows, batch), or (rows,) for a
-        batch of one. Non-finite entries are skipped (a run's rows after it stopped are NaN)."""
+        single copy. Non-finite entries are skipped (a run's rows after it stopped are NaN)."""
         t = np.asarray(t, dtype=float)
         z = np.abs(np.asarray(z1, dtype=float).reshape(len(t), -1))
         # row 0: each run's last finite row before this chunk (NaN if none), rows 1..: the chunk

@@ -11,9 +11,8 @@ from typing import Protocol
 
 import numpy as np
 
+from .columns import ARRAYS, Column, ColumnForm
 from .errors import QcontrolInputError
-
-Column = float | np.ndarray  # one value per copy: a (batch,) array, or a float for a batch of one
 
 
 class Quantizer(Protocol):
@@ -56,27 +55,27 @@ class QuantizedReading:
     bounds were computed for this quantizer.
 
     Two views of the same numbers: ``values`` with shape ``(batch, n)``, and ``columns``, one
-    value per state ``q_1 .. q_n``, each a ``(batch,)`` array, or a plain float for a reading of
-    one copy made by the engine's float path (:mod:`qcontrol.engine.fastpath`; ``floats`` is then
-    true). The controller's formulas
-    work on columns; the array of a reading of floats is made when first asked for.
+    column per state ``q_1 .. q_n`` in the reading's :attr:`form` (:mod:`qcontrol.columns`; a
+    ``(batch,)`` array each in the array form). The controller's formulas work on columns and take
+    what else they need from ``form``; ``values`` of a reading made from columns is made when
+    first asked for.
     """
 
-    __slots__ = ("_values", "columns", "max_error", "floats")
+    __slots__ = ("_values", "columns", "max_error", "form")
 
-    def __init__(self, values: np.ndarray | None, max_error: float,
-                 float_values: Sequence[float] | None = None) -> None:
+    def __init__(self, values: np.ndarray | None, max_error: float, *,
+                 columns: Sequence[Column] | None = None, form: ColumnForm = ARRAYS) -> None:
         """``QuantizedReading(values, max_error)`` for a ``(batch, n)`` array, or
-        ``QuantizedReading(None, max_error, float_values)`` for one copy as floats ``q_1 .. q_n``."""
+        ``QuantizedReading(None, max_error, columns=..., form=...)`` for columns of that form."""
         self.max_error = max_error
         self._values = values
-        self.floats = values is None
-        self.columns: tuple = tuple(float_values) if values is None else tuple(np.asarray(values).T)
+        self.form = form
+        self.columns: tuple = tuple(np.asarray(values).T) if columns is None else tuple(columns)
 
     @property
     def values(self) -> np.ndarray:
         if self._values is None:
-            self._values = np.array([self.columns], dtype=float)
+            self._values = self.form.array(self.columns, 1)
         return self._values
 
 

@@ -17,7 +17,8 @@ import pytest
 from conftest import EX2, PACKAGE, ROOT
 
 from qcontrol.assembly import build_plant, run_scenario
-from qcontrol.controller import BatchLaw, FloatColumns
+from qcontrol.columns import ColumnForm
+from qcontrol.controller import AnyColumnForm, BatchLaw
 from qcontrol.controller.user import Law, SteppedLaw
 from qcontrol.controller.user_diagnostics import LawDiagnostics
 from qcontrol.engine import SIGNALS, ClosedLoop
@@ -27,9 +28,9 @@ from qcontrol.errors import QcontrolInputError
 from qcontrol.plants import (
     Actuated,
     Backend,
+    ColumnIO,
+    ColumnStepping,
     Disturbable,
-    FloatIO,
-    FloatStepping,
     NativeStepping,
     PhysicsReport,
     Plant,
@@ -43,6 +44,7 @@ from qcontrol.scenario import load_scenario
 LAYERS = [
     {"_version", "errors", "schema", "timegrid", "expr", "progress", "outputs", "error_rate", "resources",
      "provenance", "compiled", "workers"},
+    {"columns"},
     {"quantizer", "reference", "disturbance"},
     {"controller"},
     {"plants"},
@@ -208,13 +210,14 @@ def _members(protocol: type) -> set[str]:
     (Disturbable, {"disturb"}),
     (Actuated, {"actuator", "actuator_limited"}),
     (PhysicsReport, {"warnings", "consistency_report"}),
-    (FloatStepping, {"float_io"}),
+    (ColumnStepping, {"column_io"}),
     (NativeStepping, {"native_stepper"}),
     (Quantizer, {"max_error", "__call__"}),
-    (FloatIO, {"observe", "step"}),
+    (ColumnIO, {"observe", "step"}),
+    (ColumnForm, {"expm1", "column", "terms", "combination", "columns", "array"}),
     (BatchLaw, {"state_name", "state_size", "copies", "coordinates", "initial_state", "control", "advancer",
                 "constants", "diagnostics"}),
-    (FloatColumns, {"float_advancer"}),
+    (AnyColumnForm, {"advancer_in"}),
     (Law, {"state_size", "initial_state", "control", "state_rate"}),
     (LawDiagnostics, {"diagnostics"}),
     (Schedule, {"grid", "record", "reference", "next_event", "rare_work"}),
@@ -239,6 +242,40 @@ def test_the_float_path_is_explained_in_one_module() -> None:
     explaining = sorted(str(path.relative_to(PACKAGE)) for path in PACKAGE.rglob("*.py")
                         if "microsecond" in path.read_text())
     assert explaining == ["engine/fastpath.py"]
+
+
+# What only the float form uses: its form, rows and adapters (engine/fastpath.py) and the
+# expression compiler's evaluation on floats with its fallback rule (expr/).
+FLOAT_FORM_NAMES = {"FLOATS", "FloatForm", "FloatRows", "FloatQuantize", "FloatDifferencing",
+                    "ArrayPlantAsFloats", "ArrayLawAsFloats", "float_io", "float_quantizer", "FloatTerms",
+                    "FloatCombination", "scalar_function", "FLOAT_REFUSED", "on_floats"}
+FLOAT_FORM_HOMES = {"engine/fastpath.py"}  # and the expression compiler, expr/
+# MuJoCo calls its passive callback with one MjData, a copy's plain floats, at every batch size
+PER_COPY_FLOATS = {"plants/mujoco/callbacks.py": {"FloatTerms"}}
+
+
+def _names(tree: ast.AST) -> set[str]:
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Name):
+            names.add(node.id)
+        elif isinstance(node, ast.Attribute):
+            names.add(node.attr)
+        elif isinstance(node, ast.ImportFrom):
+            names.update(alias.name for alias in node.names)
+    return names
+
+
+def test_the_float_form_is_known_in_one_module_besides_the_expression_compiler() -> None:
+    """Plants and laws are written over columns of any form; only the engine's adapter knows the
+    float form a single run steps in (and nothing branches on a reading being floats)."""
+    knowing = {}
+    for path in PACKAGE.rglob("*.py"):
+        name = str(path.relative_to(PACKAGE))
+        used = _names(ast.parse(path.read_text())) & FLOAT_FORM_NAMES
+        if used and not name.startswith("expr/") and name not in FLOAT_FORM_HOMES:
+            knowing[name] = used
+    assert knowing == PER_COPY_FLOATS
 
 
 def test_no_attribute_probing_in_the_package() -> None:

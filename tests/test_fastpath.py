@@ -1,5 +1,6 @@
-"""A batch of one runs on plain floats, a larger batch on numpy columns: both go through the same
-controller code (qcontrol.controller), so they must give the same numbers."""
+"""A batch of one runs on plain floats (the engine's FLOATS form), a larger batch on numpy columns:
+both go through the same controller and plant code, written over columns of any form, so they
+must give the same numbers."""
 
 
 import numpy as np
@@ -7,9 +8,10 @@ import pytest
 from conftest import SCENARIOS
 
 from qcontrol.assembly import build_controller, build_plant, build_quantizer, build_reference
+from qcontrol.columns import ARRAYS
 from qcontrol.controller import ComparisonController, ProposedController
 from qcontrol.engine import simulate
-from qcontrol.engine.fastpath import float_quantizer
+from qcontrol.engine.fastpath import FLOATS, float_quantizer
 from qcontrol.expr import compile_expression
 from qcontrol.plants.ode import ChainPlant
 from qcontrol.quantizer import QuantizedReading, UniformQuantizer, quantize
@@ -45,14 +47,14 @@ def test_float_columns_and_numpy_columns_give_the_same_control(name: str) -> Non
     to_floats = float_quantizer(quantizer)
     for b in range(len(x)):
         reading = to_floats(x[b].tolist())
-        assert reading.floats and all(type(v) is float for v in reading.columns)
+        assert reading.form is FLOATS and all(type(v) is float for v in reading.columns)
         out = ctrl.control(reading, yd, tuple(state[b].tolist()))
         assert type(out.u) is float
         assert out.u == pytest.approx(on_arrays.u[b], rel=1e-12, abs=1e-12)
         np.testing.assert_allclose(out.zbar, [z[b] for z in on_arrays.zbar], rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(out.target, [np.broadcast_to(t, (40,))[b] for t in on_arrays.target],
                                    rtol=1e-12, atol=1e-12)
-        stepped = ctrl.advance(tuple(state[b].tolist()), out, 1e-3)
+        stepped = ctrl.advancer_in(FLOATS, 1e-3)(tuple(state[b].tolist()), out)
         assert all(type(v) is float for v in stepped)
         np.testing.assert_allclose(stepped, [a[b] for a in advanced], rtol=1e-12, atol=1e-12)
 
@@ -61,13 +63,13 @@ class _Seen:
     """Wraps a controller and notes whether each reading came as floats."""
 
     def __init__(self, inner):
-        self.inner, self.floats = inner, set()
+        self.inner, self.forms = inner, set()
 
     def __getattr__(self, name):
         return getattr(self.inner, name)
 
     def control(self, reading, yd, adaptive, t=0.0):
-        self.floats.add(reading.floats)
+        self.forms.add(reading.form)
         return self.inner.control(reading, yd, adaptive, t)
 
 
@@ -84,7 +86,7 @@ def test_batch_of_one_on_floats_equals_the_numpy_batch(overrides: list[str], bac
         runs[batch] = simulate(plant, ctrl, build_quantizer(sc), build_reference(sc), sc.x0,
                                sc.simulation.duration, sc.simulation.dt,
                                control_period=sc.simulation.control_period)
-        assert ctrl.floats == {batch == 1}  # the float path for one copy, numpy columns otherwise
+        assert ctrl.forms == {FLOATS if batch == 1 else ARRAYS}  # floats for one copy, else numpy
     one = runs[1][0]
     for copy in runs[3]:
         assert not one.diverged and not copy.diverged and len(one.t) == len(copy.t)
@@ -121,14 +123,14 @@ def test_float_quantizer_matches_the_array_quantizer_bit_for_bit() -> None:
 
 
 def test_quantized_reading_of_floats_offers_the_array_view() -> None:
-    reading = QuantizedReading(None, 0.005, (0.31, -0.42))
-    assert reading.floats
+    reading = QuantizedReading(None, 0.005, columns=(0.31, -0.42), form=FLOATS)
     np.testing.assert_array_equal(reading.values, [[0.31, -0.42]])
     ctrl = _controllers()["proposed"]
     with pytest.raises(TypeError, match="QuantizedReading"):
         ctrl.control((0.31, -0.42), [0.0, 0.0, 0.0], (0.0, 0.0, 0.0))
     with pytest.raises(ValueError, match="Lemma 2"):
-        ctrl.control(QuantizedReading(None, 0.05, (0.3, 0.4)), [0.0, 0.0, 0.0], (0.0, 0.0, 0.0))
+        ctrl.control(QuantizedReading(None, 0.05, columns=(0.3, 0.4), form=FLOATS), [0.0, 0.0, 0.0],
+                     (0.0, 0.0, 0.0))
 
 
 def test_on_floats_falls_back_to_numpys_answer() -> None:
@@ -179,8 +181,8 @@ def test_a_batch_of_one_stops_at_the_first_row_out_of_bounds(bound: float, with_
 
 
 class _ArrayOnly:
-    """A plant with only the core of the Plant protocol, in array form (no float form, no load,
-    no actuator of its own): it must run at every batch size."""
+    """A plant with only the core of the Plant protocol, in array form (no step in other column
+    forms, no load, no actuator of its own): it must run at every batch size."""
 
     def __init__(self, inner: ChainPlant) -> None:
         self.inner, self.n, self.batch = inner, inner.n, inner.batch
@@ -208,22 +210,23 @@ class _ArrayOnly:
 
 @pytest.mark.parametrize("batch", [1, 3])
 def test_a_plant_with_only_the_array_form_runs_at_every_batch_size(batch: int) -> None:
-    from qcontrol.plants import FloatStepping, Plant
+    from qcontrol.plants import ColumnStepping, Plant
 
     sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=0.5"])
     plant = _ArrayOnly(build_plant(sc, "ode", batch=batch))
-    assert isinstance(plant, Plant) and not isinstance(plant, FloatStepping)
+    assert isinstance(plant, Plant) and not isinstance(plant, ColumnStepping)
     runs = [simulate(p, build_controller(sc), build_quantizer(sc), build_reference(sc), sc.x0,
                      sc.simulation.duration, sc.simulation.dt)
             for p in (plant, build_plant(sc, "ode", batch=batch))]
-    for mine, native in zip(*runs, strict=True):
+    for mine, native in zip(*runs, strict=True):  # numpy's sin, cos against math's for one copy
         assert not mine.diverged and len(mine.t) == len(native.t) == 501
         for field in ("x", "x_q", "u", "adaptive"):
-            np.testing.assert_array_equal(getattr(mine, field), getattr(native, field), err_msg=field)
+            np.testing.assert_allclose(getattr(mine, field), getattr(native, field), rtol=1e-12, atol=1e-14,
+                                       err_msg=field)
 
 
 class _ArrayOnlyLaw:
-    """The paper's law seen through the array form of BatchLaw only (no FloatColumns): it must
+    """The paper's law seen through the array form of BatchLaw only (no AnyColumnForm): it must
     run at every batch size, a batch of one through the engine's adapter."""
 
     def __init__(self, inner) -> None:
@@ -236,7 +239,7 @@ class _ArrayOnlyLaw:
         return self.inner.initial_state(batch)
 
     def control(self, reading, yd, state, t=0.0):
-        assert not reading.floats and all(isinstance(e, np.ndarray) for e in (*reading.columns, *state))
+        assert reading.form is ARRAYS and all(isinstance(e, np.ndarray) for e in (*reading.columns, *state))
         self.forms.add(f"array{len(reading.values)}")
         return self.inner.control(reading, yd, state, t)
 
@@ -249,11 +252,11 @@ class _ArrayOnlyLaw:
 
 @pytest.mark.parametrize("batch", [1, 3])
 def test_a_law_with_only_the_array_form_runs_at_every_batch_size(batch: int) -> None:
-    from qcontrol.controller import FloatColumns
+    from qcontrol.controller import AnyColumnForm
 
     sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=0.5"])
     law = _ArrayOnlyLaw(build_controller(sc))
-    assert not isinstance(law, FloatColumns) and isinstance(build_controller(sc), FloatColumns)
+    assert not isinstance(law, AnyColumnForm) and isinstance(build_controller(sc), AnyColumnForm)
     runs = [simulate(build_plant(sc, "ode", batch=batch), lw, build_quantizer(sc), build_reference(sc),
                      sc.x0, sc.simulation.duration, sc.simulation.dt)
             for lw in (law, build_controller(sc))]

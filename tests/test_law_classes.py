@@ -284,11 +284,12 @@ class ComparisonOwnAdvancer(qcontrol.ComparisonLaw):
 
 @pytest.mark.parametrize(("cls", "extends"), [(OwnAdvancer, "proposed"),
                                               (ComparisonOwnAdvancer, "comparison")])
-def test_float_advancer_defers_to_an_overridden_advancer(cls, extends: str) -> None:
+def test_the_advancer_in_any_form_defers_to_an_overridden_advancer(cls, extends: str) -> None:
     from qcontrol.assembly import build_law
+    from qcontrol.engine.fastpath import FLOATS
     qcontrol.register_law_class("own-advancer", cls, extends=extends, replace=True)
     law = build_law([qcontrol.load_scenario("example2", {"controller.kind": "own-advancer", **SHORT})])
-    assert law.float_advancer(1e-3) == ("own advancer", 1e-3)  # the engine's float path uses it
+    assert law.advancer_in(FLOATS, 1e-3) == ("own advancer", 1e-3)  # the engine's float path uses it
 
 
 class SaturatedPaperLaw(qcontrol.BacksteppingLaw):
@@ -312,8 +313,8 @@ class SaturatedPaperLaw(qcontrol.BacksteppingLaw):
     def advancer(self, h):
         return self.paper.advancer(h)
 
-    def float_advancer(self, h):
-        return self.paper.float_advancer(h)
+    def advancer_in(self, form, h):
+        return self.paper.advancer_in(form, h)
 
 
 @pytest.mark.parametrize("u_max", [1e9, 5.0])

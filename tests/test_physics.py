@@ -41,7 +41,8 @@ class OpenLoop(Backstepping):
     def advancer(self, h: float):
         return lambda state, out: state
 
-    float_advancer = advancer  # it reads the reading's columns as floats, as the float path gives them
+    def advancer_in(self, form, h: float):  # any form: it reads the reading's columns as they come
+        return self.advancer(h)
 
     def constants(self) -> dict:
         return {}

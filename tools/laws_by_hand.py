@@ -70,8 +70,9 @@ class PaperLawStepped(PaperLawRK4):
 
 
 class PaperLawColumns(qcontrol.BacksteppingLaw):
-    """Law (44)-(45) in column form: every formula takes a float per column (a single run) or a
-    ``(batch,)`` array per column (a batch)."""
+    """Law (44)-(45) in column form: every formula takes columns in the reading's form
+    (``reading.form``: a float per column for a single run, a ``(batch,)`` array per column for a
+    batch), r evaluated by that form."""
 
     state_name = "eps_hat"
 
@@ -83,17 +84,24 @@ class PaperLawColumns(qcontrol.BacksteppingLaw):
         names = tuple(f"q{i + 1}" for i in range(context.n))
         law.r = [qcontrol.expression(e, variables=names) for e in settings["r"]]
         law.state_size = len(law.r)
+        law.terms_by_form = {}
         return law
 
     def control(self, reading, yd, state, t=0.0) -> qcontrol.ControlOutput:
         q = reading.columns
         zbar, alphabar = self.recursion(q, yd)  # eqs. (31)-(34) on columns
-        r = [e.on_floats(q) for e in self.r] if reading.floats else [e.on_columns(q) for e in self.r]
+        r = self.bounding_terms(reading.form)(q)
         zn = zbar[-1]
         s = zn * zn / self.kappa + self.L
         robust = reduce(add, map(mul, state, r))  # eps_hat^T r(x_q)
         u = alphabar[-1] - zn * s * robust / (self.kappa * (self.kappa - self.L))  # eq. (44)
         return qcontrol.ControlOutput(u, zbar, [s * ri / self.sigma for ri in r], self.gamma * self.sigma)
+
+    def bounding_terms(self, form):
+        """r evaluated on columns of ``form`` (the reading's), made once per form."""
+        if form not in self.terms_by_form:
+            self.terms_by_form[form] = form.terms(self.r)
+        return self.terms_by_form[form]
 
     def advancer(self, h: float):
         decay = math.exp(-self.gamma * self.sigma * h)

@@ -16,7 +16,7 @@ from .backstepping import (
     lemma2_L,
 )
 from .comparison import ComparisonController, ComparisonLaw
-from .law import LAW_KINDS, BatchLaw, FloatColumns, LawContext, LawKind, law_kind, register_kind
+from .law import LAW_KINDS, AnyColumnForm, BatchLaw, LawContext, LawKind, law_kind, register_kind
 from .proposed import PaperLaw, ProposedController
 
 for _kind in (proposed.KIND, comparison.KIND):
@@ -29,7 +29,7 @@ __all__ = [
     "ComparisonLaw",
     "BatchLaw",
     "ControlOutput",
-    "FloatColumns",
+    "AnyColumnForm",
     "LawContext",
     "LawKind",
     "PaperLaw",

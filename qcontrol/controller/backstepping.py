@@ -7,11 +7,11 @@
   zbar and virtual controls alphabar, eqs. (31)-(34).
 * :class:`ControlOutput`: what one evaluation of a law hands the engine.
 
-The laws' formulas are written once, over *columns*: one value per state (``q_1 .. q_n``) or per
-adaptive estimate, each either a ``(batch,)`` array or, for a batch of one, a plain Python float.
-They use only elementwise arithmetic and coefficients precomputed as Python floats, so the same
-lines step a batch of 1000 copies on numpy arrays and a single run on floats (the engine's fast
-path, :mod:`qcontrol.engine.fastpath`).
+The laws' formulas are written once, over *columns* (:mod:`qcontrol.columns`): one value per
+state (``q_1 .. q_n``) or per adaptive estimate, in the form the reading says
+(``reading.form``). They use only elementwise arithmetic, coefficients precomputed as Python
+floats and what the form supplies (parameters as columns, expressions evaluated on columns), so
+the same lines step a batch of 1000 copies and a single run in whatever form the engine runs it.
 """
 
 from __future__ import annotations
@@ -22,11 +22,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from ..columns import Column, ColumnForm, Columns, Parameter
 from ..errors import QcontrolInputError
-from ..quantizer import Column, QuantizedReading
-
-Parameter = float | np.ndarray  # a scalar, or one value per copy of the batch (shape (batch,))
-Columns = tuple  # of Column: q_1 .. q_n, or the adaptive estimates
+from ..quantizer import QuantizedReading
 
 
 def parameter(name: str, value: float | Sequence[float] | np.ndarray) -> Parameter:
@@ -37,20 +35,6 @@ def parameter(name: str, value: float | Sequence[float] | np.ndarray) -> Paramet
     if not (np.all(np.isfinite(array)) and np.all(array > 0)):
         raise QcontrolInputError(f"controller {name} must be a finite number > 0, got {value!r}")
     return float(array) if array.ndim == 0 else array
-
-
-def as_float(value: Parameter) -> float:
-    """A parameter of a batch of one as a plain float."""
-    return float(np.ravel(value)[0])
-
-
-def stack(columns: Sequence[Column], batch: int) -> np.ndarray:
-    """Columns (arrays or floats) side by side: shape ``(batch, len(columns))``, or more rows if
-    the columns are longer (a state of one copy advanced with a batch's targets)."""
-    if not columns:
-        return np.empty((batch, 0))
-    shape = np.broadcast_shapes((batch,), *(np.shape(c) for c in columns))
-    return np.stack([np.broadcast_to(c, shape) for c in columns], axis=1)
 
 
 def backstepping_coefficients(c: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
@@ -146,7 +130,7 @@ class Backstepping:
     def _recursion_steps(self) -> tuple:
         """``alphabar_i = -c_i zbar_i + D_i``, eq. (34), with ``D_1 = y_d'`` and
         ``D_i = sum_{k<i} a[i-1][k] q_{k+1} + sum_{j<i} b[i-1][j] y_d^(j+1)``: one
-        ``(-c_i, D_i's y_d terms, D_i's q terms)`` per i as plain floats, zero terms left out."""
+        ``(-c_i, D_i's y_d terms, D_i's q terms)`` per i as Python numbers, zero terms left out."""
         n = self.n
         Dq = np.zeros((n, n))
         Dy = np.zeros((n, n + 1))
@@ -249,11 +233,12 @@ class BacksteppingLaw(Backstepping):
     :meth:`advancer`; register it with ``qcontrol.register_law_class``.
 
     Column form: :meth:`control` receives the reading's columns ``reading.columns`` (``q_1 ..
-    q_n``) and the state as a tuple of columns, each a float for a single run and a ``(batch,)``
-    array for a batch; formulas written with elementwise arithmetic (and ``numpy`` functions, or
-    an expression's ``on_columns``) take both, so one class serves every batch size. Its
-    :meth:`float_advancer` is therefore its :meth:`advancer`, and a single run steps on floats
-    (the engine's fast path) without an array in between.
+    q_n``) and the state as a tuple of columns, all in the reading's form (``reading.form``, a
+    :class:`~qcontrol.columns.ColumnForm`: ``(batch,)`` arrays in the array form); formulas
+    written with elementwise arithmetic, taking parameters and expressions through the form
+    (``form.column(p)``, ``form.terms(expressions)``), serve every form, so one class serves every
+    batch size and the engine may run a single run in the form it chooses. Its
+    :meth:`advancer_in` is therefore its :meth:`advancer`.
     """
 
     state_name = "state"  # names the state in outputs (the summary's final_<state_name>)
@@ -280,8 +265,8 @@ class BacksteppingLaw(Backstepping):
         """``(state, output) -> state`` one step ``h`` on, the output held (column form)."""
         raise NotImplementedError(f"{type(self).__name__} must define advancer(h)")
 
-    def float_advancer(self, h: float) -> Advance:
-        """:meth:`advancer` for a single run: the same function, its formulas taking floats."""
+    def advancer_in(self, form: ColumnForm, h: float) -> Advance:
+        """:meth:`advancer` for a state in ``form``: the same function (its formulas serve every form)."""
         return self.advancer(h)
 
     def constants(self) -> dict[str, Any]:

@@ -16,11 +16,12 @@ from typing import Any
 
 import numpy as np
 
+from ..columns import ColumnForm, Terms, stack
 from ..errors import QcontrolInputError
 from ..expr import Expression
 from ..quantizer import QuantizedReading
 from ..schema import Key, KindKeys, Table, number, read_keys, string
-from .backstepping import Advance, BacksteppingLaw, Columns, ControlOutput, output, stack
+from .backstepping import Advance, BacksteppingLaw, Columns, ControlOutput, output
 from .law import LawContext, LawKind, unchanged_from
 
 
@@ -79,10 +80,7 @@ class ComparisonLaw(BacksteppingLaw):
         self.adaptation_gain = float(adaptation_gain)
         self.known_theta = None if known_theta is None else np.asarray(known_theta, dtype=float)
         self.state_size = len(self.phi)
-        # (psi or None, phi...) evaluated on the reading's columns: numpy, or math on floats
-        exprs = (self.psi, *self.phi)
-        self._on_arrays = tuple(None if e is None else e.on_columns for e in exprs)
-        self._on_floats = tuple(None if e is None else e.on_floats for e in exprs)
+        self._terms: dict[ColumnForm, Terms] = {}  # (terms_in)
         self._built_attributes = frozenset(vars(self)) | {"_built_attributes"}  # (has_compiled_equivalent)
 
     def initial_state(self, batch: int) -> np.ndarray:
@@ -105,14 +103,13 @@ class ComparisonLaw(BacksteppingLaw):
             batch = len(theta_hat)
             return ControlOutput(out.u, stack(out.zbar, batch), stack(out.target, batch), 0.0)
         q = reading.columns
-        psi, *phi = self._on_floats if reading.floats else self._on_arrays
+        phi_q = self.terms_in(reading.form)(q)  # psi(x_q) (if present), then phi(x_q)
         zbar, alphabar = self.recursion(q, yd)  # eqs. (31)-(34)
         u = alphabar[-1]
-        if psi is not None:
-            u = u - psi(q)
-        rate: tuple = (0.0,) * len(phi)
-        if phi:
-            phi_q = [p(q) for p in phi]
+        if self.psi is not None:
+            u = u - phi_q.pop(0)
+        rate: tuple = (0.0,) * len(phi_q)
+        if phi_q:
             u = u - reduce(add, map(mul, theta_hat, phi_q))  # eq. (46): theta_hat^T phi(x_q)
             if self.known_theta is None:
                 rate = self.adaptive_rate(zbar, phi_q)
@@ -123,6 +120,14 @@ class ComparisonLaw(BacksteppingLaw):
         zn = zbar[-1]
         return tuple([self.adaptation_gain * p * zn for p in phi_q])
 
+    def terms_in(self, form: ColumnForm) -> Terms:
+        """psi (if present) and phi evaluated on columns of ``form`` (made once per form)."""
+        terms = self._terms.get(form)
+        if terms is None:
+            exprs = ([self.psi] if self.psi is not None else []) + list(self.phi)
+            terms = self._terms[form] = form.terms(exprs)
+        return terms
+
     def advance(self, state: np.ndarray | Columns, out: ControlOutput, h: float) -> np.ndarray | Columns:
         """``theta_hat`` grows at the held rate (exact for ``x_q`` held over ``h``)."""
         if isinstance(state, np.ndarray):
@@ -131,12 +136,8 @@ class ComparisonLaw(BacksteppingLaw):
         return self.advancer(h)(state, out)
 
     def advancer(self, h: float) -> Advance:
-        """:meth:`advance` over a fixed ``h`` in column form (arrays or floats), made once per run."""
+        """:meth:`advance` over a fixed ``h`` in column form (any form), made once per run."""
         return RateAdvance(h).advance
-
-    def float_advancer(self, h: float) -> Advance:
-        """The same lines on floats (:class:`~.law.FloatColumns`)."""
-        return self.advancer(h)
 
 
 class RateAdvance:

@@ -16,6 +16,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from ..columns import ColumnForm
 from ..errors import QcontrolInputError
 from ..expr import Expression
 from ..quantizer import QuantizedReading
@@ -85,8 +86,8 @@ class BatchLaw(Protocol):
     (``(batch,)`` arrays: the array form, which every law implements and which serves every batch
     size), holds the output's ``u`` over the control period, and advances the adaptive state
     every step with the function :meth:`advancer` made once per run. ``coordinates`` defines the
-    errors z, zbar and the Lemma 2 bounds the engine records and checks. A law that can also
-    take a batch of one as plain floats says so with :class:`FloatColumns`.
+    errors z, zbar and the Lemma 2 bounds the engine records and checks. A law whose formulas
+    serve columns of any form (:mod:`qcontrol.columns`) says so with :class:`AnyColumnForm`.
     """
 
     state_name: str  # names the adaptive state in outputs: "eps_hat", "theta_hat", ...
@@ -112,15 +113,15 @@ class BatchLaw(Protocol):
 
 
 @runtime_checkable
-class FloatColumns(Protocol):
-    """A capability: the law's :meth:`~BatchLaw.control` also takes a batch of one as plain floats
-    (a reading whose ``columns`` are floats, the adaptive state a tuple of floats, ``u`` a float
-    back), and :meth:`float_advancer` advances that state. The engine's float path
-    (:mod:`qcontrol.engine.fastpath`) uses it when present; a law without it runs there through
-    its array form."""
+class AnyColumnForm(Protocol):
+    """A capability: the law's formulas serve columns of any :class:`~qcontrol.columns.ColumnForm`.
+    Its :meth:`~BatchLaw.control` works in the form of the reading it is given (``reading.form``:
+    the reading's columns, the state and ``u`` all in that form), and :meth:`advancer_in` advances
+    a state in a given form. The engine then runs a single run in the form it chooses
+    (:mod:`qcontrol.engine.fastpath`); a law without it runs there through its array form."""
 
-    def float_advancer(self, h: float) -> Advance:
-        """:meth:`~BatchLaw.advancer` for a state of floats."""
+    def advancer_in(self, form: ColumnForm, h: float) -> Advance:
+        """:meth:`~BatchLaw.advancer` for a state in ``form``."""
 
 
 def no_settings() -> Mapping[str, Any]:

@@ -1,8 +1,8 @@
 """The paper's quantized adaptive law: control law (44) and adaptive law (45), and its scenario keys.
 
 The scalar parameters (kappa, gamma, sigma, r_scale) may be given per copy, as arrays of shape
-``(batch,)``: a parameter sweep then runs as one batch through the same formulas (a single run is
-a batch of one with scalar parameters).
+``(batch,)``: a parameter sweep then runs as one batch through the same formulas (a single run
+has scalar parameters).
 """
 
 from __future__ import annotations
@@ -16,8 +16,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from ..columns import ARRAYS, ColumnForm, Terms, stack
 from ..errors import QcontrolInputError
-from ..expr import FLOAT_REFUSED, Expression, compile_expression, scalar_function
+from ..expr import Expression, compile_expression
 from ..quantizer import QuantizedReading
 from ..schema import OPTIONAL, Key, KindKeys, Table, expressions, number, read_keys, string
 from .backstepping import (
@@ -27,11 +28,9 @@ from .backstepping import (
     Columns,
     ControlOutput,
     Parameter,
-    as_float,
     lemma2_L,
     output,
     parameter,
-    stack,
 )
 from .law import Diagnostic, LawContext, LawKind, unchanged_from
 
@@ -42,15 +41,15 @@ R_CHECK_RANGE = 10.0  # ... drawn uniformly from [-R_CHECK_RANGE, R_CHECK_RANGE]
 
 
 class LawConstants(NamedTuple):
-    """The constants the column formulas read, for one kind of column (arrays, or floats)."""
+    """The constants the column formulas read, in one :class:`~qcontrol.columns.ColumnForm`."""
 
-    kappa: Parameter
-    gain: Parameter  # 1 / (kappa (kappa - L))
-    sigma: Parameter
-    r_scale: Parameter | None  # None when r_scale == 1 everywhere
-    rate: Parameter  # gamma sigma
-    terms: tuple  # the bounding functions r evaluated on the reading's columns
-    expm1: Any  # math.expm1 for floats, numpy.expm1 for arrays (the exact hold's 1 - exp(-K T))
+    kappa: Column
+    gain: Column  # 1 / (kappa (kappa - L))
+    sigma: Column
+    r_scale: Column | None  # None when r_scale == 1 everywhere
+    rate: Column  # gamma sigma
+    terms: Terms  # the bounding functions r evaluated on the reading's columns: terms(q) -> [r_i]
+    expm1: Any  # the form's exp(x) - 1 (the exact hold's 1 - exp(-K T))
 
 
 class PaperLaw(BacksteppingLaw):
@@ -74,7 +73,8 @@ class PaperLaw(BacksteppingLaw):
     A public class to subclass: :meth:`robust_term` (the term subtracted from ``alphabar_n``),
     :meth:`adaptive_target` (eq. (45)'s held target), :meth:`bounding_terms`, or
     :meth:`control`, :meth:`initial_state` and :meth:`advancer` to add a state (docs/laws.md).
-    Every formula takes columns: a float each for a single run, a ``(batch,)`` array for a batch.
+    Every formula takes columns in the reading's form (a ``(batch,)`` array each in the array
+    form) and the constants in that form (:meth:`constants_in`).
     :meth:`from_context` builds it from a scenario's ``[controller.proposed]`` settings.
     """
 
@@ -149,25 +149,26 @@ class PaperLaw(BacksteppingLaw):
         self.kappa, self.gamma, self.sigma, self.r_scale = kappa, gamma, sigma, r_scale
         self.r = tuple(r)
         self.state_size = len(self.r)
-        self._on_arrays, self._on_floats = self._constants_by_column_kind()
-        self._built_attributes = frozenset(vars(self)) | {"_built_attributes"}  # (has_compiled_equivalent)
-
-    def _constants_by_column_kind(self) -> tuple[LawConstants, LawConstants | None]:
-        """The constants of the column formulas, computed once: eq. (45)'s decay rate
-        ``gamma sigma`` and eq. (44)'s gain ``1 / (kappa (kappa - L))``, for arrays and (for a
-        batch of one) as floats with ``math``'s evaluation of r (where ``math`` raises,
-        :meth:`control` falls back to :meth:`Expression.on_floats`, numpy's answer there)."""
-        kappa, sigma, r_scale = self.kappa, self.sigma, self.r_scale
         rate = self.gamma * sigma
         self._rate = rate[:, None] if isinstance(rate, np.ndarray) else rate  # array form of ControlOutput
+        self._constants: dict[ColumnForm, LawConstants] = {}  # (constants_in)
+        self._built_attributes = frozenset(vars(self)) | {"_built_attributes"}  # (has_compiled_equivalent)
+
+    def constants_in(self, form: ColumnForm) -> LawConstants:
+        """The constants of the column formulas in ``form``, computed once per form: eq. (45)'s
+        decay rate ``gamma sigma``, eq. (44)'s gain ``1 / (kappa (kappa - L))``, and r evaluated
+        on the form's columns."""
+        known = self._constants.get(form)
+        if known is not None:
+            return known
+        kappa, sigma, r_scale = self.kappa, self.sigma, self.r_scale
         gain = 1.0 / (kappa * (kappa - self.L))  # (44): u = -zbar_n s eps^T r / (kappa (kappa - L))
         scaled = not np.all(np.asarray(r_scale) == 1.0)
-        on_arrays = LawConstants(kappa, gain, sigma, r_scale if scaled else None, rate,
-                         tuple(e.on_columns for e in self.r), np.expm1)
-        on_floats = None if self.copies not in (None, 1) else LawConstants(
-            as_float(kappa), as_float(gain), as_float(sigma), as_float(r_scale) if scaled else None,
-            as_float(rate), tuple(scalar_function(e) for e in self.r), math.expm1)
-        return on_arrays, on_floats
+        made = self._constants[form] = LawConstants(
+            form.column(kappa), form.column(gain), form.column(sigma),
+            form.column(r_scale) if scaled else None, form.column(self.gamma * sigma),
+            form.terms(self.r), form.expm1)
+        return made
 
     def initial_state(self, batch: int) -> np.ndarray:
         """``eps_hat(0) = 0``: one estimate per bounding function r_i (a subclass that adds states
@@ -181,9 +182,9 @@ class PaperLaw(BacksteppingLaw):
         """``K = s eps_hat^T r(x_q) / (kappa (kappa - L))`` of law (44) over columns of any shape
         (``(rows, batch)`` when evaluated on a record; per-copy constants broadcast on the last
         axis)."""
-        law = self._on_arrays
+        law = self.constants_in(ARRAYS)
         zn = self.recursion(q, yd)[0][-1]
-        r = [term(q) for term in law.terms]
+        r = law.terms(q)
         if law.r_scale is not None:
             r = [ri * law.r_scale for ri in r]
         s = zn * zn / law.kappa + self.L
@@ -206,9 +207,9 @@ class PaperLaw(BacksteppingLaw):
         """Eq. (44) for the current quantized reading; eq. (45)'s held terms for :meth:`advance`:
         ``u = alphabar_n - robust_term(...)``, targets from :meth:`adaptive_target`.
 
-        ``eps_hat`` is a tuple of m columns (column form, as the engine passes it; floats when
-        ``reading.floats``), or a ``(batch, m)`` array: the same formulas then run on the array's
-        columns and the output is in array form. ``yd`` holds ``y_d .. y_d^(n)``.
+        ``eps_hat`` is a tuple of m columns in the reading's form (column form, as the engine
+        passes it), or a ``(batch, m)`` array: the same formulas then run on the array's columns
+        and the output is in array form. ``yd`` holds ``y_d .. y_d^(n)``.
         """
         if not isinstance(reading, QuantizedReading) or reading.max_error != self.max_error:
             self.check_reading(reading)
@@ -216,9 +217,7 @@ class PaperLaw(BacksteppingLaw):
             out = self.control(QuantizedReading(reading.values, reading.max_error), yd, tuple(eps_hat.T))
             batch = len(eps_hat)
             return ControlOutput(out.u, stack(out.zbar, batch), stack(out.target, batch), self._rate)
-        law = self._on_floats if reading.floats else self._on_arrays
-        if law is None:
-            raise ValueError(f"the controller has per-copy parameters for {self.copies} copies, not one")
+        law = self.constants_in(reading.form)
         q = reading.columns
         zbar, alphabar = self.recursion(q, yd)  # eqs. (31)-(34)
         r = self.bounding_terms(q, law)
@@ -227,10 +226,7 @@ class PaperLaw(BacksteppingLaw):
 
     def bounding_terms(self, q: Columns, law: LawConstants) -> list[Column]:
         """``r(x_q)`` of eqs. (37)-(43), each times ``r_scale``."""
-        try:
-            r = [term(q) for term in law.terms]  # r(x_q)
-        except FLOAT_REFUSED:  # math refused (floats only): numpy's answer, the one fallback rule
-            r = [e.on_floats(q) for e in self.r]
+        r = law.terms(q)  # r(x_q)
         if law.r_scale is not None:
             r = [ri * law.r_scale for ri in r]
         return r
@@ -263,23 +259,21 @@ class PaperLaw(BacksteppingLaw):
         if isinstance(state, np.ndarray):
             eps = self.advance(tuple(state.T), out._replace(target=tuple(out.target.T)), h)
             return stack(eps, len(state))
-        return (self.advancer(h) if isinstance(out.u, np.ndarray) else self.float_advancer(h))(state, out)
+        return self.advancer(h)(state, out)
 
     def advancer(self, h: float) -> Advance:
         """:meth:`advance` over a fixed ``h`` in column form, as a function ``(state, out) ->
         state`` made once per run: ``exp(-gamma sigma h)`` is computed here, not every step."""
-        return self._decay_advance(self._on_arrays, h)
+        return self._decay_advance(self.constants_in(ARRAYS), h)
 
-    def float_advancer(self, h: float) -> Advance:
-        """:meth:`advancer` for a batch of one on floats (:class:`~.law.FloatColumns`); a
-        subclass's own :meth:`advancer` when it overrides it (its formulas take floats too)."""
+    def advancer_in(self, form: ColumnForm, h: float) -> Advance:
+        """:meth:`advancer` for a state in ``form`` (:class:`~.law.AnyColumnForm`); a subclass's
+        own :meth:`advancer` when it overrides it (its formulas serve every form too)."""
         if type(self).advancer is not PaperLaw.advancer:
             return self.advancer(h)
-        return self._decay_advance(self._on_floats, h)
+        return self._decay_advance(self.constants_in(form), h)
 
-    def _decay_advance(self, law: LawConstants | None, h: float) -> Advance:
-        if law is None:
-            raise ValueError(f"the controller has per-copy parameters for {self.copies} copies, not one")
+    def _decay_advance(self, law: LawConstants, h: float) -> Advance:
         decay = np.exp(-np.asarray(law.rate) * h)
         return DecayAdvance(decay if decay.ndim else float(decay)).advance
 
@@ -410,7 +404,7 @@ def build(settings: Sequence[ProposedSettings], ctx: LawContext) -> PaperLaw:
 
 def per_copy_settings(settings: Sequence[ProposedSettings]) -> ProposedSettings:
     """The variants of one batch as one settings object: kappa, gamma, sigma and r_scale as
-    per-copy arrays (a float for a batch of one); r and the hold shared (see :func:`structure`)."""
+    per-copy arrays (a number for a single copy); r and the hold shared (see :func:`structure`)."""
     first = settings[0]
     return replace(first, kappa=_per_copy([s.kappa for s in settings]),
                    gamma=_per_copy([s.gamma for s in settings]), sigma=_per_copy([s.sigma for s in settings]),

@@ -15,8 +15,9 @@ ways the law chooses:
 The engine records the law's errors z, zbar and the Lemma 2 check in the backstepping coordinates
 of the scenario's ``c`` and ``delta``, as for the built-in laws.
 
-The adapter has both forms the engine drives (:class:`~.law.FloatColumns`): a single run hands
-the law fresh ``(n,)`` arrays made from the engine's floats, a batch calls each copy's law in turn.
+The adapter serves every form the engine drives a law in (:class:`~.law.AnyColumnForm`): it calls
+each copy's law in turn with fresh ``(n,)`` arrays made from the reading, and gives ``u`` and the
+state back in the reading's form.
 """
 
 from __future__ import annotations
@@ -28,10 +29,11 @@ from typing import Any, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 
+from ..columns import ARRAYS, ColumnForm
 from ..errors import QcontrolInputError
 from ..quantizer import QuantizedReading
 from ..schema import Table
-from .backstepping import Backstepping, Columns, stack
+from .backstepping import Backstepping, Columns
 from .law import LawContext, LawKind, check_kind_name, register_kind
 from .user_diagnostics import declared_diagnostics
 
@@ -77,8 +79,7 @@ LawFactory = Callable[[dict, int], AnyLaw]  # (the [controller] table, the plant
 
 class _Sample(NamedTuple):
     """What one evaluation hands the engine: ``u``, and the sample the state's update holds.
-    A single run: ``u`` a float, ``x_q`` ``(n,)``; a batch: ``u`` ``(batch,)``, ``x_q``
-    ``(batch, n)``."""
+    ``u`` a column in the reading's form, ``x_q`` the reading's ``(batch, n)`` values."""
 
     u: np.ndarray | float
     t: float
@@ -87,8 +88,8 @@ class _Sample(NamedTuple):
 
 
 class UserLaw(Backstepping):
-    """A batch of user laws (one per copy) driven by the engine (:class:`~.law.BatchLaw`, with
-    the float form :class:`~.law.FloatColumns` for a single run)."""
+    """A batch of user laws (one per copy) driven by the engine (:class:`~.law.BatchLaw`, in any
+    column form: :class:`~.law.AnyColumnForm`)."""
 
     def __init__(self, laws: Sequence[AnyLaw], c: Sequence[float], max_error: float, state_name: str,
                  kind: str = "user law") -> None:
@@ -113,20 +114,16 @@ class UserLaw(Backstepping):
 
     def control(self, reading: QuantizedReading, yd: Sequence[float], state: Columns,
                 t: float = 0.0) -> _Sample:
-        """``u`` of every copy at the sample ``t`` (its law called with that copy's reading); a
-        reading of floats (a single run) gives ``u`` as a float."""
+        """``u`` of every copy at the sample ``t`` (its law called with that copy's reading), a
+        column in the reading's form."""
         if not isinstance(reading, QuantizedReading) or reading.max_error != self.max_error:
             self.check_reading(reading)
         yd_row = np.array(yd, dtype=float)
-        if reading.floats:
-            x_q = np.array(reading.columns, dtype=float)
-            u = self._number(self.laws[0].control(t, x_q.copy(), yd_row.copy(), np.array(state, dtype=float)))
-            return _Sample(u, t, x_q, yd_row)
-        x_q = reading.values
-        states = stack(state, len(x_q))
-        u = np.array([self._number(self._law(b).control(t, x_q[b].copy(), yd_row.copy(), states[b].copy()))
-                      for b in range(len(x_q))])
-        return _Sample(u, t, x_q, yd_row)
+        x_q, form = reading.values, reading.form
+        states = form.array(state, len(x_q))
+        u = [self._number(self._law(b).control(t, x_q[b].copy(), yd_row.copy(), states[b].copy()))
+             for b in range(len(x_q))]
+        return _Sample(form.column(np.array(u)), t, x_q, yd_row)
 
     def _law(self, b: int) -> AnyLaw:
         return self.laws[b] if len(self.laws) > 1 else self.laws[0]
@@ -182,41 +179,28 @@ class UserLaw(Backstepping):
         return array.astype(float).reshape(self.state_size)
 
     def advancer(self, h: float) -> Callable[[Columns, _Sample], Columns]:
-        """The state of every copy one step ``h`` on (:meth:`step_state`), in column form."""
-        return BatchUpdate(self, h).advance
+        """The state of every copy one step ``h`` on (:meth:`step_state`), in the array form."""
+        return self.advancer_in(ARRAYS, h)
 
-    def float_advancer(self, h: float) -> Callable[[tuple, _Sample], tuple]:
-        """:meth:`advancer` for a single run, its state a tuple of floats."""
-        return OneCopyUpdate(self, h).advance
+    def advancer_in(self, form: ColumnForm, h: float) -> Callable[[Columns, _Sample], Columns]:
+        """:meth:`advancer` for a state in ``form``."""
+        return StateUpdate(self, form, h).advance
 
 
-class BatchUpdate:
-    """The state of a batch of user laws over one step ``h``, copy by copy (:meth:`UserLaw.step_state`)."""
+class StateUpdate:
+    """The state of a batch of user laws over one step ``h``, copy by copy
+    (:meth:`UserLaw.step_state`), its columns in ``form``."""
 
-    def __init__(self, law: UserLaw, h: float) -> None:
-        self.law, self.h = law, h
+    def __init__(self, law: UserLaw, form: ColumnForm, h: float) -> None:
+        self.law, self.form, self.h = law, form, h
 
     def advance(self, state: Columns, sample: _Sample) -> Columns:
         law, h = self.law, self.h
         if not law.state_size:
             return state
-        s = stack(state, len(sample.x_q))
+        s = self.form.array(state, len(sample.x_q))
         s = np.array([law.step_state(law._law(b), sample, sample.x_q[b], s[b], h) for b in range(len(s))])
-        return tuple(np.ascontiguousarray(s.T))
-
-
-class OneCopyUpdate:
-    """The state of one user law over one step ``h``, as a tuple of floats (a single run)."""
-
-    def __init__(self, law: UserLaw, h: float) -> None:
-        self.law, self.one, self.h = law, law.laws[0], h
-
-    def advance(self, state: tuple, sample: _Sample) -> tuple:
-        law = self.law
-        if not law.state_size:
-            return state
-        moved = law.step_state(self.one, sample, sample.x_q, np.array(state, dtype=float), self.h)
-        return tuple(moved.tolist())
+        return tuple(self.form.columns(s))
 
 
 def _state_size(law: object) -> int:

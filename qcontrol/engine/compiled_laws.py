@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..controller.backstepping import ControlOutput, as_float, output
+from ..controller.backstepping import ControlOutput, output
 from ..controller.comparison import ComparisonController
 from ..controller.law import BatchLaw
 from ..controller.proposed import ProposedController
@@ -77,6 +77,11 @@ def _evaluations(expressions: list, n: int, prefix: str) -> tuple[list[str], lis
 
 def _held(n: int, m: int) -> list[str]:
     return [f"held[{1 + m + i}] = z{i + 1}" for i in range(n)]
+
+
+def as_float(value: float | np.ndarray) -> float:
+    """A parameter of a batch of one (a number, or one per-copy value) as the float the text holds."""
+    return float(np.ravel(value)[0])
 
 
 def _folded(state: str, values: list[str]) -> str:

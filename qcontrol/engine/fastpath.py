@@ -1,20 +1,27 @@
 """The batch-of-one fast path: the engine's adapter between the array form every part implements
-and plain Python floats.
+and plain Python floats, the one module that knows the float form.
 
 Why: a numpy call on a one-element array costs about a microsecond, float arithmetic tens of
 nanoseconds, and a closed-loop step makes a few dozen of them; so a single run (a batch of one)
 steps on floats, a batch of copies on ``(batch,)`` numpy columns. This module is where that
-choice is made for a run and where the float form of the engine's own parts lives:
+choice is made for a run (:func:`rows_for`) and where everything the float form needs lives:
 
+* :data:`FLOATS`: the float :class:`~qcontrol.columns.ColumnForm`, each column one plain float.
+  The laws' formulas and the ODE plant's RK4 are written over columns of any form
+  (:mod:`qcontrol.columns`); given this form, the same lines run on floats, with the parameters
+  as floats, ``math.expm1``, and expressions evaluated through ``math``
+  (:class:`qcontrol.expr.FloatTerms`, generated from the same expression trees as numpy's);
 * :class:`FloatRows`: the rows of one copy kept as tuples and written to the arrays in blocks;
 * :class:`FloatQuantize`: q(x) of eq. (3) on floats, bit for bit the array quantizer's;
 * :class:`FloatDifferencing`: the encoder's differenced velocity (:mod:`.velocity`) on floats;
-* :func:`float_io`: the plant's :class:`~qcontrol.plants.base.FloatStepping` form if it has one,
-  else its array form seen as floats (:class:`ArrayPlantAsFloats`), so a plant that implements
-  only the array form runs at every batch size;
-* :meth:`FloatRows.law`: the law's :class:`~qcontrol.controller.law.FloatColumns` form if it has
-  one, else its array form seen as floats (:class:`ArrayLawAsFloats`), so a law that implements
-  only the array form runs at every batch size too.
+* :func:`float_io`: a plant that steps in any form
+  (:class:`~qcontrol.plants.base.ColumnStepping`) in this one, any other through its array form
+  (:class:`ArrayPlantAsFloats`), so a plant that implements only the array form runs at every
+  batch size;
+* :meth:`FloatRows.law`: a law whose formulas serve any form
+  (:class:`~qcontrol.controller.law.AnyColumnForm`) in this one, any other through its array
+  form (:class:`ArrayLawAsFloats`), so a law that implements only the array form runs at every
+  batch size too.
 
 One step further, :func:`compiled_loop`: a batch of one whose parts all have a compiled form (the
 uniform quantizer, a built-in law, a plant with :class:`~qcontrol.plants.base.NativeStepping`)
@@ -23,9 +30,8 @@ engine's scheduled rows, writing the same rows into the same buffer; everything 
 float form below.
 
 The one fallback rule: where ``math`` refuses an evaluation that numpy answers with NaN or Inf
-(:data:`qcontrol.expr.FLOAT_REFUSED`), numpy's answer is taken. The laws' formulas are written once
-over columns (:mod:`qcontrol.controller.backstepping`): the same lines take floats here and
-arrays for a batch; expressions come in both forms from one compiler (:mod:`qcontrol.expr`).
+(:data:`qcontrol.expr.FLOAT_REFUSED`), numpy's answer is taken
+(:meth:`qcontrol.expr.Expression.on_floats`).
 """
 
 from __future__ import annotations
@@ -37,10 +43,11 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from ..columns import Column, Parameter
 from ..controller.backstepping import Advance, Columns
-from ..controller.law import BatchLaw, FloatColumns
-from ..expr import FLOAT_REFUSED
-from ..plants.base import FloatIO, FloatStepping, Plant
+from ..controller.law import AnyColumnForm, BatchLaw
+from ..expr import FLOAT_REFUSED, Expression, FloatCombination, FloatTerms
+from ..plants.base import ColumnIO, ColumnStepping, Plant
 from ..quantizer import QuantizedReading, Quantizer, UniformQuantizer
 from .compiled_loop import CompiledLoop
 from .compiled_loop import compiled_loop as compiled_loop_of
@@ -50,6 +57,40 @@ from .spec import RunSpec
 
 Quantize = Callable[[Any], QuantizedReading]
 FLUSH_ROWS = 1000  # a batch of one: rows kept as Python tuples before they are written to arrays
+
+
+class FloatForm:
+    """The float :class:`~qcontrol.columns.ColumnForm`: a batch of one, each column a plain float."""
+
+    expm1 = staticmethod(math.expm1)
+
+    def column(self, values: Parameter) -> float:
+        array = np.asarray(values, dtype=float)
+        if array.size != 1:
+            raise ValueError(f"{array.size} per-copy values for a batch of one")
+        return float(array.reshape(1)[0])
+
+    def terms(self, expressions: Sequence[Expression]) -> FloatTerms:
+        return FloatTerms(expressions)
+
+    def combination(self, expressions: Sequence[Expression], coefficients: Sequence[Parameter | None]
+                    ) -> FloatCombination:
+        return FloatCombination(expressions, [None if c is None else self.column(c) for c in coefficients])
+
+    def columns(self, rows: np.ndarray) -> list[float]:
+        rows = np.asarray(rows, dtype=float)
+        if len(rows) != 1:
+            raise ValueError(f"{len(rows)} rows for a batch of one")
+        return rows[0].tolist()
+
+    def array(self, columns: Sequence[Column], batch: int) -> np.ndarray:
+        return np.array([columns], dtype=float).reshape(1, len(columns))
+
+    def __repr__(self) -> str:
+        return "FLOATS"
+
+
+FLOATS = FloatForm()
 
 
 class FloatQuantize:
@@ -62,7 +103,7 @@ class FloatQuantize:
         self.delta = quantizer.delta if isinstance(quantizer, UniformQuantizer) else None
 
     def quantize(self, readings: Sequence[float]) -> QuantizedReading:
-        return QuantizedReading(None, self.max_error, self.values(readings))
+        return QuantizedReading(None, self.max_error, columns=self.values(readings), form=FLOATS)
 
     def values(self, readings: Sequence[float]) -> tuple[float, ...]:
         d = self.delta
@@ -96,11 +137,12 @@ class FloatDifferencing:
             past.extend([q1] * self.hold)
         velocity = (q1 - past[0]) / self.period
         past.append(q1)
-        return QuantizedReading(None, q.max_error, (q1, velocity, *columns[2:]))
+        return QuantizedReading(None, q.max_error, columns=(q1, velocity, *columns[2:]), form=FLOATS)
 
 
 class ArrayPlantAsFloats:
-    """A plant with only the array form, as one copy's :class:`~qcontrol.plants.base.FloatIO`."""
+    """A plant with only the array form, as one copy's :class:`~qcontrol.plants.base.ColumnIO` in
+    the float form."""
 
     def __init__(self, plant: Plant, h: float) -> None:
         self.plant, self.h = plant, h
@@ -113,9 +155,10 @@ class ArrayPlantAsFloats:
         self.plant.step(np.array([u]), self.h)
 
 
-def float_io(plant: Plant, h: float) -> FloatIO:
-    """One copy's observe and step on floats: the plant's own float form, or its array form."""
-    return plant.float_io(h) if isinstance(plant, FloatStepping) else ArrayPlantAsFloats(plant, h)
+def float_io(plant: Plant, h: float) -> ColumnIO:
+    """One copy's observe and step on floats: the plant's columns in :data:`FLOATS`, or its array
+    form."""
+    return plant.column_io(FLOATS, h) if isinstance(plant, ColumnStepping) else ArrayPlantAsFloats(plant, h)
 
 
 class FloatOutput(NamedTuple):
@@ -172,13 +215,13 @@ class FloatRows:
     def differenced(self, quantize: Quantize, hold: int, period: float) -> Quantize:
         return FloatDifferencing(quantize, hold, period).quantize
 
-    def plant_io(self, plant: Plant, h: float) -> FloatIO:
+    def plant_io(self, plant: Plant, h: float) -> ColumnIO:
         return float_io(plant, h)
 
     def law(self, law: BatchLaw, h: float) -> tuple[Callable[..., Any], Advance]:
-        """``(control, advance)`` of one copy on floats: the law's float form, or its array form."""
-        if isinstance(law, FloatColumns):
-            return law.control, law.float_advancer(h)
+        """``(control, advance)`` of one copy on floats: the law in :data:`FLOATS`, or its array form."""
+        if isinstance(law, AnyColumnForm):
+            return law.control, law.advancer_in(FLOATS, h)
         adapter = ArrayLawAsFloats(law, h)
         return adapter.control, adapter.advance
 

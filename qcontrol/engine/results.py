@@ -105,7 +105,7 @@ class Trajectory(RunRecord):
         """The metrics of the run, by the same reductions as a metrics-only run (one chunk)."""
         rows = len(self.t)
         chunk = Chunk(0, self.t, np.array([rows]), np.array([self.diverged]), self.hold)
-        block = {name: array[:, None] for name, array in self.signals.items()}  # a batch of one
+        block = {name: array[:, None] for name, array in self.signals.items()}  # one copy
         values = {}
         for reduction in REDUCTIONS:
             array = self.signals[reduction.signal]

@@ -1,6 +1,6 @@
 """Where the loop puts each row it records: the buffer of recorded signals, and its writer for a
-batch in array form (:class:`ArrayRows`; a batch of one has its float form,
-:class:`~.fastpath.FloatRows`). Both offer the loop the same things: the initial adaptive state,
+batch in array form (:class:`ArrayRows`; :mod:`.fastpath` chooses the rows of a run). The rows
+of every form offer the loop the same things: the initial adaptive state,
 the quantizer, the differenced velocity and the plant's observe and step in their form, ``keep``
 (one row), and ``flush``, ``untested`` and ``next_event`` (at the loop's rare rows).
 """

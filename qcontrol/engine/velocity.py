@@ -35,8 +35,8 @@ def lemma2_applies(velocity_source: str) -> bool:
 
 class ArrayDifferencing:
     """``quantize`` with x2 replaced by the quantized position differenced over ``hold`` rows
-    (``period`` seconds), for a batch in array form (one copy's float form:
-    :class:`~.fastpath.FloatDifferencing`). Called once per row, in order; one per run."""
+    (``period`` seconds), for a batch in array form (a single run's: :mod:`.fastpath`). Called
+    once per row, in order; one per run."""
 
     def __init__(self, quantize: Quantize, hold: int, period: float) -> None:
         self.inner, self.hold, self.period = quantize, hold, period

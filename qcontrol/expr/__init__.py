@@ -16,7 +16,7 @@ Allowed: numbers, the declared variables (``x1..xn``, ``q1..qn``), ``pi``, ``+ -
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -46,8 +46,11 @@ __all__ = [
     "SHOWN_SOURCE",
     "Expression",
     "FLOAT_REFUSED",
+    "FloatCombination",
+    "FloatTerms",
     "Operation",
     "ScalarFn",
+    "combine",
     "compile_expression",
     "expression",
     "scalar_function",
@@ -133,6 +136,48 @@ def scalar_function(expression: Expression) -> ScalarFn:
     (:meth:`Expression.on_floats`). ``sin``, ``exp``, ... may differ from numpy's in the last bit.
     """
     return float_closure(expression._tree)
+
+
+class FloatTerms:
+    """Expressions evaluated on plain floats through ``math`` (:func:`scalar_function`), in order;
+    where ``math`` refuses one (:data:`FLOAT_REFUSED`), each is evaluated by
+    :meth:`Expression.on_floats`, which gives numpy's answer there and ``math``'s elsewhere: the
+    one fallback rule, for the engine's float form and MuJoCo's passive callback alike."""
+
+    def __init__(self, expressions: Sequence[Expression]) -> None:
+        self.expressions = tuple(expressions)
+        self.fast = tuple(scalar_function(e) for e in self.expressions)
+
+    def __call__(self, values: Sequence[float]) -> list[float]:
+        try:
+            return [f(values) for f in self.fast]
+        except FLOAT_REFUSED:
+            return [e.on_floats(values) for e in self.expressions]
+
+
+def combine(pairs: Sequence[tuple[object, Callable]], values: Sequence) -> object:
+    """``sum of c * f(values)`` over ``(c, f)`` pairs, left to right (``c`` None: ``f(values)`` as
+    it is; no terms: 0.0): a linear combination of evaluated expressions, for any kind of values."""
+    total = None
+    for c, f in pairs:
+        value = f(values) if c is None else c * f(values)
+        total = value if total is None else total + value
+    return 0.0 if total is None else total
+
+
+class FloatCombination:
+    """:func:`combine` of expressions on plain floats through ``math``, with :class:`FloatTerms`'
+    fallback rule: where ``math`` refuses a term, every term by :meth:`Expression.on_floats`."""
+
+    def __init__(self, expressions: Sequence[Expression], coefficients: Sequence[float | None]) -> None:
+        self.fast = tuple(zip(coefficients, (scalar_function(e) for e in expressions), strict=True))
+        self.safe = tuple(zip(coefficients, (e.on_floats for e in expressions), strict=True))
+
+    def __call__(self, values: Sequence[float]) -> float:
+        try:
+            return combine(self.fast, values)
+        except FLOAT_REFUSED:
+            return combine(self.safe, values)
 
 
 def expression(source: str, variables: Sequence[str] = ("x1", "x2")) -> Expression:

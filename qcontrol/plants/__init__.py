@@ -5,9 +5,9 @@ from . import mujoco, ode
 from .backends import BACKENDS, Backend, PlantContext, SceneSource, register_backend
 from .base import (
     Actuated,
+    ColumnIO,
+    ColumnStepping,
     Disturbable,
-    FloatIO,
-    FloatStepping,
     NativeStepper,
     NativeStepping,
     PhysicsReport,
@@ -18,6 +18,6 @@ from .base import (
 for _backend in (ode.BACKEND, mujoco.BACKEND):
     register_backend(_backend)
 
-__all__ = ["BACKENDS", "Actuated", "Backend", "Disturbable", "FloatIO", "FloatStepping", "NativeStepper",
+__all__ = ["BACKENDS", "Actuated", "Backend", "Disturbable", "ColumnIO", "ColumnStepping", "NativeStepper",
            "NativeStepping", "PhysicsReport", "Plant", "PlantContext", "PlantTerms", "SceneSource",
            "register_backend"]

@@ -3,10 +3,10 @@
 A plant implements the core :class:`Plant` in array form, ``(batch, n)`` states and ``(batch,)``
 inputs, and declares what else it can do as separate capabilities, each a protocol of its own:
 :class:`Disturbable` (an external load), :class:`Actuated` (an actuator that may clip u),
-:class:`PhysicsReport` (what the physics engine warned about, its agreement with eq. (1)) and
-:class:`FloatStepping` (a faster form for a batch of one, which the engine's adapter
-:mod:`qcontrol.engine.fastpath` uses when it is there). A plant with only the core works at every
-batch size.
+:class:`PhysicsReport` (what the physics engine warned about, its agreement with eq. (1)),
+:class:`ColumnStepping` (a step written over columns of any form, :mod:`qcontrol.columns`, in
+which the engine may step a run) and :class:`NativeStepping` (source text for the engine's
+compiled loop). A plant with only the core works at every batch size.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from ..columns import Column, ColumnForm
 from ..expr import Expression
 
 
@@ -123,22 +124,24 @@ class PhysicsReport(Protocol):
     consistency_report: dict[str, Any]  # how the model agrees with eq. (1)
 
 
-class FloatIO(Protocol):
-    """One copy's :meth:`Plant.observe` and :meth:`Plant.step` on plain floats: ``observe() ->
-    (x, reading)`` as lists of n floats, ``step(u)`` with a float u held over the run's step."""
+class ColumnIO(Protocol):
+    """:meth:`Plant.observe` and :meth:`Plant.step` for one run in a column form: ``observe() ->
+    (x, reading)``, each n columns of the form, ``step(u)`` with u a column of the form held over
+    the run's step."""
 
-    def observe(self) -> tuple[Sequence[float], Sequence[float]]: ...
+    def observe(self) -> tuple[Sequence[Column], Sequence[Column]]: ...
 
-    def step(self, u: float) -> None: ...
+    def step(self, u: Column) -> None: ...
 
 
 @runtime_checkable
-class FloatStepping(Protocol):
-    """A plant with a faster form for a batch of one (see :mod:`qcontrol.engine.fastpath`)."""
+class ColumnStepping(Protocol):
+    """A plant whose step is written over columns of any :class:`~qcontrol.columns.ColumnForm`."""
 
-    def float_io(self, h: float) -> FloatIO:
-        """The one copy's :class:`FloatIO` for steps of ``h``, made once per run inside the ``with``
-        block after :meth:`Plant.reset`; it must give the numbers the array form gives."""
+    def column_io(self, form: ColumnForm, h: float) -> ColumnIO:
+        """The plant's :class:`ColumnIO` in ``form`` for steps of ``h``, made once per run inside
+        the ``with`` block after :meth:`Plant.reset`; its numbers are the array form's, each
+        column's operations the same."""
 
 
 @dataclass
@@ -174,4 +177,4 @@ class NativeStepping(Protocol):
     def native_stepper(self, h: float) -> NativeStepper | None:
         """The one copy's :class:`NativeStepper` for steps of ``h`` (inside the ``with`` block,
         after :meth:`Plant.reset`), or None where this run cannot be compiled (then the Python
-        loop runs); it must give, bit for bit, the numbers of :meth:`FloatStepping.float_io`."""
+        loop runs); it must give, bit for bit, the numbers of the Python loop."""

@@ -5,12 +5,11 @@
 integrated with classical fixed-step RK4, the input held over each step. A fixed step is
 deliberate: an adaptive-step solver either steps over the quantizer's jumps or crawls at them.
 
-The state is kept as columns, one value per state ``x_1 .. x_n``, and :func:`_rk4` is written once
-over them with elementwise arithmetic: for a batch of one the columns are plain floats and the
-terms are evaluated with ``math`` (the engine's fast path, :mod:`qcontrol.engine.fastpath`),
-otherwise they are ``(batch,)`` arrays and numpy evaluates the terms. Same operations in the same
-order; only ``sin``, ``cos``, ... come from the C library instead of numpy on floats, which may
-differ in the last bit. :meth:`ChainPlant.float_io` is that float form for the engine.
+The state is kept as columns (:mod:`qcontrol.columns`), one value per state ``x_1 .. x_n``, and
+:func:`_rk4` and ``psi + theta^T phi`` are written once over them with elementwise arithmetic, the
+terms evaluated by the columns' form: ``(batch,)`` arrays and numpy in the array form, or
+whatever form the engine steps a run in (:meth:`ChainPlant.column_io`). Same operations in the
+same order in every form.
 """
 
 from __future__ import annotations
@@ -20,13 +19,13 @@ from typing import Any
 
 import numpy as np
 
-from ..expr import FLOAT_REFUSED, Expression, ScalarFn, scalar_function
+from ..columns import ARRAYS, Column, ColumnForm
+from ..expr import Expression
 from ..expr.source import FLAG, Statements, float_source
-from ..quantizer import Column
 from .backends import Backend
 from .base import NativeStepper, PlantTerms
 
-Uncertainty = Callable[[list[Column]], Column]  # psi + theta^T phi on the state's columns
+Rate = Callable[[list[Column]], Column]  # psi + theta^T phi on the state's columns
 
 
 class ChainPlant:
@@ -54,16 +53,12 @@ class ChainPlant:
         self.psi = psi
         self.phi = tuple(phi)
         self.theta = theta
-        # (coefficient, term): a coefficient is a float, or a (batch,) column of per-copy values
-        coefficients = theta.T if theta.ndim == 2 else theta
-        self._terms = list(zip(coefficients, self.phi, strict=True))
-        self._floats = self.batch == 1
-        if self._floats:
-            row = theta[0] if theta.ndim == 2 else theta  # the one copy's theta
-            self._g: Uncertainty = FloatUncertainty(psi, phi, row).evaluate
-        else:
-            self._g = self._uncertainty_columns
-        self._x: list[Column] = [0.0] * self.n if self._floats else [np.zeros(self.batch)] * self.n
+        # each phi_i's coefficient: a number, or a (batch,) column of per-copy values
+        self._coefficients = list(theta.T if theta.ndim == 2 else theta)
+        self._rates: dict[ColumnForm, Rate] = {}  # psi + theta^T phi in each form (_rate_in)
+        self._form: ColumnForm = ARRAYS  # the form the state's columns are in (column_io)
+        self._g: Rate = self._rate_in(ARRAYS)
+        self._x: list[Column] = [np.zeros(self.batch)] * self.n
         self._load = 0.0  # the external load d of :meth:`disturb`, held like u
         self.warnings: list[str] = []  # an ODE has nothing to warn about
         self.actuator_limited = False  # eq. (1)'s input is applied as commanded
@@ -78,17 +73,19 @@ class ChainPlant:
     def close(self) -> None:
         """Nothing to release: the ODE holds no resources."""
 
-    def _uncertainty_columns(self, columns: Sequence[np.ndarray]) -> np.ndarray | float:
-        """``psi + theta^T phi`` on columns (numpy), the terms summed in order."""
-        total = self.psi.on_columns(columns) if self.psi is not None else None
-        for coefficient, term in self._terms:
-            value = coefficient * term.on_columns(columns)
-            total = value if total is None else total + value  # (no 0.0 + value: a numpy call)
-        return 0.0 if total is None else total
+    def _rate_in(self, form: ColumnForm) -> Rate:
+        """``psi + theta^T phi`` on columns of ``form``, the terms summed in eq. (1)'s order (psi,
+        then theta_i phi_i), made once per form."""
+        rate = self._rates.get(form)
+        if rate is None:
+            psi = [self.psi] if self.psi is not None else []
+            coefficients = [None] * len(psi) + self._coefficients
+            rate = self._rates[form] = form.combination(psi + list(self.phi), coefficients)
+        return rate
 
     def uncertainty(self, x: np.ndarray) -> np.ndarray:
         """``psi(x) + theta^T phi(x)``, shape ``(batch,)``."""
-        total = self._uncertainty_columns(x.T)
+        total = self._rate_in(ARRAYS)(list(np.asarray(x, dtype=float).T))
         if np.ndim(total) == 0:  # psi and phi absent or constant
             return np.full(x.shape[:-1], float(total))
         return total
@@ -101,8 +98,8 @@ class ChainPlant:
         return dx
 
     def reset(self, x0: np.ndarray) -> None:
-        x0 = np.array(np.broadcast_to(x0, (self.batch, self.n)), dtype=float)
-        self._x = x0[0].tolist() if self._floats else list(np.ascontiguousarray(x0.T))
+        """Set the state (in the form the plant is stepped in) and clear the load."""
+        self._x = self._form.columns(np.broadcast_to(np.asarray(x0, dtype=float), (self.batch, self.n)))
         self._load = 0.0
 
     def disturb(self, d: float) -> None:
@@ -114,7 +111,7 @@ class ChainPlant:
         return u
 
     def state(self) -> np.ndarray:
-        return np.array([self._x]) if self._floats else np.array(self._x).T
+        return self._form.array(self._x, self.batch)
 
     def read_sensors(self) -> np.ndarray:
         return self.state()
@@ -126,47 +123,48 @@ class ChainPlant:
 
     def step(self, u: np.ndarray, h: float) -> None:
         """One classical RK4 step of eq. (1) with ``u`` held."""
-        if self._floats:
-            u = float(np.ravel(u)[0])
-        elif not (isinstance(u, np.ndarray) and u.shape == (self.batch,)):
-            u = np.broadcast_to(np.asarray(u, dtype=float), (self.batch,))
+        u = np.broadcast_to(np.asarray(u, dtype=float).reshape(-1), (self.batch,))
+        u = self._form.columns(u[:, None])[0]
         self._x = _rk4(self._x, u + self._load if self._load else u, h, self._g)
 
-    def float_io(self, h: float) -> ChainFloatIO:
-        """The batch of one on plain floats, for steps of ``h`` (see :mod:`qcontrol.engine.fastpath`)."""
-        if not self._floats:
-            raise ValueError(f"float_io is for a batch of one; this plant has {self.batch} copies")
-        return ChainFloatIO(self, h)
+    def column_io(self, form: ColumnForm, h: float) -> ChainIO:
+        """Observe and step in ``form``, steps of ``h`` (:class:`~.base.ColumnStepping`): the
+        state is kept in ``form`` from now on, the same RK4 and terms evaluated in it."""
+        x = self.state()
+        self._form, self._g = form, self._rate_in(form)
+        self._x = form.columns(x)
+        return ChainIO(self, h)
 
     def native_stepper(self, h: float) -> NativeStepper | None:
         """The batch of one as source text for the engine's compiled loop: the same RK4 on the
         same terms (:class:`ChainNativeForm`); None for a batch."""
-        return ChainNativeForm(self, h).stepper() if self._floats else None
+        return ChainNativeForm(self, h).stepper() if self.batch == 1 else None
 
 
 class ChainNativeForm:
-    """:func:`_rk4` and :class:`FloatUncertainty` as numba source, generated from the terms'
-    expression trees (:func:`qcontrol.expr.source.float_source`, as MuJoCo's native callback):
-    the same operations in the same order. ``pf`` holds the load d, ``h`` and theta (so one
-    compiled text serves every theta); ``xs`` the state. Where ``math`` would refuse a term (the
-    Python form then takes numpy's answer), the step returns 2 before writing the state, and the
-    Python step runs."""
+    """:func:`_rk4` and ``psi + theta^T phi`` (:func:`qcontrol.expr.combine`) as numba source,
+    generated from the terms' expression trees (:func:`qcontrol.expr.source.float_source`, as
+    MuJoCo's native callback): the same operations in the same order. ``pf`` holds the load d,
+    ``h`` and theta (so one compiled text serves every theta); ``xs`` the state. Where ``math``
+    would refuse a term (the Python form then takes numpy's answer), the step returns 2 before
+    writing the state, and the Python step runs."""
 
     def __init__(self, plant: ChainPlant, h: float) -> None:
         self.plant = plant
         row = plant.theta[0] if plant.theta.ndim == 2 else plant.theta
         self.floats = np.array([plant._load, h, *[float(c) for c in row]], dtype=float)
-        self.state = np.array(plant._x, dtype=float)
+        self.state = plant.state()[0].copy()
 
     def helpers(self) -> str:
-        """``plant_uncertainty(x1, .., xn, pf) -> (psi + theta^T phi, refused)``."""
+        """``plant_uncertainty(x1, .., xn, pf) -> (psi + theta^T phi, refused)``, summed as
+        :func:`qcontrol.expr.combine` sums it."""
         plant, names = self.plant, [f"x{i + 1}" for i in range(self.plant.n)]
         body = Statements("g")
-        value = float_source(plant.psi._tree, names, body) if plant.psi is not None else "0.0"
-        body.lines.append(f"value = {value}")
-        for i, term in enumerate(plant.phi):
-            text = float_source(term._tree, names, body)
-            body.lines.append(f"value = value + pf[{2 + i}] * {text}")
+        terms = [float_source(plant.psi._tree, names, body)] if plant.psi is not None else []
+        terms += [f"pf[{2 + i}] * {float_source(term._tree, names, body)}"
+                  for i, term in enumerate(plant.phi)]
+        body.lines.append(f"value = {terms[0] if terms else '0.0'}")  # summed as combine() sums
+        body.lines += [f"value = value + {text}" for text in terms[1:]]
         lines = [f"{FLAG} = False", *body.lines, f"return value, {FLAG}"]
         head = ("@numba.njit(cache=True, error_model=\"numpy\", nogil=True)\n"
                 f"def plant_uncertainty({', '.join(names)}, pf):\n")
@@ -193,7 +191,7 @@ class ChainNativeForm:
         self.floats[0] = self.plant._load
 
     def sync_out(self) -> None:
-        self.plant._x = self.state.tolist()
+        self.plant._x = self.plant._form.columns(self.state[None, :])
 
     def stepper(self) -> NativeStepper:
         n = self.plant.n
@@ -203,53 +201,31 @@ class ChainNativeForm:
                              np.zeros(1, dtype=np.int64), self.state, self.sync_in, self.sync_out)
 
 
-class ChainFloatIO:
-    """One copy of a :class:`ChainPlant` on plain floats: ``observe()`` gives the state's list
-    twice (the sensors read it exactly; the engine only reads them), ``step(u)`` one RK4 step of
-    ``h`` with u and the load d held (RK4 sees their sum)."""
+class ChainIO:
+    """A :class:`ChainPlant`'s observe and step in the form of its columns
+    (:meth:`ChainPlant.column_io`): ``observe()`` gives the state's columns twice (the sensors
+    read it exactly; the engine only reads them), ``step(u)`` one RK4 step of ``h`` with u and the
+    load d held (RK4 sees their sum)."""
 
     def __init__(self, plant: ChainPlant, h: float) -> None:
         self.plant, self.h, self.g = plant, h, plant._g
 
-    def observe(self) -> tuple[list[float], list[float]]:
+    def observe(self) -> tuple[list[Column], list[Column]]:
         x = self.plant._x
         return x, x
 
-    def step(self, u: float) -> None:
+    def step(self, u: Column) -> None:
         plant = self.plant
         d = plant._load
         plant._x = _rk4(plant._x, u + d if d else u, self.h, self.g)
 
 
-class FloatUncertainty:
-    """``psi + theta^T phi`` on plain floats, summed in the order of :meth:`ChainPlant.uncertainty`.
-    Where ``math`` refuses (:data:`~qcontrol.expr.FLOAT_REFUSED`), the terms are evaluated again
-    with :meth:`Expression.on_floats`, which gives numpy's answer (NaN, Inf) there."""
-
-    def __init__(self, psi: Expression | None, phi: Sequence[Expression], theta: np.ndarray) -> None:
-        self.coefficients = [float(c) for c in theta]
-        self.fast = (scalar_function(psi) if psi is not None else None, [scalar_function(p) for p in phi])
-        self.safe = (psi.on_floats if psi is not None else None, [p.on_floats for p in phi])
-
-    def _total(self, x: list[float], first: ScalarFn | None, terms: list[ScalarFn]) -> float:
-        value = first(x) if first is not None else 0.0
-        for coefficient, term in zip(self.coefficients, terms):  # noqa: B905 (equal lengths)
-            value = value + coefficient * term(x)
-        return value
-
-    def evaluate(self, x: list[float]) -> float:
-        try:
-            return self._total(x, *self.fast)
-        except FLOAT_REFUSED:
-            return self._total(x, *self.safe)
-
-
-def _derivative(s: list[Column], u: Column, g: Uncertainty) -> list[Column]:
+def _derivative(s: list[Column], u: Column, g: Rate) -> list[Column]:
     """The right-hand side of eq. (1) on columns: ``x_i' = x_{i+1}``, ``x_n' = u + g(x)``."""
     return s[1:] + [u + g(s)]
 
 
-def _rk4(x: list[Column], u: Column, h: float, g: Uncertainty) -> list[Column]:
+def _rk4(x: list[Column], u: Column, h: float, g: Rate) -> list[Column]:
     """One classical RK4 step of eq. (1) on the state's columns (floats or arrays alike)."""
     half = 0.5 * h
     k1 = _derivative(x, u, g)

@@ -10,8 +10,8 @@ Anything else (e.g. a grid over ``controller.c``) splits the runs into groups, e
 
 Determinism. Groups are cut into chunks of at most ``CHUNK`` runs in input order, whatever the
 executor; a chunk is one batch. A group of fewer than ``MIN_BATCH`` runs goes run by run instead:
-a batch's array form costs a fixed amount per step, which a run of one (on plain floats) does not
-pay, so small batches are slower than their runs alone (measured on Example 2, 10 s, both
+a batch's array form costs a fixed amount per step, which a single run (the engine's fast path)
+does not pay, so small batches are slower than their runs alone (measured on Example 2, 10 s, both
 backends: a batch of 2 costs 2.3-2.8x its two runs, 4 about 1.2x, 8 about 0.6-0.8x). Numbers are
 the same either way. So the in-process path, local worker processes and a Dask cluster
 run the very same batches and give identical numbers (only ``wall_time_s`` differs).

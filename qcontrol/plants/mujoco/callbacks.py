@@ -26,7 +26,7 @@ from typing import Any
 
 import mujoco
 
-from ...expr import FLOAT_REFUSED, Expression, scalar_function
+from ...expr import Expression, FloatTerms
 from .native import NativeForce
 
 _ENTRIES: dict[int, Callable[[], None]] = {}  # id(MjData) -> adds the non-native terms to it
@@ -38,30 +38,19 @@ _PREVIOUS_WARNING: list[Any] = []  # the warning handler found when the first bl
 
 
 class GeneralizedForce:
-    """``force(q, v) = I * sum(coefficient * term(q, v))`` on plain floats: the terms of eq. (1)
-    MuJoCo's own physics does not produce, as a generalized force on the joint. Where ``math``
-    refuses a term (:data:`~qcontrol.expr.FLOAT_REFUSED`), the one fallback rule: numpy's answer
-    (:meth:`~qcontrol.expr.Expression.on_floats`)."""
+    """``force(q, v) = I * sum(coefficient * term(q, v))`` on one MjData's floats: the terms of
+    eq. (1) MuJoCo's own physics does not produce, as a generalized force on the joint, evaluated
+    through ``math`` with the expression compiler's one fallback rule
+    (:class:`~qcontrol.expr.FloatTerms`)."""
 
     def __init__(self, terms: Sequence[tuple[float, Expression]], inertia: float) -> None:
-        self.fast = tuple((inertia * c, scalar_function(e)) for c, e in terms)
-        self.safe = tuple((inertia * c, e.on_floats) for c, e in terms)
+        self.coefficients = tuple(inertia * c for c, _ in terms)
+        self.terms = FloatTerms([e for _, e in terms])
 
     def at(self, q: float, v: float) -> float:
-        xs = (q, v)
         total = 0.0
-        try:
-            for c, f in self.fast:
-                total += c * f(xs)
-        except FLOAT_REFUSED:
-            return self._total(self.safe, xs)
-        return total
-
-    @staticmethod
-    def _total(pairs: tuple, xs: tuple[float, float]) -> float:
-        total = 0.0
-        for c, f in pairs:
-            total += c * f(xs)
+        for c, value in zip(self.coefficients, self.terms((q, v))):  # noqa: B905 (equal lengths)
+            total += c * value
         return total
 
 

@@ -1,6 +1,6 @@
 """One MuJoCo copy's observe and step as numba source, for the engine's compiled loop.
 
-The same calls as :class:`~.plant.CopyStepper` and :class:`~.plant.MujocoFloatIO`, made from
+The same calls as :class:`~.plant.CopyStepper` and :meth:`~.plant.MujocoPlant.observe`, made from
 compiled code without the Python interpreter: ``ctrl = (I / gain) u``, ``mj_step`` ``substeps``
 times, ``mj_sensorPos``, ``mj_sensorVel``, all called by symbol from MuJoCo's own library (which
 the process has loaded with the bindings) on ``model._address`` / ``data._address``; the readings

@@ -222,8 +222,20 @@ class MujocoPlant:
         return self._noise.draw()
 
     def observe(self) -> tuple[np.ndarray, np.ndarray]:
-        """The true state and the sensors' reading of every copy."""
-        return self.state(), self.read_sensors()
+        """The true state and the sensors' reading of every copy: :meth:`state` and
+        :meth:`read_sensors` read in one pass over the copies (two views of one array)."""
+        if self._threads:
+            return self.state(), self.read_sensors()
+        q, dof = self._ids.qpos, self._ids.dof
+        p, v = self._sadr
+        both = np.array([(qpos.item(q), qvel.item(dof), data.item(p), data.item(v))
+                         for _, data, qpos, qvel in self._views])
+        reading = both[:, 2:]
+        if self._noisy:
+            reading += self.sensor_noise()
+        if True in self._dead:
+            both[np.asarray(self._dead)] = np.nan
+        return both[:, :2], reading
 
     def step(self, u: np.ndarray, h: float) -> None:
         """Hold ``u`` for ``h`` seconds: ``h / timestep`` calls of ``mj_step`` per copy.
@@ -252,18 +264,9 @@ class MujocoPlant:
         steppers = self._steppers[h] = [CopyStepper(self, b, substeps) for b in range(self.batch)]
         return steppers
 
-    def float_io(self, h: float) -> MujocoFloatIO:
-        """The batch of one on plain floats (:mod:`qcontrol.engine.fastpath`): a step costs one
-        ``mj_step`` call and a few attribute reads."""
-        if not self._entered:
-            raise RuntimeError("use MujocoPlant in a 'with' block: float_io() belongs to one run")
-        if self.batch != 1:
-            raise ValueError(f"float_io is for a batch of one; this plant has {self.batch} copies")
-        return MujocoFloatIO(self, (self._steppers.get(h) or self._make_steppers(h))[0])
-
     def native_stepper(self, h: float) -> NativeStepper | None:
         """The batch of one as source text for the engine's compiled loop (:mod:`.native_step`),
-        where compiled code can give :meth:`float_io`'s numbers: one copy, no sensor noise (drawn
+        where compiled code can give the Python loop's numbers: one copy, no sensor noise (drawn
         in Python), and the passive terms, if any, in the native callback MuJoCo calls itself."""
         if not self._entered or self.batch != 1 or self._noisy or self._threads:
             return None
@@ -294,30 +297,6 @@ class CopyStepper:
         _mj_sensor_vel(model, data)
         if len(messages) != seen and unstable(messages[seen:]):  # a blow-up always warns
             self.dead[self.b] = True
-
-
-class MujocoFloatIO:
-    """One MuJoCo copy on plain floats: ``observe()`` reads qpos/qvel and the two sensors (with
-    the plant's :meth:`~MujocoPlant.sensor_noise`), ``step(u)`` is the copy's
-    :meth:`CopyStepper.step`."""
-
-    def __init__(self, plant: MujocoPlant, stepper: CopyStepper) -> None:
-        self.plant, self.step = plant, stepper.step
-        self.sensordata, self.qpos, self.qvel = plant._views[0][1:]
-        self.q, self.dof = plant._ids.qpos, plant._ids.dof
-        self.p, self.v = plant._sadr
-        self.dead, self.noisy = plant._dead, plant._noisy
-
-    def observe(self) -> tuple[list[float], list[float]]:
-        if self.noisy:  # drawn even for a dead copy: the stream stays the array form's
-            e = self.plant.sensor_noise()[0].tolist()
-        if self.dead[0]:
-            return [math.nan, math.nan], [math.nan, math.nan]
-        x = [self.qpos.item(self.q), self.qvel.item(self.dof)]
-        data = self.sensordata
-        if self.noisy:
-            return x, [data.item(self.p) + e[0], data.item(self.v) + e[1]]
-        return x, [data.item(self.p), data.item(self.v)]
 
 
 def _copies(terms: PlantTerms, copies: Sequence[PlantTerms] | None, batch: int,
