@@ -108,7 +108,11 @@ class ArrayForm:
         return list(np.ascontiguousarray(np.asarray(rows, dtype=float).T))
 
     def array(self, columns: Sequence[Column], batch: int) -> np.ndarray:
-        return stack(columns, batch)
+        try:  # the common case, k (batch,) arrays: one copy
+            rows = np.array(columns, dtype=float)
+        except ValueError:  # numbers beside arrays
+            return stack(columns, batch)
+        return rows.T if rows.shape == (len(columns), batch) else stack(columns, batch)
 
     def __repr__(self) -> str:
         return "ARRAYS"

@@ -22,6 +22,19 @@ MODELS = ROOT / "models"
 EX1 = SCENARIOS / "example1.toml"
 EX2 = SCENARIOS / "example2.toml"
 
+# The integral-action user law of docs/laws.md, section 4 (u = backstepping - k_i * integral of
+# q1 - y_d): its methods, for test files that write the law into a module of their own.
+INTEGRAL_LAW_METHODS = """
+    def initial_state(self):
+        return np.zeros(1)
+
+    def control(self, t, x_q, yd, state):
+        return float(qcontrol.quantized_backstepping(self.c, x_q, yd)[1][-1] - self.k_i * state[0])
+
+    def state_rate(self, t, x_q, yd, state):
+        return np.array([x_q[0] - yd[0]])
+"""
+
 
 @pytest.fixture
 def ex1() -> Path:

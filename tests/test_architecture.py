@@ -251,7 +251,7 @@ FLOAT_FORM_NAMES = {"FLOATS", "FloatForm", "FloatRows", "FloatQuantize", "FloatD
                     "FloatCombination", "scalar_function", "FLOAT_REFUSED", "on_floats"}
 FLOAT_FORM_HOMES = {"engine/fastpath.py"}  # and the expression compiler, expr/
 # MuJoCo calls its passive callback with one MjData, a copy's plain floats, at every batch size
-PER_COPY_FLOATS = {"plants/mujoco/callbacks.py": {"FloatTerms"}}
+PER_COPY_FLOATS = {"plants/mujoco/callbacks.py": {"FloatCombination"}}
 
 
 def _names(tree: ast.AST) -> set[str]:

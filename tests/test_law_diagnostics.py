@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import EX1, EX2
+from conftest import EX1, EX2, INTEGRAL_LAW_METHODS
 from test_record import assert_scalars_exact, read_entities, static_value
 from test_record_layout import active_blueprint, views
 
@@ -53,18 +53,10 @@ class IntegralDiag:
     def ki_integral(self, x_q, yd, state):
         return self.k_i * np.abs(state[:, 0])
 
-    def initial_state(self):
-        return np.zeros(1)
-
-    def control(self, t, x_q, yd, state):
-        return float(qcontrol.quantized_backstepping(self.c, x_q, yd)[1][-1] - self.k_i * state[0])
-
-    def state_rate(self, t, x_q, yd, state):
-        return np.array([x_q[0] - yd[0]])
-
+INTEGRAL_LAW_METHODS
 
 qcontrol.register_law("KIND", IntegralDiag, state_name="integral", replace=True)
-'''.replace("KIND", KIND)
+'''.replace("KIND", KIND).replace("INTEGRAL_LAW_METHODS", INTEGRAL_LAW_METHODS)
 
 
 @pytest.fixture(scope="module")

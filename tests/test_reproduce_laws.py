@@ -8,6 +8,7 @@ import math
 from pathlib import Path
 
 import pytest
+from conftest import INTEGRAL_LAW_METHODS
 
 import qcontrol
 from qcontrol.cli import main
@@ -26,15 +27,7 @@ class IntegralBackstepping:
         qcontrol.check_keys(table, ["k_i"])
         self.c, self.k_i = table["c"], float(table.get("k_i", 1.0))
 
-    def initial_state(self):
-        return np.zeros(1)
-
-    def control(self, t, x_q, yd, state):
-        return float(qcontrol.quantized_backstepping(self.c, x_q, yd)[1][-1] - self.k_i * state[0])
-
-    def state_rate(self, t, x_q, yd, state):
-        return np.array([x_q[0] - yd[0]])
-
+{INTEGRAL_LAW_METHODS}
 
 qcontrol.register_law("{KIND}", IntegralBackstepping, state_name="integral")
 '''

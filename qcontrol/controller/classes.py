@@ -2,9 +2,9 @@
 law (:class:`~.proposed.PaperLaw`), of the comparison law (:class:`~.comparison.ComparisonLaw`)
 or of the shared coordinates (:class:`~.backstepping.BacksteppingLaw`) a controller kind.
 
-Such a class is written in the column form the built-in laws are written in (a float per column
-for a single run, a ``(batch,)`` array per column for a batch), so it runs on the engine's float
-path as fast as a built-in law; it is built by ``cls.from_context(context)`` with a
+Such a class is written in the column form the built-in laws are written in (columns of any
+form, :mod:`qcontrol.columns`: ``(batch,)`` arrays for a batch), so it runs a single run in the
+engine's fast form as a built-in law does; it is built by ``cls.from_context(context)`` with a
 :class:`~.law.LawContext` carrying n, dt, the control period, delta, c, its own keys
 (``context.settings``) and, with ``extends``, the parsed settings of the built-in kind it extends
 (``context.base``, read from ``[controller.<extends>]``).

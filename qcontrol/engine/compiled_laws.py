@@ -79,7 +79,7 @@ def _held(n: int, m: int) -> list[str]:
     return [f"held[{1 + m + i}] = z{i + 1}" for i in range(n)]
 
 
-def as_float(value: float | np.ndarray) -> float:
+def copy_value(value: float | np.ndarray) -> float:
     """A parameter of a batch of one (a number, or one per-copy value) as the float the text holds."""
     return float(np.ravel(value)[0])
 
@@ -94,16 +94,16 @@ def proposed_source(law: ProposedController, h: float) -> LawSource:
     :class:`~qcontrol.controller.proposed.DecayAdvance` compute them on floats."""
     n, m = law.n, law.state_size
     lp = Constants()
-    kappa, gain = lp.add(as_float(law.kappa)), lp.add(as_float(1.0 / (law.kappa * (law.kappa - law.L))))
-    sigma, L = lp.add(as_float(law.sigma)), lp.add(law.L)
-    rate = as_float(law.gamma * law.sigma)
+    kappa, gain = lp.add(copy_value(law.kappa)), lp.add(copy_value(1.0 / (law.kappa * (law.kappa - law.L))))
+    sigma, L = lp.add(copy_value(law.sigma)), lp.add(law.L)
+    rate = copy_value(law.gamma * law.sigma)
     decay = lp.add(float(np.exp(-np.asarray(rate) * h)))
     lines = recursion_lines(law, lp)
     evaluate, r = _evaluations(list(law.r), n, "t")
     lines += evaluate + [f"rv{i} = {v}" for i, v in enumerate(r)]
     scaled = not np.all(np.asarray(law.r_scale) == 1.0)
     if scaled:
-        scale = lp.add(as_float(law.r_scale))
+        scale = lp.add(copy_value(law.r_scale))
         lines += [f"rv{i} = rv{i} * {scale}" for i in range(m)]
     rv = [f"rv{i}" for i in range(m)]
     lines += [f"zn = z{n}", f"s = zn * zn / {kappa} + {L}", f"robust = {_folded('adaptive', rv)}"]

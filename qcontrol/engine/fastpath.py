@@ -149,7 +149,7 @@ class ArrayPlantAsFloats:
 
     def observe(self) -> tuple[list[float], list[float]]:
         x, reading = self.plant.observe()
-        return np.asarray(x, dtype=float)[0].tolist(), np.asarray(reading, dtype=float)[0].tolist()
+        return np.asarray(x, dtype=float).tolist()[0], np.asarray(reading, dtype=float).tolist()[0]
 
     def step(self, u: float) -> None:
         self.plant.step(np.array([u]), self.h)

@@ -123,8 +123,9 @@ class ChainPlant:
 
     def step(self, u: np.ndarray, h: float) -> None:
         """One classical RK4 step of eq. (1) with ``u`` held."""
-        u = np.broadcast_to(np.asarray(u, dtype=float).reshape(-1), (self.batch,))
-        u = self._form.columns(u[:, None])[0]
+        if not (isinstance(u, np.ndarray) and u.shape == (self.batch,)):
+            u = np.broadcast_to(np.asarray(u, dtype=float).reshape(-1), (self.batch,))
+        u = self._form.column(u)
         self._x = _rk4(self._x, u + self._load if self._load else u, h, self._g)
 
     def column_io(self, form: ColumnForm, h: float) -> ChainIO:

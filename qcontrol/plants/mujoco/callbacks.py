@@ -26,7 +26,7 @@ from typing import Any
 
 import mujoco
 
-from ...expr import Expression, FloatTerms
+from ...expr import Expression, FloatCombination
 from .native import NativeForce
 
 _ENTRIES: dict[int, Callable[[], None]] = {}  # id(MjData) -> adds the non-native terms to it
@@ -39,19 +39,15 @@ _PREVIOUS_WARNING: list[Any] = []  # the warning handler found when the first bl
 
 class GeneralizedForce:
     """``force(q, v) = I * sum(coefficient * term(q, v))`` on one MjData's floats: the terms of
-    eq. (1) MuJoCo's own physics does not produce, as a generalized force on the joint, evaluated
-    through ``math`` with the expression compiler's one fallback rule
-    (:class:`~qcontrol.expr.FloatTerms`)."""
+    eq. (1) MuJoCo's own physics does not produce, as a generalized force on the joint, summed in
+    order from 0.0, evaluated through ``math`` with the expression compiler's one fallback rule
+    (:class:`~qcontrol.expr.FloatCombination`)."""
 
     def __init__(self, terms: Sequence[tuple[float, Expression]], inertia: float) -> None:
-        self.coefficients = tuple(inertia * c for c, _ in terms)
-        self.terms = FloatTerms([e for _, e in terms])
+        self.total = FloatCombination([e for _, e in terms], [inertia * c for c, _ in terms])
 
     def at(self, q: float, v: float) -> float:
-        total = 0.0
-        for c, value in zip(self.coefficients, self.terms((q, v))):  # noqa: B905 (equal lengths)
-            total += c * value
-        return total
+        return 0.0 + self.total((q, v))  # = ((0.0 + c1 f1) + c2 f2) ..., sign of zero included
 
 
 def _dispatch(model: mujoco.MjModel, data: mujoco.MjData) -> None:

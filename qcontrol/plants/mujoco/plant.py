@@ -251,7 +251,7 @@ class MujocoPlant:
             self._threaded.step(np.broadcast_to(np.asarray(u, dtype=float).ravel(), (self.batch,)), substeps)
             return
         steppers = self._steppers.get(h) or self._make_steppers(h)
-        values = np.asarray(u, dtype=float).ravel().tolist()
+        values = (u if isinstance(u, np.ndarray) else np.asarray(u, dtype=float)).ravel().tolist()
         if len(values) != self.batch:
             values = values * self.batch if len(values) == 1 else list(np.broadcast_to(values, (self.batch,)))
         for stepper, value in zip(steppers, values):  # noqa: B905 (one value per copy)
