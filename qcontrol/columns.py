@@ -38,9 +38,9 @@ class ColumnForm(Protocol):
 
     expm1: Callable[[Column], Column]  # exp(x) - 1, elementwise
 
-    def column(self, values: Parameter) -> Column:
-        """A parameter, one number for every copy or a ``(batch,)`` array of per-copy values, as a
-        column of this form."""
+    def column(self, values: Parameter | list[float]) -> Column:
+        """A parameter, one number for every copy or per-copy values (a ``(batch,)`` array or a
+        list), as a column of this form."""
 
     def terms(self, expressions: Sequence[Expression]) -> Terms:
         """``f(columns) -> [e(columns) for e in expressions]``: the expressions evaluated on columns
@@ -94,8 +94,8 @@ class ArrayForm:
 
     expm1 = staticmethod(np.expm1)
 
-    def column(self, values: Parameter) -> Column:
-        return values
+    def column(self, values: Parameter | list[float]) -> Column:
+        return np.array(values, dtype=float) if type(values) is list else values
 
     def terms(self, expressions: Sequence[Expression]) -> Terms:
         return ColumnTerms(expressions)

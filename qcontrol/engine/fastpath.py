@@ -64,7 +64,9 @@ class FloatForm:
 
     expm1 = staticmethod(math.expm1)
 
-    def column(self, values: Parameter) -> float:
+    def column(self, values: Parameter | list[float]) -> float:
+        if type(values) is list and len(values) == 1:  # one copy's value, as the user-law adapter gives it
+            return float(values[0])
         array = np.asarray(values, dtype=float)
         if array.size != 1:
             raise ValueError(f"{array.size} per-copy values for a batch of one")
@@ -84,7 +86,7 @@ class FloatForm:
         return rows[0].tolist()
 
     def array(self, columns: Sequence[Column], batch: int) -> np.ndarray:
-        return np.array([columns], dtype=float).reshape(1, len(columns))
+        return np.array([columns], dtype=float)  # (1, 0) for none
 
     def __repr__(self) -> str:
         return "FLOATS"
