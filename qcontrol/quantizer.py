@@ -61,21 +61,29 @@ class QuantizedReading:
     first asked for.
     """
 
-    __slots__ = ("_values", "columns", "max_error", "form")
+    __slots__ = ("_values", "columns", "max_error", "form", "batch")
 
     def __init__(self, values: np.ndarray | None, max_error: float, *,
-                 columns: Sequence[Column] | None = None, form: ColumnForm = ARRAYS) -> None:
+                 columns: Sequence[Column] | None = None, form: ColumnForm = ARRAYS,
+                 batch: int | None = None) -> None:
         """``QuantizedReading(values, max_error)`` for a ``(batch, n)`` array, or
-        ``QuantizedReading(None, max_error, columns=..., form=...)`` for columns of that form."""
+        ``QuantizedReading(None, max_error, columns=..., form=..., batch=...)`` for the columns of
+        ``batch`` copies in that form."""
         self.max_error = max_error
         self._values = values
         self.form = form
-        self.columns: tuple = tuple(np.asarray(values).T) if columns is None else tuple(columns)
+        if columns is None:
+            self.columns: tuple = tuple(np.asarray(values).T)
+            self.batch = len(values)
+        elif batch is None:
+            raise ValueError("a QuantizedReading made from columns needs batch=, the copies they hold")
+        else:
+            self.columns, self.batch = tuple(columns), batch
 
     @property
     def values(self) -> np.ndarray:
         if self._values is None:
-            self._values = self.form.array(self.columns, 1)
+            self._values = self.form.array(self.columns, self.batch)
         return self._values
 
 

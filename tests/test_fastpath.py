@@ -123,13 +123,13 @@ def test_float_quantizer_matches_the_array_quantizer_bit_for_bit() -> None:
 
 
 def test_quantized_reading_of_floats_offers_the_array_view() -> None:
-    reading = QuantizedReading(None, 0.005, columns=(0.31, -0.42), form=FLOATS)
+    reading = QuantizedReading(None, 0.005, columns=(0.31, -0.42), form=FLOATS, batch=1)
     np.testing.assert_array_equal(reading.values, [[0.31, -0.42]])
     ctrl = _controllers()["proposed"]
     with pytest.raises(TypeError, match="QuantizedReading"):
         ctrl.control((0.31, -0.42), [0.0, 0.0, 0.0], (0.0, 0.0, 0.0))
     with pytest.raises(ValueError, match="Lemma 2"):
-        ctrl.control(QuantizedReading(None, 0.05, columns=(0.3, 0.4), form=FLOATS), [0.0, 0.0, 0.0],
+        ctrl.control(QuantizedReading(None, 0.05, columns=(0.3, 0.4), form=FLOATS, batch=1), [0.0, 0.0, 0.0],
                      (0.0, 0.0, 0.0))
 
 

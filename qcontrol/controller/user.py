@@ -121,15 +121,14 @@ class UserLaw(Backstepping):
         yd_row = np.array(yd, dtype=float)
         x_q, form = reading.values, reading.form
         states = form.array(state, len(x_q))
-        if len(x_q) == 1:  # one copy: its law, without the loop
-            u = [self._number(self.laws[0].control(t, x_q[0].copy(), yd_row.copy(), states[0].copy()))]
-        else:
-            u = [self._number(self._law(b).control(t, x_q[b].copy(), yd_row.copy(), states[b].copy()))
-                 for b in range(len(x_q))]
+        laws = self.copies_laws(len(x_q))
+        u = [self._number(laws[b].control(t, x_q[b].copy(), yd_row.copy(), states[b].copy()))
+             for b in range(len(x_q))]
         return _Sample(form.column(u), t, x_q, yd_row)
 
-    def _law(self, b: int) -> AnyLaw:
-        return self.laws[b] if len(self.laws) > 1 else self.laws[0]
+    def copies_laws(self, batch: int) -> list[AnyLaw]:
+        """Each copy's law: one per copy, or the one law for every copy."""
+        return self.laws if len(self.laws) == batch else self.laws * batch
 
     def step_state(self, law: AnyLaw, sample: _Sample, x_q: np.ndarray, state: np.ndarray,
                    h: float) -> np.ndarray:
@@ -202,10 +201,8 @@ class StateUpdate:
         if not law.state_size:
             return state
         s = self.form.array(state, len(sample.x_q))
-        if len(s) == 1:  # one copy: its law, without the loop
-            s = law.step_state(law.laws[0], sample, sample.x_q[0], s[0], h)[None, :]
-        else:
-            s = np.array([law.step_state(law._law(b), sample, sample.x_q[b], s[b], h) for b in range(len(s))])
+        laws = law.copies_laws(len(s))
+        s = np.array([law.step_state(laws[b], sample, sample.x_q[b], s[b], h) for b in range(len(s))])
         return tuple(self.form.columns(s))
 
 

@@ -105,7 +105,8 @@ class FloatQuantize:
         self.delta = quantizer.delta if isinstance(quantizer, UniformQuantizer) else None
 
     def quantize(self, readings: Sequence[float]) -> QuantizedReading:
-        return QuantizedReading(None, self.max_error, columns=self.values(readings), form=FLOATS)
+        return QuantizedReading(None, self.max_error, columns=self.values(readings), form=FLOATS,
+                                 batch=1)
 
     def values(self, readings: Sequence[float]) -> tuple[float, ...]:
         d = self.delta
@@ -139,7 +140,8 @@ class FloatDifferencing:
             past.extend([q1] * self.hold)
         velocity = (q1 - past[0]) / self.period
         past.append(q1)
-        return QuantizedReading(None, q.max_error, columns=(q1, velocity, *columns[2:]), form=FLOATS)
+        return QuantizedReading(None, q.max_error, columns=(q1, velocity, *columns[2:]),
+                                 form=FLOATS, batch=1)
 
 
 class ArrayPlantAsFloats:

@@ -194,26 +194,11 @@ class MujocoPlant:
 
     def state(self) -> np.ndarray:
         """The true ``(qpos, qvel)`` of every copy (NaN for a copy MuJoCo had to reset)."""
-        if self._threads:
-            return self._threaded.state()
-        q, dof = self._ids.qpos, self._ids.dof
-        out = np.array([(qpos.item(q), qvel.item(dof)) for _, _, qpos, qvel in self._views])
-        if True in self._dead:
-            out[np.asarray(self._dead)] = np.nan
-        return out
+        return self._threaded.state() if self._threads else self._copies_read()[:, :2]
 
     def read_sensors(self) -> np.ndarray:
         """``sensordata`` of the position and velocity sensors (plus noise, if configured)."""
-        p, v = self._sadr
-        threaded = self._threads
-        out = (self._threaded.readings() if threaded else
-               np.array([(data.item(p), data.item(v)) for _, data, _, _ in self._views]))
-        if self._noisy:
-            out += self.sensor_noise()
-        dead = self._threaded.dead if threaded else (np.asarray(self._dead) if True in self._dead else None)
-        if dead is not None:
-            out[dead] = np.nan
-        return out
+        return self.observe()[1]
 
     def sensor_noise(self) -> np.ndarray:
         """The noise of one reading of every copy, ``(batch, 2)``: the one place it is drawn (one
@@ -222,20 +207,30 @@ class MujocoPlant:
         return self._noise.draw()
 
     def observe(self) -> tuple[np.ndarray, np.ndarray]:
-        """The true state and the sensors' reading of every copy: :meth:`state` and
-        :meth:`read_sensors` read in one pass over the copies (two views of one array)."""
+        """The true state and the sensors' reading (plus noise, if configured) of every copy, NaN
+        for a copy MuJoCo had to reset: without threads, one pass over the copies (two views of
+        one array)."""
         if self._threads:
-            return self.state(), self.read_sensors()
+            x, reading, dead = self._threaded.state(), self._threaded.readings(), self._threaded.dead
+        else:
+            both = self._copies_read()
+            x, reading, dead = both[:, :2], both[:, 2:], None  # (a dead copy's row is NaN already)
+        if self._noisy:
+            reading += self.sensor_noise()
+        if dead is not None:
+            reading[dead] = np.nan
+        return x, reading
+
+    def _copies_read(self) -> np.ndarray:
+        """``(qpos, qvel, position sensor, velocity sensor)`` of every copy, ``(batch, 4)``; NaN for
+        a copy MuJoCo had to reset."""
         q, dof = self._ids.qpos, self._ids.dof
         p, v = self._sadr
         both = np.array([(qpos.item(q), qvel.item(dof), data.item(p), data.item(v))
                          for _, data, qpos, qvel in self._views])
-        reading = both[:, 2:]
-        if self._noisy:
-            reading += self.sensor_noise()
         if True in self._dead:
             both[np.asarray(self._dead)] = np.nan
-        return both[:, :2], reading
+        return both
 
     def step(self, u: np.ndarray, h: float) -> None:
         """Hold ``u`` for ``h`` seconds: ``h / timestep`` calls of ``mj_step`` per copy.
