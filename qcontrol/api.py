@@ -293,7 +293,7 @@ def check_video(scenario: Scenario, path: str | Path, fps: float = 30.0, camera:
     from .render.frames import camera_id
 
     camera_id(drawn.model, camera, str(scenario.source))
-    request = check_video_request(path, fps, camera, size)
+    request = check_video_request(path, fps, camera, size, scenario.simulation.duration)
     try:
         import imageio_ffmpeg  # noqa: F401
     except ImportError:

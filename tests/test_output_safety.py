@@ -164,21 +164,6 @@ def test_two_runs_at_once_into_one_recording_both_verify(tmp_path):
 # 2. write errors are errors: exit 3, one line, the previous file intact
 
 
-@pytest.fixture
-def small_disk(tmp_path):
-    """A 64 KiB tmpfs (root only)."""
-    if os.geteuid() != 0:
-        pytest.skip("mounting a tmpfs needs root; test_injected_write_errors covers the same paths")
-    disk = tmp_path / "disk"
-    disk.mkdir()
-    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(disk)],
-                             capture_output=True, text=True, check=False)
-    if mounted.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {mounted.stderr.strip()}")
-    yield disk
-    subprocess.run(["umount", str(disk)], check=False)
-
-
 def test_a_full_disk_keeps_the_previous_recording(small_disk, tmp_path):
     old = small_disk / "r.rrd"
     old.write_bytes(b"a previous complete recording" * 500)
