@@ -8,6 +8,10 @@
 
 The command line is built on these functions, so a run from Python and from ``qcontrol run`` give
 the same summary (apart from ``wall_time_s`` and the ``command`` of the provenance).
+
+Threads: ``run``, ``compare`` and ``sweep`` may be called from several threads of one process at
+once; each gives what it gives alone. MuJoCo's passive callback and warning handler belong to the
+whole process, so MuJoCo runs take turns on them (ODE runs go side by side).
 """
 
 from __future__ import annotations
