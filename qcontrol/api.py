@@ -20,6 +20,7 @@ import csv
 import io
 import itertools
 import json
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from functools import lru_cache
@@ -41,6 +42,7 @@ from .outputs import check_output_file, clean, prepare_output_dir, write_file, w
 from .scenario import Scenario
 from .scenario.resolve import scenario_provenance
 from .summary import Summary
+from .sweep.grid import MAX_RUNS
 from .sweep.runs import run_variants_batched
 from .sweep.table import sweep_rows
 
@@ -259,6 +261,10 @@ def sweep(scenario: Scenario, grid: Mapping[str, Sequence[Any]], *, backend: str
         if not isinstance(key, str) or not listed:
             raise QcontrolInputError(f"sweep: grid[{key!r}] must be a non-empty list of values, "
                                      f"got {values!r}")
+    runs = math.prod(len(values) for values in grid.values())
+    if runs > MAX_RUNS:
+        raise QcontrolInputError(f"sweep: {runs:,} runs is more than the {MAX_RUNS:,} a sweep may make; "
+                                 "split it into several sweeps")
     backend = runnable_backend(scenario, backend)
     points = [dict(zip(grid, combo, strict=True)) for combo in itertools.product(*grid.values())]
     variants = [scenario.with_overrides(point) for point in points]
