@@ -85,3 +85,88 @@ def _has_children(pid: int) -> bool:
         return bool(Path(f"/proc/{pid}/task/{pid}/children").read_text().split())
     except OSError:
         return False
+
+
+# --------------------------------------------------------------------------------------------
+# nothing hangs: a scheduler that never answers, files MuJoCo would block on
+
+
+@pytest.fixture
+def silent_port():
+    """A socket on 127.0.0.1 that accepts connections and never says a word."""
+    import socket
+
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(16)
+    accepted: list[socket.socket] = []
+    stop = False
+
+    def accept() -> None:
+        while not stop:
+            try:
+                accepted.append(server.accept()[0])
+            except OSError:
+                return
+
+    import threading
+
+    thread = threading.Thread(target=accept, daemon=True)
+    thread.start()
+    yield server.getsockname()[1]
+    stop = True
+    server.close()
+    for conn in accepted:
+        conn.close()
+
+
+def test_a_scheduler_that_never_answers_is_one_line(silent_port, monkeypatch, capsys, tmp_path):
+    pytest.importorskip("distributed")
+    from qcontrol.sweep import runs
+
+    monkeypatch.setattr(runs, "DASK_CONNECT_TIMEOUT", 1.0)
+    out = tmp_path / "sw"
+    assert main(["sweep", str(EX2), "--grid", "controller.gamma=1,2", "-q", "--out", str(out),
+                 "--scheduler", f"tcp://127.0.0.1:{silent_port}"]) == 2
+    _one_line(capsys, "no Dask handshake within 1 s", "--scheduler tcp://127.0.0.1:")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("address", ["tls://127.0.0.1:{port}", "ucx://127.0.0.1:{port}"])
+def test_a_scheduler_address_dask_cannot_use_is_one_line(silent_port, capsys, tmp_path, address):
+    pytest.importorskip("distributed")
+    out = tmp_path / "sw"
+    assert main(["sweep", str(EX2), "--grid", "controller.gamma=1,2", "-q", "--out", str(out),
+                 "--scheduler", address.format(port=silent_port)]) == 2
+    _one_line(capsys, "cannot connect")
+    assert not out.exists()
+
+
+def test_ctrl_c_while_connecting_to_a_scheduler(silent_port, tmp_path):
+    """Ctrl-C stops the wait for the handshake: exit 130 well before the handshake's timeout
+    (the bound below is the test's, not a speed requirement)."""
+    pytest.importorskip("distributed")
+    proc = subprocess.Popen([sys.executable, "-m", "qcontrol.cli", "region", str(EX2), "--resolution", "3",
+                             "-q", "--out", str(tmp_path / "r"), "--scheduler", f"tcp://127.0.0.1:{silent_port}"],
+                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "HOME": str(tmp_path)},
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    deadline = time.monotonic() + 60
+    while not _connected_to(silent_port) and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    assert proc.poll() is None, proc.communicate()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=8)  # the handshake alone would wait 10 s
+    assert proc.returncode == 130, err
+    assert "interrupted" in err and "Traceback" not in err
+
+
+def _connected_to(port: int) -> bool:
+    """Whether some process holds an established TCP connection to 127.0.0.1:``port``."""
+    wanted = f"0100007F:{port:04X}"
+    for table in ("/proc/net/tcp",):
+        for line in Path(table).read_text().splitlines()[1:]:
+            fields = line.split()
+            if fields[2] == wanted and fields[3] == "01":
+                return True
+    return False
