@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import EX2
+from conftest import EX2, ROOT
 
 import qcontrol
 from qcontrol.cli import main
@@ -170,3 +170,25 @@ def _connected_to(port: int) -> bool:
             if fields[2] == wanted and fields[3] == "01":
                 return True
     return False
+
+
+CUBE = " ".join(f'file{face}="asset.bin"' for face in ("right", "left", "up", "down", "front", "back"))
+
+
+@pytest.mark.parametrize("asset, words", [
+    ('<texture name="tx" type="2d" file="asset.bin"/>', "texture tx reads asset.bin"),
+    (f'<texture name="cb" type="cube" {CUBE}/>', "texture cb reads asset.bin"),
+    ('<mesh name="ms" file="asset.bin"/>', "mesh ms reads asset.bin"),
+    ('<hfield name="hf" file="asset.bin" size="1 1 1 1"/>', "height field hf reads asset.bin"),
+    ('<skin name="sk" file="asset.bin"/>', "skin sk reads asset.bin"),
+])
+@pytest.mark.parametrize("command", [["check"], ["run", "--backend", "ode", "--duration", "0.05", "-q"]])
+def test_an_asset_that_is_a_fifo_is_refused_before_mujoco_opens_it(tmp_path, capsys, asset, words, command):
+    """MuJoCo would block forever reading a FIFO (deaf to Ctrl-C): refused in one line, even for
+    an ODE run (the scenario's model is checked at load)."""
+    os.mkfifo(tmp_path / "asset.bin")
+    text = (ROOT / "models" / "pendulum.xml").read_text()
+    (tmp_path / "model.xml").write_text(text.replace("<worldbody>", f"<asset>{asset}</asset><worldbody>", 1))
+    assert main([command[0], str(EX2), *command[1:], "--set",
+                 f'plant.mujoco.model="{tmp_path / "model.xml"}"']) == 2
+    _one_line(capsys, words, "a FIFO (named pipe), not a regular file")
