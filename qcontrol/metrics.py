@@ -59,7 +59,7 @@ def run_summary(run: RunRecord, scenario: str, backend: str) -> Summary:
         L_z=tuple(float(v) for v in run.L_z), L=float(run.L_z[-1]),
         **bound_constants(run.bound_names, values["bound_constants"], values["smallest_r"]),
         law_diagnostics=law_diagnostics(run.law_diagnostics, values["diagnostics"]),
-        final_state=final,
+        final_state=final, law_failure=run.law_failure,
     )
 
 

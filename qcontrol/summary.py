@@ -32,7 +32,9 @@ class Summary:
     (``final_theta_hat`` for the comparison law; for the paper's law that key is ``final_eps_hat``
     itself, kept for every law as an alias). ``provenance`` and
     ``physics_warnings`` are present (not None) in the summary of a single run written by
-    ``qcontrol run`` or :func:`qcontrol.run`.
+    ``qcontrol run`` or :func:`qcontrol.run`. ``law_failure`` is present only when a law written
+    in Python failed during the run (raised, or returned what its method must not): the one line
+    that says so, also the ``divergence_reason`` of the run it stopped.
     """
 
     scenario: str
@@ -63,6 +65,7 @@ class Summary:
     r_below_one: Mapping[str, float] | None = None
     provenance: Mapping[str, Any] | None = field(default=None, compare=False)
     physics_warnings: tuple[str, ...] | None = None
+    law_failure: str | None = None
 
     def to_json(self) -> dict[str, Any]:
         """``summary.json``'s object: every field in order, lists for tuples, the optional ones
@@ -99,7 +102,7 @@ class Summary:
         return cls(**values)
 
 
-_OPTIONAL = ("bound_constants", "r_below_one", "provenance", "physics_warnings")
+_OPTIONAL = ("bound_constants", "r_below_one", "provenance", "physics_warnings", "law_failure")
 _DIAGNOSTIC_PREFIXES = ("max_", "last_")  # a law diagnostic's key: <reduce>_<name>
 
 

@@ -12,6 +12,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import EX2, ROOT
 
@@ -192,3 +193,135 @@ def test_an_asset_that_is_a_fifo_is_refused_before_mujoco_opens_it(tmp_path, cap
     assert main([command[0], str(EX2), *command[1:], "--set",
                  f'plant.mujoco.model="{tmp_path / "model.xml"}"']) == 2
     _one_line(capsys, words, "a FIFO (named pipe), not a regular file")
+
+
+# --------------------------------------------------------------------------------------------
+# a user law that fails during a run: one line, the run stopped like a divergence, exit 4
+
+FAILING_LAW = '''
+import numpy as np
+import qcontrol
+
+
+class Failing:
+    """The backstepping input with an integrator; from t >= fail_at its method `where` does `how`."""
+
+    state_size = 1
+
+    def __init__(self, table):
+        self.c, self.fail_at = table["c"], table.get("fail_at", 1e9)
+        self.where, self.how = table.get("where", "control"), table.get("how", "raise")
+
+    def initial_state(self):
+        return np.zeros(1)
+
+    def _out(self, method, good, t):
+        if method != self.where or t < self.fail_at:
+            return good
+        if self.how == "raise":
+            return {}["no such key"]  # the line the report names
+        return {"none": None, "string": "1.5", "shape": np.zeros(3)}[self.how]
+
+    def control(self, t, x_q, yd, state):
+        u = float(qcontrol.quantized_backstepping(self.c, x_q, yd)[1][-1] - 0.5 * state[0])
+        return self._out("control", u, t)
+
+    def state_rate(self, t, x_q, yd, state):
+        return self._out("state_rate", np.array([x_q[0] - yd[0]]), t)
+
+
+qcontrol.register_law("failing", lambda table, n: Failing(table), replace=True)
+'''
+RAISE_LINE = 1 + next(i for i, line in enumerate(FAILING_LAW.splitlines()) if "the line the report" in line)
+
+
+@pytest.fixture
+def failing_law(tmp_path):
+    module = tmp_path / "failing.py"
+    module.write_text(FAILING_LAW)
+    from qcontrol.controller.plugins import load_law_module
+
+    load_law_module(module)
+    return module
+
+
+def _failing(**settings: object) -> qcontrol.Scenario:
+    over = {"controller.kind": "failing", "simulation.duration": 0.3} | {f"controller.{k}": v
+                                                                       for k, v in settings.items()}
+    return qcontrol.load_scenario(EX2, overrides=over)
+
+
+@pytest.mark.parametrize("where, how, words", [
+    ("control", "raise", ["control() raised KeyError: 'no such key'", f"failing.py, line {RAISE_LINE}"]),
+    ("control", "none", ["control() returned NoneType None, not a real number u"]),
+    ("control", "string", ["control() returned str '1.5', not a real number u"]),
+    ("control", "shape", ["control() returned ndarray", "not a real number u"]),
+    ("state_rate", "raise", ["state_rate() raised KeyError", f"failing.py, line {RAISE_LINE}"]),
+    ("state_rate", "string", ["state_rate() returned str '1.5', not an array of 1 real numbers"]),
+    ("state_rate", "shape", ["state_rate() returned ndarray", "not an array of 1 real numbers"]),
+])
+@pytest.mark.parametrize("backend", ["ode", "mujoco"])
+def test_a_law_failing_after_its_first_call_stops_the_run_like_a_divergence(failing_law, where, how, words,
+                                                                            backend):
+    result = qcontrol.run(_failing(fail_at=0.1, where=where, how=how), backend)
+    s = result.typed_summary
+    assert s.law_failure is not None and s.divergence_reason == s.law_failure
+    for text in ["controller kind 'failing'", "at t = 0.1 s", *words]:
+        assert text in s.law_failure, s.law_failure
+    assert "\n" not in s.law_failure
+    # the run stops at the row where control() failed, or where the state it could not update is
+    assert s.diverged and s.diverged_time == pytest.approx(0.1 if where == "control" else 0.101)
+    alone = qcontrol.run(_failing(), backend)  # the same law that never fails: the same rows before
+    rows = len(result.t) - 1
+    np.testing.assert_array_equal(result.x[:rows], alone.x[:rows])
+    assert not result.typed_summary.physics_warnings  # the plant was never fed a NaN input
+
+
+def test_a_failing_copy_of_a_batch_leaves_the_others_as_they_run_alone(failing_law):
+    rows = qcontrol.sweep(_failing(), {"controller.fail_at": [0.05, 1e9, 0.2, 1e9, 1e9, 1e9]}, backend="ode")
+    alone = qcontrol.run(_failing(), "ode").typed_summary
+    assert [r["diverged"] for r in rows] == [True, False, True, False, False, False]
+    for row in rows[1:2] + rows[3:]:
+        assert row["max_abs_u"] == alone.max_abs_u and row["error_rate_0.100"] == alone.error_rate["0.100"]
+
+
+@pytest.mark.parametrize("argv", [
+    ["run", "--backend", "ode", "--duration", "0.3"],
+    ["compare", "--duration", "0.3"],
+    ["sweep", "--grid", "controller.fail_at=0.1,0.2,0.25", "--workers", "2", "--backend", "ode",
+     "--set", "simulation.duration=0.3"],
+    ["region", "--law", "failing:fail_at=0.1", "--resolution", "2", "--duration", "0.3", "--workers", "2"],
+])
+def test_every_command_reports_a_failing_law_in_one_line_exit_4(failing_law, tmp_path, capsys, argv):
+    command, *rest = argv
+    out = ["--out", str(tmp_path / "out")] if command in ("sweep", "region") else []
+    kind = {"region": [], "sweep": ["--set", "controller.kind=failing"]}.get(
+        command, ["--set", "controller.kind=failing", "--set", "controller.fail_at=0.1"])
+    assert main([command, str(EX2), "--law-module", str(failing_law), *kind, *rest, *out, "-q"]) == 4
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert err.startswith("qcontrol: error: the law failed: controller kind 'failing': control() raised "
+                          "KeyError")
+    assert f"failing.py, line {RAISE_LINE}" in err and "Traceback" not in err
+
+
+def test_the_debug_switch_prints_the_traceback(failing_law, monkeypatch, capsys):
+    monkeypatch.setenv("QCONTROL_DEBUG", "1")
+    law = ["--law-module", str(failing_law), "--set", "controller.kind=failing",
+           "--set", "controller.fail_at=0.1"]
+    assert main(["run", str(EX2), "--backend", "ode", "--duration", "0.3", "-q", *law]) == 4
+    err = capsys.readouterr().err
+    assert "Traceback (most recent call last)" in err and 'return {}["no such key"]' in err
+
+
+def test_a_factory_that_raises_and_a_module_that_exits_are_bad_input(tmp_path, capsys):
+    module = tmp_path / "factory.py"
+    module.write_text("import qcontrol\n\ndef make(table, n):\n    return 1 / 0\n\n"
+                      "qcontrol.register_law('broken-factory', make, replace=True)\n")
+    assert main(["check", str(EX2), "--law-module", str(module), "--set",
+                 "controller.kind=broken-factory"]) == 2
+    _one_line(capsys, "the law's factory failed (ZeroDivisionError: division by zero, factory.py, line 4)")
+    exits = tmp_path / "exits.py"
+    exits.write_text("import sys\nsys.exit(0)\n")
+    assert main(["run", str(EX2), "--law-module", str(exits), "-q"]) == 2
+    _one_line(capsys, "exits.py: the file called sys.exit(0) while it was imported, line 2")

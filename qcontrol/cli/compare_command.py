@@ -17,7 +17,7 @@ from .arguments import (
     progress_line,
     scenario_from_args,
 )
-from .printing import format_summary, print_paper_line, print_warnings, status
+from .printing import format_summary, law_failed, print_paper_line, print_warnings, status
 from .rendering import add_rendering_options, check_rendering, write_video
 
 
@@ -76,4 +76,4 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if args.rrd is not None:
         print(f"  wrote {args.rrd} (open it with: rerun {args.rrd})")
     write_video(args, cmp.mujoco, twin=cmp.ode)
-    return max(status(s) for s in runs)
+    return law_failed(runs) or max(status(s) for s in runs)

@@ -21,6 +21,7 @@ from ..scenario import load_scenario
 from ..scenario.resolve import scenario_provenance
 from ..sweep.runs import SweepInterrupted
 from .arguments import EXIT_OK, add_scenario_options, options_named, timing_overrides
+from .printing import report_law_failures
 
 
 def add_region_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -86,4 +87,4 @@ def cmd_region(args: argparse.Namespace) -> int:
               f"{s['lemma2']} Lemma 2 violated of {s['points']}); max K T {kt}")
     print(f"  wrote {args.out / 'region.csv'}, {args.out / 'region.json'} and {args.out / 'region.png'} "
           f"({region.wall_time_s:.1f} s)")
-    return EXIT_OK
+    return report_law_failures([p.law_failure for p in region.points if p.law_failure]) or EXIT_OK

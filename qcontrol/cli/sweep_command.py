@@ -32,6 +32,7 @@ from ..sweep.grid import check_size, grid_points, parse_grid
 from ..sweep.runs import SweepInterrupted, plan, sweep_summaries
 from ..sweep.table import csv_text, metric_columns, sweep_record, sweep_rows
 from .arguments import EXIT_OK, add_scenario_options, options_named
+from .printing import law_failed
 
 OUTPUTS = ("sweep.csv", "sweep.json", "sweep.png")
 
@@ -139,4 +140,4 @@ def cmd_sweep(args: argparse.Namespace) -> int:
               f"({out / OUTPUTS[0]} and the others are unchanged)")
         raise interrupted
     print(f"  wrote {csv_path}, {json_path} and {png_path}")
-    return EXIT_OK
+    return law_failed(finished) or EXIT_OK

@@ -78,7 +78,7 @@ class ClosedLoop:
         n, batch = plant.n, plant.batch
         self.plant, self.law, self.grid, self.x0 = plant, law, grid, spec.x0
         self.divergence = Divergence(batch, grid.rows, grid.dt, spec.state_bound, law.state_name,
-                                     spec.terms)
+                                     spec.terms, getattr(law, "failures", None))  # a user law's, if any
         self.reference = ReferenceRows(spec.reference, n, grid, whole=spec.record == "full")
         actuated = isinstance(plant, Actuated)  # else u is applied as commanded
         actuator = plant.actuator if actuated else applied_as_commanded

@@ -76,7 +76,8 @@ class _Record:
                     velocity_source=self.context.velocity_source,
                     actuator_limited=self.context.actuator_limited,
                     diverged=d.times[b] is not None, diverged_time=d.times[b],
-                    divergence_reason=d.reasons[b], wall_time_s=now - self.started, metrics=self.metrics,
+                    divergence_reason=d.reasons[b], law_failure=d.reasons[b] if d.law_failed[b] else None,
+                    wall_time_s=now - self.started, metrics=self.metrics,
                     bound_names=() if separation is None else separation.names,
                     law_diagnostics=self.context.diagnostics)
 

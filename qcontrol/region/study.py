@@ -185,6 +185,7 @@ class RegionPoint:
     lemma2_max_ratio: float
     max_gain_period: float | None
     max_abs_u: float
+    law_failure: str | None = None  # the line of a law written in Python that failed (and stopped the run)
 
 
 @dataclass
@@ -370,7 +371,7 @@ def measure_region(scenario: str | Path, grid: RegionGrid, laws: Sequence[LawSpe
         chunks = plan(base.source, sets, backend, unset)
         summaries = sweep_summaries(base.source, sets, backend, workers, scheduler, progress, chunks, unset)
     points = [RegionPoint(law.label, x, classify(s), s.diverged_time, s.lemma2_max_ratio,
-                          s.law_diagnostics.get("max_gain_period"), s.max_abs_u)
+                          s.law_diagnostics.get("max_gain_period"), s.max_abs_u, s.law_failure)
               for (law, x), s in zip(runs, summaries, strict=True)]
     return Region(base, grid, list(laws), backend, points, time.perf_counter() - started)
 
