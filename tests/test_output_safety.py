@@ -612,3 +612,25 @@ def test_a_missing_scenarios_folder_is_named(tmp_path, capsys):
     assert main(["reproduce", "--scenarios", str(tmp_path / "none"), "--out", str(tmp_path / "r"), "-q"]) == 2
     err = _one_line(capsys, "--scenarios", "does not exist", "example1.toml")
     assert "shipped" not in err
+
+
+@pytest.mark.parametrize("option, name", [("--rrd", "r.rrd"), ("--save", "x.npz"), ("--plot", "x.png")])
+def test_a_disk_with_no_space_at_all_is_exit_3(small_disk, tmp_path, option, name):
+    """Not one byte free (the file's first write fails, rerun's header included): exit 3, one line,
+    the previous file intact."""
+    target = small_disk / name
+    target.write_bytes(b"previous")
+    fd = os.open(small_disk / "ballast", os.O_WRONLY | os.O_CREAT)
+    try:  # fill the disk to its last byte
+        while os.write(fd, b"\0" * 512):
+            pass
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+    proc = _cli("run", str(EX2), *SHORT, option, str(target), cwd=tmp_path)
+    assert proc.returncode == 3, proc.stderr
+    err = proc.stderr.strip()
+    assert len(err.splitlines()) == 1 and "no space left" in err and "Traceback" not in err, err
+    assert target.read_bytes() == b"previous"
+    assert not _temporaries(small_disk)
