@@ -124,6 +124,29 @@ def prepare_output_dir(path: str | Path, option: str = "--out") -> Path:
     return path
 
 
+@contextmanager
+def output_dir(path: str | Path, option: str = "--out") -> Iterator[Path]:
+    """:func:`prepare_output_dir` for a block that writes into the folder: when the block fails
+    (bad input found only while running, a write error, Ctrl-C) the folders it made are removed
+    again if they hold nothing, so a command that fails leaves nothing behind."""
+    path = Path(path)
+    made = []
+    missing = path
+    while not missing.exists() and missing != missing.parent:
+        made.append(missing)
+        missing = missing.parent
+    folder = prepare_output_dir(path, option)
+    try:
+        yield folder
+    except BaseException:
+        for created in made:  # innermost first
+            try:
+                created.rmdir()
+            except OSError:
+                break
+        raise
+
+
 def check_output_file(path: str | Path, option: str, example: str | None = None,
                       fix: str | None = None) -> Path:
     """Check, without creating anything, that an output file can be written: its name is a

@@ -325,3 +325,17 @@ def test_a_factory_that_raises_and_a_module_that_exits_are_bad_input(tmp_path, c
     exits.write_text("import sys\nsys.exit(0)\n")
     assert main(["run", str(EX2), "--law-module", str(exits), "-q"]) == 2
     _one_line(capsys, "exits.py: the file called sys.exit(0) while it was imported, line 2")
+
+
+def test_reproduce_with_a_law_refused_at_its_first_call_creates_nothing(tmp_path, capsys):
+    module = tmp_path / "first.py"
+    module.write_text("import numpy as np\nimport qcontrol\n\n\nclass First:\n    state_size = 0\n\n"
+                      "    def initial_state(self):\n        return np.zeros(0)\n\n"
+                      "    def control(self, t, x_q, yd, state):\n        return 'oops'\n\n"
+                      "    def state_rate(self, t, x_q, yd, state):\n        return np.zeros(0)\n\n\n"
+                      "qcontrol.register_law('first-refused', lambda table, n: First(), replace=True)\n")
+    out = tmp_path / "results" / "deep"
+    assert main(["reproduce", "--law-module", str(module), "--law", "first-refused", "--quick", "--duration",
+                 "0.2", "--out", str(out), "-q"]) == 2
+    _one_line(capsys, "control() must return a real number u, got str 'oops'")
+    assert not (tmp_path / "results").exists()

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from .. import api
 from ..attribution import attribution_lines
-from ..outputs import prepare_output_dir, write_json
+from ..outputs import output_dir, write_json
 from ..progress import ProgressLine
 from .arguments import (
     add_recording_options,
@@ -70,8 +70,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if result["realism_alone"]:
         print("\n".join(attribution_lines(result["realism_alone"], result)))
     if args.out is not None:
-        out = prepare_output_dir(args.out)
-        write_json(out / "compare.json", result)
+        with output_dir(args.out) as out:
+            write_json(out / "compare.json", result)
         print(f"  wrote {out / 'compare.json'}")
     if args.rrd is not None:
         print(f"  wrote {args.rrd} (open it with: rerun {args.rrd})")

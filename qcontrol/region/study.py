@@ -398,11 +398,10 @@ def csv_text(region: Region) -> str:
 def write_region(region: Region, out: Path, provenance: dict) -> None:
     """region.csv, region.json and region.png in ``out`` (made now), put in place together once all
     three are complete (:func:`qcontrol.outputs.staged`): the folder never mixes two regions."""
-    from ..outputs import prepare_output_dir, staged, write_json, write_text
+    from ..outputs import output_dir, staged, write_json, write_text
     from ..plots.region import fig_region  # matplotlib: imported only when a figure is drawn
 
-    out = prepare_output_dir(out)
-    with staged():
+    with output_dir(out) as out, staged():
         write_text(out / "region.csv", csv_text(region))
         write_json(out / "region.json", region.record(provenance))
         fig_region([region.maps()], OUTCOMES, out / "region.png", region.title())

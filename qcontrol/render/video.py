@@ -30,7 +30,7 @@ import numpy as np
 
 from ..engine import Trajectory
 from ..errors import QcontrolInputError, QcontrolOutputError, shown
-from ..outputs import atomic_path, check_output_file, output_error, prepare_output_dir
+from ..outputs import atomic_path, check_output_file, output_dir, output_error
 from .frames import FrameRenderer, Instant, camera_id
 
 DEFAULT_FPS = 30.0
@@ -232,8 +232,9 @@ def write_video(request: VideoRequest, traj: Trajectory, model: object, joint: s
     cid = camera_id(model, request.camera, source)  # type: ignore[arg-type]
     instants = _instants(traj, request.fps, twin)
     width, height = request.frame_size
-    prepare_output_dir(request.path.parent if str(request.path.parent) else Path("."), "--video")
-    with atomic_path(request.path) as tmp, FrameRenderer(model, joint, cid, width, height) as renderer:  # type: ignore[arg-type]
+    folder = request.path.parent if str(request.path.parent) else Path(".")
+    renderer = FrameRenderer(model, joint, cid, width, height)  # type: ignore[arg-type]
+    with output_dir(folder, "--video"), atomic_path(request.path) as tmp, renderer:
         encoder = _Encoder(tmp, request.path, (width, height), request.fps)
         try:
             for done, instant in enumerate(instants, start=1):

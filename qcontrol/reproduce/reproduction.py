@@ -31,7 +31,7 @@ from ..controller.law import KIND_ALIASES, LAW_KINDS
 from ..engine import Trajectory
 from ..errors import QcontrolInputError, QcontrolLawFailure
 from ..metrics import backend_deviation, run_summary
-from ..outputs import check_output_dir, prepare_output_dir, staged, write_json, write_text
+from ..outputs import check_output_dir, output_dir, staged, write_json, write_text
 from ..plants import BACKENDS
 from ..resources import shipped_dir
 from ..scenario import Scenario, load_scenario
@@ -156,8 +156,7 @@ def reproduce(
     rep = Reproduction(check_output_dir(out), backend, duration, Path(scenarios), log, command=command,
                        laws=laws)
     _validate(rep)
-    o = prepare_output_dir(out)
-    with staged():  # every file is put in place at the end, together: the folder is never mixed
+    with output_dir(out) as o, staged():  # every file put in place at the end, together: never mixed
         table = _write_all(rep, o, command, workers, quick)
     extra = "" if quick else "region.json, robustness.json, "
     study = "no region or robustness study (--quick)" if quick else "then the region and robustness studies"
