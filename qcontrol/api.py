@@ -38,7 +38,7 @@ from .engine import SIGNALS, ProgressCallback, RunMetrics, Trajectory
 from .engine.signals import column_names
 from .errors import QcontrolInputError
 from .metrics import backend_deviation, run_summary, summary
-from .outputs import check_output_file, clean, prepare_output_dir, write_file, write_text
+from .outputs import check_figure_file, check_output_file, clean, prepare_output_dir, write_file, write_text
 from .scenario import Scenario
 from .scenario.resolve import scenario_provenance
 from .summary import Summary
@@ -92,6 +92,7 @@ class Result:
         name, plus ``t``, the summary as JSON and each of the law's diagnostics by its own name)
         or ``.csv`` (one header row, a column per component: ``t, x1, x2, x_meas1, ...``, the
         diagnostics by name). Written atomically."""
+        _check_arguments("save", path=(path, (str, Path), False))
         path = check_output_file(path, "save")
         if path.suffix not in SAVE_FORMATS:
             raise QcontrolInputError(f"{path}: unknown format {path.suffix!r}; save as .npz or .csv")
@@ -113,7 +114,8 @@ class Result:
         ``qcontrol run --plot`` draws) to ``path`` (.png, .pdf or .svg); returns the path."""
         from .plots import fig_run  # matplotlib: imported only when a figure is drawn
 
-        path = check_output_file(path, "plot")
+        _check_arguments("plot", path=(path, (str, Path), False))
+        path = check_figure_file(path, "plot")
         s = self.typed_summary
         notes = [f"{s.scenario} on {s.backend}, {s.duration:g} s, dt = {s.dt:g} s"]
         notes += [f"E({k}) = {v:.4f}" for k, v in s.error_rate.items()]

@@ -164,12 +164,12 @@ def check_output_file(path: str | Path, option: str, example: str | None = None,
 
 def check_figure_file(path: str | Path, option: str) -> Path:
     """:func:`check_output_file` for a figure, whose suffix must be one of :data:`FIGURE_FORMATS`."""
-    path = Path(path)
+    path = check_output_file(path, option, "run.png")  # a folder there is named as one first
     if path.suffix.lower() not in FIGURE_FORMATS:
         suffix = path.suffix or "(none)"
         raise QcontrolInputError(f"{option} {shown(path)}: unknown figure format {suffix!r}; "
                                  f"give a file ending in {', '.join(FIGURE_FORMATS)}")
-    return check_output_file(path, option, "run.png")
+    return path
 
 
 def partial_path(path: str | Path) -> Path:

@@ -339,3 +339,45 @@ def test_reproduce_with_a_law_refused_at_its_first_call_creates_nothing(tmp_path
                  "0.2", "--out", str(out), "-q"]) == 2
     _one_line(capsys, "control() must return a real number u, got str 'oops'")
     assert not (tmp_path / "results").exists()
+
+
+# --------------------------------------------------------------------------------------------
+# the API refuses like the command line; names on a terminal; a byte-order mark
+
+
+def test_the_api_refuses_wrong_types_and_suffixes_in_one_line(short_example2, tmp_path):
+    result = qcontrol.run(short_example2, "ode")
+    cases = [
+        (lambda: qcontrol.load_scenario(EX2, unset=123), "load_scenario: unset must be a list of keys"),
+        (lambda: result.save(None), "save: path must be str or Path, got NoneType None"),
+        (lambda: result.plot(None), "plot: path must be str or Path, got NoneType None"),
+        (lambda: result.plot(tmp_path / "p.csv"), "unknown figure format '.csv'"),
+        (lambda: result.save(tmp_path / "x.txt"), "unknown format '.txt'; save as .npz or .csv"),
+        (lambda: qcontrol.register_law("baseline", lambda table, n: None),
+         "controller kind 'baseline' is a built-in name (of kind 'comparison') and cannot be registered"),
+    ]
+    for call, words in cases:
+        with pytest.raises(QcontrolInputError) as err:
+            call()
+        assert words in str(err.value) and "\n" not in str(err.value)
+    assert list(tmp_path.iterdir()) == []
+    aliased = qcontrol.load_scenario(EX2, overrides={"controller.kind": "baseline"})
+    assert aliased.controller.kind == "comparison"  # the alias still names the built-in law
+
+
+def test_a_scenario_name_that_would_drive_a_terminal_is_refused_or_escaped(tmp_path, capsys):
+    text = EX2.read_text()
+    named = tmp_path / "named.toml"
+    named.write_text(text.replace('name = "example2"', 'name = "\\u001b[31mred"'))
+    assert main(["check", str(named)]) == 2
+    _one_line(capsys, "scenario.name: '\\x1b[31mred' holds control characters")
+    unnamed = tmp_path / "e\x1b[31mvil.toml"
+    unnamed.write_text(text.replace('name = "example2"\n', ""))
+    assert qcontrol.load_scenario(unnamed).name == "e\\x1b[31mvil"  # the file's name, escaped
+
+
+def test_a_byte_order_mark_is_named(tmp_path, capsys):
+    bom = tmp_path / "bom.toml"
+    bom.write_text("\ufeff" + EX2.read_text(), encoding="utf-8")
+    assert main(["check", str(bom)]) == 2
+    _one_line(capsys, "bom.toml: the file starts with a byte-order mark (U+FEFF)", "without a BOM")

@@ -222,6 +222,10 @@ def register_kind(kind: LawKind, *, replace: bool = False) -> None:
     """Add a controller kind; its name must be new, unless ``replace`` is true and the kind it
     replaces was registered from Python (a built-in kind, one with declared ``keys``, is never
     replaced)."""
+    if kind.name in KIND_ALIASES:
+        raise QcontrolInputError(f"controller kind {kind.name!r} is a built-in name (of kind "
+                                 f"{KIND_ALIASES[kind.name]!r}) and cannot be registered; choose another "
+                                 "name")
     taken = LAW_KINDS.get(kind.name)
     if taken is not None and taken.keys is not None:
         raise QcontrolInputError(f"controller kind {kind.name!r} is built in and cannot be replaced; "
