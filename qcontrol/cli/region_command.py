@@ -19,7 +19,7 @@ from ..provenance import command_line
 from ..region import BOX, check_region_size, default_laws, measure_region, parse_grid, parse_law, write_region
 from ..scenario import load_scenario
 from ..scenario.resolve import scenario_provenance
-from ..sweep.runs import SweepInterrupted
+from ..sweep.runs import DASK_CONNECT_TIMEOUT, SweepInterrupted
 from .arguments import EXIT_OK, add_scenario_options, options_named, timing_overrides
 from .printing import report_law_failures
 
@@ -51,7 +51,8 @@ def add_region_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="plant backend (default ode: batched; mujoco on request)")
     p.add_argument("--workers", type=int, default=1, metavar="N", help="local worker processes (default 1)")
     p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="send the runs to a running Dask scheduler (needs qcontrol[cluster])")
+                   help="send the runs to a running Dask scheduler (needs qcontrol[cluster]); one that "
+                   f"does not complete Dask's handshake within {DASK_CONNECT_TIMEOUT:g} s is refused")
     p.add_argument("--out", type=Path, default=Path("region"), metavar="DIR",
                    help="output folder (default ./region)")
     p.set_defaults(command_line=None)
