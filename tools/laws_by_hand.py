@@ -115,7 +115,7 @@ def register() -> None:
     """Register the three forms under :data:`KINDS` (again after an edit: replace=True)."""
     qcontrol.register_law(KINDS["rk4"], PaperLawRK4, state_name="eps_hat", replace=True)
     qcontrol.register_law(KINDS["stepped"], PaperLawStepped, state_name="eps_hat", replace=True)
-    qcontrol.register_law_class(KINDS["columns"], PaperLawColumns, keys=KEYS, replace=True)
+    qcontrol.register_law(KINDS["columns"], PaperLawColumns, keys=KEYS, replace=True)
 
 
 def overrides(sc: qcontrol.Scenario, form: str) -> dict:
