@@ -1,5 +1,5 @@
 """The paper's law (44)-(45) written by hand in each documented form of a user law (a
-``qcontrol.Law`` advanced by RK4, a ``qcontrol.SteppedLaw`` with its own exact update, a
+``qcontrol.Law`` advanced by RK4, a ``qcontrol.Law`` with its own exact ``advance``, a
 column-form ``qcontrol.BacksteppingLaw`` subclass) computes the built-in law's numbers to 1e-12,
 single run and batch, on both backends: the bench's user-law rows compare like with like."""
 
@@ -75,7 +75,7 @@ def test_each_form_computes_the_built_in_numbers_in_a_batch(form: str) -> None:
 
 
 def test_a_stepped_law_is_advanced_by_its_own_update_once_per_step() -> None:
-    """A SteppedLaw's advance is what moves the state (not RK4 of a rate it does not have): a
+    """A law's own advance is what moves the state (not RK4 of a rate it does not have): a
     discrete counter advanced by 1 per step ends at the number of steps."""
 
     class Counter:

@@ -7,7 +7,7 @@ Example 2 on the ODE backend (the plant costs the same for every law, so the rat
 * single run (10 s, 10,000 steps): every law on the engine's Python loop (QCONTROL_COMPILE=0),
   and the built-in law as it runs by default (compiled where numba is there);
 * batch (``--batch`` copies from different initial states, 2 s, metrics record): one simulate
-  call per law; a ``qcontrol.Law`` or ``SteppedLaw`` is called copy by copy, a column-form class
+  call per law; a ``qcontrol.Law`` (``state_rate`` or ``advance``) is called copy by copy, a column-form class
   once per step for the whole batch.
 
 The target: a user law within 2x of the built-in law, single run and batch. Timings are best of N.
@@ -74,7 +74,7 @@ def measure(duration: float, batch_duration: float, copies: int, repeat: int) ->
     return result
 
 
-NAMES = {"rk4": "qcontrol.Law, RK4 of state_rate", "stepped": "qcontrol.SteppedLaw, own advance",
+NAMES = {"rk4": "qcontrol.Law, RK4 of state_rate", "stepped": "qcontrol.Law, its own advance",
          "columns": "BacksteppingLaw subclass, column form"}
 
 
