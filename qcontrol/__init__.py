@@ -11,8 +11,13 @@ The Python API (see the README's "Python API"):
   :class:`Summary` whose ``to_json()`` is that summary; the signals ``t, x, x_q, u, y, yd, z, adaptive``,
   ``save``, ``plot``); :func:`compare` -> :class:`Comparison` (``summary``, ``mujoco``, ``ode``);
   :func:`compare_laws` -> :class:`LawComparison` (several laws side by side: ``table``,
-  ``runs``, ``plot``); :func:`sweep` -> the sweep's table (a dict per run). ``qcontrol.sweep``
-  is this function; the package of the same name stays importable (``from qcontrol.sweep import``).
+  ``runs``, ``plot``); :func:`sweep` -> the sweep's table (a dict per run); :func:`region` ->
+  a :class:`~qcontrol.region.Region` (the region of attraction on a grid of initial states);
+  :func:`reproduce` -> a :class:`~qcontrol.commands.Reproduction` (the paper's figures, Table 1
+  and REPORT.md); :func:`check` -> a :class:`~qcontrol.commands.CheckReport` (a scenario
+  validated without running it). ``qcontrol.sweep``, ``qcontrol.region`` and
+  ``qcontrol.reproduce`` are these functions; the packages of the same names stay importable
+  (``from qcontrol.sweep import ...``).
 * :class:`Law` (its state by RK4 of a rate) or :class:`SteppedLaw` (its own update) and
   :func:`register_law`: a control law of your own, selected by
   ``controller.kind``; :func:`check_keys`, :func:`quantized_backstepping` and
@@ -29,6 +34,7 @@ The Python API (see the README's "Python API"):
 
 from ._version import __version__
 from .api import Comparison, Result, compare, lemma2_bounds, quantized_backstepping, run, sweep
+from .commands import CheckReport, Reproduction, check, region, reproduce
 from .controller.backstepping import BacksteppingLaw, ControlOutput
 from .controller.classes import register_law_class
 from .controller.comparison import ComparisonLaw
@@ -45,6 +51,7 @@ from .summary import Summary
 
 __all__ = [
     "BacksteppingLaw",
+    "CheckReport",
     "Comparison",
     "ComparisonLaw",
     "ControlOutput",
@@ -55,11 +62,13 @@ __all__ = [
     "LawDiagnostics",
     "PaperLaw",
     "QcontrolInputError",
+    "Reproduction",
     "Result",
     "Scenario",
     "SteppedLaw",
     "Summary",
     "__version__",
+    "check",
     "check_keys",
     "compare",
     "compare_laws",
@@ -69,8 +78,10 @@ __all__ = [
     "load_law_plugins",
     "load_scenario",
     "quantized_backstepping",
+    "region",
     "register_law",
     "register_law_class",
+    "reproduce",
     "run",
     "sweep",
 ]
