@@ -40,6 +40,32 @@ def workplace(tmp_path: Path) -> Path:
 
 def test_the_readme_has_code_to_run() -> None:
     assert len(PYTHON_BLOCKS) >= 2 and len(_commands()) >= 8
+    commands = {shlex.split(c)[1] for c in _commands()}
+    assert {"run", "compare", "laws", "sweep", "region", "reproduce", "check"} <= commands  # one per command
+
+
+def test_the_readme_is_one_screenful_that_links_into_the_documentation() -> None:
+    assert len(README.splitlines()) <= 250
+    for target in re.findall(r"\]\(((?!https?:|#)[^)#]+)(?:#[^)]*)?\)", README):
+        assert (ROOT / target).exists(), f"README links to {target}, which does not exist"
+    for page in ("commands.md", "python.md", "math.md", "architecture.md", "tutorial.ipynb", "paper.md"):
+        assert f"(docs/{page})" in README
+
+
+def test_the_readmes_headline_is_the_shipped_reproduction() -> None:
+    """Table 1 in the README: the paper's rows as published, ours as docs/reproduction wrote them."""
+    import json
+
+    from qcontrol.paper import PAPER_TABLE1
+
+    shipped = json.loads((ROOT / "docs" / "reproduction" / "table1.json").read_text())
+    rows = {line.split("|")[1].strip(): [float(v) for v in line.split("|")[2:7]]
+            for line in README.splitlines() if line.startswith(("| paper,", "| ours,"))}
+    assert rows["paper, proposed"] == list(PAPER_TABLE1["proposed"].values())
+    assert rows["paper, comparison [20]"] == list(PAPER_TABLE1["comparison"].values())
+    for label, method in (("ours, proposed, paper's kappa = 1.1 + L", "proposed"),
+                          ("ours, comparison [20] (reconstructed law)", "comparison")):
+        assert rows[label] == [round(v, 4) for v in shipped["ours"]["mujoco"][method].values()]
 
 
 @pytest.mark.parametrize("index", range(len(PYTHON_BLOCKS)))
