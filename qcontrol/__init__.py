@@ -4,7 +4,7 @@ Implements Sun et al., "Global Adaptive Control for Uncertain Nonlinear Systems 
 Non-Lipschitz Condition with Quantized States", Electronics 2022, 11, 3160. The data flow is
 quantizer -> controller -> plant (ODE or MuJoCo) -> closed-loop engine -> recording/plots/metrics.
 
-The Python API (see the README's "Python API"):
+The Python API (docs/python.md, and the API reference of the documentation site):
 
 * :func:`load_scenario` -> :class:`Scenario` (immutable; ``sc.with_overrides({...})``)
 * :func:`run` -> :class:`Result` (``summary``, as JSON; ``typed_summary``, a frozen

@@ -11,6 +11,7 @@ from typing import Any
 
 from .api import Result, _call, check_scenario, observer_for, recording_for
 from .assembly import run_scenario, runnable_backend
+from .controller.law import KIND_ALIASES, LAW_KINDS
 from .errors import QcontrolInputError
 from .metrics import summary
 from .region import LawSpec, parse_law
@@ -57,10 +58,14 @@ def compare_laws(scenario: Scenario, kinds: Sequence[str], *, backend: str | Non
             isinstance(k, str) for k in kinds):
         raise QcontrolInputError(f"compare_laws: kinds must be a list of two or more controller kinds, "
                                  f"got {kinds!r}")
-    specs = [parse_law(text) for text in kinds]
+    unknown = [k for k in kinds if KIND_ALIASES.get(k.partition(":")[0].strip(), k.partition(":")[0].strip())
+               not in LAW_KINDS]
+    specs = [] if unknown else [parse_law(text) for text in kinds]
     labels = [spec.label for spec in specs]
-    if len(set(labels)) != len(labels):
-        raise QcontrolInputError(f"compare_laws: a law is given twice ({', '.join(labels)}); give each once")
+    if unknown or len(set(labels)) != len(labels):
+        raise QcontrolInputError(f"compare_laws: kinds {list(kinds)} must be distinct registered kinds "
+                                 f"({', '.join(LAW_KINDS)}), each optionally with settings "
+                                 "(proposed:hold=exact); register yours first (--law-module FILE)")
     variants = {spec.label: scenario.with_overrides(_overrides(spec)) for spec in specs}
     backend = runnable_backend(scenario, backend)
     command = command or _call("compare_laws", scenario, backend=backend)
