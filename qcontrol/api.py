@@ -105,7 +105,7 @@ class Result:
     def plot(self, path: str | Path) -> Path:
         """Draw the run's figure (y and y_d, the errors, u, the law's state; the figure
         ``qcontrol run --plot`` draws) to ``path`` (.png, .pdf or .svg); returns the path."""
-        from .plots import fig_run  # matplotlib: imported only when a figure is drawn
+        from .plots import fig_run, scenario_units  # matplotlib: imported only when a figure is drawn
 
         path = check_output_file(path, "plot")
         s = self.typed_summary
@@ -115,7 +115,8 @@ class Result:
                   f"Lemma 2 ratio = {s.lemma2_max_ratio:.6f}"]
         if s.diverged:
             notes.append(f"diverged at t = {s.diverged_time:g} s")
-        return fig_run(self.trajectory, path, f"{s.scenario} ({s.backend})", notes=notes)
+        return fig_run(self.trajectory, path, f"{s.scenario} ({s.backend})", scenario_units(self.scenario),
+                       notes=notes)
 
 
 for _signal in SIGNALS:

@@ -6,12 +6,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ..commands import MAX_DURATION
 from ..errors import QcontrolInputError, shown
 from ..outputs import check_output_dir, path_kind
 from ..plants import BACKENDS
 from .arguments import EXIT_OK
 
-MAX_DURATION = 3600.0  # s of simulated time per run: every run keeps its rows for the figures
 SCENARIO_FILES = ("example1.toml", "example2.toml", "example2-rigid.toml", "example2-arm.toml",
                   "example1-cart.toml")
 
