@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 
 from .. import compiled as compiled_paths
-from ..assembly import build_controller, build_plant, runnable_backend
+from ..assembly import Assembly, assemble
 from ..plants import BACKENDS
 from ..scenario import Scenario
 from .arguments import EXIT_OK, add_scenario_options, scenario_from_args
@@ -37,30 +37,31 @@ def add_check_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    """Validate the scenario and build its law and each backend's plant; print one line."""
+    """Validate the scenario and put its run together on each backend (its law and plant); print
+    one line."""
     sc = scenario_from_args(args)
-    backend = runnable_backend(sc, args.backend)
-    build_controller(sc)
-    built = [_plant_note(sc, name) for name in _backends_to_build(sc, backend)]
+    runs = _assembled(sc, args.backend)
+    built = [_plant_note(run) for run in runs]
     if not args.quiet:
         steps = round(sc.simulation.duration / sc.simulation.dt)
         print(f"ok: {sc.source} ({sc.name}): keys, expressions and the {sc.controller.kind} law's constants "
-              f"valid; {steps} steps of {sc.simulation.dt:g} s on {backend}; " + "; ".join(built))
+              f"valid; {steps} steps of {sc.simulation.dt:g} s on {runs[0].backend}; " + "; ".join(built))
     return EXIT_OK
 
 
-def _backends_to_build(sc: Scenario, chosen: str) -> list[str]:
-    """The chosen backend and every backend the file has a section for."""
-    return [chosen] + [name for name in sc.backends if name != chosen]
-
-
-def _plant_note(sc: Scenario, backend: str) -> str:
-    """Build the plant (MuJoCo checks its model against eq. (1) here, with the Python form of its
-    passive callback, bit-identical to the compiled one: nothing runs, so numba is not imported)
-    and say what was found."""
+def _assembled(sc: Scenario, backend: str | None) -> list[Assembly]:
+    """The run put together as a run would, on the chosen backend and on every backend the file
+    has a section for (MuJoCo checks its model against eq. (1) when its plant is built, with the
+    Python form of its passive callback, bit-identical to the compiled one: nothing runs, so numba
+    is not imported)."""
     with compiled_paths.not_needed():
-        plant = build_plant(sc, backend)
-    report = plant.consistency_report
+        chosen = assemble(sc, backend)
+        return [chosen] + [assemble(sc, name) for name in sc.backends if name != chosen.backend]
+
+
+def _plant_note(run: Assembly) -> str:
+    """What was found of the run's plant: the consistency of its model with eq. (1), if measured."""
+    backend, report = run.backend, run.report.consistency_report
     if not report:
         return f"{backend}: the plant of eq. (1) built"
     agreement = (f"agrees with eq. (1) at {report['samples']} sampled states (max |mismatch| "

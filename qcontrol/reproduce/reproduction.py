@@ -25,7 +25,7 @@ import numpy as np
 
 from .. import plots
 from ..api import observer_for, recording_for
-from ..assembly import run_scenario
+from ..assembly import Assembly, assemble
 from ..controller import lemma2_L
 from ..controller.law import KIND_ALIASES, LAW_KINDS
 from ..engine import Trajectory
@@ -66,6 +66,7 @@ class Run:
     backend: str
     traj: Trajectory
     summary: Summary
+    assembly: Assembly
 
 
 @dataclass
@@ -90,8 +91,9 @@ class Reproduction:
         return load_scenario(self.scenarios / f"{name}.toml", [*overrides, *extra])
 
     def run(self, label: str, sc: Scenario, backend: str) -> Run:
-        traj = run_scenario(sc, backend)
-        run = Run(label, sc, backend, traj, run_summary(traj, sc.name, backend))
+        asm = assemble(sc, backend)
+        traj = asm.run()[0]
+        run = Run(label, sc, backend, traj, run_summary(traj, sc.name, backend), asm)
         self.runs.append(run)
         self.lemma2_ratios.append(run.summary.lemma2_max_ratio)
         if run.summary.diverged:
@@ -306,13 +308,13 @@ def _example2_figures(o: Path, run: Run, twin: Run | None, base: Run) -> None:
 def _record(path: Path, main: Run, ghosts: dict[str, Run | None], command: str) -> None:
     """A rerun recording of the main run with its ghosts: its twin "ode" (the same closed loop on
     the ODE) and the others (the comparison law)."""
-    sc = main.scenario
-    with recording_for(path, False, sc, scenario_provenance(sc, command)) as rec:
-        observer_for(rec, sc, main.backend)(0, len(main.traj.t), [main.traj])
+    sc, drawn = main.scenario, main.assembly.scene
+    with recording_for(path, False, main.assembly, scenario_provenance(sc, command)) as rec:
+        observer_for(rec, drawn, main.backend)(0, len(main.traj.t), [main.traj])
         for label, ghost in ghosts.items():
             if ghost is not None:
                 twin_of = main.traj if label == "ode" else None
-                observer_for(rec, sc, label, twin_of, ghost=True)(0, len(ghost.traj.t), [ghost.traj])
+                observer_for(rec, drawn, label, twin_of, ghost=True)(0, len(ghost.traj.t), [ghost.traj])
 
 
 def _rates(summaries: Sequence[Summary]) -> dict[str, list[float]]:

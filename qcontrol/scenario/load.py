@@ -15,6 +15,7 @@ import copy
 import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any
@@ -87,14 +88,14 @@ class Scenario:
                               overrides=(*self.overrides, *_as_given(overrides)), default_name=self.name,
                               unset=self.unset)
 
-    @property
+    @cached_property
     def terms(self) -> PlantTerms:
-        """The right-hand side of eq. (1) as the plants are built from it."""
+        """The right-hand side of eq. (1) as the plants are built from it (made once)."""
         return PlantTerms(self.order, self.psi_expr, self.phi_expr, self.theta)
 
-    @property
+    @cached_property
     def law_context(self) -> LawContext:
-        """What the controller kind reads of the scenario (see :class:`LawContext`)."""
+        """What the controller kind reads of the scenario (see :class:`LawContext`; made once)."""
         c = self.controller
         sim = self.simulation
         return LawContext(self.source, self.order, c.delta, c.c, self.psi_expr, self.phi_expr, self.theta,
