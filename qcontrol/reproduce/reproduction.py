@@ -3,7 +3,7 @@
 Runs Example 1 and Example 2 (proposed law and the comparison law of reference [20]) on the
 chosen backend, with the ideal ODE twin beside MuJoCo, then the sensitivity studies (kappa - L,
 a constant scale of r, plant variants) on the ODE backend, then the robustness study on realistic
-hardware (:mod:`qcontrol.robustness`, MuJoCo, in worker processes). Writes PNG figures,
+hardware (:mod:`.robustness_study`, MuJoCo, in worker processes). Writes PNG figures,
 ``table1.md``, ``table1.json``, ``studies.json``, ``region.json`` (the sampled loop's region study,
 :mod:`.region_study`), ``robustness.json``, ``REPORT.md`` and one rerun
 recording per example into the output folder, all put in place together at the end
