@@ -163,6 +163,14 @@ def test_laws_side_by_side_on_it(core: Path, tmp_path: Path) -> None:
         _same_run(written["runs"][kind], run.summary)
 
 
+def test_a_region_map_on_it(core: Path, tmp_path: Path) -> None:
+    common = ["--duration", "0.2", "--resolution", "3", "-q", "--out"]
+    for backend in ("core", "ode"):
+        assert main(["region", str(EX2), "--backend", backend, *common, str(tmp_path / backend)]) == 0
+    assert json.loads((tmp_path / "core" / "region.json").read_text())["backend"] == "core"
+    assert (tmp_path / "core" / "region.csv").read_text() == (tmp_path / "ode" / "region.csv").read_text()
+
+
 def test_compare_applies_to_a_scenario_run_on_it(core: Path, tmp_path: Path) -> None:
     """compare sets MuJoCo beside the ODE: a scenario whose backend is the core plant compares as
     any other (the core plant takes no part)."""
