@@ -201,6 +201,23 @@ def test_registered_from_a_module_in_a_fresh_process(core: Path, tmp_path: Path)
     assert json.loads((out / "summary.json").read_text())["backend"] == "core"
 
 
+
+def test_named_with_backend_once_its_module_ran(core: Path, tmp_path: Path, capsys) -> None:
+    """``--backend`` is checked after the command's law modules ran, so it may name a backend one
+    of them registers; an unknown name is still one line and exit status 2."""
+    BACKENDS.pop("core")  # registered only by the module the command line runs
+    out = tmp_path / "out"
+    assert main(["check", str(EX2), "--law-module", str(core), "--backend", "core", "-q"]) == 0
+    assert main(["run", str(EX2), "--law-module", str(core), "--backend", "core", "--duration", "0.1", "-q",
+                 "--out", str(out)]) == 0
+    assert json.loads((out / "summary.json").read_text())["backend"] == "core"
+    capsys.readouterr()
+    assert main(["run", str(EX2), "--backend", "gpu", "-q", "--out", str(tmp_path / "gpu")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("backend 'gpu': use one of ode, mujoco, core") and len(err.splitlines()) == 1
+    assert not (tmp_path / "gpu").exists()
+
+
 def test_a_table_whose_keys_all_default_may_be_left_out() -> None:
     """Without [reference], y_d is the default kind's default: sin(t)."""
     text = EX2.read_text()

@@ -17,9 +17,8 @@ import argparse
 
 from .. import compiled as compiled_paths
 from ..assembly import Assembly, assemble
-from ..plants import BACKENDS
 from ..scenario import Scenario
-from .arguments import EXIT_OK, add_scenario_options, scenario_from_args
+from .arguments import EXIT_OK, add_scenario_options, backend_names, scenario_from_args
 
 
 def add_check_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -32,7 +31,7 @@ def add_check_parser(subparsers: argparse._SubParsersAction) -> None:
         "and compared with eq. (1)). Exit status 0 when it is valid, 2 otherwise (one line on stderr).",
     )
     add_scenario_options(p)
-    p.add_argument("--backend", choices=tuple(BACKENDS),
+    p.add_argument("--backend", metavar=backend_names(),
                    help="the backend to check for (default: the scenario's)")
 
 

@@ -9,8 +9,7 @@ from pathlib import Path
 
 from ..law_comparison import compare_laws
 from ..outputs import check_output_dir, check_output_file, prepare_output_dir, write_json
-from ..plants import BACKENDS
-from .arguments import EXIT_FAILED, EXIT_OK, add_scenario_options, scenario_from_args
+from .arguments import EXIT_FAILED, EXIT_OK, add_scenario_options, backend_names, scenario_from_args
 
 
 def add_laws_parser(sub: argparse._SubParsersAction) -> None:
@@ -25,7 +24,7 @@ def add_laws_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--law", dest="laws", action="append", default=[], metavar="KIND", required=True,
                    help="a controller kind to compare (give two or more, e.g. --law proposed "
                         "--law comparison)")
-    p.add_argument("--backend", choices=tuple(BACKENDS), help="default: the scenario's simulation.backend")
+    p.add_argument("--backend", metavar=backend_names(), help="default: the scenario's simulation.backend")
     p.add_argument("--out", type=Path, metavar="DIR", help="write DIR/laws.json and DIR/laws.png")
     p.add_argument("--rrd", type=Path, metavar="FILE", help="write a rerun recording with every law")
 

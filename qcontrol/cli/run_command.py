@@ -10,10 +10,10 @@ from .. import api
 from ..assembly import assemble
 from ..errors import QcontrolInputError
 from ..outputs import prepare_output_dir, write_json
-from ..plants import BACKENDS
 from .arguments import (
     add_recording_options,
     add_scenario_options,
+    backend_names,
     check_outputs,
     progress_line,
     scenario_from_args,
@@ -31,7 +31,7 @@ def add_run_parser(sub: argparse._SubParsersAction) -> None:
         "Prints a summary; with --out writes DIR/summary.json.",
     )
     add_scenario_options(run)
-    run.add_argument("--backend", choices=tuple(BACKENDS), help="plant backend (default: the scenario's)")
+    run.add_argument("--backend", metavar=backend_names(), help="plant backend (default: the scenario's)")
     run.add_argument("--out", type=Path, metavar="DIR", help="write DIR/summary.json")
     run.add_argument("--save", type=Path, metavar="FILE",
                      help="write the run's signals to FILE.npz (an array per signal) or FILE.csv (a column "

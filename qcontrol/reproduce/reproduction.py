@@ -25,7 +25,7 @@ import numpy as np
 
 from .. import plots
 from ..api import observer_for, recording_for
-from ..assembly import Assembly, assemble
+from ..assembly import Assembly, assemble, runnable_backend
 from ..controller import lemma2_L
 from ..controller.law import KIND_ALIASES, LAW_KINDS
 from ..engine import Trajectory
@@ -250,8 +250,7 @@ def _validate(rep: Reproduction) -> None:
     """Load every scenario variant the reproduction runs; the examples must have the backend's
     section (e.g. [plant.mujoco])."""
     for name in ("example1", "example2"):
-        sc = rep.scenario(name)
-        BACKENDS[rep.backend].require(sc.backends.get(rep.backend), sc.source)
+        runnable_backend(rep.scenario(name), rep.backend)
     for _, name, overrides in PLANT_VARIANTS:
         rep.scenario(name, overrides)
         rep.scenario(name, (*overrides, *COMPARISON))
