@@ -126,3 +126,18 @@ def test_every_module_a_docstring_names_exists() -> None:
             if importlib.util.find_spec(full) is None:
                 missing.append(f"{path.relative_to(PACKAGE.parent)}: {name}")
     assert not missing
+
+
+def test_the_api_takes_a_run_already_put_together() -> None:
+    """What the command line does: put the run together first (to check --video against its scene),
+    then hand it to qcontrol.run / compare, which build nothing again."""
+    sc = qcontrol.load_scenario(EX2, {"simulation.duration": 0.05})
+    run = assembly.assemble(sc, "ode")
+    res = qcontrol.run(run, record="metrics")
+    assert res.assembly is run and res.backend == "ode" and res.summary["steps"] == 50
+    assert res.summary == {**qcontrol.run(sc, "ode", record="metrics").summary,
+                           "wall_time_s": res.summary["wall_time_s"], "provenance": res.summary["provenance"]}
+    with pytest.raises(qcontrol.QcontrolInputError, match="put together on 'ode'; leave out backend"):
+        qcontrol.run(run, "mujoco")
+    with pytest.raises(qcontrol.QcontrolInputError, match="compare: the run given was put together on 'ode'"):
+        qcontrol.compare(run)
