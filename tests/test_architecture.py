@@ -19,7 +19,7 @@ from conftest import EX2, PACKAGE, ROOT
 from qcontrol.assembly import build_plant, run_scenario
 from qcontrol.columns import ColumnForm
 from qcontrol.controller import AnyColumnForm, BatchLaw
-from qcontrol.controller.user import Law, SteppedLaw
+from qcontrol.controller.user import Law
 from qcontrol.controller.user_diagnostics import LawDiagnostics
 from qcontrol.engine import SIGNALS, ClosedLoop
 from qcontrol.engine.compiled_loop import Schedule
@@ -224,7 +224,6 @@ def _members(protocol: type) -> set[str]:
     (StreamTarget, {"main_series", "main_label", "stream", "flush", "see_motion", "update_layout",
                     "add_panels"}),
     (Reference, {"derivatives"}),
-    (SteppedLaw, {"state_size", "initial_state", "control", "advance"}),
 ])
 def test_the_protocols_stay_narrow(protocol: type, members: set[str]) -> None:
     assert _members(protocol) == members
