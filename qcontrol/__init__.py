@@ -4,15 +4,20 @@ Implements Sun et al., "Global Adaptive Control for Uncertain Nonlinear Systems 
 Non-Lipschitz Condition with Quantized States", Electronics 2022, 11, 3160. The data flow is
 quantizer -> controller -> plant (ODE or MuJoCo) -> closed-loop engine -> recording/plots/metrics.
 
-The Python API (see the README's "Python API"):
+The Python API (docs/python.md, and the API reference of the documentation site):
 
 * :func:`load_scenario` -> :class:`Scenario` (immutable; ``sc.with_overrides({...})``)
 * :func:`run` -> :class:`Result` (``summary``, as JSON; ``typed_summary``, a frozen
   :class:`Summary` whose ``to_json()`` is that summary; the signals ``t, x, x_q, u, y, yd, z, adaptive``,
   ``save``, ``plot``); :func:`compare` -> :class:`Comparison` (``summary``, ``mujoco``, ``ode``);
   :func:`compare_laws` -> :class:`LawComparison` (several laws side by side: ``table``,
-  ``runs``, ``plot``); :func:`sweep` -> the sweep's table (a dict per run). ``qcontrol.sweep``
-  is this function; the package of the same name stays importable (``from qcontrol.sweep import``).
+  ``runs``, ``plot``); :func:`sweep` -> the sweep's table (a dict per run); :func:`region` ->
+  a :class:`~qcontrol.region.Region` (the region of attraction on a grid of initial states);
+  :func:`reproduce` -> a :class:`~qcontrol.commands.Reproduction` (the paper's figures, Table 1
+  and REPORT.md); :func:`check` -> a :class:`~qcontrol.commands.CheckReport` (a scenario
+  validated without running it). ``qcontrol.sweep``, ``qcontrol.region`` and
+  ``qcontrol.reproduce`` are these functions; the packages of the same names stay importable
+  (``from qcontrol.sweep import ...``).
 * :class:`Law` (one copy at a time; its state by RK4 of ``state_rate``, or by its own
   ``advance``) and :func:`register_law`, the one way to make a law a kind selected by
   ``controller.kind``; :func:`check_keys`, :func:`quantized_backstepping` and
@@ -29,6 +34,7 @@ The Python API (see the README's "Python API"):
 
 from ._version import __version__
 from .api import Comparison, Result, compare, lemma2_bounds, quantized_backstepping, run, sweep
+from .commands import CheckReport, Reproduction, check, region, reproduce
 from .controller.backstepping import BacksteppingLaw, ControlOutput
 from .controller.comparison import ComparisonLaw
 from .controller.kinds import register_law, removed_name
@@ -45,6 +51,7 @@ from .summary import Summary
 
 __all__ = [
     "BacksteppingLaw",
+    "CheckReport",
     "Comparison",
     "ComparisonLaw",
     "ControlOutput",
@@ -55,10 +62,12 @@ __all__ = [
     "LawDiagnostics",
     "PaperLaw",
     "QcontrolInputError",
+    "Reproduction",
     "Result",
     "Scenario",
     "Summary",
     "__version__",
+    "check",
     "check_keys",
     "compare",
     "compare_laws",
@@ -68,7 +77,9 @@ __all__ = [
     "load_law_plugins",
     "load_scenario",
     "quantized_backstepping",
+    "region",
     "register_law",
+    "reproduce",
     "run",
     "sweep",
 ]

@@ -80,14 +80,21 @@ def _leaves(table: Mapping, prefix: str = "") -> dict[str, Any]:
 def _setting(data: Mapping, base_dir: Path, kind: str) -> dict[str, Any]:
     """What decides the numbers of a run of controller ``kind``: every value but the scenario's
     texts, the backend (both run the paper's model), the kind (it picks the row of Table 1) and the
-    sections of the other kinds; file paths resolved."""
+    sections of the other kinds; file paths resolved. The kind's settings are named as the law
+    reads them, ``controller.<key>``: from ``[controller.<kind>]``, unless ``[controller]`` gives
+    the key directly (which overrides the sub-table)."""
     setting = {}
-    for key, value in _leaves(data).items():
+    leaves = _leaves(data)
+    for key, value in leaves.items():
         parts = key.split(".")
         if parts[0] == "scenario" or key in ("simulation.backend", "controller.kind"):
             continue
         if parts[0] == "controller" and len(parts) > 2 and parts[1] != kind:
             continue
+        if parts[0] == "controller" and len(parts) > 2:  # the chosen kind's sub-table
+            key = f"controller.{'.'.join(parts[2:])}"
+            if key in leaves:
+                continue
         if parts[-1] == "model" and isinstance(value, str):
             value = resolve_file(value, base_dir)
         setting[key] = value

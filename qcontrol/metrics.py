@@ -35,7 +35,7 @@ def summary(run: RunRecord, scenario: str, backend: str) -> dict:
 
 
 def run_summary(run: RunRecord, scenario: str, backend: str) -> Summary:
-    """The :class:`~qcontrol.summary.Summary` of a run (see the README's output contract).
+    """The :class:`~qcontrol.summary.Summary` of a run (docs/commands.md, `qcontrol run`, lists its keys).
 
     The metrics are the reductions of the signal table, the same whether the run kept every row
     or only its metrics. The Lemma 2 check covers every instant before a divergence: the row that

@@ -1,6 +1,6 @@
 """Writing results: every file qcontrol writes goes through this module.
 
-The guarantees (the README's section "Reliability" states them for users):
+The guarantees (docs/reliability.md, 'What qcontrol does with its outputs', states them for users):
 
 * An output name must be a regular file or a new name. A folder, a device, a FIFO, a socket or
   a symbolic-link loop at an output name is refused before the run (:func:`check_output_file`),

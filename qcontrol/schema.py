@@ -283,6 +283,17 @@ class Section:
     def names(self) -> tuple[str, ...]:
         return tuple(k.name for k in self.keys)
 
+    @property
+    def optional(self) -> bool:
+        """Whether the whole table may be left out: every key it takes has a default, and, in a
+        kinded table, so has every key of the kind chosen by default."""
+        if any(k.default is REQUIRED for k in self.keys):
+            return False
+        if not self.kinds:
+            return True
+        chosen = self.kinds.get(next((k.default for k in self.keys if k.name == "kind"), None))
+        return chosen is not None and all(k.default is not REQUIRED for k in chosen.keys)
+
 
 def kind_table(table: Table, common: Sequence[str], kinds: Mapping[str, KindKeys | None],
                kind: str) -> Table:

@@ -1,5 +1,5 @@
 """A run's summary as a typed, frozen record: :class:`Summary`, whose :meth:`~Summary.to_json` is
-``summary.json`` (the README's output contract) and :meth:`~Summary.from_json` reads it back."""
+``summary.json`` (its keys: docs/commands.md, `qcontrol run`) and :meth:`~Summary.from_json` reads it back."""
 
 from __future__ import annotations
 

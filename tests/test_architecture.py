@@ -57,6 +57,7 @@ LAYERS = [
     {"sweep", "api", "explain", "region"},
     {"law_comparison"},
     {"reproduce"},
+    {"commands"},
     {"cli", "_entry", "__main__"},
 ]
 

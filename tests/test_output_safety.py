@@ -1,4 +1,4 @@
-"""Outputs that never destroy data: every case of the output guarantees (README, "Reliability").
+"""Outputs that never destroy data: every case of the output guarantees (docs/reliability.md).
 
 Devices are made with ``mknod`` and a full disk is a 64 KiB tmpfs when the tests run as root
 (skipped otherwise, with the reason); the same write errors are also injected into the writer, so

@@ -1,6 +1,8 @@
-"""Every code block of the README runs: the Python blocks in a fresh interpreter each, and every
-``qcontrol`` command of the shell blocks, in a folder holding the scenarios and models (the
-install and test commands are what CI itself runs)."""
+"""Every code block of the README and of the user guide's pages that hold code (docs/index.md,
+docs/commands.md, docs/python.md) runs: the Python blocks in a fresh interpreter each, and every
+``qcontrol`` command of the shell blocks, in a folder holding the scenarios and models (the install
+and test commands are what CI itself runs). The README stays one screenful that links into the
+documentation, and its headline is the shipped reproduction."""
 
 from __future__ import annotations
 
@@ -17,13 +19,14 @@ from qcontrol.cli import main
 
 README = (ROOT / "README.md").read_text()
 PYTHON_BLOCKS = re.findall(r"```python\n(.*?)```", README, re.S)
-SHELL_BLOCKS = re.findall(r"```bash\n(.*?)```", README, re.S)
+GUIDE = {name: (ROOT / "docs" / name).read_text() for name in ("index.md", "commands.md", "python.md")}
+GUIDE_PYTHON = [block for text in GUIDE.values() for block in re.findall(r"```python\n(.*?)```", text, re.S)]
 
 
-def _commands() -> list[str]:
+def _commands(text: str = README) -> list[str]:
     """The qcontrol commands of the shell blocks (continuations joined, comments dropped)."""
     found = []
-    for block in SHELL_BLOCKS:
+    for block in re.findall(r"```bash\n(.*?)```", text, re.S):
         for line in block.replace("\\\n", " ").splitlines():
             for part in line.split("#")[0].split("&&"):
                 if part.strip().startswith("qcontrol "):
@@ -40,12 +43,39 @@ def workplace(tmp_path: Path) -> Path:
 
 def test_the_readme_has_code_to_run() -> None:
     assert len(PYTHON_BLOCKS) >= 2 and len(_commands()) >= 8
+    commands = {shlex.split(c)[1] for c in _commands()}
+    assert {"run", "compare", "laws", "sweep", "region", "reproduce", "check"} <= commands  # one per command
 
 
-@pytest.mark.parametrize("index", range(len(PYTHON_BLOCKS)))
-def test_python_block_runs(workplace: Path, index: int) -> None:
-    result = subprocess.run([sys.executable, "-c", PYTHON_BLOCKS[index]], cwd=workplace, capture_output=True,
-                            text=True, timeout=300)
+def test_the_readme_is_one_screenful_that_links_into_the_documentation() -> None:
+    assert len(README.splitlines()) <= 250
+    for target in re.findall(r"\]\(((?!https?:|#)[^)#]+)(?:#[^)]*)?\)", README):
+        assert (ROOT / target).exists(), f"README links to {target}, which does not exist"
+    for page in ("commands.md", "python.md", "math.md", "architecture.md", "tutorial.ipynb", "paper.md"):
+        assert f"(docs/{page})" in README
+
+
+def test_the_readmes_headline_is_the_shipped_reproduction() -> None:
+    """Table 1 in the README: the paper's rows as published, ours as docs/reproduction wrote them."""
+    import json
+
+    from qcontrol.paper import PAPER_TABLE1
+
+    shipped = json.loads((ROOT / "docs" / "reproduction" / "table1.json").read_text())
+    rows = {line.split("|")[1].strip(): [float(v) for v in line.split("|")[2:7]]
+            for line in README.splitlines() if line.startswith(("| paper,", "| ours,"))}
+    assert rows["paper, proposed"] == list(PAPER_TABLE1["proposed"].values())
+    assert rows["paper, comparison [20]"] == list(PAPER_TABLE1["comparison"].values())
+    for label, method in (("ours, proposed, paper's kappa = 1.1 + L", "proposed"),
+                          ("ours, comparison [20] (reconstructed law)", "comparison")):
+        assert rows[label] == [round(v, 4) for v in shipped["ours"]["mujoco"][method].values()]
+
+
+@pytest.mark.parametrize("block", PYTHON_BLOCKS + GUIDE_PYTHON,
+                         ids=[f"block{i}" for i in range(len(PYTHON_BLOCKS + GUIDE_PYTHON))])
+def test_python_block_runs(workplace: Path, block: str) -> None:
+    result = subprocess.run([sys.executable, "-c", block], cwd=workplace, capture_output=True, text=True,
+                            timeout=300)
     assert result.returncode == 0, result.stderr
 
 
@@ -55,7 +85,7 @@ def test_python_block_runs(workplace: Path, index: int) -> None:
 SHORTENED = {"reproduce": ["--quick"]}
 
 
-@pytest.mark.parametrize("command", _commands())
+@pytest.mark.parametrize("command", sorted(set(_commands()).union(*(_commands(t) for t in GUIDE.values()))))
 def test_shell_command_runs(workplace: Path, monkeypatch: pytest.MonkeyPatch, command: str) -> None:
     monkeypatch.chdir(workplace)
     argv = shlex.split(command)[1:]

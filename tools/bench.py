@@ -1,5 +1,5 @@
 """qcontrol's performance figures, as ratios measured in one process against the physical limit
-(the targets: the README's Performance section).
+(the targets: docs/performance.md).
 
     python tools/bench.py [--quick] [--json FILE] [--repeat N] [--sweep1000] [--reproduce]
 

@@ -15,11 +15,8 @@ from __future__ import annotations
 
 import argparse
 
-from .. import compiled as compiled_paths
-from ..assembly import build_controller, build_plant, runnable_backend
-from ..plants import BACKENDS
-from ..scenario import Scenario
-from .arguments import EXIT_OK, add_scenario_options, scenario_from_args
+from ..commands import check
+from .arguments import EXIT_OK, add_scenario_options, backend_names, scenario_from_args
 
 
 def add_check_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -32,40 +29,14 @@ def add_check_parser(subparsers: argparse._SubParsersAction) -> None:
         "and compared with eq. (1)). Exit status 0 when it is valid, 2 otherwise (one line on stderr).",
     )
     add_scenario_options(p)
-    p.add_argument("--backend", choices=tuple(BACKENDS),
+    p.add_argument("--backend", metavar=backend_names(),
                    help="the backend to check for (default: the scenario's)")
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    """Validate the scenario and build its law and each backend's plant; print one line."""
-    sc = scenario_from_args(args)
-    backend = runnable_backend(sc, args.backend)
-    build_controller(sc)
-    built = [_plant_note(sc, name) for name in _backends_to_build(sc, backend)]
+    """Validate the scenario and build its law and each backend's plant (:func:`qcontrol.check`);
+    print one line."""
+    report = check(scenario_from_args(args), args.backend)
     if not args.quiet:
-        steps = round(sc.simulation.duration / sc.simulation.dt)
-        print(f"ok: {sc.source} ({sc.name}): keys, expressions and the {sc.controller.kind} law's constants "
-              f"valid; {steps} steps of {sc.simulation.dt:g} s on {backend}; " + "; ".join(built))
+        print(report.line())
     return EXIT_OK
-
-
-def _backends_to_build(sc: Scenario, chosen: str) -> list[str]:
-    """The chosen backend and every backend the file has a section for."""
-    return [chosen] + [name for name in sc.backends if name != chosen]
-
-
-def _plant_note(sc: Scenario, backend: str) -> str:
-    """Build the plant (MuJoCo checks its model against eq. (1) here, with the Python form of its
-    passive callback, bit-identical to the compiled one: nothing runs, so numba is not imported)
-    and say what was found."""
-    with compiled_paths.not_needed():
-        plant = build_plant(sc, backend)
-    report = plant.consistency_report
-    if not report:
-        return f"{backend}: the plant of eq. (1) built"
-    agreement = (f"agrees with eq. (1) at {report['samples']} sampled states (max |mismatch| "
-                 f"{report['max_abs_mismatch']:.2g})")
-    if report.get("realism"):
-        agreement = (f"differs from eq. (1) by up to {report['max_abs_mismatch']:.3g} at {report['samples']} "
-                     f"sampled states, as its realism options ({', '.join(report['realism'])}) make it")
-    return f"{backend}: the model compiled and {agreement}"

@@ -38,7 +38,8 @@ def format_summary(s: Summary | Mapping, sc: Scenario) -> str:
         f"  error rate: {rates}",
         f"  max |z1| over the last half: {f.max_abs_z1_last_half:.4g}    max |u|: {f.max_abs_u:.4g}",
         f"  actuator: max |u applied|: {f.max_abs_u_applied:.4g}    {_saturation(f.saturated_fraction)}",
-        f"  final {f.adaptive_state}: [{', '.join(f'{v:.4g}' for v in final_state(f))}]",
+        *([f"  final {f.adaptive_state}: [{', '.join(f'{v:.4g}' for v in final_state(f))}]"]
+          if final_state(f) else []),  # a stateless law has none to print
         _lemma2_line(f),
         *gain_period_lines(f),
         *law_diagnostic_lines(f),

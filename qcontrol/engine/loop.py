@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from ..plants.base import Actuated, Disturbable, Plant
+from ..plants.base import Disturbable, Plant, actuator_of
 from .compiled_loop import START, Resume
 from .divergence import Divergence
 from .fastpath import compiled_loop, rows_for
@@ -28,7 +28,7 @@ from .reference_rows import ReferenceRows
 from .results import RunRecord
 from .retention import FullRecord, MetricsRecord, RunParts
 from .row_buffer import NEVER
-from .signals import SignalContext, applied_as_commanded
+from .signals import SignalContext
 from .spec import ProgressCallback, RunSpec
 
 
@@ -76,10 +76,9 @@ class ClosedLoop:
         self.divergence = Divergence(batch, grid.rows, grid.dt, spec.state_bound, law.state_name,
                                      spec.terms, getattr(law, "failures", None))  # a user law's, if any
         self.reference = ReferenceRows(spec.reference, n, grid, whole=spec.record == "full")
-        actuated = isinstance(plant, Actuated)  # else u is applied as commanded
-        actuator = plant.actuator if actuated else applied_as_commanded
-        context = SignalContext(law.coordinates, spec.separation, actuator, spec.velocity_source,
-                                actuated and plant.actuator_limited, tuple(law.diagnostics))
+        actuator, limited = actuator_of(plant)  # without an actuator, u is applied as commanded
+        context = SignalContext(law.coordinates, spec.separation, actuator, spec.velocity_source, limited,
+                                tuple(law.diagnostics))
         parts = RunParts(grid, law, self.reference, self.divergence, context, spec.metrics, batch, n)
         self.record = (FullRecord(parts, spec.observer, spec.observe_every) if spec.record == "full"
                        else MetricsRecord(parts, spec.observer))

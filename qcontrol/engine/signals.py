@@ -23,6 +23,7 @@ import numpy as np
 from ..controller.backstepping import Backstepping
 from ..controller.law import Diagnostic
 from ..expr import Expression
+from ..plants.base import applied_as_commanded
 from .reductions import (
     BoundConstants,
     DiagnosticValues,
@@ -48,11 +49,6 @@ class Separation:
     names: tuple[str, ...]
     terms: tuple[Expression, ...]
     r: tuple[Expression, ...]
-
-
-def applied_as_commanded(u: np.ndarray) -> np.ndarray:
-    """The actuator of a plant that applies u as commanded."""
-    return u
 
 
 @dataclass(frozen=True)

@@ -6,13 +6,17 @@ inputs, and declares what else it can do as separate capabilities, each a protoc
 :class:`PhysicsReport` (what the physics engine warned about, its agreement with eq. (1)),
 :class:`ColumnStepping` (a step written over columns of any form, :mod:`qcontrol.columns`, in
 which the engine may step a run) and :class:`NativeStepping` (source text for the engine's
-compiled loop). A plant with only the core works at every batch size.
+compiled loop). A plant with only the core works at every batch size, and everywhere: each
+optional part it lacks has its default here, in one place (:func:`actuator_of`,
+:func:`physics_report`; a plant that is not :class:`Disturbable` takes no ``[[disturbance]]``, which
+a run refuses before it starts; the scene and the inertia are the backend's,
+:class:`~qcontrol.plants.backends.Backend`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -122,6 +126,36 @@ class PhysicsReport(Protocol):
 
     warnings: list[str]  # what the physics engine warned about during the last run
     consistency_report: dict[str, Any]  # how the model agrees with eq. (1)
+
+
+# ---- the defaults of the optional capabilities, for a plant that lacks them
+
+def applied_as_commanded(u: np.ndarray) -> np.ndarray:
+    """The actuator of a plant that is not :class:`Actuated`: u is applied as commanded."""
+    return u
+
+
+def actuator_of(plant: Plant) -> tuple[Callable[[np.ndarray], np.ndarray], bool]:
+    """The plant's actuator and whether it can clip a command (:class:`Actuated`); without the
+    capability, u applied as commanded, never clipped."""
+    if isinstance(plant, Actuated):
+        return plant.actuator, plant.actuator_limited
+    return applied_as_commanded, False
+
+
+@dataclass(frozen=True)
+class NoReport:
+    """The :class:`PhysicsReport` of a plant without one: no physics engine to warn, nothing measured
+    against eq. (1) (the plant is taken to be eq. (1))."""
+
+    warnings: list[str] = field(default_factory=list)
+    consistency_report: dict[str, Any] = field(default_factory=dict)
+
+
+def physics_report(plant: Plant) -> PhysicsReport:
+    """What the plant has to tell users (:class:`PhysicsReport`), or, without the capability, the
+    default: no warnings and an empty consistency report."""
+    return plant if isinstance(plant, PhysicsReport) else NoReport()
 
 
 class ColumnIO(Protocol):

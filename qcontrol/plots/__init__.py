@@ -37,6 +37,7 @@ from .run_figures import (
     fig_run,
     fig_tracking_error,
     output_difference,
+    scenario_units,
 )
 from .studies import fig_sensitivity, fig_table1
 
@@ -57,6 +58,7 @@ __all__ = [
     "fig_input",
     "fig_output",
     "fig_run",
+    "scenario_units",
     "fig_sensitivity",
     "fig_table1",
     "fig_tracking_error",

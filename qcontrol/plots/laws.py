@@ -9,14 +9,15 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from ..engine import Trajectory
-from .common import COLORS, REF_STYLE, column, legend, new_figure, reference, save
+from .common import COLORS, REF_STYLE, Units, column, legend, new_figure, reference, save, unit
 
 DASHES = ("-", "--", (0, (1, 1.5)), "-.")  # solid, dashed, dotted, dash-dot: law i's pattern
 
 
-def fig_law_overlay(runs: Mapping[str, Trajectory], path: str | os.PathLike, title: str) -> Path:
+def fig_law_overlay(runs: Mapping[str, Trajectory], path: str | os.PathLike, title: str,
+                    units: Units) -> Path:
     """Three panels, each law a colour and a dash pattern: y (with y_d), z1 = y - y_d, and u
-    (held: steps)."""
+    (held: steps), labelled in ``units``."""
     fig, grid = new_figure(3, 1)
     axes = grid.ravel()
     first = next(iter(runs.values()))
@@ -27,10 +28,11 @@ def fig_law_overlay(runs: Mapping[str, Trajectory], path: str | os.PathLike, tit
         axes[0].plot(traj.t, traj.y, linewidth=1.2, **style)
         axes[1].plot(traj.t, column(traj.z, 0), linewidth=1.2, **style)
         axes[2].step(traj.t, traj.signals["u"], where="post", linewidth=1.0, **style)
-    for ax, label in zip(axes, ("y, $y_d$", "$z_1 = y - y_d$", "u"), strict=True):
+    labels = (f"y, $y_d${unit(units.y)}", f"$z_1 = y - y_d${unit(units.y)}", f"u{unit(units.u)}")
+    for ax, label in zip(axes, labels, strict=True):
         ax.set_ylabel(label)
         ax.grid(True, alpha=0.3)
         legend(ax, fontsize=7)
-    axes[-1].set_xlabel("t [s]")
+    axes[-1].set_xlabel(f"t{unit(units.t)}")
     fig.suptitle(title)
     return save(fig, path)

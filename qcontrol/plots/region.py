@@ -5,6 +5,8 @@ marked. The maps come as plain data (:class:`RegionMap`), made by :mod:`qcontrol
 from __future__ import annotations
 
 import os
+import re
+import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,6 +19,7 @@ from matplotlib.patches import Patch, Rectangle
 from .common import new_figure, save
 
 OUTCOME_COLORS = {"bounded": "#BFE6D5", "diverged": "#D55E00", "lemma2": "#E69F00"}  # Okabe-Ito based
+PANEL_CHARACTERS = 96  # characters of an 8-point title across the figure's width: a panel's share of them
 OUTCOME_LABELS = {"bounded": "bounded, Lemma 2 holds", "diverged": "diverged", "lemma2": "Lemma 2 violated"}
 
 
@@ -44,8 +47,31 @@ def _edges(values: np.ndarray) -> np.ndarray:
     return np.concatenate([[2 * values[0] - mid[0]], mid, [2 * values[-1] - mid[-1]]])
 
 
+def _title(title: str, columns: int) -> str:
+    """A panel's title "law: what failed" as the law on its own lines, wrapped at its commas to the
+    panel's width, then what failed: it fits however many laws share the row and however long a
+    law's label is."""
+    width = max(12, PANEL_CHARACTERS // columns)
+    law, sep, counts = title.rpartition(": ")
+    if not sep:
+        return textwrap.fill(title, width)
+    lines = [""]
+    for part in re.split(r"(?<=[:,])", law):  # the label as typed, broken after its ':' and ','
+        if lines[-1] and len(lines[-1]) + len(part) > width:
+            lines.append("")
+        lines[-1] += part
+    return "\n".join([*lines, counts])  # the counts on one line: at most about 30 characters
+
+
+def _ylabel(label: str) -> str:
+    """The row's label (the scenario, its control period, the vertical axis, a line each) on two
+    lines: what the row is, then the axis."""
+    *row, axis = label.split("\n")
+    return "\n".join([", ".join(row), axis]) if row else axis
+
+
 def _panel(ax, m: RegionMap, outcomes: Sequence[str], show_ylabel: bool, show_xlabel: bool,
-           narrow: bool = False) -> None:
+           columns: int = 1) -> None:
     cmap = ListedColormap([OUTCOME_COLORS[o] for o in outcomes])
     norm = BoundaryNorm(np.arange(len(outcomes) + 1) - 0.5, len(outcomes))
     ax.pcolormesh(_edges(m.xs), _edges(m.ys), m.codes, cmap=cmap, norm=norm, shading="flat")
@@ -55,11 +81,11 @@ def _panel(ax, m: RegionMap, outcomes: Sequence[str], show_ylabel: bool, show_xl
     ax.add_patch(Rectangle((-m.box, -m.box), 2 * m.box, 2 * m.box, fill=False, edgecolor="black",
                            linestyle="--", linewidth=1.0))
     ax.plot([m.marker[0]], [m.marker[1]], marker="*", color="black", markersize=10, linestyle="none")
-    ax.set_title(m.title.replace(": ", ":\n", 1) if narrow else m.title, fontsize=8)  # (law: what failed)
+    ax.set_title(_title(m.title, columns), fontsize=8)
     if show_xlabel:
         ax.set_xlabel(m.xlabel, fontsize=8)
     if show_ylabel:
-        ax.set_ylabel(m.ylabel, fontsize=7)
+        ax.set_ylabel(_ylabel(m.ylabel), fontsize=7)
     ax.set_xlim(_edges(m.xs)[[0, -1]])
     ax.set_ylim(_edges(m.ys)[[0, -1]])
     ax.tick_params(labelsize=7)
@@ -75,7 +101,7 @@ def fig_region(rows: Sequence[Sequence[RegionMap]], outcomes: Sequence[str], pat
     for i, maps in enumerate(rows):
         for j in range(cols):
             if j < len(maps):
-                _panel(axes[i, j], maps[j], outcomes, j == 0, i == len(rows) - 1, narrow=cols > 3)
+                _panel(axes[i, j], maps[j], outcomes, j == 0, i == len(rows) - 1, columns=cols)
             else:
                 axes[i, j].set_visible(False)
     box = rows[0][0].box

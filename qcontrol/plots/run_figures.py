@@ -11,9 +11,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..assembly import scene
 from ..engine import Trajectory
 from .common import (
     COLORS,
+    EXAMPLE1_UNITS,
+    EXAMPLE2_UNITS,
     LOG_FLOOR,
     REF_STYLE,
     Units,
@@ -33,6 +36,8 @@ from .common import (
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
+
+    from ..scenario import Scenario
 
 # --------------------------------------------------------------------------------------------
 # Single-run figures (paper Figs. 1-4, 7, 8)
@@ -262,6 +267,15 @@ def fig_backend_overlay(
 GENERIC_UNITS = Units(y="", u="")
 
 
+def scenario_units(sc: Scenario) -> Units:
+    """The units of a scenario's axes: its MuJoCo joint's (a hinge: rad, and u in rad/s^2; a slide:
+    m, and u in N/kg), else those of the plant's own x1 (u: x1's n-th derivative, eq. (1))."""
+    drawn = scene(sc)
+    if drawn is None:
+        return Units(y="x$_1$ unit", u=f"x$_1$ unit/s$^{sc.order}$")
+    return EXAMPLE2_UNITS if drawn.hinge else EXAMPLE1_UNITS
+
+
 def fig_run(traj: Trajectory, path: str | os.PathLike, title: str, units: Units = GENERIC_UNITS,
             notes: Sequence[str] = ()) -> Path:
     """One run on one page: y and y_d, the tracking error z_1, the input u (held: steps), the
@@ -281,13 +295,13 @@ def fig_run(traj: Trajectory, path: str | os.PathLike, title: str, units: Units 
     adaptive = np.asarray(traj.adaptive, dtype=float).reshape(len(traj.t), -1)
     for i, name in enumerate(adaptive_labels(traj, adaptive.shape[1])):
         panels[3].plot(traj.t, adaptive[:, i], color=COLORS[i % len(COLORS)], linewidth=1.3, label=name)
-    panels[3].set_ylabel("adaptive state")
+    panels[3].set_ylabel(f"adaptive state{unit(units.adaptive)}")
     t_env, envelope = _lemma2_envelope(traj)
     panels[4].step(t_env, envelope, where="post", color=COLORS[1], linewidth=1.0,
                    label=r"max$_i$ |$e_{zi}$| / $L_{zi}$ (max per window)")
     panels[4].axhline(1.0, color="red", linestyle="--", linewidth=1.0, label="Lemma 2 bound")
     panels[4].set_ylim(0.0, 1.25)
-    panels[4].set_ylabel("Lemma 2 ratio")
+    panels[4].set_ylabel("Lemma 2 ratio [-]")
     for ax in panels[:5]:
         mark_divergence(ax, traj)
         time_axis(ax, [traj], units)

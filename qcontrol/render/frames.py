@@ -22,6 +22,8 @@ from .context import open_context
 
 TARGET_RGBA = (0.9, 0.15, 0.15, 0.35)  # where the tip would be at y_d
 READING_RGBA = (1.0, 0.85, 0.1, 1.0)  # where the tip would be at q(x1)
+# the overlay's units of x1 and u (eq. (1)'s input: x1's second derivative) on a hinge and a slide
+OVERLAY_UNITS = {"hinge": ("rad", "rad/s^2"), "slide": ("m", "m/s^2")}
 TWIN_RGBA = (0.35, 0.6, 1.0, 0.35)  # the ODE twin's bodies
 MAX_GEOMS = 500
 
@@ -134,8 +136,9 @@ class FrameRenderer:
         return np.flipud(self.pixels)
 
     def _overlay(self, instant: Instant) -> None:
+        position, input_unit = OVERLAY_UNITS["hinge" if self.scene_geometry.hinge else "slide"]
         labels = "t\nq(x1)\nu"
-        values = f"{instant.t:6.2f} s\n{instant.q1:+.3f}\n{instant.u:+.2f}"
+        values = f"{instant.t:6.2f} s\n{instant.q1:+.3f} {position}\n{instant.u:+.2f} {input_unit}"
         font, grid = mujoco.mjtFont.mjFONT_NORMAL, mujoco.mjtGridPos
         mujoco.mjr_overlay(font, grid.mjGRID_TOPLEFT, self.rect, labels, values, self.mjr)
         legend = "red: y_d  yellow: q(x1)"

@@ -5,21 +5,24 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from ..paper import METHOD_LABELS, OMEGA_KEYS, PAPER_TABLE1, PAPER_TABLE1_ROWS
+from ..paper import METHOD_LABELS, OMEGA_KEYS, PAPER_HORIZON, PAPER_TABLE1, PAPER_TABLE1_ROWS
 from ..summary import Summary
 from .region_study import region_section
 from .robustness_report import robustness_section
 
-__all__ = ["METHOD_LABELS", "OMEGA_KEYS", "PAPER_TABLE1", "PAPER_TABLE1_ROWS", "ReportFacts",
+__all__ = ["METHOD_LABELS", "OMEGA_KEYS", "PAPER_HORIZON", "PAPER_TABLE1", "PAPER_TABLE1_ROWS", "ReportFacts",
            "beyond_the_paper", "report_markdown", "table1", "table1_markdown"]
 
 
-def table1(ours: Mapping[str, Mapping[str, Mapping[str, float]]]) -> dict:
-    """Table 1 as JSON: ``ours[backend][method][omega]`` beside the paper's, and our - paper."""
-    return {
-        "omegas": OMEGA_KEYS,
-        "paper": PAPER_TABLE1,
-        "ours": {b: {m: dict(r) for m, r in methods.items()} for b, methods in ours.items()},
+def table1(ours: Mapping[str, Mapping[str, Mapping[str, float]]], horizon: float | None = None) -> dict:
+    """Table 1 as JSON: ``ours[backend][method][omega]`` beside the paper's, and our - paper when
+    our runs are the paper's (``horizon`` None: its 10 s); runs of another horizon are not compared
+    (no ``difference``; ``not_compared`` says why)."""
+    rows = {"omegas": OMEGA_KEYS, "paper": PAPER_TABLE1,
+            "ours": {b: {m: dict(r) for m, r in methods.items()} for b, methods in ours.items()}}
+    if not comparable(horizon):
+        return rows | {"not_compared": not_compared(horizon)}
+    return rows | {
         "difference": {
             backend: {
                 method: {w: rates[w] - PAPER_TABLE1[method][w] for w in OMEGA_KEYS}
@@ -35,6 +38,19 @@ def table1(ours: Mapping[str, Mapping[str, Mapping[str, float]]]) -> dict:
             "table."
         ),
     }
+
+
+def comparable(horizon: float | None) -> bool:
+    """Whether runs of ``horizon`` (None: the paper's) are run as the paper's and so compared with it."""
+    return horizon is None or horizon == PAPER_HORIZON
+
+
+def not_compared(horizon: float | None) -> str:
+    """Why runs of another horizon than the paper's are not compared with the paper's numbers."""
+    return (f"Our runs are {horizon:g} s long, the paper's {PAPER_HORIZON:g} s: E(omega) counts the samples "
+            "of the whole run, so the numbers are not comparable and no difference is given. The paper's "
+            "rows are shown for reference; the full `qcontrol reproduce` runs the paper's horizon and "
+            "compares.")
 
 
 def beyond_the_paper(ours: Mapping[str, Mapping[str, Mapping[str, float]]]) -> dict:
@@ -57,12 +73,14 @@ def table1_markdown(table: Mapping) -> str:
         for backend, methods in table["ours"].items():
             if method in methods:
                 lines.append(_row(label, f"ours, {backend}", methods[method]))
-        for backend, methods in table["difference"].items():
+        for backend, methods in table.get("difference", {}).items():
             if method in methods:
                 lines.append(_row(label, f"ours - paper ({backend})", methods[method], signed=True))
     for backend, kinds in table.get("beyond_the_paper", {}).get("ours", {}).items():
         lines += [_row(f"{kind} (--law; not in the paper)", f"ours, {backend}", rates)
                   for kind, rates in kinds.items()]
+    if "not_compared" in table:
+        lines += ["", f"Not compared with the paper: {table['not_compared']}"]
     return "\n".join(lines) + "\n"
 
 
@@ -158,6 +176,8 @@ def _rates(rates: Mapping[str, float], digits: int) -> str:
 
 
 def _findings(f: ReportFacts) -> list[str]:
+    if not comparable(f.duration):
+        return _findings_not_compared(f)
     b, ours = f.backend, f.table["ours"][f.backend]
     kappa, scale = f.studies["kappa_margin"], f.studies["r_scale"]
     at_01 = kappa["summaries"][list(kappa["values"]).index(0.1)]
@@ -196,6 +216,22 @@ def _findings(f: ReportFacts) -> list[str]:
         f"* **Example 1**: |z_1| over the last half <= {f.example1.max_abs_z1_last_half:.3f} m, max |u| "
         f"= {f.example1.max_abs_u:.2f}, final xi_hat = {f.example1.final_eps_hat[0]:.3f}; the "
         "paper shows the same qualitative picture (Figs. 1-4) without numbers.",
+        "",
+    ]
+
+
+def _findings_not_compared(f: ReportFacts) -> list[str]:
+    """The findings of runs shorter (or longer) than the paper's: ours, and why nothing is compared."""
+    ours = f.table["ours"][f.backend]
+    return [
+        "## What was reproduced and what was not",
+        "",
+        f"* **Nothing is compared with the paper here.** {not_compared(f.duration)}",
+        f"* Ours on Example 2 ({f.duration:g} s): E = {_rates(ours['proposed'], 4)} (proposed law (44)-(45)) "
+        f"and {_rates(ours['comparison'], 4)} (comparison law (46)).",
+        f"* Example 1 ({f.duration:g} s): |z_1| over the last half <= "
+        f"{f.example1.max_abs_z1_last_half:.3f} m, max |u| = {f.example1.max_abs_u:.2f}; the paper's "
+        f"Figs. 1-4 show {PAPER_HORIZON:g} s.",
         "",
     ]
 

@@ -3,7 +3,7 @@
 Runs Example 1 and Example 2 (proposed law and the comparison law of reference [20]) on the
 chosen backend, with the ideal ODE twin beside MuJoCo, then the sensitivity studies (kappa - L,
 a constant scale of r, plant variants) on the ODE backend, then the robustness study on realistic
-hardware (:mod:`qcontrol.robustness`, MuJoCo, in worker processes). Writes PNG figures,
+hardware (:mod:`.robustness_study`, MuJoCo, in worker processes). Writes PNG figures,
 ``table1.md``, ``table1.json``, ``studies.json``, ``region.json`` (the sampled loop's region study,
 :mod:`.region_study`), ``robustness.json``, ``REPORT.md`` and one rerun
 recording per example into the output folder, all put in place together at the end
@@ -25,7 +25,7 @@ import numpy as np
 
 from .. import plots
 from ..api import observer_for, recording_for
-from ..assembly import run_scenario
+from ..assembly import Assembly, assemble, runnable_backend
 from ..controller import lemma2_L
 from ..controller.law import KIND_ALIASES, LAW_KINDS
 from ..engine import Trajectory
@@ -40,7 +40,15 @@ from ..summary import Summary
 from ..sweep import sweep_summaries
 from .region_study import LAWS as REGION_LAWS
 from .region_study import region_record, region_study, write_region_study
-from .report import PAPER_TABLE1, ReportFacts, beyond_the_paper, report_markdown, table1, table1_markdown
+from .report import (
+    PAPER_HORIZON,
+    PAPER_TABLE1,
+    ReportFacts,
+    beyond_the_paper,
+    report_markdown,
+    table1,
+    table1_markdown,
+)
 from .robustness_figures import fig_margins, fig_robustness
 from .robustness_study import EXAMPLES, LAWS, default_workers, robustness_study, study_law
 
@@ -66,6 +74,7 @@ class Run:
     backend: str
     traj: Trajectory
     summary: Summary
+    assembly: Assembly
 
 
 @dataclass
@@ -91,8 +100,9 @@ class Reproduction:
         return load_scenario(self.scenarios / f"{name}.toml", [*overrides, *extra])
 
     def run(self, label: str, sc: Scenario, backend: str) -> Run:
-        traj = run_scenario(sc, backend)
-        run = Run(label, sc, backend, traj, run_summary(traj, sc.name, backend))
+        asm = assemble(sc, backend)
+        traj = asm.run()[0]
+        run = Run(label, sc, backend, traj, run_summary(traj, sc.name, backend), asm)
         self.runs.append(run)
         self.lemma2_ratios.append(run.summary.lemma2_max_ratio)
         if run.summary.diverged:
@@ -184,7 +194,7 @@ def _write_all(rep: Reproduction, o: Path, command: str, workers: int | None, qu
     others = {kind: rep.twins(f"example 2 {kind}", rep.scenario("example2", study_law(kind)[1]))
               for kind in rep.laws}
 
-    table = _table1(o, backend, ex2, ex2_twin, base, base_twin, command, others)
+    table = _table1(o, backend, ex2, ex2_twin, base, base_twin, command, others, rep.duration)
 
     studies = _studies(rep)
     deviations = {
@@ -209,15 +219,16 @@ def _write_all(rep: Reproduction, o: Path, command: str, workers: int | None, qu
 
 
 def _table1(o: Path, backend: str, ex2: Run, ex2_twin: Run | None, base: Run, base_twin: Run | None,
-            command: str, others: Mapping[str, tuple[Run, Run | None]]) -> dict:
+            command: str, others: Mapping[str, tuple[Run, Run | None]], duration: float | None) -> dict:
     """Table 1 from Example 2's runs (both methods, both backends): table1.json, .md and .png.
     ``others``: the runs of the laws given with ``--law``, by kind, added to the json and the
     Markdown as entries not from the paper (:func:`~.report.beyond_the_paper`); table1.png stays
-    the paper's two methods."""
+    the paper's two methods. Runs of another horizon than the paper's (``duration``) are not
+    compared with it: no difference in the json and the Markdown, no paper bars in the figure."""
     ours = {backend: {"proposed": ex2.summary.error_rate, "comparison": base.summary.error_rate}}
     if ex2_twin is not None and base_twin is not None:
         ours["ode"] = {"proposed": ex2_twin.summary.error_rate, "comparison": base_twin.summary.error_rate}
-    table = table1(ours)
+    table = table1(ours, duration)
     if others:
         extra = {backend: {kind: main.summary.error_rate for kind, (main, _) in others.items()}}
         if "ode" in ours and backend != "ode":  # the ODE twins
@@ -229,11 +240,13 @@ def _table1(o: Path, backend: str, ex2: Run, ex2_twin: Run | None, base: Run, ba
     write_json(o / "table1.json", table)
     write_text(o / "table1.md", table1_markdown(table))
     names = {"ode": "ODE", "mujoco": "MuJoCo"}
-    plots.fig_table1(
-        {method: {"paper": PAPER_TABLE1[method], **{names.get(b, b): r[method] for b, r in ours.items()}}
-         for method in ("proposed", "comparison")},
-        o / "table1.png",
-    )
+    paper = {"paper": PAPER_TABLE1} if "difference" in table else {}
+    title = {} if paper else {"title": rf"Table 1's E($\omega$) (Example 2) on {duration:g} s runs: ours "
+                                       f"only, not comparable with the paper's {PAPER_HORIZON:g} s"}
+    sources = {method: {**{k: v[method] for k, v in paper.items()},
+                        **{names.get(b, b): r[method] for b, r in ours.items()}}
+               for method in ("proposed", "comparison")}
+    plots.fig_table1(sources, o / "table1.png", **title)
     return table
 
 
@@ -253,8 +266,7 @@ def _validate(rep: Reproduction) -> None:
     """Load every scenario variant the reproduction runs; the examples must have the backend's
     section (e.g. [plant.mujoco])."""
     for name in ("example1", "example2"):
-        sc = rep.scenario(name)
-        BACKENDS[rep.backend].require(sc.backends.get(rep.backend), sc.source)
+        runnable_backend(rep.scenario(name), rep.backend)
     for _, name, overrides in PLANT_VARIANTS:
         rep.scenario(name, overrides)
         rep.scenario(name, (*overrides, *COMPARISON))
@@ -311,13 +323,13 @@ def _example2_figures(o: Path, run: Run, twin: Run | None, base: Run) -> None:
 def _record(path: Path, main: Run, ghosts: dict[str, Run | None], command: str) -> None:
     """A rerun recording of the main run with its ghosts: its twin "ode" (the same closed loop on
     the ODE) and the others (the comparison law)."""
-    sc = main.scenario
-    with recording_for(path, False, sc, scenario_provenance(sc, command)) as rec:
-        observer_for(rec, sc, main.backend)(0, len(main.traj.t), [main.traj])
+    sc, drawn = main.scenario, main.assembly.scene
+    with recording_for(path, False, main.assembly, scenario_provenance(sc, command)) as rec:
+        observer_for(rec, drawn, main.backend)(0, len(main.traj.t), [main.traj])
         for label, ghost in ghosts.items():
             if ghost is not None:
                 twin_of = main.traj if label == "ode" else None
-                observer_for(rec, sc, label, twin_of, ghost=True)(0, len(ghost.traj.t), [ghost.traj])
+                observer_for(rec, drawn, label, twin_of, ghost=True)(0, len(ghost.traj.t), [ghost.traj])
 
 
 def _rates(summaries: Sequence[Summary]) -> dict[str, list[float]]:

@@ -47,8 +47,13 @@ Rules that hold for every table:
   sections of backends not chosen by `simulation.backend` are validated too (`qcontrol compare`
   and `--backend` use them).
 * **Defaults.** "required" keys must be given; "optional" keys may be left out and then have no
-  value (the meaning says what happens).
+  value (the meaning says what happens). A whole table may be left out when every key it takes has
+  a default (in a table with a `kind`, every key of the default kind too): its section below says
+  so. A backend's `[plant.<backend>]` whose keys all default is read from its defaults when the
+  file leaves it out.
 """
+
+LEFT_OUT = "The whole table may be left out: every key it takes has a default."
 
 COMMAND_LINE = """\
 ## Changing keys from the command line
@@ -136,6 +141,8 @@ def section_markdown(section: Section) -> list[str]:
     if section.array:
         return array_markdown(section)
     lines = [f"## [{section.name}]", "", f"`[{section.name}]`: {section.meaning}.", ""]
+    if section.optional:
+        lines += [LEFT_OUT, ""]
     if not section.kinds:
         return [*lines, *key_table(section.keys), "", "Example:", "", *_block(example_lines(section.name,
                                                                                         section.keys))]
@@ -190,8 +197,9 @@ def backend_markdown(name: str, section: Section | None, summary: str) -> list[s
     if section is None:
         note = f"Backend `{name}`: {summary}; it takes no `[plant.{name}]` section."
         return [f"### backend \"{name}\"", "", note, ""]
+    left_out = [LEFT_OUT, ""] if section.optional else []
     return [f"### [plant.{name}] (backend \"{name}\")", "", f"`[plant.{name}]`: {section.meaning}.",
-            "", *key_table(section.keys), "", "Example:", "",
+            "", *left_out, *key_table(section.keys), "", "Example:", "",
             *_block(example_lines(f"plant.{name}", section.keys))]
 
 

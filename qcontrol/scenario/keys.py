@@ -30,7 +30,6 @@ from ..schema import (
 
 # see top_sections()
 TOP = ("scenario", "plant", "controller", "reference", "simulation", "metrics", "disturbance")
-REQUIRED_TABLES = ("plant", "controller", "reference", "simulation")
 # `qcontrol run` keeps only its metrics (memory that does not grow with the run), but a full record
 # (compare, reproduce, the library's default) keeps every row: 20 million steps is a few GB. Longer
 # runs are refused at load, by every command, instead of failing mid-way.
@@ -160,3 +159,10 @@ def top_sections(default_name: str = "the file name") -> tuple[Section, ...]:
     and named in :data:`TOP`."""
     return (scenario_section(default_name), PLANT, controller_section(), reference_section(),
             simulation_section(), METRICS, DISTURBANCE)
+
+
+def required_tables() -> tuple[str, ...]:
+    """The top-level tables a file must have: those with a key that has no default
+    (:attr:`Section.optional <qcontrol.schema.Section.optional>`); a table whose keys all default may
+    be left out."""
+    return tuple(s.name for s in top_sections() if not s.array and not s.optional)

@@ -15,6 +15,7 @@ import copy
 import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any
@@ -38,10 +39,10 @@ from .keys import (
     MAX_STEPS,
     METRICS,
     PLANT,
-    REQUIRED_TABLES,
     TOP,
     controller_section,
     reference_section,
+    required_tables,
     scenario_section,
     simulation_section,
 )
@@ -87,14 +88,14 @@ class Scenario:
                               overrides=(*self.overrides, *_as_given(overrides)), default_name=self.name,
                               unset=self.unset)
 
-    @property
+    @cached_property
     def terms(self) -> PlantTerms:
-        """The right-hand side of eq. (1) as the plants are built from it."""
+        """The right-hand side of eq. (1) as the plants are built from it (made once)."""
         return PlantTerms(self.order, self.psi_expr, self.phi_expr, self.theta)
 
-    @property
+    @cached_property
     def law_context(self) -> LawContext:
-        """What the controller kind reads of the scenario (see :class:`LawContext`)."""
+        """What the controller kind reads of the scenario (see :class:`LawContext`; made once)."""
         c = self.controller
         sim = self.simulation
         return LawContext(self.source, self.order, c.delta, c.c, self.psi_expr, self.phi_expr, self.theta,
@@ -371,16 +372,16 @@ def set_key(data: dict, key: str, value: Any, item: str | tuple[str, Any]) -> No
 def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[str | tuple[str, Any], ...],
            default_name: str) -> Scenario:
     root = Table(data, source, "", TOP)
-    for key in REQUIRED_TABLES:
+    for key in required_tables():
         if key not in data:
             raise QcontrolInputError(f"{source}: [{key}]: missing table; add a [{key}] section")
     about = scenario_section(default_name)
     meta = read_keys(Table(data.get("scenario", {}), source, "scenario", about.names), about.keys, {})
     plant = _plant_table(root)
     terms, x0 = _plant(plant)
-    simulation = _simulation(root.table("simulation"))
-    controller = _controller(root.table("controller"), terms, simulation)
-    signal = _reference(root.table("reference"), terms.order)
+    simulation = _simulation(root.table("simulation", default={}))
+    controller = _controller(root.table("controller", default={}), terms, simulation)
+    signal = _reference(root.table("reference", default={}), terms.order)
     metrics = _metrics(root.table("metrics", default={}))
     backends = _backends(plant, terms, base_dir, simulation)
     disturbances = parse_disturbances(data.get("disturbance"), source)
@@ -469,8 +470,9 @@ def _metrics(table: Table) -> MetricSettings:
 
 def _backends(plant: Table, terms: PlantTerms, base_dir: Path, simulation: SimulationConfig) -> dict[str,
                                                                                                      Any]:
-    """Each backend's ``[plant.<name>]`` section, parsed by the backend; the chosen backend must
-    have the section it needs."""
+    """Each backend's ``[plant.<name>]`` section, parsed by the backend (the sections written in
+    the file first, then those left out whose keys all default, parsed from their defaults); the
+    chosen backend must have the section it needs."""
     ctx = PlantContext(terms, base_dir, simulation.dt)
     parsed = {}
     for name, backend in BACKENDS.items():
@@ -478,6 +480,9 @@ def _backends(plant: Table, terms: PlantTerms, base_dir: Path, simulation: Simul
             parsed[name] = backend.parse(plant.table(name), ctx)
         elif name in plant.data:
             raise plant.error(name, f"backend {name!r} takes no settings", f"remove [plant.{name}]")
+    for name, backend in BACKENDS.items():
+        if name not in parsed and backend.section is not None and backend.section.optional and backend.parse:
+            parsed[name] = backend.parse(plant.table(name, default={}), ctx)
     chosen = BACKENDS[simulation.backend]
     if chosen.section is not None and simulation.backend not in parsed:
         raise QcontrolInputError(

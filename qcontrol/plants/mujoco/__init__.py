@@ -1,9 +1,11 @@
 """The MuJoCo backend: one joint of an MJCF model as the plant of eq. (1) with n = 2.
 
-Split by job: :mod:`.options` (the ``[plant.mujoco]`` keys; no mujoco import), :mod:`.model`
-(MjSpec: overrides, realism options, compile once), :mod:`.callbacks` (the process-global
-passive callback and warning handler), :mod:`.plant` (the runtime plant), :mod:`.consistency`
-(MuJoCo's acceleration against eq. (1)).
+Split by job: :mod:`.options` (the ``[plant.mujoco]`` keys; no mujoco import), :mod:`.mjcf`
+(the MJCF through MjSpec: overrides, realism options, compiled once), :mod:`.callbacks` (the
+process-global passive callback and warning handler), :mod:`.native` (the passive terms as a
+compiled C callback), :mod:`.noise` (the sensor noise), :mod:`.plant` (the runtime plant),
+:mod:`.native_step` (one copy's observe and step for the compiled loop), :mod:`.threaded` (a batch
+stepped by ``mujoco.batch``), :mod:`.consistency` (MuJoCo's acceleration against eq. (1)).
 """
 
 from __future__ import annotations
