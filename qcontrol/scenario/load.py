@@ -29,6 +29,7 @@ from ..expr import Expression, compile_expression
 from ..outputs import check_name, path_kind
 from ..plants.backends import BACKENDS, PlantContext
 from ..plants.base import PlantTerms
+from ..quantizers import QuantizerSpec, channel_bounds, quantizer_step, read_quantizers
 from ..reference import REFERENCE_KINDS
 from ..resources import scenario_path, shipped_scenarios
 from ..schema import Section, Table, kind_table, read_keys, show_key
@@ -78,6 +79,8 @@ class Scenario:
     unset: tuple[str, ...] = ()  # keys removed from the file (--unset) before the overrides
     paper_example: int | None = None  # the paper's example this scenario reproduces, if any
     input_gain: float | None = None  # plant.input_gain as stated (None: not stated, b = 1)
+    quantizer: QuantizerSpec | None = None  # [quantizer] (None: controller.delta's uniform step)
+    input_quantizer: QuantizerSpec | None = None  # [quantizer.input] (None: u applied as computed)
 
     def with_overrides(self, overrides: Mapping[str, Any] | Sequence[str]) -> Scenario:
         """A new scenario: this one's file with its overrides and then ``overrides`` (a dict
@@ -99,7 +102,8 @@ class Scenario:
         c = self.controller
         sim = self.simulation
         return LawContext(self.source, self.order, c.delta, c.c, self.psi_expr, self.phi_expr, self.theta,
-                          sim.dt, sim.period, input_gain=self.terms.b)
+                          sim.dt, sim.period, input_gain=self.terms.b,
+                          quantizer_error=channel_bounds(self.quantizer))
 
     @property
     def psi(self) -> str | None:
@@ -376,7 +380,9 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
     plant = _plant_table(root)
     terms, x0 = _plant(plant)
     simulation = _simulation(root.table("simulation"))
-    controller = _controller(root.table("controller"), terms, simulation)
+    quantizer, input_quantizer = (read_quantizers(root.table("quantizer"), terms.order) if "quantizer" in data
+                                  else (None, None))
+    controller = _controller(root.table("controller"), terms, simulation, quantizer)
     signal = _reference(root.table("reference"), terms.order)
     metrics = _metrics(root.table("metrics", default={}))
     backends = _backends(plant, terms, base_dir, simulation)
@@ -388,7 +394,7 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
         reference=signal, simulation=simulation, backends=MappingProxyType(backends),
         disturbances=disturbances,
         psi_expr=terms.psi, phi_expr=terms.phi, metrics=metrics, paper_example=meta["paper_example"],
-        input_gain=terms.input_gain,
+        input_gain=terms.input_gain, quantizer=quantizer, input_quantizer=input_quantizer,
     )
     _check_terms_at_x0(scenario)
     return scenario
@@ -427,12 +433,14 @@ def _chosen(table: Table, section: Section, sizes: dict[str, int] | None = None
     return common, kind_table(table, section.names, section.kinds, common["kind"])
 
 
-def _controller(table: Table, terms: PlantTerms, simulation: SimulationConfig) -> ControllerConfig:
+def _controller(table: Table, terms: PlantTerms, simulation: SimulationConfig,
+                quantizer: QuantizerSpec | None) -> ControllerConfig:
     v, merged = _chosen(table, controller_section(), {"n": terms.order})
-    kind = v["kind"]
-    ctx = LawContext(table.source, terms.order, v["delta"], v["c"], terms.psi, terms.phi, terms.theta,
-                     simulation.dt, simulation.period, controller=table, input_gain=terms.b)
-    return ControllerConfig(kind, v["delta"], v["c"], law_kind(kind).parse(merged, ctx))
+    kind, delta = v["kind"], quantizer_step(table, v["delta"], quantizer)
+    ctx = LawContext(table.source, terms.order, delta, v["c"], terms.psi, terms.phi, terms.theta,
+                     simulation.dt, simulation.period, controller=table, input_gain=terms.b,
+                     quantizer_error=channel_bounds(quantizer))
+    return ControllerConfig(kind, delta, v["c"], law_kind(kind).parse(merged, ctx))
 
 
 def _reference(table: Table, order: int) -> ReferenceConfig:
