@@ -21,6 +21,7 @@ from .engine.signals import SIGNALS, ColumnNaming, column_names
 from .errors import QcontrolInputError
 from .expr import Expression
 from .plants import BACKENDS, Plant, SceneSource
+from .plants.base import timed
 from .quantizer import Quantizer, UniformQuantizer
 from .reference import Reference
 from .scenario import Scenario
@@ -92,6 +93,8 @@ def build_separation(sc: Scenario) -> Separation | None:
     if r is None:
         return None
     bounded = sc.terms.bounded
+    if sc.terms.timed:  # r bounds the terms at x_q alone; a term in t is checked by its constant r entry only
+        return None
     return Separation(tuple(name for name, _ in bounded), tuple(e for _, e in bounded), tuple(r))
 
 
@@ -211,7 +214,8 @@ def run_spec(sc: Scenario, plant: Plant, law: BatchLaw, x0: Sequence, separation
 def named_terms(sc: Scenario) -> list[tuple[str, Expression]]:
     """The plant's expressions of eq. (1) by their scenario keys, ``plant.phi[1]`` .. ``plant.psi``
     (the order of eqs. (37)-(43))."""
-    return [("plant.psi" if name == "psi" else f"plant.phi[{name[3:]}]", e) for name, e in sc.terms.bounded]
+    return [("plant.psi" if name == "psi" else f"plant.phi[{name[3:]}]", e) for name, e in sc.terms.bounded
+            if not timed(e)]  # (a term in t cannot be evaluated at a state alone)
 
 
 def run_scenario(

@@ -28,7 +28,7 @@ from ..errors import KeyNotForKind, OverrideError, QcontrolInputError, brief, sh
 from ..expr import Expression, compile_expression
 from ..outputs import check_name, path_kind
 from ..plants.backends import BACKENDS, PlantContext
-from ..plants.base import PlantTerms
+from ..plants.base import TIME, PlantTerms, timed
 from ..quantizers import QuantizerSpec, channel_bounds, quantizer_step, read_quantizers
 from ..reference import REFERENCE_KINDS
 from ..resources import scenario_path, shipped_scenarios
@@ -420,9 +420,15 @@ def _plant(plant: Table) -> tuple[PlantTerms, tuple[float, ...]]:
     v = read_keys(plant, PLANT.keys, {"n": order, "l": len(phi_text)})
     x_names = [f"x{i + 1}" for i in range(order)]
     where = f"{plant.source}: {plant.name}"
-    psi = None if v["psi"] is None else compile_expression(v["psi"], x_names, f"{where}.psi")
-    phi = tuple(compile_expression(p, x_names, f"{where}.phi[{i}]") for i, p in enumerate(v["phi"]))
+    psi = None if v["psi"] is None else _plant_term(v["psi"], x_names, f"{where}.psi")
+    phi = tuple(_plant_term(p, x_names, f"{where}.phi[{i}]") for i, p in enumerate(v["phi"]))
     return PlantTerms(order, psi, phi, v["theta"], v["input_gain"]), v["x0"]
+
+
+def _plant_term(text: str, x_names: list[str], where: str) -> Expression:
+    """A term of eq. (1) over ``x1..xn``, or over ``x1..xn, t`` when it uses time t."""
+    term = compile_expression(text, [*x_names, TIME], where)
+    return term if TIME in term.used else compile_expression(text, x_names, where)
 
 
 def _chosen(table: Table, section: Section, sizes: dict[str, int] | None = None
@@ -496,13 +502,12 @@ def _backends(plant: Table, terms: PlantTerms, base_dir: Path, simulation: Simul
 
 def _check_terms_at_x0(sc: Scenario) -> None:
     """The plant's terms must be finite at the initial state."""
-    x0 = np.asarray(sc.x0)[None, :]
     for label, expr in [("plant.psi", sc.psi_expr)] + [(f"plant.phi[{i}]", e) for i,
                                                        e in enumerate(sc.phi_expr)]:
         if expr is None:
             continue
         with np.errstate(all="ignore"):
-            value = expr(x0)
+            value = expr(np.asarray([[*sc.x0, 0.0] if timed(expr) else list(sc.x0)]))
         if not np.all(np.isfinite(value)):
             raise QcontrolInputError(
                 f"{sc.source}: {label}: {expr.source!r} is not finite at x0 = {list(sc.x0)}; "
