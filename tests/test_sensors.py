@@ -20,6 +20,7 @@ from qcontrol.controller.backstepping import Backstepping, lemma2_bounds, lemma2
 from qcontrol.engine.loop import ClosedLoop
 from qcontrol.metrics import LEMMA2_TOLERANCE, backend_deviation, run_summary
 from qcontrol.quantizers import ChannelQuantizer, HysteresisQuantizer, LogarithmicQuantizer
+from qcontrol.recording.series import run_series
 
 SHORT = {"simulation.duration": 3.0}
 
@@ -257,3 +258,14 @@ def test_the_ode_evaluates_a_term_in_t_at_each_stage_time() -> None:
         for _ in range(1000):
             plant.step(np.zeros(1), 0.001)
         assert plant.state()[0, 1] == pytest.approx(math.sin(1.0), abs=1e-12)
+
+
+def test_recordings_draw_q_u_of_u_beside_u_only_with_an_input_quantizer() -> None:
+    keys = {"quantizer.delta": 0.01, "quantizer.input.delta": 0.5, "simulation.duration": 0.5}
+    quantized = run_scenario(qcontrol.load_scenario("example2", keys, unset=["controller.delta"]),
+                             backend="ode")
+    plain = run_scenario(qcontrol.load_scenario("example2", {"simulation.duration": 0.5}), backend="ode")
+    paths = {s.path: s for s in run_series(quantized, "ode")}
+    assert "signals/input/u" in paths and "signals/input/u_quantized" in paths
+    assert paths["signals/input/u_quantized"].labels == ("q_u(u)",)
+    assert "signals/input/u_quantized" not in {s.path for s in run_series(plain, "ode")}
