@@ -43,7 +43,8 @@ def run_summary(run: RunRecord, scenario: str, backend: str) -> Summary:
     possibly so large that ``x / delta`` has no fractional digits left), where quantization error
     is meaningless. With the velocity differenced from the encoder (``velocity_source =
     "difference"``) the controller's x2 is no quantized reading and Lemma 2 does not apply: the
-    ratio is still reported, with ``lemma2_applies`` false.
+    ratio is still reported, with ``lemma2_applies`` false; likewise with a logarithmic quantizer
+    (no constant bounds its error) and when a reading saturated at its channel's range.
     """
     values = run.reduced()
     final = tuple(float(v) for v in values["final_adaptive"])
@@ -59,7 +60,8 @@ def run_summary(run: RunRecord, scenario: str, backend: str) -> Summary:
         final_eps_hat=final, adaptive_state=run.adaptive_name,  # final_eps_hat: alias of final_state
         lemma2_max_ratio=lemma2_max_ratio(values["e_z_max"][None, :], run.L_z),
         velocity_source=run.velocity_source,
-        lemma2_applies=lemma2_applies(run.velocity_source) and run.quantizer_sector is None,
+        lemma2_applies=(lemma2_applies(run.velocity_source) and run.quantizer_sector is None
+                        and not sensors.get("reading_saturated_fraction")),
         L_z=tuple(float(v) for v in run.L_z), L=float(run.L_z[-1]),
         **bounds, law_diagnostics=law_diagnostics(run.law_diagnostics, values["diagnostics"]),
         final_state=final, **sensors,

@@ -186,6 +186,7 @@ def test_a_finite_range_reports_the_share_of_saturated_readings() -> None:
     assert 0 < s["reading_saturated_fraction"] < 1
     assert np.max(np.abs(traj.x_q[:, 0])) <= 0.6 + 1e-12
     assert any("saturated" in w and "Lemma 2" in w for w in s["warnings"])
+    assert s["lemma2_applies"] is False and s["lemma2_max_ratio"] > 1  # beyond the range it fails, as it must
 
 
 def test_input_quantization_is_applied_and_reported() -> None:
