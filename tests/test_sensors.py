@@ -270,3 +270,29 @@ def test_recordings_draw_q_u_of_u_beside_u_only_with_an_input_quantizer() -> Non
     assert "signals/input/u" in paths and "signals/input/u_quantized" in paths
     assert paths["signals/input/u_quantized"].labels == ("q_u(u)",)
     assert "signals/input/u_quantized" not in {s.path for s in run_series(plain, "ode")}
+
+
+def test_the_sensor_study_states_the_theory_per_row(tmp_path) -> None:
+    import json
+
+    from qcontrol.reproduce.sensor_study import (
+        ROWS,
+        fig_sensors,
+        sensor_markdown,
+        sensor_record,
+        sensor_study,
+    )
+    from qcontrol.resources import shipped_dir
+    study = sensor_study(shipped_dir("scenarios"), 2.0, lambda line: None)
+    rows = study["rows"]
+    assert len(rows) == len(ROWS)
+    theory = [row["theory"] for row in rows]
+    assert theory[0] == "Lemma 2 applies, L = 0.025: held"
+    assert rows[1]["summary"].L == pytest.approx(0.05 / 2 + 4.0 * (2 * math.pi / 4096) / 2, rel=1e-15)
+    assert "does not hold where readings saturated" in theory[3]
+    assert "does not apply (logarithmic" in theory[5]
+    assert "outside the theory" in theory[6] and "held" in theory[6]
+    json.dumps(sensor_record(study))  # sensors.json is plain JSON
+    table = sensor_markdown(study)
+    assert sum(line.startswith("| ") for line in table) == len(ROWS) + 1
+    assert fig_sensors(study, tmp_path / "s.png").stat().st_size > 10_000
