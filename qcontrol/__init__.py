@@ -13,8 +13,8 @@ The Python API (see the README's "Python API"):
   :func:`compare_laws` -> :class:`LawComparison` (several laws side by side: ``table``,
   ``runs``, ``plot``); :func:`sweep` -> the sweep's table (a dict per run). ``qcontrol.sweep``
   is this function; the package of the same name stays importable (``from qcontrol.sweep import``).
-* :class:`Law` (its state by RK4 of a rate) or :class:`SteppedLaw` (its own update) and
-  :func:`register_law`: a control law of your own, selected by
+* :class:`Law` (one copy at a time; its state by RK4 of ``state_rate``, or by its own
+  ``advance``) and :func:`register_law`, the one way to make a law a kind selected by
   ``controller.kind``; :func:`check_keys`, :func:`quantized_backstepping` and
   :func:`lemma2_bounds` help write one; a law with :class:`LawDiagnostics` declares
   :class:`Diagnostic` signals of its own (``Result.diagnostic(name)``, the summary, saved
@@ -22,20 +22,20 @@ The Python API (see the README's "Python API"):
   (``--law-module``), :func:`load_law_plugins` the installed plugins (entry points ``qcontrol.laws``);
   :func:`expression` compiles a math expression as scenarios do (for a law's bounding function r).
 * :class:`PaperLaw` (law (44)-(45)), :class:`ComparisonLaw` (law (46)) and their base
-  :class:`BacksteppingLaw`: the built-in laws as public classes to subclass, registered with
-  :func:`register_law_class` and built from a :class:`LawContext`; :class:`Diagnostic` declares a
-  law's own recorded signal.
+  :class:`BacksteppingLaw`: the built-in laws as public classes to subclass (the column form),
+  registered with :func:`register_law` too and built from a :class:`LawContext`;
+  :class:`Diagnostic` declares a law's own recorded signal.
 """
 
 from ._version import __version__
 from .api import Comparison, Result, compare, lemma2_bounds, quantized_backstepping, run, sweep
 from .controller.backstepping import BacksteppingLaw, ControlOutput
-from .controller.classes import register_law_class
 from .controller.comparison import ComparisonLaw
+from .controller.kinds import register_law, removed_name
 from .controller.law import Diagnostic, LawContext
 from .controller.plugins import load_law_module, load_law_plugins
 from .controller.proposed import PaperLaw
-from .controller.user import Law, SteppedLaw, check_keys, register_law
+from .controller.user import Law, check_keys
 from .controller.user_diagnostics import LawDiagnostics
 from .errors import QcontrolInputError
 from .expr import expression
@@ -57,7 +57,6 @@ __all__ = [
     "QcontrolInputError",
     "Result",
     "Scenario",
-    "SteppedLaw",
     "Summary",
     "__version__",
     "check_keys",
@@ -70,7 +69,14 @@ __all__ = [
     "load_scenario",
     "quantized_backstepping",
     "register_law",
-    "register_law_class",
     "run",
     "sweep",
 ]
+
+
+def __getattr__(name: str) -> object:
+    """A public name that no longer exists: its one-line migration note (docs/laws.md, 'Migrating')."""
+    note = removed_name(name)
+    if note is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    raise AttributeError(note)

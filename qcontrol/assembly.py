@@ -13,6 +13,7 @@ from typing import Any
 
 from .controller import BatchLaw, law_kind
 from .controller.gain import divided_by_gain
+from .controller.law import BUILT_IN_KINDS
 from .controller.user_diagnostics import diagnostic_columns
 from .disturbance import Schedule, scaled_changes
 from .engine import Observer, ProgressCallback, RunMetrics, RunSpec, Separation, Trajectory, simulate
@@ -48,7 +49,7 @@ def build_law(variants: Sequence[Scenario]) -> BatchLaw:
     kind = law_kind(first.controller.kind)
     law = kind.build([v.controller.settings for v in variants], first.law_context)
     check_diagnostic_names(law, first)
-    if kind.keys is not None or kind.extends is not None:  # a built-in kind, or one extending it
+    if kind.name in BUILT_IN_KINDS or kind.extends is not None:  # a built-in kind, or one extending it
         law = divided_by_gain(law, first.terms.b)  # x_n' = b u + ...: u = u_1 / b
     return law
 

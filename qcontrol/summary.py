@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import MISSING, dataclass, field, fields
 from typing import Any
 
 
@@ -94,13 +94,20 @@ class Summary:
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> Summary:
-        """The summary of a ``summary.json`` object (as :meth:`to_json` writes it)."""
+        """The summary of a ``summary.json`` object (as :meth:`to_json` writes it). A field added
+        since the file was written takes its default (every field added after the first release
+        has one); a field without a default that the file lacks is refused in one line."""
         known = {f.name for f in fields(cls)} - {"law_diagnostics", "final_state"}
         state_key = f"final_{data.get('adaptive_state')}"
         diagnostics = {k: v for k, v in data.items() if k not in known and k.startswith(_DIAGNOSTIC_PREFIXES)}
         unknown = sorted(set(data) - known - set(diagnostics) - {state_key})
         if unknown:
             raise ValueError(f"not a summary field: {', '.join(unknown)}")
+        required = [f.name for f in fields(cls) if f.default is MISSING and f.default_factory is MISSING]
+        missing = [name for name in required if name not in data]
+        if missing:
+            raise ValueError(f"not a summary: it lacks {', '.join(missing)} (a summary.json written by "
+                             "qcontrol has every field without a default)")
         values = {k: v for k, v in data.items() if k in known} | {"law_diagnostics": diagnostics,
                                                                    "final_state": data.get(state_key)}
         for name in ("final_eps_hat", "final_state", "L_z", "warnings", "physics_warnings"):

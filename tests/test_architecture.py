@@ -19,7 +19,7 @@ from conftest import EX2, PACKAGE, ROOT
 from qcontrol.assembly import build_plant, run_scenario
 from qcontrol.columns import ColumnForm
 from qcontrol.controller import AnyColumnForm, BatchLaw
-from qcontrol.controller.user import Law, SteppedLaw
+from qcontrol.controller.user import Law
 from qcontrol.controller.user_diagnostics import LawDiagnostics
 from qcontrol.engine import SIGNALS, ClosedLoop
 from qcontrol.engine.compiled_loop import Schedule
@@ -224,7 +224,6 @@ def _members(protocol: type) -> set[str]:
     (StreamTarget, {"main_series", "main_label", "stream", "flush", "see_motion", "update_layout",
                     "add_panels"}),
     (Reference, {"derivatives"}),
-    (SteppedLaw, {"state_size", "initial_state", "control", "advance"}),
 ])
 def test_the_protocols_stay_narrow(protocol: type, members: set[str]) -> None:
     assert _members(protocol) == members
@@ -320,9 +319,9 @@ def test_recorded_derived_and_reduced_signals() -> None:
     assert needed(("e_z",)) == ("zbar", "e_z")
     assert {r.name for r in REDUCTIONS} == {"error_rate", "max_abs_z1_last_half", "max_abs_u", "e_z_max",
                                              "final_adaptive", "bound_constants", "max_abs_u_applied",
-                                             "saturated_fraction", "diagnostics", "smallest_r",
                                              "reading_saturated_fraction", "max_abs_input_quantization_error",
-                                             "input_quantized_fraction"}
+                                             "input_quantized_fraction",
+                                             "saturated_fraction", "diagnostics", "smallest_r"}
 
 
 def test_a_metrics_run_keeps_the_reductions_of_the_full_record() -> None:

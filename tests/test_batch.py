@@ -8,12 +8,13 @@ from conftest import EX2 as EXAMPLE2
 from conftest import SCENARIOS
 
 from qcontrol.assembly import build_law, build_plant, build_quantizer, build_reference, run_scenario
-from qcontrol.engine import simulate
+from qcontrol.engine import RunSpec, simulate
 from qcontrol.metrics import summary
 from qcontrol.plants.ode import ChainPlant
 from qcontrol.scenario import load_scenario
 from qcontrol.summary import Summary
 from qcontrol.sweep import run_batch, sweep_summaries
+from qcontrol.timegrid import TimeGrid
 
 SHORT = ["simulation.duration=1.5"]
 VARIANTS = [  # several parameter sets in one batch
@@ -28,9 +29,10 @@ VARIANTS = [  # several parameter sets in one batch
 def _batch(scs, record="full"):
     sc = scs[0]
     plant = ChainPlant(sc.order, sc.psi_expr, sc.phi_expr, np.array([s.theta for s in scs]), batch=len(scs))
-    return simulate(plant, build_law(scs), build_quantizer(sc), build_reference(sc),
-                    np.array([s.x0 for s in scs]), sc.simulation.duration, sc.simulation.dt,
-                    state_bound=sc.simulation.state_bound, record=record)
+    return simulate(RunSpec(plant=plant, law=build_law(scs), quantizer=build_quantizer(sc),
+                            reference=build_reference(sc), x0=np.array([s.x0 for s in scs]),
+                            grid=TimeGrid.of(sc.simulation.duration, sc.simulation.dt),
+                            state_bound=sc.simulation.state_bound, record=record))
 
 
 def test_batched_runs_equal_single_runs():
@@ -80,8 +82,8 @@ def test_per_copy_parameters_must_fit_the_batch():
     scs = [load_scenario(EXAMPLE2, SHORT + v) for v in VARIANTS[:2]]
     plant = build_plant(scs[0], "ode", batch=3)
     with pytest.raises(ValueError, match="per-copy parameters for 2 copies"):
-        simulate(plant, build_law(scs), build_quantizer(scs[0]), build_reference(scs[0]),
-                 scs[0].x0, 0.01, 0.001)
+        simulate(RunSpec(plant=plant, law=build_law(scs), quantizer=build_quantizer(scs[0]),
+                         reference=build_reference(scs[0]), x0=scs[0].x0, grid=TimeGrid.of(0.01, 0.001)))
 
 
 MUJOCO_TOLERANCE = 1e-12  # the batch runs each copy with the single run's code: same numbers

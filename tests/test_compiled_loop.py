@@ -12,7 +12,7 @@ from conftest import SCENARIOS
 
 import qcontrol.engine.compiled_loop as compiled_loop
 from qcontrol.assembly import build_controller, build_plant, build_separation, run_spec
-from qcontrol.controller import ProposedController
+from qcontrol.controller import PaperLaw
 from qcontrol.engine import ClosedLoop, RunSpec
 from qcontrol.expr import compile_expression
 from qcontrol.plants.ode import ChainPlant
@@ -147,12 +147,12 @@ def test_a_metrics_run_reduces_the_same_rows(monkeypatch) -> None:
         assert same, name
 
 
-class Integral(ProposedController):
+class Integral(PaperLaw):
     def control(self, reading, yd, state, t=0.0):
         return super().control(reading, yd, state, t)
 
 
-class Renamed(ProposedController):
+class Renamed(PaperLaw):
     """Changes nothing of the law's numbers."""
 
 
@@ -187,7 +187,7 @@ def _refusing_run(psi: str, r: str, x0: list[float]) -> RunSpec:
     takes numpy's inf) part of the way through."""
     x = ["x1", "x2"]
     plant = ChainPlant(2, compile_expression(psi, x), [compile_expression("x2", x)], [1.0])
-    law = ProposedController([1.0, 1.0], 0.005, kappa=3.0, gamma=1.0, sigma=1.0,
+    law = PaperLaw([1.0, 1.0], 0.005, kappa=3.0, gamma=1.0, sigma=1.0,
                              r=[compile_expression(r, ["q1", "q2"]), compile_expression("1", ["q1", "q2"])])
     return RunSpec(plant=plant, law=law, quantizer=UniformQuantizer(0.01), reference=Constant(0.0),
                    x0=x0, grid=TimeGrid.of(0.5, 1e-3, None), state_bound=1e300)

@@ -9,8 +9,8 @@ from numpy.polynomial import Polynomial as P
 
 from qcontrol.controller import (
     Backstepping,
-    ComparisonController,
-    ProposedController,
+    ComparisonLaw,
+    PaperLaw,
     backstepping_coefficients,
     lemma2_bounds,
 )
@@ -97,7 +97,7 @@ def test_quantized_errors_equal_true_errors_on_grid_points():
 
 def _proposed(kappa_margin=1.1):
     r = [compile_expression(e, Q2) for e in ("1 + q2**2", "1 + 2*q2**2", "1")]
-    return ProposedController([4.0, 3.0], 0.005, kappa=0.025 + kappa_margin, gamma=1.0, sigma=1.0, r=r)
+    return PaperLaw([4.0, 3.0], 0.005, kappa=0.025 + kappa_margin, gamma=1.0, sigma=1.0, r=r)
 
 
 def test_control_law_44_by_hand():
@@ -149,7 +149,7 @@ def test_eps_hat_stays_nonnegative():
 
 def test_baseline_law_46_by_hand():
     phi = [compile_expression(e, X2) for e in ("x2", "x2**2*cos(x1)", "sin(x1)")]
-    ctrl = ComparisonController([4.0, 3.0], 0.005, None, phi)
+    ctrl = ComparisonLaw([4.0, 3.0], 0.005, None, phi)
     q = np.array([[0.2, -0.3]])
     yd = np.array([0.0, 1.5, 0.0])
     theta_hat = np.array([[0.5, -1.0, 2.0]])
@@ -189,4 +189,4 @@ def test_construction_errors(kwargs, message):
     args = dict(c=[4.0, 3.0], max_error=0.005, kappa=1.125, gamma=1.0, sigma=1.0, r=r, expected_terms=3)
     args.update(kwargs)
     with pytest.raises(QcontrolInputError, match=message):
-        ProposedController(**args)
+        PaperLaw(**args)

@@ -9,13 +9,14 @@ from conftest import SCENARIOS
 
 from qcontrol.assembly import build_controller, build_plant, build_quantizer, build_reference
 from qcontrol.columns import ARRAYS
-from qcontrol.controller import ComparisonController, ProposedController
-from qcontrol.engine import simulate
+from qcontrol.controller import ComparisonLaw, PaperLaw
+from qcontrol.engine import RunSpec, simulate
 from qcontrol.engine.fastpath import FLOATS, float_quantizer
 from qcontrol.expr import compile_expression
 from qcontrol.plants.ode import ChainPlant
 from qcontrol.quantizer import QuantizedReading, UniformQuantizer, quantize
 from qcontrol.scenario import load_scenario
+from qcontrol.timegrid import TimeGrid
 
 Q2, X2 = ["q1", "q2"], ["x1", "x2"]
 PHI = ["x2", "x2**2*cos(x1)", "sin(x1)"]
@@ -26,11 +27,11 @@ def _controllers():
     phi = [compile_expression(e, X2) for e in PHI]
     psi = compile_expression("0.1*x2**2 - sqrt(abs(x1))", X2)
     return {
-        "proposed": ProposedController([4.0, 3.0], 0.005, kappa=1.125, gamma=1.5, sigma=0.7, r=r),
-        "proposed-r_scale": ProposedController([4.0, 3.0], 0.005, kappa=1.125, gamma=1.5, sigma=0.7, r=r,
+        "proposed": PaperLaw([4.0, 3.0], 0.005, kappa=1.125, gamma=1.5, sigma=0.7, r=r),
+        "proposed-r_scale": PaperLaw([4.0, 3.0], 0.005, kappa=1.125, gamma=1.5, sigma=0.7, r=r,
                                                r_scale=2.5),
-        "baseline": ComparisonController([4.0, 3.0], 0.005, psi, phi, adaptation_gain=2.0),
-        "baseline-known": ComparisonController([4.0, 3.0], 0.005, None, phi, known_theta=[-1.0, -3.5, -34.3]),
+        "baseline": ComparisonLaw([4.0, 3.0], 0.005, psi, phi, adaptation_gain=2.0),
+        "baseline-known": ComparisonLaw([4.0, 3.0], 0.005, None, phi, known_theta=[-1.0, -3.5, -34.3]),
     }
 
 
@@ -83,9 +84,10 @@ def test_batch_of_one_on_floats_equals_the_numpy_batch(overrides: list[str], bac
     for batch in (1, 3):
         ctrl = _Seen(build_controller(sc))
         plant = build_plant(sc, backend, batch=batch)
-        runs[batch] = simulate(plant, ctrl, build_quantizer(sc), build_reference(sc), sc.x0,
-                               sc.simulation.duration, sc.simulation.dt,
-                               control_period=sc.simulation.control_period)
+        runs[batch] = simulate(RunSpec(plant=plant, law=ctrl, quantizer=build_quantizer(sc),
+                                       reference=build_reference(sc), x0=sc.x0,
+                                       grid=TimeGrid.of(sc.simulation.duration, sc.simulation.dt,
+                                                        sc.simulation.control_period)))
         assert ctrl.forms == {FLOATS if batch == 1 else ARRAYS}  # floats for one copy, else numpy
     one = runs[1][0]
     for copy in runs[3]:
@@ -102,8 +104,9 @@ def test_float_path_records_a_diverging_run_like_the_numpy_path(bound: float, re
     for batch in (1, 2):
         sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=2.0"])
         plant = ChainPlant(2, None, phi, [20.0], batch=batch)
-        runs[batch] = simulate(plant, build_controller(sc), build_quantizer(sc), build_reference(sc),
-                               [1.0, 4.0], 2.0, 1e-3, state_bound=bound)
+        runs[batch] = simulate(RunSpec(plant=plant, law=build_controller(sc),
+                                       quantizer=build_quantizer(sc), reference=build_reference(sc),
+                                       x0=[1.0, 4.0], grid=TimeGrid.of(2.0, 1e-3), state_bound=bound))
     one, other = runs[1][0], runs[2][1]
     assert one.diverged and other.diverged and one.diverged_time == other.diverged_time
     assert one.divergence_reason == other.divergence_reason and reason in one.divergence_reason
@@ -153,16 +156,19 @@ def test_a_batch_of_one_stops_at_the_first_row_out_of_bounds(bound: float, with_
     before, on or between the rows where progress, flushes and metric chunks happen, and agree
     with a batch of two, which tests every row."""
     sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=3.0"])
-    free = simulate(build_plant(sc, "ode"), build_controller(sc), build_quantizer(sc), build_reference(sc),
-                    sc.x0, 3.0, 1e-3)[0]
+    free = simulate(RunSpec(plant=build_plant(sc, "ode"), law=build_controller(sc),
+                            quantizer=build_quantizer(sc), reference=build_reference(sc), x0=sc.x0,
+                            grid=TimeGrid.of(3.0, 1e-3)))[0]
     first = int(np.argmax((np.abs(free.x) > bound).any(axis=1)))  # the independent answer
     assert 0 < first < len(free.t) - 1
     seen: list[int] = []
     runs = {}
     for batch in (1, 2):
-        runs[batch] = simulate(build_plant(sc, "ode", batch=batch), build_controller(sc), build_quantizer(sc),
-                               build_reference(sc), sc.x0, 3.0, 1e-3, state_bound=bound, record=record,
-                               progress=(lambda k, total: seen.append(k)) if with_progress else None)
+        runs[batch] = simulate(RunSpec(plant=build_plant(sc, "ode", batch=batch), law=build_controller(sc),
+                                       quantizer=build_quantizer(sc), reference=build_reference(sc),
+                                       x0=sc.x0, grid=TimeGrid.of(3.0, 1e-3), state_bound=bound,
+                                       record=record,
+                                       progress=(lambda k, total: seen.append(k)) if with_progress else None))
     for run in (runs[1][0], *runs[2]):
         assert run.diverged and run.diverged_time == pytest.approx(first * 1e-3, abs=1e-12)
         assert "left the bound" in run.divergence_reason
@@ -215,8 +221,9 @@ def test_a_plant_with_only_the_array_form_runs_at_every_batch_size(batch: int) -
     sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=0.5"])
     plant = _ArrayOnly(build_plant(sc, "ode", batch=batch))
     assert isinstance(plant, Plant) and not isinstance(plant, ColumnStepping)
-    runs = [simulate(p, build_controller(sc), build_quantizer(sc), build_reference(sc), sc.x0,
-                     sc.simulation.duration, sc.simulation.dt)
+    runs = [simulate(RunSpec(plant=p, law=build_controller(sc), quantizer=build_quantizer(sc),
+                             reference=build_reference(sc), x0=sc.x0,
+                             grid=TimeGrid.of(sc.simulation.duration, sc.simulation.dt)))
             for p in (plant, build_plant(sc, "ode", batch=batch))]
     for mine, native in zip(*runs, strict=True):  # numpy's sin, cos against math's for one copy
         assert not mine.diverged and len(mine.t) == len(native.t) == 501
@@ -257,8 +264,9 @@ def test_a_law_with_only_the_array_form_runs_at_every_batch_size(batch: int) -> 
     sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=0.5"])
     law = _ArrayOnlyLaw(build_controller(sc))
     assert not isinstance(law, AnyColumnForm) and isinstance(build_controller(sc), AnyColumnForm)
-    runs = [simulate(build_plant(sc, "ode", batch=batch), lw, build_quantizer(sc), build_reference(sc),
-                     sc.x0, sc.simulation.duration, sc.simulation.dt)
+    runs = [simulate(RunSpec(plant=build_plant(sc, "ode", batch=batch), law=lw,
+                             quantizer=build_quantizer(sc), reference=build_reference(sc), x0=sc.x0,
+                             grid=TimeGrid.of(sc.simulation.duration, sc.simulation.dt)))
             for lw in (law, build_controller(sc))]
     assert law.forms == {f"array{batch}"}
     for mine, native in zip(*runs, strict=True):

@@ -43,8 +43,10 @@ def test_the_law_context_carries_b_and_a_user_law_sees_it() -> None:
     class Sees:
         state_size = 0
 
-        def __init__(self, table: dict, context: qcontrol.LawContext) -> None:
+        @classmethod
+        def from_context(cls, context: qcontrol.LawContext) -> Sees:
             seen.append(context.input_gain)
+            return cls()
 
         def initial_state(self) -> np.ndarray:
             return np.zeros(0)
@@ -55,7 +57,7 @@ def test_the_law_context_carries_b_and_a_user_law_sees_it() -> None:
         def advance(self, t, x_q, yd, state, h):
             return state
 
-    qcontrol.register_law("sees-gain", Sees, with_context=True, replace=True)
+    qcontrol.register_law("sees-gain", Sees, replace=True)
     sc = qcontrol.load_scenario("example2", {"controller.kind": "sees-gain", "plant.input_gain": 0.25,
                                              "simulation.duration": 0.01})
     qcontrol.run(sc, backend="ode")

@@ -7,6 +7,7 @@ The cases are made from the registries, so a kind or backend added later is cove
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import pytest
@@ -104,7 +105,10 @@ def test_a_law_registered_from_python_gets_its_keys_unchecked(monkeypatch: pytes
         seen.update(table.data)
         return comparison.ComparisonSettings(1.0, "adaptive")
 
-    kind = LawKind("mine", None, parse, comparison.build, comparison.structure)
+    def build(settings, ctx):
+        return comparison.ComparisonLaw.from_context(dataclasses.replace(ctx, base=settings[0]))
+
+    kind = LawKind("mine", None, parse, build, comparison.structure)
     monkeypatch.setitem(LAW_KINDS, "mine", kind)
     assert main(["check", str(EX2), "--set", "controller.kind=mine", "--set", "controller.anything=3"]) == 0
     assert seen == {"anything": 3}

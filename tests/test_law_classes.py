@@ -64,11 +64,11 @@ class SlowComparison(qcontrol.ComparisonLaw):
 
 @pytest.fixture(autouse=True, scope="module")
 def registered() -> None:
-    qcontrol.register_law_class("same-paper", SamePaperLaw, extends="proposed", replace=True)
-    qcontrol.register_law_class("paper-integral", IntegralPaperLaw, extends="proposed", keys=["k_i"],
+    qcontrol.register_law("same-paper", SamePaperLaw, extends="proposed", replace=True)
+    qcontrol.register_law("paper-integral", IntegralPaperLaw, extends="proposed", keys=["k_i"],
                                 replace=True)
-    qcontrol.register_law_class("half-robust", HalfRobust, extends="proposed", replace=True)
-    qcontrol.register_law_class("slow-comparison", SlowComparison, extends="comparison", replace=True)
+    qcontrol.register_law("half-robust", HalfRobust, extends="proposed", replace=True)
+    qcontrol.register_law("slow-comparison", SlowComparison, extends="comparison", replace=True)
 
 
 def _run(kind: str, **more: object) -> qcontrol.Result:
@@ -126,10 +126,10 @@ def test_a_sweep_over_a_subclass_key() -> None:
 
 
 @pytest.mark.parametrize("call, message", [
-    (lambda: qcontrol.register_law_class("x-law", object), "must be a class deriving from qcontrol.PaperLaw"),
-    (lambda: qcontrol.register_law_class("x-law", HalfRobust, extends="nope"), "extends='nope'"),
-    (lambda: qcontrol.register_law_class("x law", HalfRobust), "must be letters, digits"),
-    (lambda: qcontrol.register_law_class("proposed", HalfRobust), "is built in and cannot be replaced"),
+    (lambda: qcontrol.register_law("x-law", object, extends="proposed"), "take a column-form law"),
+    (lambda: qcontrol.register_law("x-law", HalfRobust, extends="nope"), "extends='nope'"),
+    (lambda: qcontrol.register_law("x law", HalfRobust), "must be letters, digits"),
+    (lambda: qcontrol.register_law("proposed", HalfRobust), "is built in and cannot be replaced"),
     (lambda: _run("paper-integral", **{"controller.paper-integral.k_j": 1.0}),
      "controller.paper-integral.k_j=1.0: unknown key for kind 'paper-integral'; keys of this kind are k_i"),
     (lambda: _run("half-robust", **{"controller.proposed.kappa_margin": -1.0}),
@@ -198,7 +198,7 @@ def equivalence_kinds(monkeypatch) -> None:
     monkeypatch.setattr(compiled_loop, "COLD_MIN_ROWS", compiled_loop.MIN_ROWS)  # numba may not be started
     for kind, cls in {**OWN, **SAME}.items():
         extends = "comparison" if issubclass(cls, qcontrol.ComparisonLaw) else "proposed"
-        qcontrol.register_law_class(kind, cls, extends=extends, replace=True)
+        qcontrol.register_law(kind, cls, extends=extends, replace=True)
 
 
 def _closed_loop(kind: str, law=None):
@@ -287,7 +287,7 @@ class ComparisonOwnAdvancer(qcontrol.ComparisonLaw):
 def test_the_advancer_in_any_form_defers_to_an_overridden_advancer(cls, extends: str) -> None:
     from qcontrol.assembly import build_law
     from qcontrol.engine.fastpath import FLOATS
-    qcontrol.register_law_class("own-advancer", cls, extends=extends, replace=True)
+    qcontrol.register_law("own-advancer", cls, extends=extends, replace=True)
     law = build_law([qcontrol.load_scenario("example2", {"controller.kind": "own-advancer", **SHORT})])
     assert law.advancer_in(FLOATS, 1e-3) == ("own advancer", 1e-3)  # the engine's float path uses it
 
@@ -321,7 +321,7 @@ class SaturatedPaperLaw(qcontrol.BacksteppingLaw):
 def test_a_law_that_wraps_the_paper_law_runs_its_numbers_or_clips_them(u_max: float) -> None:
     """Wrapping: with a bound it never reaches, the wrapped law computes the paper's law bit for bit;
     with 5, |u| stays at most 5 and the run differs."""
-    qcontrol.register_law_class("paper-wrapped", SaturatedPaperLaw, extends="proposed", keys=["u_max"],
+    qcontrol.register_law("paper-wrapped", SaturatedPaperLaw, extends="proposed", keys=["u_max"],
                                 replace=True)
     builtin = _run("proposed")
     wrapped = _run("paper-wrapped", **{"controller.paper-wrapped.u_max": u_max})

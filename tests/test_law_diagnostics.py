@@ -275,7 +275,7 @@ class EpsSumPaperLaw(qcontrol.PaperLaw):
 
 
 def test_a_paper_law_subclass_adds_a_diagnostic_beside_gain_period(tmp_path: Path) -> None:
-    qcontrol.register_law_class("paper-eps-sum", EpsSumPaperLaw, extends="proposed", replace=True)
+    qcontrol.register_law("paper-eps-sum", EpsSumPaperLaw, extends="proposed", replace=True)
     base = qcontrol.load_scenario(EX2, {"simulation.duration": 1.0})
     paper = qcontrol.run(base, backend="ode")
     mine = qcontrol.run(base.with_overrides({"controller.kind": "paper-eps-sum"}), backend="ode",
@@ -297,7 +297,7 @@ class _NotDeclaring(qcontrol.PaperLaw):
 
 
 def test_a_law_classes_bad_declaration_is_refused_when_the_scenario_loads() -> None:
-    qcontrol.register_law_class("paper-bad-diag", _NotDeclaring, extends="proposed", replace=True)
+    qcontrol.register_law("paper-bad-diag", _NotDeclaring, extends="proposed", replace=True)
     with pytest.raises(qcontrol.QcontrolInputError) as refused:
         qcontrol.load_scenario(EX2, {"controller.kind": "paper-bad-diag"})
     assert str(refused.value).endswith("controller kind 'paper-bad-diag': diagnostics[1] is str 'eps_sum', "

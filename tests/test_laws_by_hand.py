@@ -1,5 +1,5 @@
 """The paper's law (44)-(45) written by hand in each documented form of a user law (a
-``qcontrol.Law`` advanced by RK4, a ``qcontrol.SteppedLaw`` with its own exact update, a
+``qcontrol.Law`` advanced by RK4, a ``qcontrol.Law`` with its own exact ``advance``, a
 column-form ``qcontrol.BacksteppingLaw`` subclass) computes the built-in law's numbers to 1e-12,
 single run and batch, on both backends: the bench's user-law rows compare like with like."""
 
@@ -13,7 +13,8 @@ from conftest import ROOT
 
 import qcontrol
 from qcontrol.assembly import build_law, build_plant, build_quantizer, build_reference
-from qcontrol.engine import simulate
+from qcontrol.engine import RunSpec, simulate
+from qcontrol.timegrid import TimeGrid
 
 sys.path.insert(0, str(ROOT / "tools"))
 import laws_by_hand  # noqa: E402
@@ -63,8 +64,9 @@ def test_each_form_computes_the_built_in_numbers_in_a_batch(form: str) -> None:
         scs = [base.with_overrides(extra | {"plant.x0": x0}) for x0 in starts]
         first = scs[0]
         plant = build_plant(first, "ode", batch=len(scs))
-        runs[name] = simulate(plant, build_law(scs), build_quantizer(first), build_reference(first),
-                              [s.x0 for s in scs], 1.0, first.simulation.dt)
+        runs[name] = simulate(RunSpec(plant=plant, law=build_law(scs), quantizer=build_quantizer(first),
+                                      reference=build_reference(first), x0=[s.x0 for s in scs],
+                                      grid=TimeGrid.of(1.0, first.simulation.dt)))
     for builtin, mine in zip(runs["built-in"], runs["mine"], strict=True):
         for name in ("x", "u", "adaptive"):
             _close(getattr(mine, name), getattr(builtin, name), name)
@@ -73,7 +75,7 @@ def test_each_form_computes_the_built_in_numbers_in_a_batch(form: str) -> None:
 
 
 def test_a_stepped_law_is_advanced_by_its_own_update_once_per_step() -> None:
-    """A SteppedLaw's advance is what moves the state (not RK4 of a rate it does not have): a
+    """A law's own advance is what moves the state (not RK4 of a rate it does not have): a
     discrete counter advanced by 1 per step ends at the number of steps."""
 
     class Counter:
@@ -113,7 +115,7 @@ def test_a_law_with_neither_a_rate_nor_an_update_is_refused_with_one_line() -> N
             return 0.0
 
     qcontrol.register_law("no-update", NoUpdate, replace=True)
-    refusal = r"state_rate\(\).*or advance\(\) \(qcontrol.SteppedLaw\)"
+    refusal = r"state_rate\(\) or advance\(\) \(the qcontrol.Law protocol\)"
     with pytest.raises(qcontrol.QcontrolInputError, match=refusal):
         qcontrol.load_scenario("example2", {"controller.kind": "no-update"})
 
@@ -141,16 +143,19 @@ def test_an_advance_of_the_wrong_shape_is_refused_naming_the_law_and_the_method(
         qcontrol.run(sc, backend="ode")
 
 
-def test_a_law_registered_with_context_sees_the_runs_sampling() -> None:
-    """``with_context=True``: the factory gets the LawContext, so --dt and the control period
-    reach the law (a law that needs T no longer assumes 1 ms)."""
+def test_a_law_built_from_its_context_sees_the_runs_sampling() -> None:
+    """A law class with ``from_context(context)`` gets the LawContext, so --dt and the control
+    period reach the law (a law that needs T no longer assumes 1 ms), its keys declared."""
     seen = []
 
     class Sampled:
         state_size = 0
 
-        def __init__(self, table: dict, context: qcontrol.LawContext) -> None:
-            seen.append((context.n, context.dt, context.control_period, context.delta, tuple(context.c)))
+        @classmethod
+        def from_context(cls, context: qcontrol.LawContext) -> Sampled:
+            seen.append((context.n, context.dt, context.control_period, context.delta, tuple(context.c),
+                         dict(context.settings)))
+            return cls()
 
         def initial_state(self) -> np.ndarray:
             return np.zeros(0)
@@ -161,10 +166,13 @@ def test_a_law_registered_with_context_sees_the_runs_sampling() -> None:
         def advance(self, t, x_q, yd, state, h):
             return state
 
-    qcontrol.register_law("sampled-law", Sampled, with_context=True, replace=True)
+    qcontrol.register_law("sampled-law", Sampled, keys=["gain"], replace=True)
     sc = qcontrol.load_scenario("example2", {"controller.kind": "sampled-law", "simulation.dt": 0.002,
-                                             "simulation.control_period": 0.006, "simulation.duration": 0.1})
+                                             "simulation.control_period": 0.006, "simulation.duration": 0.1,
+                                             "controller.sampled-law.gain": 2.0})
     qcontrol.run(sc, backend="ode")
-    assert set(seen) == {(2, 0.002, 0.006, 0.01, (4.0, 3.0))}  # at load and at the run
-    with pytest.raises(qcontrol.QcontrolInputError, match=r"^register_law: with_context must be True or"):
-        qcontrol.register_law("sampled-law", Sampled, with_context="yes", replace=True)
+    assert len(seen) == 2 and all(s == (2, 0.002, 0.006, 0.01, (4.0, 3.0), {"gain": 2.0}) for s in seen)
+    with pytest.raises(qcontrol.QcontrolInputError, match=r"gains=2.0: unknown key for kind 'sampled"):
+        qcontrol.load_scenario("example2", {"controller.kind": "sampled-law", "controller.gains": 2.0})
+    with pytest.raises(qcontrol.QcontrolInputError, match=r"^register_law: no argument with_context=; give"):
+        qcontrol.register_law("sampled-law", Sampled, with_context=True, replace=True)

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from conftest import ROOT, SCENARIOS
 
-from qcontrol.controller import ProposedController
-from qcontrol.engine import simulate
+from qcontrol.controller import PaperLaw
+from qcontrol.engine import RunSpec, simulate
 from qcontrol.errors import QcontrolInputError
 from qcontrol.expr import compile_expression, scalar_function
 from qcontrol.plants import mujoco as mujoco_backend
@@ -25,6 +25,7 @@ from qcontrol.plants.ode import ChainPlant
 from qcontrol.quantizer import UniformQuantizer
 from qcontrol.reference import Sine
 from qcontrol.schema import Table
+from qcontrol.timegrid import TimeGrid
 
 X, Q = ["x1", "x2"], ["q1", "q2"]
 
@@ -73,17 +74,17 @@ def plants(name: str, batch: int = 1) -> tuple[MujocoPlant, ChainPlant]:
             ChainPlant(2, psi, phi, ex["theta"], batch=batch))
 
 
-def controller(name: str) -> tuple[ProposedController, UniformQuantizer]:
+def controller(name: str) -> tuple[PaperLaw, UniformQuantizer]:
     ex = EXAMPLES[name]
     q = UniformQuantizer(ex["delta"])
     r = [compile_expression(s, Q) for s in ex["r"]]
-    return ProposedController(ex["c"], q.max_error, ex["kappa"], ex["gamma"], ex["sigma"], r), q
+    return PaperLaw(ex["c"], q.max_error, ex["kappa"], ex["gamma"], ex["sigma"], r), q
 
 
 class Spy:
     """Wraps a controller and keeps every reading it is handed."""
 
-    def __init__(self, inner: ProposedController) -> None:
+    def __init__(self, inner: PaperLaw) -> None:
         self.inner = inner
         self.seen: list[np.ndarray] = []
 
@@ -185,7 +186,8 @@ def closed_loops() -> dict:
         for plant in (mj, ode):
             ctrl, q = controller(name)
             spy = Spy(ctrl)
-            tr = simulate(plant, spy, q, Sine(1.0, ex["freq"]), ex["x0"], 10.0, 1e-3)[0]
+            tr = simulate(RunSpec(plant=plant, law=spy, quantizer=q, reference=Sine(1.0, ex["freq"]),
+                                  x0=ex["x0"], grid=TimeGrid.of(10.0, 1e-3)))[0]
             results.append((tr, spy))
         runs[name] = results
     return runs
@@ -244,12 +246,14 @@ def test_callback_is_removed_after_a_run_and_the_previous_one_restored() -> None
     ctrl, q = controller("example2")
     mujoco.set_mjcb_passive(_previous)
     try:
-        simulate(mj, ctrl, q, Sine(1.0, 1.5), [0.3, 0.3], 0.05, 1e-3)
+        simulate(RunSpec(plant=mj, law=ctrl, quantizer=q, reference=Sine(1.0, 1.5), x0=[0.3, 0.3],
+                         grid=TimeGrid.of(0.05, 1e-3)))
         assert mujoco.get_mjcb_passive() is _previous
         assert not qmj._ENTRIES
     finally:
         mujoco.set_mjcb_passive(None)
-    simulate(mj, ctrl, q, Sine(1.0, 1.5), [0.3, 0.3], 0.05, 1e-3)
+    simulate(RunSpec(plant=mj, law=ctrl, quantizer=q, reference=Sine(1.0, 1.5), x0=[0.3, 0.3],
+                     grid=TimeGrid.of(0.05, 1e-3)))
     assert mujoco.get_mjcb_passive() is None
 
 
@@ -265,7 +269,8 @@ def test_callback_is_removed_when_the_run_raises() -> None:
             return super().control(reading, yd, adaptive, t)
 
     with pytest.raises(RuntimeError, match="boom"):
-        simulate(mj, Boom(ctrl), q, Sine(1.0, 1.5), [0.3, 0.3], 1.0, 1e-3)
+        simulate(RunSpec(plant=mj, law=Boom(ctrl), quantizer=q, reference=Sine(1.0, 1.5), x0=[0.3, 0.3],
+                         grid=TimeGrid.of(1.0, 1e-3)))
     assert mujoco.get_mjcb_passive() is None and not qmj._ENTRIES
 
 

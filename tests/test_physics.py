@@ -15,11 +15,12 @@ from qcontrol.cli import main
 from qcontrol.cli import status as _status
 from qcontrol.controller.backstepping import Backstepping, output
 from qcontrol.disturbance import Disturbance, Schedule
-from qcontrol.engine import simulate
+from qcontrol.engine import RunSpec, simulate
 from qcontrol.errors import QcontrolInputError
 from qcontrol.metrics import summary
 from qcontrol.quantizer import UniformQuantizer
 from qcontrol.scenario import load_scenario
+from qcontrol.timegrid import TimeGrid
 
 
 class OpenLoop(Backstepping):
@@ -53,9 +54,10 @@ def open_loop(sc, backend: str, duration: float, control_period: float | None = 
     """The scenario's plant, with its disturbances, and u = 0: (trajectory, the law's readings)."""
     law = OpenLoop(list(sc.controller.c), sc.controller.delta / 2)
     plant = build_plant(sc, backend)
-    traj = simulate(plant, law, UniformQuantizer(sc.controller.delta), build_reference(sc), np.array(sc.x0),
-                    duration, sc.simulation.dt, control_period=control_period, loads=loads(sc),
-                    velocity_source=velocity_source)[0]
+    traj = simulate(RunSpec(plant=plant, law=law, quantizer=UniformQuantizer(sc.controller.delta),
+                            reference=build_reference(sc), x0=np.array(sc.x0),
+                            grid=TimeGrid.of(duration, sc.simulation.dt, control_period), loads=loads(sc),
+                            velocity_source=velocity_source))[0]
     return traj, law.seen
 
 
@@ -170,8 +172,10 @@ def test_the_differenced_velocity_is_the_quantized_position_over_the_period(batc
     sc = load_scenario(SCENARIOS / "example1.toml", ["plant.x0=[0.8, 1.5]"])
     delta, hold, dt = sc.controller.delta, 3, sc.simulation.dt
     law = OpenLoop(list(sc.controller.c), delta / 2)
-    traj = simulate(build_plant(sc, "mujoco", batch=batch), law, UniformQuantizer(delta), build_reference(sc),
-                    np.array(sc.x0), 0.4, dt, control_period=hold * dt, velocity_source="difference")[0]
+    traj = simulate(RunSpec(plant=build_plant(sc, "mujoco", batch=batch), law=law,
+                            quantizer=UniformQuantizer(delta), reference=build_reference(sc),
+                            x0=np.array(sc.x0), grid=TimeGrid.of(0.4, dt, hold * dt),
+                            velocity_source="difference"))[0]
     q1 = delta * np.floor(traj.x_meas[:, 0] / delta + 0.5)
     previous = np.concatenate([np.full(hold, q1[0]), q1[:-hold]])
     expected = (q1 - previous) / (hold * dt)

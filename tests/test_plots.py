@@ -13,13 +13,14 @@ from matplotlib.figure import Figure
 from matplotlib.image import imread
 
 from qcontrol import plots as P
-from qcontrol.controller import ComparisonController, ProposedController
-from qcontrol.engine import Trajectory, simulate
+from qcontrol.controller import ComparisonLaw, PaperLaw
+from qcontrol.engine import RunSpec, Trajectory, simulate
 from qcontrol.expr import compile_expression as C
 from qcontrol.plants.ode import ChainPlant
 from qcontrol.plots.common import adaptive_labels
 from qcontrol.quantizer import UniformQuantizer
 from qcontrol.reference import Sine
+from qcontrol.timegrid import TimeGrid
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 X = ["x1", "x2"]
@@ -34,10 +35,12 @@ def _example2_runs(duration: float = 2.0, state_bound: float = 1e6) -> tuple[Tra
     plant = ChainPlant(2, None, phi, [-1, -3.5, -34.3])
     q = UniformQuantizer(0.01)
     r = [C("1+q2**2", Q), C("1+2*q2**2", Q), C("1", Q)]
-    ctrl = ProposedController([4, 3], q.max_error, 1.125, 1, 1, r)
-    proposed = simulate(plant, ctrl, q, Sine(1, 1.5), [0.3, 0.3], duration, 1e-3, state_bound=state_bound)[0]
-    base_ctrl = ComparisonController([4, 3], q.max_error, None, phi)
-    base = simulate(plant, base_ctrl, q, Sine(1, 1.5), [0.3, 0.3], duration, 1e-3, state_bound=state_bound)[0]
+    ctrl = PaperLaw([4, 3], q.max_error, 1.125, 1, 1, r)
+    proposed = simulate(RunSpec(plant=plant, law=ctrl, quantizer=q, reference=Sine(1, 1.5), x0=[0.3, 0.3],
+                                grid=TimeGrid.of(duration, 1e-3), state_bound=state_bound))[0]
+    base_ctrl = ComparisonLaw([4, 3], q.max_error, None, phi)
+    base = simulate(RunSpec(plant=plant, law=base_ctrl, quantizer=q, reference=Sine(1, 1.5), x0=[0.3, 0.3],
+                            grid=TimeGrid.of(duration, 1e-3), state_bound=state_bound))[0]
     return proposed, base
 
 

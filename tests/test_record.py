@@ -16,8 +16,8 @@ import rerun as rr
 from rerun.chunk import RrdReader
 
 import qcontrol
-from qcontrol.controller import ProposedController
-from qcontrol.engine import Trajectory, simulate
+from qcontrol.controller import PaperLaw
+from qcontrol.engine import RunSpec, Trajectory, simulate
 from qcontrol.errors import QcontrolInputError
 from qcontrol.expr import compile_expression as C
 from qcontrol.outputs import partial_path
@@ -27,6 +27,7 @@ from qcontrol.recording import Recording
 from qcontrol.recording import recording as recording_module
 from qcontrol.recording.streamer import pose_rows
 from qcontrol.reference import Sine
+from qcontrol.timegrid import TimeGrid
 
 X, Q = ["x1", "x2"], ["q1", "q2"]
 RERUN_CLI = Path(sys.executable).with_name("rerun")
@@ -68,21 +69,12 @@ def example2(
         [-1, -3.5, -34.3],
     )
     q = UniformQuantizer(0.01)
-    ctrl = ProposedController(
+    ctrl = PaperLaw(
         [4, 3], q.max_error, 1.125, 1, 1, [C("1+q2**2", Q), C("1+2*q2**2", Q), C("1", Q)]
     )
-    (run,) = simulate(
-        plant,
-        ctrl,
-        q,
-        Sine(1, 1.5),
-        [0.3, 0.3],
-        duration,
-        1e-3,
-        state_bound=state_bound,
-        observer=observer,
-        observe_every=observe_every,
-    )
+    (run,) = simulate(RunSpec(plant=plant, law=ctrl, quantizer=q, reference=Sine(1, 1.5), x0=[0.3, 0.3],
+                              grid=TimeGrid.of(duration, 1e-3), state_bound=state_bound, observer=observer,
+                              observe_every=observe_every))
     return run
 
 
@@ -485,7 +477,7 @@ def test_each_law_of_a_law_comparison_has_a_colour_of_its_own(tmp_path):
     """Three laws in one recording: the two drawn on the main one are told apart by colour, in
     their series and in their differences from it (they were both white, both blue)."""
     sc = qcontrol.load_scenario("example1", {"simulation.duration": 0.3})
-    qcontrol.register_law_class("same-paper-again", type("SamePaper", (qcontrol.PaperLaw,), {}),
+    qcontrol.register_law("same-paper-again", type("SamePaper", (qcontrol.PaperLaw,), {}),
                                 extends="proposed", replace=True)
     qcontrol.compare_laws(sc, ["proposed", "comparison", "same-paper-again"], backend="ode",
                           rrd=tmp_path / "laws.rrd")

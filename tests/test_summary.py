@@ -54,3 +54,17 @@ def test_the_laws_own_final_state_key_reads_back_in_place(short_example2):
     paper = qcontrol.run(short_example2, "ode", record="metrics").summary
     assert "final_state" not in paper  # final_eps_hat is the paper's law's own name
     assert Summary.from_json(paper).final_state == tuple(paper["final_eps_hat"])
+
+
+def test_a_summary_written_by_an_older_version_reads_back():
+    """tests/data/summary-0.2.json was written by `qcontrol run` of 0.2: a field added since must
+    have a default (docs/architecture.md, 'A recorded signal'), or this older file stops reading."""
+    from conftest import ROOT
+
+    data = json.loads((ROOT / "tests" / "data" / "summary-0.2.json").read_text())
+    typed = Summary.from_json(data)
+    assert typed.steps == 200 and typed.law_diagnostics == {"max_gain_period": data["max_gain_period"]}
+    assert {k: v for k, v in typed.to_json().items() if k in data} == data
+    without = {k: v for k, v in data.items() if k != "max_abs_u"}
+    with pytest.raises(ValueError, match=r"^not a summary: it lacks max_abs_u \("):
+        Summary.from_json(without)

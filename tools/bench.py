@@ -54,10 +54,11 @@ from qcontrol.assembly import (
     build_reference,
     run_scenario,
 )
-from qcontrol.engine import simulate
+from qcontrol.engine import RunSpec, simulate
 from qcontrol.quantizer import QuantizedReading
 from qcontrol.scenario import Scenario, load_scenario
 from qcontrol.sweep import sweep_summaries
+from qcontrol.timegrid import TimeGrid
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIOS = ("example1", "example2")
@@ -236,8 +237,9 @@ def batch_times(duration: float, sizes: list[int], repeat: int) -> dict:
         sc = scs[0]
 
         def run(scs: list[Scenario] = scs, sc: Scenario = sc, size: int = size) -> None:
-            simulate(build_plant(sc, "ode", batch=size), build_law(scs), build_quantizer(sc),
-                     build_reference(sc), sc.x0, duration, sc.simulation.dt, record="metrics")
+            simulate(RunSpec(plant=build_plant(sc, "ode", batch=size), law=build_law(scs),
+                             quantizer=build_quantizer(sc), reference=build_reference(sc), x0=sc.x0,
+                             grid=TimeGrid.of(duration, sc.simulation.dt), record="metrics"))
 
         times[str(size)] = best_of(repeat if size <= 100 else max(1, repeat // 2), run)
         if size == 1:  # the one run in the Python loop too (the target was set against it)
@@ -258,8 +260,9 @@ def mujoco_batch(duration: float, size: int, repeat: int) -> dict:
     plant = build_plant(sc, "mujoco", batch=size)
 
     def run() -> None:
-        simulate(plant, build_law(scs), build_quantizer(sc), build_reference(sc), [s.x0 for s in scs],
-                 duration, sc.simulation.dt, record="metrics")
+        simulate(RunSpec(plant=plant, law=build_law(scs), quantizer=build_quantizer(sc),
+                         reference=build_reference(sc), x0=[s.x0 for s in scs],
+                         grid=TimeGrid.of(duration, sc.simulation.dt), record="metrics"))
 
     wall = best_of(repeat, run)
     bare = best_of(repeat, _mj_step_loop(build_plant(sc, "mujoco"), 10_000, installed=False)) / 10_000

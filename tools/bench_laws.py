@@ -7,7 +7,7 @@ Example 2 on the ODE backend (the plant costs the same for every law, so the rat
 * single run (10 s, 10,000 steps): every law on the engine's Python loop (QCONTROL_COMPILE=0),
   and the built-in law as it runs by default (compiled where numba is there);
 * batch (``--batch`` copies from different initial states, 2 s, metrics record): one simulate
-  call per law; a ``qcontrol.Law`` or ``SteppedLaw`` is called copy by copy, a column-form class
+  call per law; a ``qcontrol.Law`` (``state_rate`` or ``advance``) is called copy by copy, a column-form class
   once per step for the whole batch.
 
 The target: a user law within 2x of the built-in law, single run and batch. Timings are best of N.
@@ -26,8 +26,9 @@ import laws_by_hand  # noqa: E402
 from bench_timing import best_of, python_loop  # noqa: E402
 
 from qcontrol.assembly import build_law, build_plant, build_quantizer, build_reference  # noqa: E402
-from qcontrol.engine import simulate  # noqa: E402
+from qcontrol.engine import RunSpec, simulate  # noqa: E402
 from qcontrol.scenario import Scenario, load_scenario  # noqa: E402
+from qcontrol.timegrid import TimeGrid
 
 FORMS = laws_by_hand.FORMS
 
@@ -47,9 +48,11 @@ def scenarios(duration: float, copies: int) -> dict[str, list[Scenario]]:
 
 def run_batch(scs: list[Scenario]) -> None:
     sc = scs[0]
-    simulate(build_plant(sc, "ode", batch=len(scs)), build_law(scs), build_quantizer(sc), build_reference(sc),
-             [s.x0 for s in scs] if len(scs) > 1 else sc.x0, sc.simulation.duration, sc.simulation.dt,
-             record="metrics" if len(scs) > 1 else "full")
+    simulate(RunSpec(plant=build_plant(sc, "ode", batch=len(scs)), law=build_law(scs),
+                     quantizer=build_quantizer(sc), reference=build_reference(sc),
+                     x0=[s.x0 for s in scs] if len(scs) > 1 else sc.x0,
+                     grid=TimeGrid.of(sc.simulation.duration, sc.simulation.dt),
+                     record="metrics" if len(scs) > 1 else "full"))
 
 
 def measure(duration: float, batch_duration: float, copies: int, repeat: int) -> dict:
@@ -71,7 +74,7 @@ def measure(duration: float, batch_duration: float, copies: int, repeat: int) ->
     return result
 
 
-NAMES = {"rk4": "qcontrol.Law, RK4 of state_rate", "stepped": "qcontrol.SteppedLaw, own advance",
+NAMES = {"rk4": "qcontrol.Law, RK4 of state_rate", "stepped": "qcontrol.Law, its own advance",
          "columns": "BacksteppingLaw subclass, column form"}
 
 

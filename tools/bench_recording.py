@@ -22,12 +22,13 @@ import mujoco
 import numpy as np
 
 import qcontrol
-from qcontrol.controller import ProposedController
-from qcontrol.engine import Observer, Trajectory, simulate
+from qcontrol.controller import PaperLaw
+from qcontrol.engine import Observer, RunSpec, Trajectory, simulate
 from qcontrol.expr import compile_expression as C
 from qcontrol.plants.ode import ChainPlant
 from qcontrol.quantizer import UniformQuantizer
 from qcontrol.reference import Sine
+from qcontrol.timegrid import TimeGrid
 
 PENDULUM = """
 <mujoco>
@@ -49,8 +50,9 @@ def example2(duration: float, observer: Observer | None = None) -> Trajectory:
     plant = ChainPlant(2, None, [C("x2", X), C("x2**2*cos(x1)", X), C("sin(x1)", X)], [-1, -3.5, -34.3])
     q = UniformQuantizer(0.01)
     r = [C("1+q2**2", Q), C("1+2*q2**2", Q), C("1", Q)]
-    ctrl = ProposedController([4, 3], q.max_error, 1.125, 1, 1, r)
-    (run,) = simulate(plant, ctrl, q, Sine(1, 1.5), [0.3, 0.3], duration, 1e-3, observer=observer)
+    ctrl = PaperLaw([4, 3], q.max_error, 1.125, 1, 1, r)
+    (run,) = simulate(RunSpec(plant=plant, law=ctrl, quantizer=q, reference=Sine(1, 1.5), x0=[0.3, 0.3],
+                              grid=TimeGrid.of(duration, 1e-3), observer=observer))
     return run
 
 

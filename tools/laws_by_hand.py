@@ -4,10 +4,10 @@ forms of a user law (docs/laws.md): the bench times them against the built-in ki
 (tests/test_laws_by_hand.py).
 
 * :class:`PaperLawRK4`: a ``qcontrol.Law``; eq. (45) as a rate, advanced by the engine's RK4;
-* :class:`PaperLawStepped`: a ``qcontrol.SteppedLaw``; eq. (45) solved exactly over each step
-  with the sample held, ``eps <- target + (eps - target) exp(-gamma sigma h)``;
+* :class:`PaperLawStepped`: a ``qcontrol.Law`` with its own ``advance``; eq. (45) solved exactly
+  over each step with the sample held, ``eps <- target + (eps - target) exp(-gamma sigma h)``;
 * :class:`PaperLawColumns`: a ``qcontrol.BacksteppingLaw`` subclass in column form (floats for a
-  single run, ``(batch,)`` arrays for a batch), registered with ``register_law_class``.
+  single run, ``(batch,)`` arrays for a batch), registered with ``register_law`` as the others.
 
 Each reads ``kappa``, ``gamma``, ``sigma`` and ``r`` from ``[controller.<kind>]``
 (:func:`overrides` gives them from a scenario's ``[controller.proposed]`` settings).
@@ -115,7 +115,7 @@ def register() -> None:
     """Register the three forms under :data:`KINDS` (again after an edit: replace=True)."""
     qcontrol.register_law(KINDS["rk4"], PaperLawRK4, state_name="eps_hat", replace=True)
     qcontrol.register_law(KINDS["stepped"], PaperLawStepped, state_name="eps_hat", replace=True)
-    qcontrol.register_law_class(KINDS["columns"], PaperLawColumns, keys=KEYS, replace=True)
+    qcontrol.register_law(KINDS["columns"], PaperLawColumns, keys=KEYS, replace=True)
 
 
 def overrides(sc: qcontrol.Scenario, form: str) -> dict:

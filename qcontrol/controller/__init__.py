@@ -3,8 +3,11 @@
 
 * :mod:`.backstepping`: coefficients, Lemma 2 bounds, the coordinates z / zbar / alphabar.
 * :mod:`.law`: the :class:`BatchLaw` protocol the engine drives, and the kind registry.
+* :mod:`.kinds`: :func:`register_law`, the one way a law becomes a kind (the built-in laws below
+  are registered with it, as users' laws are).
 * :mod:`.proposed`: law (44)-(45), :class:`PaperLaw`; :mod:`.comparison`: law (46) of reference
-  [20], :class:`ComparisonLaw`: public classes to subclass (:mod:`.classes` registers them).
+  [20], :class:`ComparisonLaw`: public classes to subclass.
+* :mod:`.user`: the :class:`~.user.Law` protocol of a law written one copy at a time.
 """
 
 from . import comparison, proposed
@@ -15,28 +18,47 @@ from .backstepping import (
     lemma2_bounds,
     lemma2_L,
 )
-from .comparison import ComparisonController, ComparisonLaw
-from .law import LAW_KINDS, AnyColumnForm, BatchLaw, LawContext, LawKind, law_kind, register_kind
-from .proposed import PaperLaw, ProposedController
+from .comparison import ComparisonLaw
+from .kinds import register_law, removed_name
+from .law import (
+    LAW_KINDS,
+    AnyColumnForm,
+    BatchLaw,
+    LawContext,
+    LawKeys,
+    LawKind,
+    law_kind,
+    seal_built_in_kinds,
+)
+from .proposed import PaperLaw
 
-for _kind in (proposed.KIND, comparison.KIND):
-    register_kind(_kind)
+register_law("proposed", PaperLaw, keys=proposed.LAW_KEYS)
+register_law("comparison", ComparisonLaw, keys=comparison.LAW_KEYS)
+seal_built_in_kinds()
+
+
+def __getattr__(name: str) -> object:
+    """A name this package no longer has: its one-line migration note."""
+    note = removed_name(name)
+    if note is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    raise AttributeError(note)
+
 
 __all__ = [
     "LAW_KINDS",
     "Backstepping",
-    "ComparisonController",
     "ComparisonLaw",
     "BatchLaw",
     "ControlOutput",
     "AnyColumnForm",
     "LawContext",
+    "LawKeys",
     "LawKind",
     "PaperLaw",
-    "ProposedController",
     "backstepping_coefficients",
     "law_kind",
     "lemma2_L",
     "lemma2_bounds",
-    "register_kind",
+    "register_law",
 ]

@@ -241,7 +241,7 @@ class BacksteppingLaw(Backstepping):
     """The base of a law written in column form, the form the built-in laws are written in (the
     paper's law and the comparison law derive from it): subclass it, set ``state_size`` and write
     :meth:`initial_state`, :meth:`control` (returning a :class:`ControlOutput`, ``u`` first) and
-    :meth:`advancer`; register it with ``qcontrol.register_law_class``.
+    :meth:`advancer`; register it with ``qcontrol.register_law``.
 
     Column form: :meth:`control` receives the reading's columns ``reading.columns`` (``q_1 ..
     q_n``) and the state as a tuple of columns, all in the reading's form (``reading.form``, a

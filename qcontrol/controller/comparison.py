@@ -9,7 +9,7 @@ outputs label it so (docs/math.md, 'The comparison law').
 from __future__ import annotations
 
 from collections.abc import Hashable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import reduce
 from operator import add, mul
 from typing import Any
@@ -22,7 +22,7 @@ from ..expr import Expression
 from ..quantizer import QuantizedReading
 from ..schema import Key, KindKeys, Table, number, read_keys, string
 from .backstepping import Advance, BacksteppingLaw, Columns, ControlOutput, output
-from .law import LawContext, LawKind, unchanged_from
+from .law import LawContext, LawKeys, unchanged_from
 
 
 class ComparisonLaw(BacksteppingLaw):
@@ -182,22 +182,14 @@ def parse(table: Table, ctx: LawContext) -> ComparisonSettings:
     return ComparisonSettings(v["gain"], v["theta"])
 
 
-def build(settings: Sequence[ComparisonSettings], ctx: LawContext) -> ComparisonLaw:
-    """One controller for the whole batch: the variants share its settings (see :func:`structure`)."""
-    return ComparisonLaw.from_context(replace(ctx, base=settings[0]))
-
-
 def structure(settings: ComparisonSettings, ctx: LawContext) -> Hashable:
     """Everything the law reads must be shared: its settings and, when theta is known, theta."""
     return settings, ctx.theta if settings.theta == "known" else None
 
 
-KIND = LawKind(
-    "comparison", KEYS, parse, build, structure,
+LAW_KEYS = LawKeys(
+    KEYS, parse, structure,
     divergence_hint="law (46) cancels psi and theta^T phi at the quantized state; a term that is not "
     "Lipschitz differs there from its true value by more the larger the state (docs/math.md, "
     "'The comparison law')",
 )
-
-
-ComparisonController = ComparisonLaw  # the former name, kept for code written against it

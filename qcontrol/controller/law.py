@@ -1,9 +1,10 @@
 """What the closed-loop engine uses of a control law, and the registry of controller kinds.
 
-A scenario's ``[controller] kind`` names an entry of :data:`LAW_KINDS`. Each entry declares the
-keys its kind takes (the schema the scenario loader validates with and the documentation is made
-from), parses and checks them, and builds a :class:`BatchLaw` for a batch of variants. Adding a
-law is one module with its class and its :class:`LawKind`, plus one :func:`register_kind` call.
+A scenario's ``[controller] kind`` names an entry of :data:`LAW_KINDS`. Every entry, the
+built-in laws' and users', is made by :func:`qcontrol.register_law` (:mod:`.kinds`) from a law
+and its declared keys (:class:`LawKeys` for a law whose settings need more than their types
+checked); the entry parses and checks the keys (the schema the scenario loader validates with
+and the documentation is made from) and builds a :class:`BatchLaw` for a batch of variants.
 """
 
 from __future__ import annotations
@@ -124,6 +125,11 @@ class AnyColumnForm(Protocol):
         """:meth:`~BatchLaw.advancer` for a state in ``form``."""
 
 
+def first_of(settings: Sequence[Any]) -> Any:
+    """The settings of a batch whose variants share all of them: the first variant's."""
+    return settings[0]
+
+
 def no_settings() -> Mapping[str, Any]:
     """The settings of a context without a law's own table: an empty, read-only mapping."""
     return MappingProxyType({})
@@ -194,17 +200,40 @@ class LawContext:
 
 
 @dataclass(frozen=True)
-class LawKind:
-    """One controller kind.
+class LawKeys:
+    """A law's declared keys when their types are not all it takes to read them (the built-in
+    laws): ``keys``, the :class:`~qcontrol.schema.KindKeys` (name, type, default, unit, meaning of
+    each, which docs/scenarios.md lists); ``parse(table, context) -> settings``, read and checked
+    (Theorem 1's kappa > L, ...), handed to the law as ``context.base``; ``structure(settings,
+    context)``, what the variants of one batch must share (the rest of their settings goes per
+    copy); ``combine(settings list) -> settings``, the variants of a batch as one settings object
+    (per-copy values as arrays); ``bounds(settings)``, the bounding functions r of eqs.
+    (37)-(43) the law uses, whose separation is checked along single runs; ``divergence_hint``,
+    what usually makes this law diverge, for the message of a diverged run; ``also_measure(settings)``,
+    settings of the same kind that a study of the law measures beside it by default (``(key,
+    value)`` pairs each, e.g. the paper's law held as printed: also its exact hold)."""
 
-    ``keys`` declares the keys of the kind (None for a law registered from Python, whose factory
-    checks its own table); ``parse`` reads and checks them from the merged controller table into
-    the kind's settings; ``build`` makes one law for a batch of variants that share
-    ``structure(settings, context)`` (the settings that may differ within a batch become
-    per-copy parameters); the first variant's context is passed. ``bounds(settings)``: the
-    bounding functions r of eqs. (37)-(43) the law uses (one per phi_i, then psi), whose
-    separation is checked along single runs. ``divergence_hint`` says what usually makes this law
-    diverge, for the message of a diverged run.
+    keys: KindKeys
+    parse: Callable[[Table, LawContext], Any]
+    structure: Callable[[Any, LawContext], Hashable]
+    combine: Callable[[Sequence[Any]], Any] = first_of
+    bounds: Callable[[Any], tuple[Expression, ...]] | None = None
+    divergence_hint: str = ""
+    also_measure: Callable[[Any], tuple[tuple[tuple[str, str], ...], ...]] | None = None
+
+
+@dataclass(frozen=True)
+class LawKind:
+    """One controller kind, an entry of :data:`LAW_KINDS`, as :func:`qcontrol.register_law`
+    makes it.
+
+    ``keys`` declares the keys of the kind for the scenario's schema (None: checked by the law's
+    own code or by the names it declared); ``parse`` reads and checks them from the merged
+    controller table into the kind's settings; ``build`` makes one law for a batch of variants
+    that share ``structure(settings, context)`` (the settings that may differ within a batch
+    become per-copy parameters); the first variant's context is passed. ``bounds`` and
+    ``divergence_hint``, ``also_measure``: as :class:`LawKeys` says. ``extends``: the kind whose
+    ``[controller.<kind>]`` settings it reads, if any.
     """
 
     name: str
@@ -215,9 +244,12 @@ class LawKind:
     bounds: Callable[[Any], tuple[Expression, ...]] | None = None  # its bounding functions r, if any
     divergence_hint: str = ""
     extends: str | None = None  # the built-in kind whose [controller.<kind>] settings it reads, if any
+    declared: LawKeys | None = None  # its keys declared with their types and parsing, if so
+    also_measure: Callable[[Any], tuple[tuple[tuple[str, str], ...], ...]] | None = None
 
 
 LAW_KINDS: dict[str, LawKind] = {}
+BUILT_IN_KINDS: set[str] = set()  # the package's own kinds (:func:`seal_built_in_kinds`): never replaced
 
 KIND_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_-]*\Z")  # a TOML bare key that starts like a name
 KIND_NAME_RULE = "letters, digits, _ and -, starting with a letter or _"
@@ -232,18 +264,22 @@ def check_kind_name(name: object, what: str) -> str:
     return name
 
 
-def register_kind(kind: LawKind, *, replace: bool = False) -> None:
-    """Add a controller kind; its name must be new, unless ``replace`` is true and the kind it
-    replaces was registered from Python (a built-in kind, one with declared ``keys``, is never
-    replaced)."""
+def add_kind(kind: LawKind, *, replace: bool = False) -> None:
+    """Add a controller kind (only :func:`qcontrol.register_law` calls this); its name must be
+    new, unless ``replace`` is true and the kind it replaces is not built in."""
     taken = LAW_KINDS.get(kind.name)
-    if taken is not None and taken.keys is not None:
+    if taken is not None and kind.name in BUILT_IN_KINDS:
         raise QcontrolInputError(f"controller kind {kind.name!r} is built in and cannot be replaced; "
                                  "choose another name")
     if taken is not None and not replace:
         raise QcontrolInputError(f"controller kind {kind.name!r} is already registered; choose another name "
                                  "or pass replace=True")
     LAW_KINDS[kind.name] = kind
+
+
+def seal_built_in_kinds() -> None:
+    """Mark every kind registered so far (the package's, at import) as built in."""
+    BUILT_IN_KINDS.update(LAW_KINDS)
 
 
 # Former names of kinds: a scenario written with one still loads, as the kind it now names.

@@ -31,7 +31,7 @@ from .backstepping import (
     output,
     parameter,
 )
-from .law import Diagnostic, LawContext, LawKind, unchanged_from
+from .law import Diagnostic, LawContext, LawKeys, unchanged_from
 
 HOLDS = ("paper", "exact")  # how law (44) is held over a control period (see PaperLaw)
 
@@ -396,11 +396,6 @@ def _check_bounding_functions(table: Table, r_expr: Sequence[Expression], ctx: L
                               f"{samples[first].tolist()}", "e.g. add 1 to it")
 
 
-def build(settings: Sequence[ProposedSettings], ctx: LawContext) -> PaperLaw:
-    """One controller for a batch of variants: kappa, gamma, sigma and r_scale per copy."""
-    return PaperLaw.from_context(replace(ctx, base=per_copy_settings(settings)))
-
-
 def per_copy_settings(settings: Sequence[ProposedSettings]) -> ProposedSettings:
     """The variants of one batch as one settings object: kappa, gamma, sigma and r_scale as
     per-copy arrays (a number for a single copy); r and the hold shared (see :func:`structure`)."""
@@ -425,12 +420,14 @@ def bounding_functions(settings: ProposedSettings) -> tuple[Expression, ...]:
     return settings.r_expr
 
 
-KIND = LawKind(
-    "proposed", KEYS, parse, build, structure, bounds=bounding_functions,
+def also_measure(settings: ProposedSettings) -> tuple[tuple[tuple[str, str], ...], ...]:
+    """Beside the law held as printed, a study also measures its exact hold (docs/math.md)."""
+    return ((("hold", "exact"),),) if settings.hold == "paper" else ()
+
+
+LAW_KEYS = LawKeys(
+    KEYS, parse, structure, combine=per_copy_settings, bounds=bounding_functions, also_measure=also_measure,
     divergence_hint="the law's gain grows with |x_q| (eq. (44)), so at a fixed sampling period a large "
     "state destabilizes the sampled loop once K T > 2 (docs/math.md, 'Sampling the law'); "
     "[controller.proposed] hold = \"exact\" holds its robust term exactly",
 )
-
-
-ProposedController = PaperLaw  # the former name, kept for code written against it

@@ -1,5 +1,6 @@
-"""Control laws written by users: the :class:`Law` and :class:`SteppedLaw` protocols,
-:func:`register_law`, and the adapter that lets the engine drive such a law like a built-in one.
+"""Control laws written by users, one copy at a time: the :class:`Law` protocol, the adapter that
+lets the engine drive such a law like a built-in one, and the kind :func:`qcontrol.register_law`
+makes of it (:class:`UserKind`).
 
 A user law sees, at each control sample ``t_k``, the quantized reading ``x_q`` (shape ``(n,)``),
 ``yd = [y_d, y_d', ..., y_d^(n)]`` and its own state (shape ``(m,)``), and returns the input ``u``,
@@ -7,10 +8,11 @@ which is held over the control period like any law's. Between samples its state 
 step ``h`` (the simulation step dt) with the sample (``t_k``, ``x_q``, ``yd``) held, in one of two
 ways the law chooses:
 
-* a :class:`Law` gives ``state_rate(t_k, x_q, yd, state)``: the engine takes one classical RK4
-  step of it (four calls per step);
-* a :class:`SteppedLaw` gives ``advance(t_k, x_q, yd, state, h)``: the state one step on, its own
-  update (an exact solution, a discrete-time law, a reset); one call per step.
+* ``state_rate(t_k, x_q, yd, state)``: the engine takes one classical RK4 step of it (four calls
+  per step);
+* ``advance(t_k, x_q, yd, state, h)`` in its place: the state one step on, its own update (an
+  exact solution, a discrete-time law, a reset); one call per step. A law with both is advanced
+  by ``advance``.
 
 The engine records the law's errors z, zbar and the Lemma 2 check in the backstepping coordinates
 of the scenario's ``c`` and ``delta``, as for the built-in laws.
@@ -25,6 +27,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Any, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
@@ -34,14 +37,15 @@ from ..errors import QcontrolInputError
 from ..quantizer import QuantizedReading
 from ..schema import Table
 from .backstepping import Backstepping, Columns
-from .law import LawContext, LawKind, check_kind_name, register_kind
+from .law import LawContext
 from .user_diagnostics import declared_diagnostics
 
 
 @runtime_checkable
 class Law(Protocol):
-    """A control law for one copy of the plant whose state moves by RK4 of its rate (see the
-    module docstring)."""
+    """A control law for one copy of the plant (see the module docstring): ``state_size``,
+    ``initial_state()``, ``control(t, x_q, yd, state) -> u`` and ``state_rate(t, x_q, yd, state)``,
+    or ``advance(t, x_q, yd, state, h)`` in place of ``state_rate``."""
 
     state_size: int  # m >= 0 states of the law (adaptive estimates, integrators, ...)
 
@@ -52,29 +56,38 @@ class Law(Protocol):
         """The input u at a control sample."""
 
     def state_rate(self, t: float, x_q: np.ndarray, yd: np.ndarray, state: np.ndarray) -> np.ndarray:
-        """``d state / dt``, shape ``(m,)``, with ``x_q``, ``yd`` and ``t`` held until the next sample."""
+        """``d state / dt``, shape ``(m,)``, with ``x_q``, ``yd`` and ``t`` held until the next sample.
+        In its place a law may give ``advance(t, x_q, yd, state, h) -> state`` one step ``h`` on."""
 
 
 @runtime_checkable
-class SteppedLaw(Protocol):
-    """A control law for one copy of the plant that updates its own state (see the module
-    docstring): ``advance`` in place of :meth:`Law.state_rate`. A law with both is advanced by
-    ``advance``."""
+class _Advancing(Protocol):
+    """A :class:`Law` that gives ``advance`` in place of ``state_rate`` (not a protocol of its
+    own for users: the engine's test of which update a law gives)."""
 
     state_size: int
 
-    def initial_state(self) -> np.ndarray:
-        """The law's state at t = 0, shape ``(m,)``."""
+    def initial_state(self) -> np.ndarray: ...
 
-    def control(self, t: float, x_q: np.ndarray, yd: np.ndarray, state: np.ndarray) -> float:
-        """The input u at a control sample."""
+    def control(self, t: float, x_q: np.ndarray, yd: np.ndarray, state: np.ndarray) -> float: ...
 
-    def advance(self, t: float, x_q: np.ndarray, yd: np.ndarray, state: np.ndarray, h: float) -> np.ndarray:
-        """The state one step ``h`` on, shape ``(m,)``, with ``x_q``, ``yd`` and ``t`` held."""
+    def advance(self, t: float, x_q: np.ndarray, yd: np.ndarray, state: np.ndarray,
+                h: float) -> np.ndarray: ...
 
 
-AnyLaw = Law | SteppedLaw
-LawFactory = Callable[[dict, int], AnyLaw]  # (the [controller] table, the plant order n) -> a law
+@runtime_checkable
+class _FromContext(Protocol):
+    """A factory that is a class built from the run's :class:`~.law.LawContext`."""
+
+    def from_context(self, context: LawContext) -> object: ...
+
+
+LawFactory = Callable[[dict, int], Law]  # (the [controller] table, the plant order n) -> a law
+
+
+def advances_itself(law: object) -> bool:
+    """True when the law gives its own ``advance`` (used in place of RK4 of ``state_rate``)."""
+    return isinstance(law, _Advancing)
 
 
 class _Sample(NamedTuple):
@@ -91,7 +104,7 @@ class UserLaw(Backstepping):
     """A batch of user laws (one per copy) driven by the engine (:class:`~.law.BatchLaw`, in any
     column form: :class:`~.law.AnyColumnForm`)."""
 
-    def __init__(self, laws: Sequence[AnyLaw], c: Sequence[float], max_error: float, state_name: str,
+    def __init__(self, laws: Sequence[Law], c: Sequence[float], max_error: float, state_name: str,
                  kind: str = "user law") -> None:
         super().__init__(c, max_error)
         self.laws, self.kind = list(laws), kind
@@ -102,7 +115,7 @@ class UserLaw(Backstepping):
         self.state_size = sizes.pop()
         self.state_name = state_name
         self.copies = len(self.laws) if len(self.laws) > 1 else None
-        self.stepped = all(isinstance(law, SteppedLaw) for law in self.laws)
+        self.stepped = all(advances_itself(law) for law in self.laws)
         self.diagnostics = declared_diagnostics(self.laws, kind)  # a law's own, if it declares them
 
     def initial_state(self, batch: int) -> np.ndarray:
@@ -126,11 +139,11 @@ class UserLaw(Backstepping):
              for b in range(len(x_q))]
         return _Sample(form.column(u), t, x_q, yd_row)
 
-    def copies_laws(self, batch: int) -> list[AnyLaw]:
+    def copies_laws(self, batch: int) -> list[Law]:
         """Each copy's law: one per copy, or the one law for every copy."""
         return self.laws if len(self.laws) == batch else self.laws * batch
 
-    def step_state(self, law: AnyLaw, sample: _Sample, x_q: np.ndarray, state: np.ndarray,
+    def step_state(self, law: Law, sample: _Sample, x_q: np.ndarray, state: np.ndarray,
                    h: float) -> np.ndarray:
         """One copy's state one step ``h`` on: its own ``advance``, else one classical RK4 step of
         its ``state_rate`` (``s + h/6 (k1 + 2 (k2 + k3) + k4)``), with the sample held."""
@@ -207,10 +220,10 @@ class StateUpdate:
 
 
 def _state_size(law: object) -> int:
-    if not isinstance(law, Law | SteppedLaw):
+    if not isinstance(law, Law | _Advancing):
         raise QcontrolInputError(
-            f"a user law must have state_size, initial_state(), control() and state_rate() (the qcontrol.Law "
-            f"protocol) or advance() (qcontrol.SteppedLaw); the factory returned {type(law).__name__}"
+            f"a user law must have state_size, initial_state(), control() and state_rate() or advance() "
+            f"(the qcontrol.Law protocol); the factory returned {type(law).__name__}"
         )
     size = law.state_size
     if isinstance(size, bool) or not isinstance(size, int) or size < 0:
@@ -245,53 +258,28 @@ def _thaw(value: Any) -> Any:
     return value
 
 
-def register_law(kind: str, factory: LawFactory, *, state_name: str = "state", replace: bool = False,
-                 with_context: bool = False) -> None:
-    """Make ``controller.kind = "<kind>"`` select a law built by ``factory(table, n)``.
-
-    ``table`` is the scenario's ``[controller]`` table as a dict (``kind``, ``delta``, ``c`` and
-    the law's own keys, from ``[controller.<kind>]`` and from ``[controller]``); ``n`` is the plant
-    order. The factory checks the keys it uses (:func:`check_keys` refuses unknown ones with the
-    usual one-line message) and returns a :class:`Law`; it is called once when a scenario loads
-    (to check it) and once per copy of every run. ``state_name`` names the law's state in outputs
-    (the summary's ``final_<state_name>``). ``kind`` is letters, digits, ``_`` and ``-``, starting
-    with a letter or ``_``. ``replace=True`` replaces a law registered before under the same
-    name (editing a law in a notebook); the built-in kinds are never replaced.
-    ``with_context=True`` calls ``factory(table, context)`` instead, ``context`` a
-    :class:`~.law.LawContext` with the run's sampling: ``context.n``, ``context.dt``,
-    ``context.control_period`` (T), ``context.delta``, ``context.c`` (a law that needs T reads it
-    there, so ``--dt`` or a control period in the scenario reaches it).
-    """
-    check_kind_name(kind, "register_law")
-    if not callable(factory):
-        raise QcontrolInputError(f"register_law: factory for {kind!r} must be callable as factory(table, n), "
-                                 f"got {type(factory).__name__}")
-    if not isinstance(state_name, str) or not state_name.isidentifier():
-        raise QcontrolInputError(f"register_law: state_name {state_name!r} must be letters, digits and _, "
-                                 "starting with a letter or _")
-    for name, flag in (("replace", replace), ("with_context", with_context)):
-        if not isinstance(flag, bool):
-            raise QcontrolInputError(f"register_law: {name} must be True or False, got {flag!r}")
-    user = UserKind(kind, factory, state_name, with_context)
-    register_kind(LawKind(kind, None, user.parse, user.build, user.structure), replace=replace)
-
-
 class UserKind:
-    """A controller kind made by :func:`register_law`: its table checked by the factory when a
-    scenario loads, one law per copy built when it runs; variants of it always share a batch."""
+    """A controller kind of a per-copy :class:`Law` (made by :func:`qcontrol.register_law`): its
+    table checked (against the declared ``keys``, else by the factory) when a scenario loads, one
+    law per copy built when it runs; variants of it always share a batch."""
 
-    def __init__(self, kind: str, factory: LawFactory, state_name: str, with_context: bool = False) -> None:
-        self.kind, self.factory, self.state_name = kind, factory, state_name
-        self.with_context = with_context  # the factory's second argument: the LawContext, else n
+    def __init__(self, kind: str, factory: LawFactory, state_name: str,
+                 keys: Sequence[str] | None = None) -> None:
+        self.kind, self.factory, self.state_name, self.keys = kind, factory, state_name, keys
 
     def parse(self, table: Table, ctx: LawContext) -> UserSettings:
         given = {"kind": self.kind, "delta": ctx.delta, "c": list(ctx.c)} | table.data
+        if self.keys is not None:
+            try:
+                check_keys(given, self.keys)
+            except QcontrolInputError as exc:
+                raise QcontrolInputError(f"{ctx.source}: {exc}") from None
         settings = UserSettings(_freeze(given))
-        _call(self.factory, settings, ctx, self.with_context)
+        _call(self.factory, settings, ctx)
         return settings
 
     def build(self, settings: Sequence[UserSettings], ctx: LawContext) -> UserLaw:
-        laws = [_call(self.factory, s, ctx, self.with_context) for s in settings]
+        laws = [_call(self.factory, s, ctx) for s in settings]
         return UserLaw(laws, ctx.c, ctx.max_error, self.state_name, self.kind)
 
     @staticmethod
@@ -299,12 +287,17 @@ class UserKind:
         return None
 
 
-def _call(factory: LawFactory, settings: UserSettings, ctx: LawContext, with_context: bool) -> AnyLaw:
-    """The factory's law (given the context, or the order n); its input errors become one line
-    naming the file and the table."""
-    second = dataclasses.replace(ctx, controller=None) if with_context else ctx.order
+def _call(factory: LawFactory, settings: UserSettings, ctx: LawContext) -> Law:
+    """The factory's law: ``factory.from_context(context)`` when it has that class method (the
+    context's ``settings``: the law's own keys), else ``factory(table, n)``; its input errors
+    become one line naming the file and the table."""
     try:
-        law = factory(settings.table, second)
+        if isinstance(factory, _FromContext):
+            own = {k: v for k, v in settings.table.items() if k not in COMMON_KEYS}
+            context = dataclasses.replace(ctx, settings=MappingProxyType(own), controller=None)
+            law = factory.from_context(context)
+        else:
+            law = factory(settings.table, ctx.order)
     except QcontrolInputError as exc:
         raise QcontrolInputError(f"{ctx.source}: {exc}") from None
     except (KeyError, ValueError, TypeError) as exc:
@@ -316,10 +309,13 @@ def _call(factory: LawFactory, settings: UserSettings, ctx: LawContext, with_con
     return law
 
 
+COMMON_KEYS = ("kind", "delta", "c")  # the keys of every kind's [controller] table
+
+
 def check_keys(table: Mapping[str, Any], allowed: Sequence[str]) -> None:
     """Refuse a key of a user law's ``[controller]`` table that is not in ``allowed`` (``kind``,
     ``delta`` and ``c`` are always allowed), with the usual one-line message."""
-    known = ("kind", "delta", "c", *allowed)
+    known = (*COMMON_KEYS, *allowed)
     for key in table:
         if key not in known:
             raise QcontrolInputError(

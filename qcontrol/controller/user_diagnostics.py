@@ -9,7 +9,7 @@ the reference row and the law's state at each row) and returns ``(rows,)`` or ``
 Each copy of a batch is evaluated with its own law object (the per-copy parameters of a sweep
 differ), after the loop recorded the rows: a run's numbers are the same with or without them.
 
-A law class (:func:`~.classes.register_law_class`) declares them in the engine's column form
+A law class (registered by :func:`~.kinds.register_law`) declares them in the engine's column form
 (:data:`~.law.Evaluate`); its results are checked here too, so that a wrong shape stops the run
 with one line naming the law and the diagnostic.
 """

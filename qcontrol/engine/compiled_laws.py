@@ -1,7 +1,7 @@
 """The built-in laws as numba source for the engine's compiled loop (:mod:`.compiled_loop`).
 
-Each law's column formulas (:class:`~qcontrol.controller.proposed.ProposedController`, law (44)
-with the adaptive law (45), either hold; :class:`~qcontrol.controller.comparison.ComparisonController`,
+Each law's column formulas (:class:`~qcontrol.controller.proposed.PaperLaw`, law (44)
+with the adaptive law (45), either hold; :class:`~qcontrol.controller.comparison.ComparisonLaw`,
 law (46)) written out as the same floating-point operations in the same order, over the locals
 ``q1 .. qn`` and the reference block ``yd[r, j]``: the recursion (31)-(34), the bounding functions
 or the plant's terms (generated from their expression trees,
@@ -23,9 +23,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..controller.backstepping import ControlOutput, output
-from ..controller.comparison import ComparisonController
+from ..controller.comparison import ComparisonLaw
 from ..controller.law import BatchLaw
-from ..controller.proposed import ProposedController
+from ..controller.proposed import PaperLaw
 from ..expr.source import FLAG, Statements, float_source
 
 REFUSED = "    return 1, k"
@@ -89,8 +89,8 @@ def _folded(state: str, values: list[str]) -> str:
     return " + ".join(f"{state}[{i}] * {v}" for i, v in enumerate(values))
 
 
-def proposed_source(law: ProposedController, h: float) -> LawSource:
-    """Law (44) with the adaptive law (45), as :meth:`ProposedController.control` and
+def proposed_source(law: PaperLaw, h: float) -> LawSource:
+    """Law (44) with the adaptive law (45), as :meth:`PaperLaw.control` and
     :class:`~qcontrol.controller.proposed.DecayAdvance` compute them on floats."""
     n, m = law.n, law.state_size
     lp = Constants()
@@ -120,8 +120,8 @@ def proposed_source(law: ProposedController, h: float) -> LawSource:
     return LawSource(key, lines, advance, np.array(lp.values), HeldOutput(n, m, rate).output)
 
 
-def comparison_source(law: ComparisonController, h: float) -> LawSource:
-    """Law (46) and its adaptive law, as :meth:`ComparisonController.control` and
+def comparison_source(law: ComparisonLaw, h: float) -> LawSource:
+    """Law (46) and its adaptive law, as :meth:`ComparisonLaw.control` and
     :class:`~qcontrol.controller.comparison.RateAdvance` compute them on floats."""
     n, m = law.n, law.state_size
     lp = Constants()
@@ -158,8 +158,8 @@ class HeldOutput:
 
 
 SOURCES: dict[type, Callable[..., LawSource]] = {
-    ProposedController: proposed_source,
-    ComparisonController: comparison_source,
+    PaperLaw: proposed_source,
+    ComparisonLaw: comparison_source,
 }
 
 

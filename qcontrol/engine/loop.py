@@ -20,12 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from ..controller.law import BatchLaw
 from ..plants.base import Actuated, Disturbable, Plant
 from ..quantizer import Quantizer
 from ..quantizers import SensorQuantizer
-from ..reference import Reference
-from ..timegrid import TimeGrid
 from .compiled_loop import START, Resume
 from .divergence import Divergence
 from .fastpath import compiled_loop, rows_for
@@ -179,29 +176,17 @@ class QuantizedInput:
             self.inner(float(self.quantizer(np.array([[u]], dtype=float))[0, 0]))
 
 
-def simulate(
-    spec: RunSpec | Plant,
-    law: BatchLaw | None = None,
-    quantizer: Quantizer | None = None,
-    reference: Reference | None = None,
-    x0: np.ndarray | None = None,
-    duration: float | None = None,
-    dt: float | None = None,
-    control_period: float | None = None,
-    **options: Any,
-) -> list[RunRecord]:
+def simulate(spec: RunSpec, *legacy: Any, **options: Any) -> list[RunRecord]:
     """Run the closed loop of ``spec`` (a :class:`~.spec.RunSpec`) for every copy of its plant's
     batch: one :class:`~.results.RunRecord` each, a :class:`~.results.Trajectory` (``record="full"``,
     the default) or a :class:`~.results.RunMetrics` (``record="metrics"``).
 
     A copy whose state turns non-finite or leaves ``|x_i| <= state_bound`` stops there: its
-    record ends with the offending row, ``diverged`` is set and the others run on.
-
-    The parts may also be given as they were before the specification existed,
-    ``simulate(plant, law, quantizer, reference, x0, duration, dt, control_period=None, **options)``
-    with the other fields of :class:`~.spec.RunSpec` as keywords; they make the same spec.
+    record ends with the offending row, ``diverged`` is set and the others run on. The parts
+    given one by one, as before the specification existed, are refused with the fix.
     """
-    if not isinstance(spec, RunSpec):
-        spec = RunSpec(plant=spec, law=law, quantizer=quantizer, reference=reference, x0=x0,
-                       grid=TimeGrid.of(duration, dt, control_period), **options)
+    if not isinstance(spec, RunSpec) or legacy or options:
+        raise TypeError("simulate takes one RunSpec: simulate(RunSpec(plant=..., law=..., quantizer=..., "
+                        "reference=..., x0=..., grid=TimeGrid.of(duration, dt, control_period), ...)) "
+                        "replaces simulate(plant, law, quantizer, reference, x0, duration, dt, ...)")
     return ClosedLoop(spec).run()

@@ -82,11 +82,11 @@ def parse_law(text: str) -> LawSpec:
 
 
 def default_laws(sc: Scenario) -> list[LawSpec]:
-    """The scenario's own law; for the paper's law held as printed, also its exact hold."""
-    own = LawSpec(sc.controller.kind)
-    if sc.controller.kind == "proposed" and sc.controller.settings.hold == "paper":
-        return [own, LawSpec("proposed", (("hold", "exact"),))]
-    return [own]
+    """The scenario's own law, and the settings its kind says to measure beside it
+    (``LawKeys.also_measure``: for the paper's law held as printed, its exact hold)."""
+    kind = LAW_KINDS[sc.controller.kind]
+    more = () if kind.also_measure is None else kind.also_measure(sc.controller.settings)
+    return [LawSpec(sc.controller.kind), *(LawSpec(sc.controller.kind, settings) for settings in more)]
 
 
 @dataclass(frozen=True)
