@@ -29,9 +29,7 @@ def consistency_report(compiled: CompiledModel, options: MujocoOptions, terms: P
                        native: tuple[bool, ...], force: GeneralizedForce | None) -> dict[str, Any]:
     """Compare MuJoCo's qacc with eq. (1) at :data:`SAMPLES` states; refuse a mismatch
     (:class:`QcontrolInputError` naming the term) unless a realism option is on."""
-    rng = np.random.default_rng(SEED)
-    x = np.column_stack([rng.uniform(-math.pi, math.pi, SAMPLES), rng.uniform(-4.0, 4.0, SAMPLES)])
-    u = rng.uniform(-20.0, 20.0, SAMPLES)
+    x, u = sampled_states()
     columns, coefficient = _columns(terms, x, u)
     rhs = sum(coefficient[k] * columns[k] for k in columns)
     scale = 1.0 + sum(np.abs(coefficient[k] * columns[k]) for k in columns)
@@ -53,6 +51,14 @@ def consistency_report(compiled: CompiledModel, options: MujocoOptions, terms: P
     if not (report["ok"] or options.realism):
         raise _refusal(report, contribution, terms, options)
     return report
+
+
+def sampled_states() -> tuple[np.ndarray, np.ndarray]:
+    """The check's :data:`SAMPLES` states ``(SAMPLES, 2)`` and inputs ``(SAMPLES,)``: x1 in
+    [-pi, pi], x2 in [-4, 4], u in [-20, 20], the same on every call."""
+    rng = np.random.default_rng(SEED)
+    x = np.column_stack([rng.uniform(-math.pi, math.pi, SAMPLES), rng.uniform(-4.0, 4.0, SAMPLES)])
+    return x, rng.uniform(-20.0, 20.0, SAMPLES)
 
 
 def _columns(terms: PlantTerms, x: np.ndarray, u: np.ndarray) -> tuple[dict[str, np.ndarray], dict[str,
