@@ -12,6 +12,7 @@ from dataclasses import fields
 from typing import Any
 
 from .controller import BatchLaw, law_kind
+from .controller.gain import divided_by_gain
 from .controller.user_diagnostics import diagnostic_columns
 from .disturbance import Schedule, scaled_changes
 from .engine import Observer, ProgressCallback, RunMetrics, RunSpec, Separation, Trajectory, simulate
@@ -41,8 +42,11 @@ def build_law(variants: Sequence[Scenario]) -> BatchLaw:
     """One law for a batch of variants of the same kind (their settings that may differ become
     per-copy parameters; see :func:`batch_structure`)."""
     first = variants[0]
-    law = law_kind(first.controller.kind).build([v.controller.settings for v in variants], first.law_context)
+    kind = law_kind(first.controller.kind)
+    law = kind.build([v.controller.settings for v in variants], first.law_context)
     check_diagnostic_names(law, first)
+    if kind.keys is not None or kind.extends is not None:  # a built-in kind, or one extending it
+        law = divided_by_gain(law, first.terms.b)  # x_n' = b u + ...: u = u_1 / b
     return law
 
 

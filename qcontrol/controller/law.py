@@ -146,6 +146,10 @@ class LawContext:
       :class:`~.proposed.ProposedSettings`; ``[controller.comparison]`` for
       :class:`~.comparison.ComparisonLaw`), else None.
 
+    ``input_gain`` is the plant's known input gain b (``x_n' = b u + ...``): the built-in laws
+    compute their input for b = 1 and the package divides it by b; a law of your own divides
+    its input by it itself.
+
     ``source`` names the scenario in messages; ``controller`` is the whole ``[controller]`` table
     while a scenario is read (None afterwards).
     """
@@ -162,6 +166,7 @@ class LawContext:
     settings: Mapping[str, Any] = field(default_factory=no_settings)
     base: Any = None
     controller: Table | None = field(default=None, repr=False, compare=False)
+    input_gain: float = 1.0
 
     @property
     def n(self) -> int:

@@ -1,6 +1,6 @@
 """The ideal plant of eq. (1): a chain of integrators with unknown nonlinearities.
 
-    x_i' = x_{i+1} (i < n),    x_n' = u + psi(x) + theta^T phi(x)
+    x_i' = x_{i+1} (i < n),    x_n' = b u + psi(x) + theta^T phi(x)
 
 integrated with classical fixed-step RK4, the input held over each step. A fixed step is
 deliberate: an adaptive-step solver either steps over the quantizer's jumps or crawls at them.
@@ -42,6 +42,7 @@ class ChainPlant:
         phi: Sequence[Expression],
         theta: Sequence[float] | np.ndarray,
         batch: int = 1,
+        input_gain: float = 1.0,
     ) -> None:
         theta = np.asarray(theta, dtype=float)
         if theta.shape[-1:] != (len(phi),) and not (theta.size == 0 and not phi):
@@ -53,6 +54,7 @@ class ChainPlant:
         self.psi = psi
         self.phi = tuple(phi)
         self.theta = theta
+        self.input_gain = float(input_gain)  # b of x_n' = b u + ...: RK4 holds b u (u itself for b = 1)
         # each phi_i's coefficient: a number, or a (batch,) column of per-copy values
         self._coefficients = list(theta.T if theta.ndim == 2 else theta)
         self._rates: dict[ColumnForm, Rate] = {}  # psi + theta^T phi in each form (_rate_in)
@@ -94,7 +96,7 @@ class ChainPlant:
         """Right-hand side of eq. (1)."""
         dx = np.empty_like(x)
         dx[:, :-1] = x[:, 1:]
-        dx[:, -1] = u + self.uncertainty(x)
+        dx[:, -1] = self.input_gain * u + self.uncertainty(x)
         return dx
 
     def reset(self, x0: np.ndarray) -> None:
@@ -126,6 +128,8 @@ class ChainPlant:
         if not (isinstance(u, np.ndarray) and u.shape == (self.batch,)):
             u = np.broadcast_to(np.asarray(u, dtype=float).reshape(-1), (self.batch,))
         u = self._form.column(u)
+        if self.input_gain != 1.0:
+            u = self.input_gain * u
         self._x = _rk4(self._x, u + self._load if self._load else u, h, self._g)
 
     def column_io(self, form: ColumnForm, h: float) -> ChainIO:
@@ -138,8 +142,9 @@ class ChainPlant:
 
     def native_stepper(self, h: float) -> NativeStepper | None:
         """The batch of one as source text for the engine's compiled loop: the same RK4 on the
-        same terms (:class:`ChainNativeForm`); None for a batch."""
-        return ChainNativeForm(self, h).stepper() if self.batch == 1 else None
+        same terms (:class:`ChainNativeForm`); None for a batch or an input gain other than 1
+        (those run in Python)."""
+        return ChainNativeForm(self, h).stepper() if self.batch == 1 and self.input_gain == 1.0 else None
 
 
 class ChainNativeForm:
@@ -217,6 +222,8 @@ class ChainIO:
 
     def step(self, u: Column) -> None:
         plant = self.plant
+        if plant.input_gain != 1.0:
+            u = plant.input_gain * u
         d = plant._load
         plant._x = _rk4(plant._x, u + d if d else u, self.h, self.g)
 
@@ -245,12 +252,13 @@ def build(terms: Sequence[PlantTerms], options: Sequence[Any], dt: float) -> Cha
     """One ChainPlant copy per variant (theta per copy when there is more than one)."""
     first = terms[0]
     theta = first.theta if len(terms) == 1 else np.array([t.theta for t in terms])
-    return ChainPlant(first.order, first.psi, first.phi, theta, batch=len(terms))
+    return ChainPlant(first.order, first.psi, first.phi, theta, batch=len(terms), input_gain=first.b)
 
 
 def structure(terms: PlantTerms, options: Any) -> Hashable:
-    """Variants sharing a batch share the plant's form; theta goes per copy."""
-    return terms.order, None if terms.psi is None else terms.psi.source, tuple(p.source for p in terms.phi)
+    """Variants sharing a batch share the plant's form and input gain; theta goes per copy."""
+    return (terms.order, None if terms.psi is None else terms.psi.source, tuple(p.source for p in terms.phi),
+            terms.b)
 
 
 BACKEND = Backend(name="ode", build=build, structure=structure,

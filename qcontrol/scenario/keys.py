@@ -72,6 +72,10 @@ PLANT = Section(
         Key("theta", numbers("l"), [], meaning="the unknown constants theta_i, one per phi_i",
             example="[-1.0, -3.5, -34.3]"),
         Key("x0", numbers("n"), unit="state", meaning="initial state x(0)", example="[0.3, 0.3]"),
+        Key("input_gain", number(positive=True), OPTIONAL, "-",
+            "the known input gain b of x_n' = b u + psi + theta^T phi (default 1); the built-in laws "
+            "divide their input by it. On MuJoCo it must be what the model realises, gear / I; "
+            "left out, u is scaled by the joint's inertia I so that b = 1"),
     ),
     "the plant of eq. (1); [plant.<backend>] sub-tables hold each backend's model",
 )

@@ -77,6 +77,7 @@ class Scenario:
     phi_expr: tuple[Expression, ...] = field(default=(), repr=False)
     unset: tuple[str, ...] = ()  # keys removed from the file (--unset) before the overrides
     paper_example: int | None = None  # the paper's example this scenario reproduces, if any
+    input_gain: float | None = None  # plant.input_gain as stated (None: not stated, b = 1)
 
     def with_overrides(self, overrides: Mapping[str, Any] | Sequence[str]) -> Scenario:
         """A new scenario: this one's file with its overrides and then ``overrides`` (a dict
@@ -90,7 +91,7 @@ class Scenario:
     @property
     def terms(self) -> PlantTerms:
         """The right-hand side of eq. (1) as the plants are built from it."""
-        return PlantTerms(self.order, self.psi_expr, self.phi_expr, self.theta)
+        return PlantTerms(self.order, self.psi_expr, self.phi_expr, self.theta, self.input_gain)
 
     @property
     def law_context(self) -> LawContext:
@@ -98,7 +99,7 @@ class Scenario:
         c = self.controller
         sim = self.simulation
         return LawContext(self.source, self.order, c.delta, c.c, self.psi_expr, self.phi_expr, self.theta,
-                          sim.dt, sim.period)
+                          sim.dt, sim.period, input_gain=self.terms.b)
 
     @property
     def psi(self) -> str | None:
@@ -387,6 +388,7 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
         reference=signal, simulation=simulation, backends=MappingProxyType(backends),
         disturbances=disturbances,
         psi_expr=terms.psi, phi_expr=terms.phi, metrics=metrics, paper_example=meta["paper_example"],
+        input_gain=terms.input_gain,
     )
     _check_terms_at_x0(scenario)
     return scenario
@@ -414,7 +416,7 @@ def _plant(plant: Table) -> tuple[PlantTerms, tuple[float, ...]]:
     where = f"{plant.source}: {plant.name}"
     psi = None if v["psi"] is None else compile_expression(v["psi"], x_names, f"{where}.psi")
     phi = tuple(compile_expression(p, x_names, f"{where}.phi[{i}]") for i, p in enumerate(v["phi"]))
-    return PlantTerms(order, psi, phi, v["theta"]), v["x0"]
+    return PlantTerms(order, psi, phi, v["theta"], v["input_gain"]), v["x0"]
 
 
 def _chosen(table: Table, section: Section, sizes: dict[str, int] | None = None
@@ -429,7 +431,7 @@ def _controller(table: Table, terms: PlantTerms, simulation: SimulationConfig) -
     v, merged = _chosen(table, controller_section(), {"n": terms.order})
     kind = v["kind"]
     ctx = LawContext(table.source, terms.order, v["delta"], v["c"], terms.psi, terms.phi, terms.theta,
-                     simulation.dt, simulation.period, controller=table)
+                     simulation.dt, simulation.period, controller=table, input_gain=terms.b)
     return ControllerConfig(kind, v["delta"], v["c"], law_kind(kind).parse(merged, ctx))
 
 

@@ -49,7 +49,8 @@ def structure(terms: PlantTerms, options: MujocoOptions) -> Hashable:
     psi = None if terms.psi is None else terms.psi.source
     native = tuple(c for name, c in zip(terms.names, terms.coefficients, strict=True)
                    if name in options.native_terms)
-    return terms.order, psi, tuple(p.source for p in terms.phi), native, replace(options, noise_seed=None)
+    return (terms.order, psi, tuple(p.source for p in terms.phi), native, replace(options, noise_seed=None),
+            terms.input_gain)
 
 
 def scene(options: MujocoOptions, dt: float) -> SceneSource:

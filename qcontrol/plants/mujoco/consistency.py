@@ -31,9 +31,10 @@ def consistency_report(compiled: CompiledModel, options: MujocoOptions, terms: P
     (:class:`QcontrolInputError` naming the term) unless a realism option is on."""
     x, u = sampled_states()
     columns, coefficient = _columns(terms, x, u)
+    coefficient["u"] = terms.b  # x2' = b u + psi + theta^T phi
     rhs = sum(coefficient[k] * columns[k] for k in columns)
     scale = 1.0 + sum(np.abs(coefficient[k] * columns[k]) for k in columns)
-    residual = _accelerations(compiled, x, u, force) - rhs
+    residual = _accelerations(compiled, x, compiled.ctrl_per_u(terms) * u, force) - rhs
     relative = np.abs(residual) / scale
     names = list(columns) + ["constant"]
     basis = np.column_stack([columns[k] for k in columns] + [np.ones(SAMPLES)])
@@ -70,16 +71,16 @@ def _columns(terms: PlantTerms, x: np.ndarray, u: np.ndarray) -> tuple[dict[str,
     return columns, {"u": 1.0} | dict(zip(terms.names, coefficients, strict=True))
 
 
-def _accelerations(compiled: CompiledModel, x: np.ndarray, u: np.ndarray,
+def _accelerations(compiled: CompiledModel, x: np.ndarray, ctrl: np.ndarray,
                    force: GeneralizedForce | None) -> np.ndarray:
-    """MuJoCo's ``qacc`` at each sampled state and input (the passive callback installed)."""
+    """MuJoCo's ``qacc`` at each sampled state and actuator command (the passive callback installed)."""
     model, ids = compiled.model, compiled.ids
-    qacc = np.empty(len(u))
+    qacc = np.empty(len(ctrl))
     data = mujoco.MjData(model)
     with passive_forces(model, [data], ids.qpos, ids.dof, None if force is None else [force]):
-        for i in range(len(u)):
+        for i in range(len(ctrl)):
             data.qpos[ids.qpos], data.qvel[ids.dof] = x[i]
-            data.ctrl[ids.actuator] = compiled.inertia / ids.actuator_gain * u[i]
+            data.ctrl[ids.actuator] = ctrl[i]
             mujoco.mj_forward(model, data)
             qacc[i] = data.qacc[ids.dof]
     return qacc
