@@ -27,17 +27,20 @@ from __future__ import annotations
 import math
 import pathlib
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
 from ...errors import QcontrolInputError, shown
-from ...expr import compile_expression
+from ...expr import Expression, compile_expression
 from .callbacks import kept_aside
-from .mjcf import joint_inertia
+from .mjcf import CompiledModel, joint_inertia
 
 TOLERANCE = 1e-9  # relative, as the consistency check at load
+SAMPLES = 300
+SEED = 3160  # the paper's article number; any fixed seed works
 SCALAR = {int(mujoco.mjtJoint.mjJNT_HINGE): "hinge", int(mujoco.mjtJoint.mjJNT_SLIDE): "slide"}
 JOINT_TYPES = {int(mujoco.mjtJoint.mjJNT_FREE): "free", int(mujoco.mjtJoint.mjJNT_BALL): "ball", **SCALAR}
 UNITS = {"hinge": ("rad", "N m", "kg m^2"), "slide": ("m", "N", "kg")}
@@ -92,6 +95,14 @@ class ModelEquation:
     def units(self) -> tuple[str, str, str]:
         """(position, force, inertia) units of the joint."""
         return UNITS[self.kind]
+
+
+def sampled_states() -> tuple[np.ndarray, np.ndarray]:
+    """The :data:`SAMPLES` states ``(SAMPLES, 2)`` and inputs ``(SAMPLES,)`` at which a model is
+    checked against eq. (1): x1 in [-pi, pi], x2 in [-4, 4], u in [-20, 20], the same each call."""
+    rng = np.random.default_rng(SEED)
+    x = np.column_stack([rng.uniform(-math.pi, math.pi, SAMPLES), rng.uniform(-4.0, 4.0, SAMPLES)])
+    return x, rng.uniform(-20.0, 20.0, SAMPLES)
 
 
 def model_equation(path: str | pathlib.Path, joint: str | None = None) -> ModelEquation:
@@ -350,8 +361,6 @@ def _outside(model: mujoco.MjModel, jid: int, aid: int, kind: str) -> list[Outsi
 def _check(model: mujoco.MjModel, jid: int, aid: int, eq: ModelEquation) -> tuple[float, bool]:
     """The largest relative difference between MuJoCo's acceleration (constraints off) and ``eq``
     at the consistency check's sampled states and commands, and whether geoms touch at any."""
-    from .consistency import sampled_states
-
     x, u = sampled_states()
     ctrl = u / eq.input_gain  # commands of the same accelerations as the check's
     check = _unconstrained(model)
@@ -384,3 +393,37 @@ def _unconstrained(model: mujoco.MjModel) -> mujoco.MjModel:
     check.actuator_forcelimited[:] = 0
     check.jnt_actfrclimited[:] = 0
     return check
+
+
+def compiled_equation(compiled: CompiledModel, label: str) -> ModelEquation:
+    """The equation of the joint and actuator a scenario names in ``compiled`` (its model as
+    compiled for the scenario: overrides applied)."""
+    with kept_aside():
+        return equation_of(compiled.model, compiled.ids.joint, compiled.ids.actuator, label)
+
+
+def matches(eq: ModelEquation, expressions: Sequence[Expression]) -> list[tuple[int, float] | None]:
+    """For each expression over x1, x2, the model term it is a constant multiple of, as ``(j, k)``
+    with ``expression = k * eq.terms[j].phi`` at the sampled states (k = 1 exactly for the same
+    values), or None."""
+    x, _ = sampled_states()
+    with np.errstate(all="ignore"):
+        model = [compile_expression(t.phi, ("x1", "x2"))(x) for t in eq.terms]
+        found: list[tuple[int, float] | None] = []
+        for e in expressions:
+            values = np.broadcast_to(e(x), (len(x),))
+            hits = ((j, k) for j, p in enumerate(model) if (k := _multiple(values, p)) is not None)
+            found.append(next(hits, None))
+    return found
+
+
+def _multiple(values: np.ndarray, p: np.ndarray) -> float | None:
+    """k with ``values = k p`` at every sample (to 1e-12 relative), or None."""
+    if np.array_equal(values, p):
+        return 1.0
+    big = np.abs(p) > 1e-3 * np.max(np.abs(p))
+    if not np.all(np.isfinite(values)) or not np.any(big):
+        return None
+    k = float(np.median(values[big] / p[big]))
+    close = np.abs(values - k * p) <= 1e-12 * (np.abs(values) + np.abs(k * p) + 1e-300)
+    return k if k != 0.0 and np.all(close | (np.abs(values - k * p) < 1e-14)) else None
