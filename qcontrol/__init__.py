@@ -28,7 +28,17 @@ The Python API (see the README's "Python API"):
 """
 
 from ._version import __version__
-from .api import Comparison, Result, compare, lemma2_bounds, quantized_backstepping, run, sweep
+from .api import (
+    Comparison,
+    Result,
+    compare,
+    lemma2_bounds,
+    model_equation,
+    model_scenario,
+    quantized_backstepping,
+    run,
+    sweep,
+)
 from .controller.backstepping import BacksteppingLaw, ControlOutput
 from .controller.classes import register_law_class
 from .controller.comparison import ComparisonLaw
@@ -68,6 +78,8 @@ __all__ = [
     "load_law_module",
     "load_law_plugins",
     "load_scenario",
+    "model_equation",
+    "model_scenario",
     "quantized_backstepping",
     "register_law",
     "register_law_class",

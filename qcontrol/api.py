@@ -20,12 +20,20 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from . import compiled as compiled_paths
 from ._version import __version__
-from .assembly import build_plant, controller_constants, run_scenario, runnable_backend, scene
+from .assembly import (
+    build_controller,
+    build_plant,
+    controller_constants,
+    run_scenario,
+    runnable_backend,
+    scene,
+)
 from .attribution import realism_attribution
 from .controller import Backstepping
 from .controller import lemma2_bounds as _lemma2_bounds
@@ -34,11 +42,14 @@ from .engine.signals import column_names
 from .errors import QcontrolInputError
 from .metrics import backend_deviation, run_summary, summary
 from .outputs import check_output_file, clean, prepare_output_dir, write_file, write_text
-from .scenario import Scenario
+from .scenario import Scenario, parse_scenario
 from .scenario.resolve import scenario_provenance
 from .summary import Summary
 from .sweep.runs import run_variants_batched
 from .sweep.table import sweep_rows
+
+if TYPE_CHECKING:
+    from .plants.mujoco.equation import ModelEquation
 
 SAVE_FORMATS = (".npz", ".csv")
 
@@ -408,3 +419,36 @@ def lemma2_bounds(c: Sequence[float], delta: float) -> np.ndarray:
     """Lemma 2's bounds ``L_z`` (shape ``(n,)``) on ``|z_i - zbar_i|`` for gains ``c`` and quantizer
     step ``delta``; the paper's ``L`` is ``L_z[-1]``."""
     return _lemma2_bounds(c, delta / 2.0)[0]
+
+
+def model_equation(model: str | Path, joint: str | None = None) -> ModelEquation:
+    """The equation the one-joint MJCF file ``model`` realises, ``x2' = b u + theta^T phi(x)``: its
+    inertia, input gain b = gear / I, each term MuJoCo's physics produces with its coefficient and
+    what lies outside that form (``qcontrol model``); ``joint`` names the joint meant (checked)."""
+    from .plants.mujoco.equation import model_equation as equation
+
+    _check_arguments("model_equation", model=(model, (str, Path), False), joint=(joint, str, True))
+    return equation(model, joint)
+
+
+def model_scenario(model: str | Path, out: str | Path, joint: str | None = None,
+                   command: str | None = None) -> Path:
+    """Write at ``out`` a scenario of the model's equation (every term native, the paper's law with a
+    bounding function for each, a reference) after loading it and building its law and both plants,
+    MuJoCo's compared with eq. (1) (``qcontrol model --scenario``): nothing is written when it would
+    not run. ``command`` is named in its header."""
+    from .plants.mujoco.model_scenario import scenario_text
+
+    _check_arguments("model_scenario", out=(out, (str, Path), False))
+    eq = model_equation(model, joint)
+    path = check_output_file(out, "--scenario" if command else "model_scenario", "model.toml")
+    if path.suffix != ".toml":
+        raise QcontrolInputError(f"{path}: a scenario is a .toml file; e.g. model.toml")
+    text = scenario_text(eq, Path(model), path, command or f"qcontrol.model_scenario({str(model)!r})",
+                         input_gain=True)
+    sc = parse_scenario(text, source=str(path), base_dir=path.parent, default_name=path.stem)
+    build_controller(sc)
+    with compiled_paths.not_needed():
+        for backend in ("mujoco", "ode"):
+            build_plant(sc, backend)
+    return write_text(path, text)

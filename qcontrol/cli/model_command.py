@@ -15,14 +15,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .. import compiled as compiled_paths
-from ..assembly import build_controller, build_plant
-from ..errors import QcontrolInputError, shown
-from ..outputs import check_output_file, write_text
-from ..plants.mujoco.equation import ModelEquation, model_equation
-from ..plants.mujoco.model_scenario import scenario_problem, scenario_text
-from ..scenario import parse_scenario
-from ..scenario.keys import PLANT
+from .. import api
+from ..errors import shown
+from ..outputs import check_output_file
+from ..plants.mujoco.equation import ModelEquation
+from ..plants.mujoco.model_scenario import scenario_problem
 from .arguments import EXIT_OK
 
 
@@ -44,37 +41,21 @@ def add_model_parser(sub: argparse._SubParsersAction) -> None:
 
 def cmd_model(args: argparse.Namespace) -> int:
     """Print the model's equation; with ``--scenario``, check and write its scenario."""
-    out = None
     if args.scenario is not None:
-        out = check_output_file(args.scenario, "--scenario", "model.toml")
-        if out.suffix != ".toml":
-            raise QcontrolInputError(f"--scenario {shown(out)}: a scenario is a .toml file; e.g. --scenario "
-                                     "model.toml")
-    eq = model_equation(args.model, args.joint)
+        check_output_file(args.scenario, "--scenario", "model.toml")
+    eq = api.model_equation(args.model, args.joint)
+    label = shown(args.model)
     if not args.quiet:
-        print(equation_text(eq, shown(args.model)))
-    if out is None:
-        problem = scenario_problem(eq, shown(args.model))
-        if problem is None and not args.quiet:
-            print(f"a runnable scenario of it: qcontrol model {shown(args.model)} --scenario model.toml")
+        print(equation_text(eq, label))
+    if args.scenario is None:
+        if scenario_problem(eq, label) is None and not args.quiet:
+            print(f"a runnable scenario of it: qcontrol model {label} --scenario model.toml")
         return EXIT_OK
-    text = scenario_text(eq, args.model, out, args.command_line, input_gain="input_gain" in PLANT.names)
-    check_written(text, out)
-    write_text(out, text)
+    out = api.model_scenario(args.model, args.scenario, args.joint, args.command_line)
     if not args.quiet:
         print(f"wrote {shown(out)}; run it: qcontrol run {shown(out)}; against its ODE twin: "
               f"qcontrol compare {shown(out)}")
     return EXIT_OK
-
-
-def check_written(text: str, out: Path) -> None:
-    """The scenario ``text`` loads and builds its law and both plants (MuJoCo's acceleration
-    checked against eq. (1)), as from ``out``; else the one-line problem, nothing written."""
-    sc = parse_scenario(text, source=str(out), base_dir=out.parent, default_name=out.stem)
-    build_controller(sc)
-    with compiled_paths.not_needed():
-        for backend in ("mujoco", "ode"):
-            build_plant(sc, backend)
 
 
 def equation_text(eq: ModelEquation, label: str) -> str:

@@ -54,7 +54,7 @@ def _strings(items: list[str]) -> str:
     return "[" + ", ".join(_toml_string(i) for i in items) + "]"
 
 
-def scenario_text(eq: ModelEquation, model: Path, out: Path, command: str, input_gain: bool = False) -> str:
+def scenario_text(eq: ModelEquation, model: Path, out: Path, command: str, input_gain: bool = True) -> str:
     """The scenario of ``eq`` (the model file ``model``), to be written at ``out``; ``command``
     is the command line named in its header. Raises :class:`QcontrolInputError` where none can
     run (:func:`scenario_problem`). ``input_gain``: write ``plant.input_gain = b`` (u is then the
