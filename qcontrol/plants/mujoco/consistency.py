@@ -119,8 +119,10 @@ def _diagnoses(eq: ModelEquation, terms: PlantTerms,
     natives += [f"phi{len(terms.phi) + k + 1}" for k in range(len(missing))]
     theta += [t.theta for t in missing]
     values = ", ".join(map(repr, theta))
+    bounds = (f"; add to the law's r, one per added term: {_toml([t.bound for t in missing])}" if missing
+              else "")
     return problems, (f"in [plant] write phi = {_toml(phi)}; write theta = [{values}]; in [plant.mujoco] "
-                      f"write native_terms = {_toml(natives)}")
+                      f"write native_terms = {_toml(natives)}{bounds}")
 
 
 def _problem(label: str, made: bool, stated: float, model: float | None, source: str,
