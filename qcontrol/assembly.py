@@ -21,16 +21,19 @@ from .engine.signals import SIGNALS, ColumnNaming, column_names
 from .errors import QcontrolInputError
 from .expr import Expression
 from .plants import BACKENDS, Plant, SceneSource
-from .quantizer import UniformQuantizer
+from .plants.base import timed
+from .quantizer import Quantizer, UniformQuantizer
 from .reference import Reference
 from .scenario import Scenario
 from .summary import Summary
 from .timegrid import TimeGrid
 
 
-def build_quantizer(sc: Scenario) -> UniformQuantizer:
-    """The uniform quantizer of eq. (3) with the scenario's step delta."""
-    return UniformQuantizer(sc.controller.delta)
+def build_quantizer(sc: Scenario) -> Quantizer:
+    """The scenario's quantizer of the state: its ``[quantizer]`` table's (a new one for every run:
+    a hysteresis quantizer's levels belong to one), else the uniform quantizer of eq. (3) with the
+    step ``controller.delta``."""
+    return sc.quantizer.build() if sc.quantizer is not None else UniformQuantizer(sc.controller.delta)
 
 
 def build_reference(sc: Scenario) -> Reference:
@@ -90,6 +93,8 @@ def build_separation(sc: Scenario) -> Separation | None:
     if r is None:
         return None
     bounded = sc.terms.bounded
+    if sc.terms.timed:  # r bounds the terms at x_q alone; a term in t is checked by its constant r entry only
+        return None
     return Separation(tuple(name for name, _ in bounded), tuple(e for _, e in bounded), tuple(r))
 
 
@@ -131,6 +136,7 @@ def batch_structure(sc: Scenario, backend: str | None = None) -> Hashable:
     return (
         name, entry.structure(sc.terms, sc.backends.get(name)), c.kind, c.delta, c.c,
         law_kind(c.kind).structure(c.settings, sc.law_context), sc.reference, sc.simulation, sc.disturbances,
+        sc.quantizer, sc.input_quantizer,
     )
 
 
@@ -201,13 +207,15 @@ def run_spec(sc: Scenario, plant: Plant, law: BatchLaw, x0: Sequence, separation
                    grid=TimeGrid.of(sim.duration, sim.dt, sim.control_period), state_bound=sim.state_bound,
                    record=record, metrics=sc.metrics, separation=separation, loads=loads(sc),
                    velocity_source=sim.velocity_source, terms=named_terms(sc), progress=progress,
-                   observer=observer)
+                   observer=observer,
+                   input_quantizer=None if sc.input_quantizer is None else sc.input_quantizer.build())
 
 
 def named_terms(sc: Scenario) -> list[tuple[str, Expression]]:
     """The plant's expressions of eq. (1) by their scenario keys, ``plant.phi[1]`` .. ``plant.psi``
     (the order of eqs. (37)-(43))."""
-    return [("plant.psi" if name == "psi" else f"plant.phi[{name[3:]}]", e) for name, e in sc.terms.bounded]
+    return [("plant.psi" if name == "psi" else f"plant.phi[{name[3:]}]", e) for name, e in sc.terms.bounded
+            if not timed(e)]  # (a term in t cannot be evaluated at a state alone)
 
 
 def run_scenario(

@@ -20,6 +20,18 @@ import numpy as np
 from ..columns import Column, ColumnForm
 from ..expr import Expression
 
+TIME = "t"  # the name of time in the plant's terms, their last variable when they use it
+
+
+def timed(expression: Expression | None) -> bool:
+    """Whether a term of eq. (1) depends on time: its variables are ``x1..xn, t``."""
+    return expression is not None and expression.variables[-1:] == (TIME,)
+
+
+def time_column(columns: Sequence[Column], expression: Expression, t: float) -> Sequence[Column]:
+    """The columns a term is evaluated on: the state's, and ``t`` after them for a term in t."""
+    return [*columns, t] if timed(expression) else columns
+
 
 @dataclass(frozen=True)
 class PlantTerms:
@@ -35,6 +47,11 @@ class PlantTerms:
     phi: tuple[Expression, ...]
     theta: tuple[float, ...]
     input_gain: float | None = None
+
+    @property
+    def timed(self) -> bool:
+        """Whether a term depends on time t (eq. (1)'s ``psi(x, t)``, ``phi(x, t)``)."""
+        return any(timed(e) for e in self.expressions)
 
     @property
     def b(self) -> float:

@@ -23,7 +23,7 @@ from ..columns import ARRAYS, Column, ColumnForm
 from ..expr import Expression
 from ..expr.source import FLAG, Statements, float_source
 from .backends import Backend
-from .base import NativeStepper, PlantTerms
+from .base import NativeStepper, PlantTerms, timed
 
 Rate = Callable[[list[Column]], Column]  # psi + theta^T phi on the state's columns
 
@@ -55,6 +55,8 @@ class ChainPlant:
         self.phi = tuple(phi)
         self.theta = theta
         self.input_gain = float(input_gain)  # b of x_n' = b u + ...: RK4 holds b u (u itself for b = 1)
+        self.timed = any(timed(e) for e in (psi, *phi))  # terms in t: evaluated at each stage's time
+        self._time = 0.0  # t of the state (advanced by h per step, as MuJoCo's data.time)
         # each phi_i's coefficient: a number, or a (batch,) column of per-copy values
         self._coefficients = list(theta.T if theta.ndim == 2 else theta)
         self._rates: dict[ColumnForm, Rate] = {}  # psi + theta^T phi in each form (_rate_in)
@@ -103,6 +105,7 @@ class ChainPlant:
         """Set the state (in the form the plant is stepped in) and clear the load."""
         self._x = self._form.columns(np.broadcast_to(np.asarray(x0, dtype=float), (self.batch, self.n)))
         self._load = 0.0
+        self._time = 0.0
 
     def disturb(self, d: float) -> None:
         """The matched load d, held like u: ``x_n' = u + d + psi + theta^T phi``."""
@@ -130,6 +133,10 @@ class ChainPlant:
         u = self._form.column(u)
         if self.input_gain != 1.0:
             u = self.input_gain * u
+        if self.timed:
+            self._x = _rk4(self._x, u + self._load if self._load else u, h, self._g, self._time)
+            self._time += h
+            return
         self._x = _rk4(self._x, u + self._load if self._load else u, h, self._g)
 
     def column_io(self, form: ColumnForm, h: float) -> ChainIO:
@@ -142,9 +149,10 @@ class ChainPlant:
 
     def native_stepper(self, h: float) -> NativeStepper | None:
         """The batch of one as source text for the engine's compiled loop: the same RK4 on the
-        same terms (:class:`ChainNativeForm`); None for a batch or an input gain other than 1
-        (those run in Python)."""
-        return ChainNativeForm(self, h).stepper() if self.batch == 1 and self.input_gain == 1.0 else None
+        same terms (:class:`ChainNativeForm`); None for a batch, an input gain other than 1 or terms
+        in t (those run in Python)."""
+        native = self.batch == 1 and self.input_gain == 1.0 and not self.timed
+        return ChainNativeForm(self, h).stepper() if native else None
 
 
 class ChainNativeForm:
@@ -225,21 +233,28 @@ class ChainIO:
         if plant.input_gain != 1.0:
             u = plant.input_gain * u
         d = plant._load
+        if plant.timed:
+            plant._x = _rk4(plant._x, u + d if d else u, self.h, self.g, plant._time)
+            plant._time += self.h
+            return
         plant._x = _rk4(plant._x, u + d if d else u, self.h, self.g)
 
 
-def _derivative(s: list[Column], u: Column, g: Rate) -> list[Column]:
-    """The right-hand side of eq. (1) on columns: ``x_i' = x_{i+1}``, ``x_n' = u + g(x)``."""
-    return s[1:] + [u + g(s)]
+def _derivative(s: list[Column], u: Column, g: Rate, t: float | None = None) -> list[Column]:
+    """The right-hand side of eq. (1) on columns: ``x_i' = x_{i+1}``, ``x_n' = u + g(x)``
+    (``g(x, t)`` for terms in t, given the stage's time ``t``)."""
+    return s[1:] + [u + (g(s) if t is None else g([*s, t]))]
 
 
-def _rk4(x: list[Column], u: Column, h: float, g: Rate) -> list[Column]:
-    """One classical RK4 step of eq. (1) on the state's columns (floats or arrays alike)."""
+def _rk4(x: list[Column], u: Column, h: float, g: Rate, t: float | None = None) -> list[Column]:
+    """One classical RK4 step of eq. (1) on the state's columns (floats or arrays alike); for terms
+    in t, from time ``t`` (stages at t, t + h/2, t + h/2, t + h, as MuJoCo's RK4)."""
     half = 0.5 * h
-    k1 = _derivative(x, u, g)
-    k2 = _derivative([a + half * b for a, b in zip(x, k1, strict=True)], u, g)
-    k3 = _derivative([a + half * b for a, b in zip(x, k2, strict=True)], u, g)
-    k4 = _derivative([a + h * b for a, b in zip(x, k3, strict=True)], u, g)
+    mid, end = (None, None) if t is None else (t + half, t + h)
+    k1 = _derivative(x, u, g, t)
+    k2 = _derivative([a + half * b for a, b in zip(x, k1, strict=True)], u, g, mid)
+    k3 = _derivative([a + half * b for a, b in zip(x, k2, strict=True)], u, g, mid)
+    k4 = _derivative([a + h * b for a, b in zip(x, k3, strict=True)], u, g, end)
     sixth = h / 6.0
     return [a + sixth * (b + 2.0 * (c + d) + e) for a, b, c, d, e in zip(x, k1, k2, k3, k4, strict=True)]
 

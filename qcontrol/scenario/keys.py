@@ -12,6 +12,7 @@ from ..disturbance import SECTION as DISTURBANCE
 from ..engine.velocity import VELOCITY_SOURCES
 from ..error_rate import TABLE1_OMEGAS, TABLE1_SAMPLES
 from ..plants.backends import BACKENDS
+from ..quantizers import QUANTIZER
 from ..reference import REFERENCE_KINDS
 from ..schema import (
     OPTIONAL,
@@ -29,7 +30,7 @@ from ..schema import (
 from .from_model import read_input_gain, read_theta
 
 # see top_sections()
-TOP = ("scenario", "plant", "controller", "reference", "simulation", "metrics", "disturbance")
+TOP = ("scenario", "plant", "controller", "quantizer", "reference", "simulation", "metrics", "disturbance")
 REQUIRED_TABLES = ("plant", "controller", "reference", "simulation")
 # `qcontrol run` keeps only its metrics (memory that does not grow with the run), but a full record
 # (compare, reproduce, the library's default) keeps every row: 20 million steps is a few GB. Longer
@@ -96,8 +97,9 @@ def controller_section() -> Section:
         (
             Key("kind", string(tuple(LAW_KINDS), more=REGISTER_A_KIND), "proposed",
                 meaning="the control law"),
-            Key("delta", number(positive=True), unit="state", meaning="quantizer step delta, eq. (3)",
-                example="0.01"),
+            Key("delta", number(positive=True), OPTIONAL, "state",
+                "quantizer step delta of every state, eq. (3) (required unless a [quantizer] table gives "
+                "the quantizers)", example="0.01"),
             Key("c", numbers("n", positive=True), meaning="backstepping gains c_1..c_n > 0, eqs. (7)-(27)",
                 example="[4.0, 3.0]"),
         ),
@@ -154,5 +156,5 @@ def top_sections(default_name: str = "the file name") -> tuple[Section, ...]:
     """Every top-level table of a scenario file, in the order docs/scenarios.md shows them (each
     backend's ``[plant.<backend>]`` comes from the backend registry). A new table is declared here
     and named in :data:`TOP`."""
-    return (scenario_section(default_name), PLANT, controller_section(), reference_section(),
+    return (scenario_section(default_name), PLANT, controller_section(), QUANTIZER, reference_section(),
             simulation_section(), METRICS, DISTURBANCE)

@@ -35,6 +35,7 @@ import numpy as np
 
 from ...errors import QcontrolInputError, shown
 from ...expr import Expression, compile_expression
+from ..base import timed
 from .callbacks import kept_aside
 from .mjcf import CompiledModel, joint_inertia
 
@@ -97,12 +98,14 @@ class ModelEquation:
         return UNITS[self.kind]
 
 
-def sampled_states() -> tuple[np.ndarray, np.ndarray]:
-    """The :data:`SAMPLES` states ``(SAMPLES, 2)`` and inputs ``(SAMPLES,)`` at which a model is
-    checked against eq. (1): x1 in [-pi, pi], x2 in [-4, 4], u in [-20, 20], the same each call."""
+def sampled_states(timed: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The :data:`SAMPLES` states ``(SAMPLES, 2)``, inputs and, for terms in t (``timed``), times
+    at which a model is checked against eq. (1): x1 in [-pi, pi], x2 in [-4, 4], u in [-20, 20],
+    t in [0, 10], the same each call."""
     rng = np.random.default_rng(SEED)
     x = np.column_stack([rng.uniform(-math.pi, math.pi, SAMPLES), rng.uniform(-4.0, 4.0, SAMPLES)])
-    return x, rng.uniform(-20.0, 20.0, SAMPLES)
+    u = rng.uniform(-20.0, 20.0, SAMPLES)
+    return x, u, rng.uniform(0.0, 10.0, SAMPLES) if timed else None
 
 
 def model_equation(path: str | pathlib.Path, joint: str | None = None) -> ModelEquation:
@@ -361,7 +364,7 @@ def _outside(model: mujoco.MjModel, jid: int, aid: int, kind: str) -> list[Outsi
 def _check(model: mujoco.MjModel, jid: int, aid: int, eq: ModelEquation) -> tuple[float, bool]:
     """The largest relative difference between MuJoCo's acceleration (constraints off) and ``eq``
     at the consistency check's sampled states and commands, and whether geoms touch at any."""
-    x, u = sampled_states()
+    x, u, _ = sampled_states()
     ctrl = u / eq.input_gain  # commands of the same accelerations as the check's
     check = _unconstrained(model)
     data = mujoco.MjData(check)
@@ -406,11 +409,14 @@ def matches(eq: ModelEquation, expressions: Sequence[Expression]) -> list[tuple[
     """For each expression over x1, x2, the model term it is a constant multiple of, as ``(j, k)``
     with ``expression = k * eq.terms[j].phi`` at the sampled states (k = 1 exactly for the same
     values), or None."""
-    x, _ = sampled_states()
+    x, _, _ = sampled_states()
     with np.errstate(all="ignore"):
         model = [compile_expression(t.phi, ("x1", "x2"))(x) for t in eq.terms]
         found: list[tuple[int, float] | None] = []
         for e in expressions:
+            if timed(e):  # MuJoCo's physics makes no term in t
+                found.append(None)
+                continue
             values = np.broadcast_to(e(x), (len(x),))
             hits = ((j, k) for j, p in enumerate(model) if (k := _multiple(values, p)) is not None)
             found.append(next(hits, None))

@@ -1,8 +1,8 @@
 """The scenario ``qcontrol model MODEL.xml --scenario OUT.toml`` writes: the model's equation
-(:mod:`.equation`) as a plant every term of which MuJoCo's own physics produces, the paper's law
-(44)-(45) with Example 2's settings and a bounding function r for each term, a reference and the
-simulation settings. It runs as it is, on MuJoCo and on its ODE twin, which integrate the same
-equation.
+(:mod:`.equation`) as a plant every term of which MuJoCo's own physics produces, a uniform
+quantizer per channel, the paper's law (44)-(45) with Example 2's settings and a bounding function r
+for each term, a reference and the simulation settings. It runs as it is, on MuJoCo and on its ODE
+twin, which integrate the same equation.
 """
 
 from __future__ import annotations
@@ -88,8 +88,10 @@ def scenario_text(eq: ModelEquation, model: Path, out: Path, command: str, input
         f"actuator = {_toml_string(eq.actuator)}",
         f"native_terms = {_strings(names)}",
         *(f"{o.option[0]} = {o.option[1]!r}  # {o.what}: a realism option" for o in eq.outside if o.option),
+        "", "[quantizer]  # what the controller reads of x1 and x2: a uniform quantizer per channel, eq. (3)",
+        'kind = "uniform"', f"delta = [0.01, 0.01]  # [{position}, {position}/s]",
         "", "[controller]", 'kind = "proposed"  # the paper\'s law (44)-(45), with its Example 2 settings',
-        f"delta = 0.01  # quantization step, eq. (3) [{position}]", "c = [4.0, 3.0]", "",
+        "c = [4.0, 3.0]", "",
         "[controller.proposed]", "kappa_margin = 1.1  # kappa = 1.1 + L", "gamma = 1.0", "sigma = 1.0",
         f"r = {_strings([t[2] for t in terms])}  # |phi_i(x)| <= beta_i r_i(q) near q, eqs. (37)-(43)", "",
         "[reference]", 'kind = "sine"', "amplitude = 1.0", "frequency = 1.5", "",
