@@ -292,3 +292,12 @@ def test_a_model_without_camera_or_light_is_framed_and_lit(tmp_path: Path) -> No
             rows, cols = np.nonzero(body[20:-20])  # away from the overlay's text
             assert body.sum() > 100 and frame[body].mean() > 120
             assert cols.min() > 0 and cols.max() < 159 and rows.min() > 0
+
+
+def test_a_model_that_makes_no_term_gets_the_viscous_one_at_zero(tmp_path: Path) -> None:
+    """The slider's physics adds nothing to b u: the law still needs an uncertain term, so the
+    scenario carries x2 with MuJoCo's coefficient 0 (no damping), native, and agrees with it."""
+    sc = load_scenario(qcontrol.model_scenario(MODELS / "slider.xml", tmp_path / "slider.toml"))
+    assert (sc.phi, sc.theta, sc.backends["mujoco"].native_terms) == (("x2",), (0.0,), ("phi1",))
+    report = qcontrol.assembly.build_plant(sc, "mujoco").consistency_report
+    assert report["ok"] and report["max_abs_mismatch"] == 0.0

@@ -14,7 +14,9 @@ from ...errors import QcontrolInputError
 from ...resources import shipped_label
 from .equation import TOLERANCE, ModelEquation
 
-NO_TERM = ("x2", "1 + q2**2")  # the law needs an uncertain term: the joint's viscous one, here 0
+# A model that makes no term: the law needs one to adapt to, the joint's viscous term (its damping, 0)
+NO_TERM = ("x2", 0.0, "1 + q2**2", "the model makes no term, and the law needs one to adapt to: the joint's "
+           "viscous term, 0 as its damping")
 
 
 def scenario_problem(eq: ModelEquation, label: str) -> str | None:
@@ -62,8 +64,7 @@ def scenario_text(eq: ModelEquation, model: Path, out: Path, command: str, input
     problem = scenario_problem(eq, str(model))
     if problem is not None:
         raise QcontrolInputError(problem)
-    terms = [(t.phi, t.theta, t.bound, t.source) for t in eq.terms] or [(*NO_TERM[:1], 0.0, NO_TERM[1],
-                                                                         "none: the joint's viscous term, 0")]
+    terms = [(t.phi, t.theta, t.bound, t.source) for t in eq.terms] or [NO_TERM]
     names = [f"phi{i + 1}" for i in range(len(terms))]
     position, force, mass = eq.units
     lines = [
