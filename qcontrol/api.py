@@ -294,8 +294,9 @@ def _check_arguments(function: str, **given: tuple[Any, type | tuple[type, ...],
 def check_video(scenario: Scenario, path: str | Path, fps: float = 30.0, camera: str | None = None,
                 size: tuple[int, int] | None = None) -> Any:
     """Check, before a run, that its video can be made (:func:`video`): the scenario has a MuJoCo
-    model with a camera, the format is known, the encoder is installed, an offscreen OpenGL context
-    opens. One line (:class:`QcontrolInputError`) otherwise. Returns the checked request."""
+    model (its camera, or a default one framing the body), the format is known, the encoder is
+    installed, an offscreen OpenGL context opens. One line (:class:`QcontrolInputError`) otherwise.
+    Returns the checked request."""
     drawn = scene(scenario)
     if drawn is None:
         raise QcontrolInputError(f"--video: {scenario.source} has no MuJoCo model to render; add a "
@@ -342,7 +343,7 @@ def _log_camera_view(rec: Any, sc: Scenario, traj: Trajectory, twin: Trajectory 
 
 
 def check_camera_view(scenario: Scenario) -> None:
-    """Before a run: that its recording can hold MuJoCo's rendering (a model with a camera, an
+    """Before a run: that its recording can hold MuJoCo's rendering (a MuJoCo model, an
     offscreen OpenGL context); one line otherwise."""
     from .render import require_offscreen_gl
     from .render.frames import camera_id
