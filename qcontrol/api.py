@@ -416,10 +416,12 @@ def quantized_backstepping(c: Sequence[float], x_q: np.ndarray, yd: np.ndarray) 
     return coordinates.quantized_errors(np.asarray(x_q, dtype=float), np.asarray(yd, dtype=float))
 
 
-def lemma2_bounds(c: Sequence[float], delta: float) -> np.ndarray:
-    """Lemma 2's bounds ``L_z`` (shape ``(n,)``) on ``|z_i - zbar_i|`` for gains ``c`` and quantizer
-    step ``delta``; the paper's ``L`` is ``L_z[-1]``."""
-    return _lemma2_bounds(c, delta / 2.0)[0]
+def lemma2_bounds(c: Sequence[float], delta: float | Sequence[float]) -> np.ndarray:
+    """Lemma 2's bounds ``L_z`` (shape ``(n,)``) on ``|z_i - zbar_i|`` for gains ``c`` and the
+    uniform quantizer's step ``delta`` (a number, or one step per channel); the paper's ``L`` is
+    ``L_z[-1]``."""
+    half = delta / 2.0 if np.ndim(delta) == 0 else [d / 2.0 for d in delta]
+    return _lemma2_bounds(c, half)[0]
 
 
 def model_equation(model: str | Path, joint: str | None = None) -> ModelEquation:

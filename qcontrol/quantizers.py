@@ -341,8 +341,8 @@ def quantizer_step(controller: Table, delta: float | None, spec: QuantizerSpec |
     bound (what recordings draw the quantization error's band with)."""
     if spec is None:
         if delta is None:
-            raise controller.error("delta", "missing", "give the quantizer step, e.g. delta = 0.01, or a "
-                                   "[quantizer] table")
+            raise controller.error("delta", "missing", "add it (the quantizer step, e.g. delta = 0.01), or "
+                                   "a [quantizer] table")
         return delta
     if delta is not None:
         raise controller.error("delta", "given together with a [quantizer] table",

@@ -122,6 +122,8 @@ def test_lemma2_per_channel_is_the_recursion_written_out() -> None:
     # one bound on every channel is the paper's Lemma 2, bit for bit
     assert lemma2_bounds([c1, c2, c3], 0.005)[0][-1] == lemma2_L([c1, c2, c3], 0.01)
     assert lemma2_bounds([c1, c2], 0.005)[0][-1] == (1 + c1) * 0.005
+    # the API takes the uniform quantizer's steps, one number or one per channel
+    assert qcontrol.lemma2_bounds([c1, c2], [2 * m1, 2 * m2]).tolist() == pytest.approx([m1, m2 + c1 * m1])
 
 
 def test_lemma2_per_channel_bounds_the_worst_corner_of_the_cell() -> None:

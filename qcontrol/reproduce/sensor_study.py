@@ -95,7 +95,7 @@ def sensor_markdown(study: Mapping) -> list[str]:
         "The paper's quantizer beside the sensors a real arm has: a 12-bit angle encoder "
         f"({ENCODER:.4g} rad), a coarser velocity channel ({VELOCITY_STEP} rad/s), finite ranges, "
         "hysteresis, a logarithmic quantizer, a quantized input. L follows each channel's "
-        "worst-case error (docs/math.md, 'Sensors beyond the paper').", "",
+        "worst-case error (docs/math.md, 'Sensors beyond the paper: a quantizer per channel').", "",
         f"| sensors | L | E({OMEGA}) | E(0.200) | max \\|z1\\| last half | max \\|u\\| | Lemma 2 ratio | "
         "readings saturated | max \\|q_u(u) - u\\| | what the theory says |",
         "|---|---|---|---|---|---|---|---|---|---|",
