@@ -6,8 +6,8 @@ reading before the controller is called.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Protocol
+from collections.abc import Callable, Sequence
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -41,7 +41,14 @@ class UniformQuantizer:
         self.max_error = self.delta / 2.0
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
-        return self.delta * np.floor(np.asarray(x, dtype=float) / self.delta + 0.5)
+        return self.apply(np.asarray(x, dtype=float), np.floor)
+
+    def apply(self, x: Any, floor: Callable[[Any], Any]) -> Any:
+        """``q(x) = delta floor(x / delta + 1/2)``, eq. (3): the one definition, on a column of any
+        form (:mod:`qcontrol.columns`: an array, a float, a traced symbol) with that form's
+        ``floor``."""
+        delta = self.delta
+        return delta * floor(x / delta + 0.5)
 
     def __repr__(self) -> str:
         return f"UniformQuantizer(delta={self.delta!r})"

@@ -121,12 +121,6 @@ class Backstepping:
         """The coordinates the engine records z, zbar and the Lemma 2 errors in: these."""
         return self
 
-    @property
-    def recursion_steps(self) -> tuple:
-        """The coefficients :meth:`recursion` applies, ``(-c_i, D_i's y_d terms, D_i's q terms)``
-        per i (read-only; the engine's compiled loop generates the same arithmetic from them)."""
-        return self._steps
-
     def _recursion_steps(self) -> tuple:
         """``alphabar_i = -c_i zbar_i + D_i``, eq. (34), with ``D_1 = y_d'`` and
         ``D_i = sum_{k<i} a[i-1][k] q_{k+1} + sum_{j<i} b[i-1][j] y_d^(j+1)``: one
