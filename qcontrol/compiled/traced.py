@@ -67,7 +67,7 @@ class Trace:
         """The source of a column: a symbol's name, or a number's slot of ``lp``."""
         if isinstance(value, Symbol):
             return value.text
-        if isinstance(value, bool | np.bool_) or not isinstance(value, int | float | np.floating | np.integer):
+        if isinstance(value, bool | np.bool_) or not isinstance(value, int | float | np.number):
             raise TypeError(f"a traced formula met {type(value).__name__} {value!r}, not a column")
         return self.constant(value)
 
