@@ -227,13 +227,22 @@ def compilable(law: BatchLaw) -> bool:
     return False
 
 
+def numba_pays(rows: int, batch: int) -> bool:
+    """Whether a run may use numba at all (the compiled loop, MuJoCo's native callback): a batch
+    (sweeps, studies: long, and ``mujoco.batch`` needs the native callback), a run in a process
+    that has started numba already, or a single run of at least :data:`COLD_MIN_ROWS` rows, which
+    pays for numba's start. A shorter single run in a fresh process (a 10 s run from the command
+    line) is faster in Python, cold cache or warm (docs/architecture.md, 'The compiled loop')."""
+    return batch != 1 or "numba" in sys.modules or rows >= COLD_MIN_ROWS
+
+
 def compiled_loop(spec: RunSpec) -> CompiledLoop | None:
     """The compiled form of ``spec``'s law and quantizer for a batch of one, or None where the
     run keeps the Python loop (see the module docstring)."""
     rows = spec.grid.rows
     if spec.plant.batch != 1 or spec.velocity_source != "sensor" or rows < MIN_ROWS:
         return None
-    if "numba" not in sys.modules and rows < COLD_MIN_ROWS:  # (before enabled(), which imports it)
+    if not numba_pays(rows, 1):  # (before enabled(), which imports it)
         return None
     if type(spec.quantizer) is not UniformQuantizer:  # (a subclass may quantize otherwise)
         return None
