@@ -37,6 +37,7 @@ from ... import compiled as compiled_paths
 from ...errors import QcontrolInputError
 from ...timegrid import whole_steps
 from ..base import NativeStepper, PlantTerms
+from . import native_step
 from .callbacks import (
     GeneralizedForce,
     collect_warnings,
@@ -47,7 +48,7 @@ from .callbacks import (
 from .consistency import consistency_report
 from .mjcf import compiled
 from .native import NativeForce, native_force
-from .native_step import MujocoNativeForm, read_copy, step_copy, warning_counters
+from .native_step import MujocoNativeForm, warning_counters
 from .noise import SensorNoise
 from .options import MujocoOptions
 from .threaded import ThreadedCopies, threadable
@@ -239,7 +240,7 @@ class MujocoPlant:
         a copy MuJoCo had to reset."""
         q, dof = self._ids.qpos, self._ids.dof
         p, v = self._sadr
-        views, dead = self._views, self._dead
+        views, dead, read_copy = self._views, self._dead, native_step.read_copy
         return np.array([read_copy(qpos, qvel, data, q, dof, p, v, dead[b], True)
                          for b, (_, data, qpos, qvel) in enumerate(views)])
 
@@ -295,8 +296,8 @@ class CopyStepper:
     def step(self, u: float) -> None:
         """:func:`~.native_step.step_copy`, the one definition the compiled loop compiles too."""
         b = self.b
-        if not self.dead[b] and step_copy(self.model, self.data, self.ctrl, self.actuator, self.ctrl_per_u, u,
-                                          self.substeps, self.warning, True):
+        if not self.dead[b] and native_step.step_copy(self.model, self.data, self.ctrl, self.actuator,
+                                                      self.ctrl_per_u, u, self.substeps, self.warning, True):
             self.dead[b] = True
 
 
