@@ -160,8 +160,8 @@ def solve_ivp_closed_loop(sc: Scenario) -> None:
     def rhs(t: float, y: np.ndarray) -> np.ndarray:
         x, eps = y[None, :n], y[None, n:]
         reading = QuantizedReading(quantizer(x), quantizer.max_error)
-        out = controller.control(reading, reference.derivatives(t, n), eps)
-        deps = (out.target - eps) * out.rate  # eq. (45): gamma (s r - sigma eps)
+        out = controller.control(reading, reference.derivatives(t, n), tuple(eps.T))
+        deps = (np.column_stack(out.target) - eps) * out.rate  # eq. (45): gamma (s r - sigma eps)
         return np.concatenate([plant.rhs(x, out.u)[0], deps[0]])
 
     y0 = np.concatenate([sc.x0, np.zeros(controller.state_size)])

@@ -203,14 +203,13 @@ class ControlOutput(NamedTuple):
     """One evaluation of a law: input ``u``, ``zbar``, and the held quantities that drive the
     adaptive state until the next sample.
 
-    Array form (``control`` given a ``(batch, m)`` state): ``u`` (batch,), ``zbar`` (batch, n),
-    ``target`` (batch, m). Column form (given a tuple of m columns, as the engine does): ``u`` a
-    column, ``zbar`` and ``target`` tuples of columns, ``rate`` a float or a ``(batch,)`` array.
+    In the form of the columns the law was given: ``u`` a column, ``zbar`` and ``target`` tuples
+    of columns, ``rate`` a float or a ``(batch,)`` array.
     """
 
-    u: np.ndarray
-    zbar: np.ndarray
-    target: np.ndarray  # proposed: s r / sigma; comparison: Gamma phi zbar_n (a rate)
+    u: Column
+    zbar: tuple  # of columns, zbar_1 .. zbar_n
+    target: tuple  # of columns; proposed: s r / sigma; comparison: Gamma phi zbar_n (a rate)
     rate: float | np.ndarray  # proposed: gamma sigma, a float or per copy; comparison: 0
 
 
