@@ -142,36 +142,40 @@ class ChainPlant:
 
 
 class ChainNativeForm:
-    """The batch of one for the engine's compiled loop: :func:`_rk4` and ``psi + theta^T phi``
-    themselves, run once on the traced form (:mod:`qcontrol.compiled.traced`), which records
-    their arithmetic as source lines: the same operations in the same order. ``pf`` holds the
+    """The batch of one for the engine's compiled loop: :func:`_loaded`, :func:`_rk4` and ``psi +
+    theta^T phi`` themselves, run once on the traced form (:mod:`qcontrol.compiled.traced`),
+    which records their arithmetic as the source of one numba function ``plant_step(u, xs, pf)``
+    (the same operations in the same order), which the loop calls at every step. ``pf`` holds the
     load d (``pf[0]``) and the constants the trace met (h, theta, RK4's own numbers), so one
-    compiled text serves every theta; ``xs`` the state. The step is recorded twice, for a load
-    and for none (:func:`_loaded` branches on it). Where ``math`` would refuse a term (the Python
-    form then takes numpy's answer), the step returns 2 before writing the state, and the Python
-    step runs."""
+    compiled text serves every theta; ``xs`` the state. :func:`_loaded` branches on the load, so
+    it is recorded for a load and for none. Where ``math`` would refuse a term (the Python form
+    then takes numpy's answer), the step returns True before writing the state, the loop returns
+    2, and the Python step runs."""
 
     def __init__(self, plant: ChainPlant, h: float) -> None:
         self.plant, self.h = plant, h
         self.trace = Trace("pf", "p")
         self.load = self.trace.constant(plant._load)  # pf[0], kept up to date by sync_in
-        self.step = self.step_lines()
+        self.helpers = self.step_function()
         self.floats = np.array(self.trace.constants, dtype=float)
         self.state = plant.state()[0].copy()
 
-    def step_lines(self) -> list[str]:
-        """One RK4 step of ``h`` with ``u`` and the load held, recorded from :func:`_rk4`."""
+    def step_function(self) -> str:
+        """``plant_step(u, xs, pf) -> refused``: one step of ``h`` with ``u`` and the load held, as
+        :meth:`ChainIO.step` makes it, recorded."""
         n, trace = self.plant.n, self.trace
-        x = [Symbol(f"xs[{i}]") for i in range(n)]
-        g = self.plant._rate_in(TRACED)
         lines = []
-        for header, load in ((f"if {self.load} != 0.0:", Symbol(self.load, truth=True)), ("else:", 0.0)):
-            with recording(trace), trace.refusing("return 2, k"):
-                stepped = _rk4(x, _loaded(Symbol("u"), load), self.h, g)
+        with recording(trace):
+            for header, load in ((f"if {self.load} != 0.0:", Symbol(self.load, truth=True)), ("else:", 0.0)):
+                held = trace.text(_loaded(Symbol("u"), load))
+                lines += [header, *[f"    {line}" for line in trace.taken()], f"    uu = {held}"]
+            with trace.refusing("return True"):
+                stepped = _rk4([Symbol(f"xs[{i}]") for i in range(n)], Symbol("uu"), self.h,
+                               self.plant._rate_in(TRACED))
                 texts = [trace.text(v) for v in stepped]  # written after every refusal
-            lines += [header, *[f"    {line}" for line in trace.taken()],
-                      *[f"    xs[{i}] = {text}" for i, text in enumerate(texts)]]
-        return lines
+        lines += trace.taken() + [f"xs[{i}] = {text}" for i, text in enumerate(texts)] + ["return False"]
+        return ('@numba.njit(cache=True, error_model="numpy", nogil=True)\ndef plant_step(u, xs, pf):\n'
+                + "".join(f"    {line}\n" for line in lines))
 
     def sync_in(self) -> None:
         self.floats[0] = self.plant._load
@@ -183,8 +187,9 @@ class ChainNativeForm:
         n = self.plant.n
         observe = [f"x{i} = xs[{i - 1}]" for i in range(1, n + 1)] + [f"m{i} = x{i}" for i in range(1, n + 1)]
         key = f"ode n={n} psi={self.plant.psi is not None} phi={len(self.plant.phi)}"
-        return NativeStepper(key, "", [], observe, self.step, self.floats,
-                             np.zeros(1, dtype=np.int64), self.state, self.sync_in, self.sync_out)
+        step = ["if plant_step(u, xs, pf):", "    return 2, k"]
+        return NativeStepper(key, self.helpers, [], observe, step, self.floats, np.zeros(1, dtype=np.int64),
+                             self.state, self.sync_in, self.sync_out)
 
 
 class ChainIO:
