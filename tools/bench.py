@@ -133,6 +133,7 @@ def mujoco_ratio(sc: Scenario, repeat: int) -> dict:
     callback); and ``mj_step`` with the plant's passive callback (native, and Python) against it."""
     steps = round(sc.simulation.duration / sc.simulation.dt)
     plant = build_plant(sc, "mujoco")
+    plant.native_for_run()  # the native callback compiled (or loaded) before the timing
     closed = best_of(repeat, lambda: run_scenario(sc, "mujoco", plant=plant)) / steps
     bare = best_of(repeat, _mj_step_loop(plant, steps, installed=False)) / steps
     native = best_of(repeat, _mj_step_loop(plant, steps, installed=True)) / steps
@@ -335,6 +336,9 @@ def sweep1000(duration: float, workers: int) -> dict:
 
 
 def measure(args: argparse.Namespace) -> dict:
+    # the figures are those of a process that has started numba, whose single runs of 10 s take
+    # the compiled forms (a fresh process leaves a run that short to Python: it would not pay)
+    import numba  # noqa: F401
     duration = 1.0 if args.quick else 10.0
     repeat = 1 if args.quick else args.repeat
     sizes = [1, 10, 100] if args.quick else [1, 10, 100, 1000]

@@ -1,27 +1,31 @@
 """The compiled loop: a batch of one with a built-in law, run in numba between the engine's
-scheduled rows.
+scheduled rows, generated from the parts' own Python code.
 
 The engine's float path (:mod:`.fastpath`) chooses it for a run whose parts all have a compiled
-form: the uniform quantizer, a built-in law (:mod:`.compiled_laws`), the plant's
-:class:`~qcontrol.plants.base.NativeStepper` (the ODE's RK4 on its terms, or MuJoCo's own
-``mj_step`` called from compiled code), the sensors' velocity. The generated function runs the
-loop body of :meth:`~.loop.ClosedLoop.run` for rows ``[start, stop]`` (observe, quantize
-``delta * floor(x / delta + 1/2)``, control every ``hold`` rows, the row written into the run's
-buffer, step, advance) with the same operations in the same order (numpy's error model, no
-fast-math contraction), so every row is the Python loop's to the last bit. Between calls the
-engine does its rare work (:meth:`~.loop.ClosedLoop.rare_work`) at the rows it schedules, as ever.
+form: the uniform quantizer, a built-in law, the plant's
+:class:`~qcontrol.plants.base.NativeStepper` (the ODE's RK4 on its terms, or MuJoCo's copy step
+calling ``mj_step`` from compiled code), the sensors' velocity. The quantizer's formula
+(:meth:`~qcontrol.quantizer.UniformQuantizer.apply`) and the law's ``control`` and advance are
+not restated here: they run once on the traced column form (:mod:`qcontrol.compiled.traced`),
+whose symbols record every operation they make, in order, as source lines
+(:func:`traced_parts`). The generated function runs the loop body of
+:meth:`~.loop.ClosedLoop.run` for rows ``[start, stop]`` (observe, quantize, control every
+``hold`` rows, the row written into the run's buffer, step, advance) with the same operations
+in the same order (numpy's error model, no fast-math contraction), so every row is the Python
+loop's to the last bit. Between calls the engine does its rare work
+(:meth:`~.loop.ClosedLoop.rare_work`) at the rows it schedules, as ever.
 
 Where the compiled code cannot give the Python loop's numbers (``math`` refusing an evaluation
 the Python form answers with numpy), it stops before the row (or the step) and the Python loop
 runs on from there (:class:`Resume`). Everything else runs in Python from the start: user laws
 and subclasses that change a built-in law, sensor noise, velocity differencing, other
-quantizers, batches, runs shorter than :data:`MIN_ROWS` rows (:data:`COLD_MIN_ROWS` in a
-process that has not started numba), and every run when ``QCONTROL_COMPILE=0`` or numba is
-missing.
+quantizers, batches, runs shorter than :data:`MIN_ROWS` rows, single runs of fewer than
+:data:`COLD_MIN_ROWS` in a process that has not started numba (:func:`numba_pays`), and every
+run when ``QCONTROL_COMPILE=0`` or numba is missing.
 
 The generated text is kept in the user's cache folder (:mod:`qcontrol.compiled.cache`), keyed by
-the text and the versions; the numbers (gains, theta, addresses) are arguments, so one compiled
-function serves every run of the same structure.
+the text and the versions; the numbers (gains, theta, the step, addresses) are arguments, so one
+compiled function serves every run of the same structure.
 """
 
 from __future__ import annotations
@@ -42,11 +46,12 @@ from ..quantizer import QuantizedReading, UniformQuantizer
 from .reference_rows import ReferenceRows
 from .spec import RunSpec
 
-# Runs shorter than MIN_ROWS stay in Python: the Python loop takes 15-50 us a row, the compiled
-# one about 1 us, but numba costs about 0.5 s to start in a process and 1-2 s to compile a new
-# structure (once, then cached), so a short run (a test, a quick check) would spend more on the
-# compiler than it saves. In a process that has not started numba yet (an ODE run from the
-# command line; MuJoCo's native callback starts it) only a run of COLD_MIN_ROWS pays for the start.
+# Runs shorter than MIN_ROWS stay in Python: the Python loop takes 15-30 us a row, the compiled
+# one about 1 us on the ODE (MuJoCo's own step, about 12 us, stays), but numba costs about 0.5 s
+# to start in a process and 1.5 s of CPU to compile a new structure (once, then cached), so a
+# short run (a test, a quick check) would spend more on the compiler than it saves. In a process
+# that has not started numba yet (a run from the command line) only a single run of
+# COLD_MIN_ROWS rows pays for the start: there MuJoCo's passive callback stays in Python too.
 MIN_ROWS = 5000
 COLD_MIN_ROWS = 50_000
 DONE, CONTROL_REFUSED, STEP_REFUSED = 0, 1, 2  # what a call returns, with the row it stopped at
