@@ -18,6 +18,8 @@ from functools import cached_property
 from typing import Any
 
 from .controller import BatchLaw, law_kind
+from .controller.gain import divided_by_gain
+from .controller.law import BUILT_IN_KINDS
 from .controller.user_diagnostics import diagnostic_columns
 from .disturbance import Schedule, scaled_changes
 from .engine import Observer, ProgressCallback, RunMetrics, RunSpec, Separation, Trajectory, simulate
@@ -26,17 +28,19 @@ from .engine.signals import SIGNALS, ColumnNaming, column_names
 from .errors import QcontrolInputError
 from .expr import Expression
 from .plants import BACKENDS, Plant, SceneSource
-from .plants.base import Disturbable, PhysicsReport, physics_report
-from .quantizer import UniformQuantizer
+from .plants.base import Disturbable, PhysicsReport, physics_report, timed
+from .quantizer import Quantizer, UniformQuantizer
 from .reference import Reference
 from .scenario import Scenario
 from .summary import Summary
 from .timegrid import TimeGrid
 
 
-def build_quantizer(sc: Scenario) -> UniformQuantizer:
-    """The uniform quantizer of eq. (3) with the scenario's step delta."""
-    return UniformQuantizer(sc.controller.delta)
+def build_quantizer(sc: Scenario) -> Quantizer:
+    """The scenario's quantizer of the state: its ``[quantizer]`` table's (a new one for every run:
+    a hysteresis quantizer's levels belong to one), else the uniform quantizer of eq. (3) with the
+    step ``controller.delta``."""
+    return sc.quantizer.build() if sc.quantizer is not None else UniformQuantizer(sc.controller.delta)
 
 
 def build_reference(sc: Scenario) -> Reference:
@@ -53,8 +57,11 @@ def build_law(variants: Sequence[Scenario], separation: Separation | None | obje
     the recorded columns, which ``separation`` (the first variant's, :func:`build_separation`)
     names."""
     first = variants[0]
-    law = law_kind(first.controller.kind).build([v.controller.settings for v in variants], first.law_context)
+    kind = law_kind(first.controller.kind)
+    law = kind.build([v.controller.settings for v in variants], first.law_context)
     check_diagnostic_names(law, first, build_separation(first) if separation is _BUILT else separation)
+    if kind.name in BUILT_IN_KINDS or kind.extends is not None:  # a built-in kind, or one extending it
+        law = divided_by_gain(law, first.terms.b)  # x_n' = b u + ...: u = u_1 / b
     return law
 
 
@@ -98,6 +105,8 @@ def build_separation(sc: Scenario) -> Separation | None:
     if r is None:
         return None
     bounded = sc.terms.bounded
+    if sc.terms.timed:  # r bounds the terms at x_q alone; a term in t is checked by its constant r entry only
+        return None
     return Separation(tuple(name for name, _ in bounded), tuple(e for _, e in bounded), tuple(r))
 
 
@@ -142,6 +151,7 @@ def batch_structure(sc: Scenario, backend: str | None = None) -> Hashable:
     return (
         name, entry.structure(sc.terms, sc.backends.get(name)), c.kind, c.delta, c.c,
         law_kind(c.kind).structure(c.settings, sc.law_context), sc.reference, sc.simulation, sc.disturbances,
+        sc.quantizer, sc.input_quantizer,
     )
 
 
@@ -188,7 +198,8 @@ def controller_constants(sc: Scenario, law: BatchLaw | None = None) -> dict[str,
 def named_terms(sc: Scenario) -> list[tuple[str, Expression]]:
     """The plant's expressions of eq. (1) by their scenario keys, ``plant.phi[1]`` .. ``plant.psi``
     (the order of eqs. (37)-(43))."""
-    return [("plant.psi" if name == "psi" else f"plant.phi[{name[3:]}]", e) for name, e in sc.terms.bounded]
+    return [("plant.psi" if name == "psi" else f"plant.phi[{name[3:]}]", e) for name, e in sc.terms.bounded
+            if not timed(e)]  # (a term in t cannot be evaluated at a state alone)
 
 
 @dataclass(frozen=True, eq=False)
@@ -274,7 +285,8 @@ def run_spec(sc: Scenario, plant: Plant, law: BatchLaw, x0: Sequence, separation
                    grid=TimeGrid.of(sim.duration, sim.dt, sim.control_period), state_bound=sim.state_bound,
                    record=record, metrics=sc.metrics, separation=separation, loads=loads(sc),
                    velocity_source=sim.velocity_source, terms=named_terms(sc), progress=progress,
-                   observer=observer)
+                   observer=observer,
+                   input_quantizer=None if sc.input_quantizer is None else sc.input_quantizer.build())
 
 
 def run_variants(

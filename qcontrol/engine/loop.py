@@ -16,12 +16,16 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from contextlib import nullcontext
 from typing import Any
 
 import numpy as np
 
+from .. import compiled as compiled_paths
 from ..plants.base import Disturbable, Plant, actuator_of
-from .compiled_loop import START, Resume
+from ..quantizer import Quantizer
+from ..quantizers import SensorQuantizer
+from .compiled_loop import START, Resume, numba_pays
 from .divergence import Divergence
 from .fastpath import compiled_loop, rows_for
 from .reference_rows import ReferenceRows
@@ -78,17 +82,21 @@ class ClosedLoop:
         self.reference = ReferenceRows(spec.reference, n, grid, whole=spec.record == "full")
         actuator, limited = actuator_of(plant)  # without an actuator, u is applied as commanded
         context = SignalContext(law.coordinates, spec.separation, actuator, spec.velocity_source, limited,
-                                tuple(law.diagnostics))
+                                tuple(law.diagnostics), spec.quantizer, spec.input_quantizer)
         parts = RunParts(grid, law, self.reference, self.divergence, context, spec.metrics, batch, n)
         self.record = (FullRecord(parts, spec.observer, spec.observe_every) if spec.record == "full"
                        else MetricsRecord(parts, spec.observer))
         self.rows = rows_for(self.record.buffer, batch, spec.state_bound)
+        if isinstance(spec.quantizer, SensorQuantizer):  # (one with memory starts every run afresh)
+            spec.quantizer.reset()
         self.quantize = self.rows.quantizer(spec.quantizer)
         if spec.velocity_source == "difference":
             self.quantize = self.rows.differenced(self.quantize, grid.hold, grid.hold * grid.dt)
         self.progress = ProgressReports(spec.progress, grid.rows)
         self.loads = Loads(plant, spec.loads)
-        self.compiled = compiled_loop(spec)  # None: the Python loop (see .compiled_loop)
+        self.input_quantizer = spec.input_quantizer
+        # None: the Python loop (see .compiled_loop); an input quantizer keeps it too
+        self.compiled = compiled_loop(spec) if spec.input_quantizer is None else None
         self.handover: int | None = None  # the row the Python loop took over from (None: none)
 
     def next_event(self, k: int) -> int:
@@ -116,7 +124,9 @@ class ClosedLoop:
         plant = self.plant
         adaptive = self.rows.initial_state(self.law)
         self.record.started = time.perf_counter()
-        with plant, np.errstate(all="ignore"):
+        # a single run too short to pay for numba's start runs every part in Python
+        pays = numba_pays(self.grid.rows, plant.batch)
+        with nullcontext() if pays else compiled_paths.not_needed(), plant, np.errstate(all="ignore"):
             plant.reset(np.broadcast_to(np.asarray(self.x0, dtype=float), (plant.batch, plant.n)))
             resume = (START._replace(adaptive=adaptive) if self.compiled is None
                       else self.compiled.run(self, plant, adaptive))
@@ -135,6 +145,8 @@ class ClosedLoop:
         adaptive, out = resume.adaptive, resume.out
         io = rows.plant_io(plant, dt)
         observe, step = io.observe, io.step
+        if self.input_quantizer is not None:  # the plant is stepped with q_u(u)
+            step = QuantizedInput(step, self.input_quantizer).step
         if resume.step_first:  # the step from the row before, which the compiled loop left
             step(out.u)
             adaptive = advance(adaptive, out)
@@ -150,6 +162,20 @@ class ClosedLoop:
                 due = self.next_event(k)
             step(out.u)
             adaptive = advance(adaptive, out)
+
+
+class QuantizedInput:
+    """A plant's step with the input quantized first, ``step(q_u(u))``: u a float (a batch of one
+    in the float form) or a ``(batch,)`` column; ``q_u`` takes ``(batch, 1)`` arrays."""
+
+    def __init__(self, step: Any, quantizer: Quantizer) -> None:
+        self.inner, self.quantizer = step, quantizer
+
+    def step(self, u: Any) -> None:
+        if isinstance(u, np.ndarray):
+            self.inner(self.quantizer(u.reshape(-1, 1))[:, 0])
+        else:
+            self.inner(float(self.quantizer(np.array([[u]], dtype=float))[0, 0]))
 
 
 def simulate(spec: RunSpec, *legacy: Any, **options: Any) -> list[RunRecord]:

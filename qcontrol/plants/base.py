@@ -24,18 +24,43 @@ import numpy as np
 from ..columns import Column, ColumnForm
 from ..expr import Expression
 
+TIME = "t"  # the name of time in the plant's terms, their last variable when they use it
+
+
+def timed(expression: Expression | None) -> bool:
+    """Whether a term of eq. (1) depends on time: its variables are ``x1..xn, t``."""
+    return expression is not None and expression.variables[-1:] == (TIME,)
+
+
+def time_column(columns: Sequence[Column], expression: Expression, t: float) -> Sequence[Column]:
+    """The columns a term is evaluated on: the state's, and ``t`` after them for a term in t."""
+    return [*columns, t] if timed(expression) else columns
+
 
 @dataclass(frozen=True)
 class PlantTerms:
-    """The right-hand side of eq. (1): ``x_i' = x_{i+1}``, ``x_n' = u + psi(x) + theta^T phi(x)``.
+    """The right-hand side of eq. (1): ``x_i' = x_{i+1}``, ``x_n' = b u + psi(x) + theta^T phi(x)``.
 
-    ``psi`` is unknown to the controller, ``phi`` known in form with ``theta`` unknown.
+    ``psi`` is unknown to the controller, ``phi`` known in form with ``theta`` unknown; ``b`` is
+    the known input gain (``input_gain`` as the scenario states it; None when it does not, which
+    means b = 1 and, on MuJoCo, a command scaled by the joint's inertia).
     """
 
     order: int
     psi: Expression | None
     phi: tuple[Expression, ...]
     theta: tuple[float, ...]
+    input_gain: float | None = None
+
+    @property
+    def timed(self) -> bool:
+        """Whether a term depends on time t (eq. (1)'s ``psi(x, t)``, ``phi(x, t)``)."""
+        return any(timed(e) for e in self.expressions)
+
+    @property
+    def b(self) -> float:
+        """The input gain b of ``x_n' = b u + ...`` (1 unless the scenario states another)."""
+        return 1.0 if self.input_gain is None else float(self.input_gain)
 
     # Two orders, each defined here once: eq. (1)'s sum ``psi + theta^T phi`` (psi first; the plants
     # add the terms in this order), and eqs. (37)-(43)'s, the order of eps and of a law's bounding

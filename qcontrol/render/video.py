@@ -31,7 +31,7 @@ import numpy as np
 from ..engine import Trajectory
 from ..errors import QcontrolInputError, QcontrolOutputError, shown
 from ..outputs import atomic_path, check_output_file, output_dir, output_error
-from .frames import FrameRenderer, Instant, camera_id
+from .frames import DEFAULT_CAMERA, DEFAULT_CAMERA_NAME, FrameRenderer, Instant, camera_id
 
 DEFAULT_FPS = 30.0
 VIDEO_FORMATS = (".mp4", ".gif")
@@ -111,6 +111,12 @@ def _instants(traj: Trajectory, fps: float, twin: Trajectory | None) -> list[Ins
         instants.append(Instant(float(traj.t[row]), float(x[row, 0]), float(x_q[row, 0]), float(u[row]),
                                 float(yd[row, 0]), twin_x1))
     return instants
+
+
+def _positions(instants: list[Instant]) -> np.ndarray:
+    """The joint positions the frames show (the run's, its twin's, the reference's), which the
+    default camera frames."""
+    return np.array([v for i in instants for v in (i.x1, i.yd, i.twin_x1) if v is not None], dtype=float)
 
 
 def _encoder_command(path: Path, suffix: str, size: tuple[int, int], fps: float) -> list[str]:
@@ -213,10 +219,12 @@ def camera_view_frames(traj: Trajectory, model: object, joint: str, source: str,
     from PIL import Image
 
     cid = camera_id(model, camera, source)  # type: ignore[arg-type]
-    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_CAMERA, cid) or f"camera{cid}"
+    name = (DEFAULT_CAMERA_NAME if cid == DEFAULT_CAMERA
+            else mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_CAMERA, cid) or f"camera{cid}")
     instants = _instants(traj, CAMERA_VIEW_FPS, twin)
     jpegs = []
-    with FrameRenderer(model, joint, cid, *CAMERA_VIEW_SIZE) as renderer:  # type: ignore[arg-type]
+    with FrameRenderer(model, joint, cid, *CAMERA_VIEW_SIZE,  # type: ignore[arg-type]
+                       positions=_positions(instants)) as renderer:
         for instant in instants:
             buffer = io.BytesIO()
             Image.fromarray(renderer.render(instant)).save(buffer, format="JPEG", quality=JPEG_QUALITY)
@@ -233,7 +241,8 @@ def write_video(request: VideoRequest, traj: Trajectory, model: object, joint: s
     instants = _instants(traj, request.fps, twin)
     width, height = request.frame_size
     folder = request.path.parent if str(request.path.parent) else Path(".")
-    renderer = FrameRenderer(model, joint, cid, width, height)  # type: ignore[arg-type]
+    renderer = FrameRenderer(model, joint, cid, width, height,  # type: ignore[arg-type]
+                             positions=_positions(instants))
     with output_dir(folder, "--video"), atomic_path(request.path) as tmp, renderer:
         encoder = _Encoder(tmp, request.path, (width, height), request.fps)
         try:

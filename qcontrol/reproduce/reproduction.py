@@ -5,7 +5,8 @@ chosen backend, with the ideal ODE twin beside MuJoCo, then the sensitivity stud
 a constant scale of r, plant variants) on the ODE backend, then the robustness study on realistic
 hardware (:mod:`.robustness_study`, MuJoCo, in worker processes). Writes PNG figures,
 ``table1.md``, ``table1.json``, ``studies.json``, ``region.json`` (the sampled loop's region study,
-:mod:`.region_study`), ``robustness.json``, ``REPORT.md`` and one rerun
+:mod:`.region_study`), ``robustness.json``, ``sensors.json`` (Example 2 with realistic sensors,
+:mod:`.sensor_study`), ``REPORT.md`` and one rerun
 recording per example into the output folder, all put in place together at the end
 (:func:`qcontrol.outputs.staged`): an interrupted or failed reproduction leaves the folder's
 previous files as they were, never a mix of old and new. Parameters come from the paper's Section 4
@@ -51,6 +52,7 @@ from .report import (
 )
 from .robustness_figures import fig_margins, fig_robustness
 from .robustness_study import EXAMPLES, LAWS, default_workers, robustness_study, study_law
+from .sensor_study import fig_sensors, sensor_markdown, sensor_record, sensor_study
 
 SCENARIO_DIR = shipped_dir("scenarios")
 KAPPA_MARGINS = (0.05, 0.1, 0.2, 0.3, 0.5, 0.75, 1.1, 1.5, 2.0)
@@ -214,7 +216,12 @@ def _write_all(rep: Reproduction, o: Path, command: str, workers: int | None, qu
         write_json(o / "region.json",
                    region_record(region) | {"provenance": scenarios_provenance(examples, command)})
     robustness = None if quick else _robustness(o, rep, workers)
-    write_text(o / "REPORT.md", _report(rep, table, studies, deviations, ex1, ex2, robustness, region))
+    rep.log("study: Example 2 with realistic sensors (ODE)")
+    sensors = sensor_study(rep.scenarios, rep.duration, rep.log)
+    fig_sensors(sensors, o / "study_sensors.png")
+    write_json(o / "sensors.json", sensor_record(sensors) | {"provenance": provenance})
+    write_text(o / "REPORT.md", _report(rep, table, studies, deviations, ex1, ex2, robustness, region)
+               + "\n".join(sensor_markdown(sensors)))
     return table
 
 

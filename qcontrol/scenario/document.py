@@ -136,13 +136,20 @@ def _alternatives(kind: KindKeys) -> list[str]:
     return [f"Give one of {', '.join(f'`{k}`' for k in group)}, not both." for group in kind.alternatives]
 
 
+def _left_out(section: Section) -> str:
+    """The note of a table that may be left out, and why."""
+    if section.stand_in:
+        return f"The whole table may be left out: `{section.stand_in}` then stands in for it."
+    return LEFT_OUT
+
+
 def section_markdown(section: Section) -> list[str]:
     """A top-level table: its keys, then, for a kinded table, one part per kind."""
     if section.array:
         return array_markdown(section)
     lines = [f"## [{section.name}]", "", f"`[{section.name}]`: {section.meaning}.", ""]
     if section.optional:
-        lines += [LEFT_OUT, ""]
+        lines += [_left_out(section), ""]
     if not section.kinds:
         return [*lines, *key_table(section.keys), "", "Example:", "", *_block(example_lines(section.name,
                                                                                         section.keys))]
@@ -197,7 +204,7 @@ def backend_markdown(name: str, section: Section | None, summary: str) -> list[s
     if section is None:
         note = f"Backend `{name}`: {summary}; it takes no `[plant.{name}]` section."
         return [f"### backend \"{name}\"", "", note, ""]
-    left_out = [LEFT_OUT, ""] if section.optional else []
+    left_out = [_left_out(section), ""] if section.optional else []
     return [f"### [plant.{name}] (backend \"{name}\")", "", f"`[plant.{name}]`: {section.meaning}.",
             "", *left_out, *key_table(section.keys), "", "Example:", "",
             *_block(example_lines(f"plant.{name}", section.keys))]

@@ -29,12 +29,14 @@ from ..errors import KeyNotForKind, OverrideError, QcontrolInputError, brief, sh
 from ..expr import Expression, compile_expression
 from ..outputs import check_name, path_kind
 from ..plants.backends import BACKENDS, PlantContext
-from ..plants.base import PlantTerms
+from ..plants.base import TIME, PlantTerms, timed
+from ..quantizers import QuantizerSpec, channel_bounds, quantizer_step, read_quantizers
 from ..reference import REFERENCE_KINDS
 from ..resources import scenario_path, shipped_scenarios
 from ..schema import Section, Table, kind_table, read_keys, show_key
 from ..timegrid import TimeGrid
 from .definition import ControllerConfig, ReferenceConfig, SimulationConfig
+from .from_model import from_model, provisional
 from .keys import (
     MAX_STEPS,
     METRICS,
@@ -78,6 +80,9 @@ class Scenario:
     phi_expr: tuple[Expression, ...] = field(default=(), repr=False)
     unset: tuple[str, ...] = ()  # keys removed from the file (--unset) before the overrides
     paper_example: int | None = None  # the paper's example this scenario reproduces, if any
+    input_gain: float | None = None  # plant.input_gain as stated (None: not stated, b = 1)
+    quantizer: QuantizerSpec | None = None  # [quantizer] (None: controller.delta's uniform step)
+    input_quantizer: QuantizerSpec | None = None  # [quantizer.input] (None: u applied as computed)
 
     def with_overrides(self, overrides: Mapping[str, Any] | Sequence[str]) -> Scenario:
         """A new scenario: this one's file with its overrides and then ``overrides`` (a dict
@@ -91,7 +96,7 @@ class Scenario:
     @cached_property
     def terms(self) -> PlantTerms:
         """The right-hand side of eq. (1) as the plants are built from it (made once)."""
-        return PlantTerms(self.order, self.psi_expr, self.phi_expr, self.theta)
+        return PlantTerms(self.order, self.psi_expr, self.phi_expr, self.theta, self.input_gain)
 
     @cached_property
     def law_context(self) -> LawContext:
@@ -99,7 +104,8 @@ class Scenario:
         c = self.controller
         sim = self.simulation
         return LawContext(self.source, self.order, c.delta, c.c, self.psi_expr, self.phi_expr, self.theta,
-                          sim.dt, sim.period)
+                          sim.dt, sim.period, input_gain=self.terms.b,
+                          quantizer_error=channel_bounds(self.quantizer))
 
     @property
     def psi(self) -> str | None:
@@ -380,10 +386,13 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
     plant = _plant_table(root)
     terms, x0 = _plant(plant)
     simulation = _simulation(root.table("simulation", default={}))
-    controller = _controller(root.table("controller", default={}), terms, simulation)
+    backends = _backends(plant, provisional(terms), base_dir, simulation)
+    terms = from_model(plant, terms, backends, simulation.dt)  # the coefficients left to the model
+    quantizer, input_quantizer = (read_quantizers(root.table("quantizer"), terms.order) if "quantizer" in data
+                                  else (None, None))
+    controller = _controller(root.table("controller", default={}), terms, simulation, quantizer)
     signal = _reference(root.table("reference", default={}), terms.order)
     metrics = _metrics(root.table("metrics", default={}))
-    backends = _backends(plant, terms, base_dir, simulation)
     disturbances = parse_disturbances(data.get("disturbance"), source)
     scenario = Scenario(
         name=meta["name"], description=meta["description"], source=source, text=text, overrides=overrides,
@@ -392,6 +401,7 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
         reference=signal, simulation=simulation, backends=MappingProxyType(backends),
         disturbances=disturbances,
         psi_expr=terms.psi, phi_expr=terms.phi, metrics=metrics, paper_example=meta["paper_example"],
+        input_gain=terms.input_gain, quantizer=quantizer, input_quantizer=input_quantizer,
     )
     _check_terms_at_x0(scenario)
     return scenario
@@ -417,9 +427,15 @@ def _plant(plant: Table) -> tuple[PlantTerms, tuple[float, ...]]:
     v = read_keys(plant, PLANT.keys, {"n": order, "l": len(phi_text)})
     x_names = [f"x{i + 1}" for i in range(order)]
     where = f"{plant.source}: {plant.name}"
-    psi = None if v["psi"] is None else compile_expression(v["psi"], x_names, f"{where}.psi")
-    phi = tuple(compile_expression(p, x_names, f"{where}.phi[{i}]") for i, p in enumerate(v["phi"]))
-    return PlantTerms(order, psi, phi, v["theta"]), v["x0"]
+    psi = None if v["psi"] is None else _plant_term(v["psi"], x_names, f"{where}.psi")
+    phi = tuple(_plant_term(p, x_names, f"{where}.phi[{i}]") for i, p in enumerate(v["phi"]))
+    return PlantTerms(order, psi, phi, v["theta"], v["input_gain"]), v["x0"]
+
+
+def _plant_term(text: str, x_names: list[str], where: str) -> Expression:
+    """A term of eq. (1) over ``x1..xn``, or over ``x1..xn, t`` when it uses time t."""
+    term = compile_expression(text, [*x_names, TIME], where)
+    return term if TIME in term.used else compile_expression(text, x_names, where)
 
 
 def _chosen(table: Table, section: Section, sizes: dict[str, int] | None = None
@@ -430,12 +446,14 @@ def _chosen(table: Table, section: Section, sizes: dict[str, int] | None = None
     return common, kind_table(table, section.names, section.kinds, common["kind"])
 
 
-def _controller(table: Table, terms: PlantTerms, simulation: SimulationConfig) -> ControllerConfig:
+def _controller(table: Table, terms: PlantTerms, simulation: SimulationConfig,
+                quantizer: QuantizerSpec | None) -> ControllerConfig:
     v, merged = _chosen(table, controller_section(), {"n": terms.order})
-    kind = v["kind"]
-    ctx = LawContext(table.source, terms.order, v["delta"], v["c"], terms.psi, terms.phi, terms.theta,
-                     simulation.dt, simulation.period, controller=table)
-    return ControllerConfig(kind, v["delta"], v["c"], law_kind(kind).parse(merged, ctx))
+    kind, delta = v["kind"], quantizer_step(table, v["delta"], quantizer)
+    ctx = LawContext(table.source, terms.order, delta, v["c"], terms.psi, terms.phi, terms.theta,
+                     simulation.dt, simulation.period, controller=table, input_gain=terms.b,
+                     quantizer_error=channel_bounds(quantizer))
+    return ControllerConfig(kind, delta, v["c"], law_kind(kind).parse(merged, ctx))
 
 
 def _reference(table: Table, order: int) -> ReferenceConfig:
@@ -495,13 +513,12 @@ def _backends(plant: Table, terms: PlantTerms, base_dir: Path, simulation: Simul
 
 def _check_terms_at_x0(sc: Scenario) -> None:
     """The plant's terms must be finite at the initial state."""
-    x0 = np.asarray(sc.x0)[None, :]
     for label, expr in [("plant.psi", sc.psi_expr)] + [(f"plant.phi[{i}]", e) for i,
                                                        e in enumerate(sc.phi_expr)]:
         if expr is None:
             continue
         with np.errstate(all="ignore"):
-            value = expr(x0)
+            value = expr(np.asarray([[*sc.x0, 0.0] if timed(expr) else list(sc.x0)]))
         if not np.all(np.isfinite(value)):
             raise QcontrolInputError(
                 f"{sc.source}: {label}: {expr.source!r} is not finite at x0 = {list(sc.x0)}; "
