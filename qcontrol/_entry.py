@@ -1,11 +1,22 @@
 """Console entry point: Ctrl-C while the command's modules are still importing exits 130 quietly,
-and a reader that closes the pipe early (``qcontrol run ... | head``) ends the command quietly."""
+a reader that closes the pipe early (``qcontrol run ... | head``) ends the command quietly, and
+once the command has returned its exit status, a Ctrl-C that arrives while the interpreter exits
+(or one still pending from the Ctrl-C the command answered) no longer turns that status into
+death by SIGINT."""
 
 import os
+import signal
 import sys
 
 
 def main() -> int:
+    try:
+        return _command()
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # the status is decided
+
+
+def _command() -> int:
     try:
         from .cli import main as cli_main
     except KeyboardInterrupt:

@@ -1,7 +1,7 @@
-"""``python -m qcontrol.cli``: the ``qcontrol`` command."""
+"""``python -m qcontrol.cli``: the ``qcontrol`` command (the same entry point as the console script)."""
 
 import sys
 
-from .dispatch import main
+from .._entry import main
 
 sys.exit(main())
