@@ -2,6 +2,8 @@
 
     x_i' = x_{i+1} (i < n),    x_n' = u + psi(x) + theta^T phi(x)
 
+or a parametric strict-feedback plant, ``x_i' = x_{i+1} + theta^T phi_i(x_1..x_i)`` for i < n
+(docs/math.md; the equations whose regressor row is 0 are computed exactly as in the chain),
 integrated with classical fixed-step RK4, the input held over each step. A fixed step is
 deliberate: an adaptive-step solver either steps over the quantizer's jumps or crawls at them.
 
@@ -23,9 +25,10 @@ from ..columns import ARRAYS, Column, ColumnForm
 from ..expr import Expression
 from ..expr.source import FLAG, Statements, float_source
 from .backends import Backend
-from .base import NativeStepper, PlantTerms
+from .base import NativeStepper, PlantTerms, is_zero
 
 Rate = Callable[[list[Column]], Column]  # psi + theta^T phi on the state's columns
+Lower = tuple[tuple[int, Rate], ...]  # (i - 1, theta^T phi_i) of each earlier equation with terms
 
 
 class ChainPlant:
@@ -42,6 +45,7 @@ class ChainPlant:
         phi: Sequence[Expression],
         theta: Sequence[float] | np.ndarray,
         batch: int = 1,
+        rows: Sequence[Sequence[Expression]] = (),
     ) -> None:
         theta = np.asarray(theta, dtype=float)
         if theta.shape[-1:] != (len(phi),) and not (theta.size == 0 and not phi):
@@ -56,8 +60,12 @@ class ChainPlant:
         # each phi_i's coefficient: a number, or a (batch,) column of per-copy values
         self._coefficients = list(theta.T if theta.ndim == 2 else theta)
         self._rates: dict[ColumnForm, Rate] = {}  # psi + theta^T phi in each form (_rate_in)
+        # the earlier equations with a regressor that is not 0: (index i - 1, row), summed as theta^T phi_i
+        self._rows = tuple((i, tuple(row)) for i, row in enumerate(rows) if any(not is_zero(e) for e in row))
+        self._lower_rates: dict[ColumnForm, Lower] = {}
         self._form: ColumnForm = ARRAYS  # the form the state's columns are in (column_io)
         self._g: Rate = self._rate_in(ARRAYS)
+        self._lower: Lower = self._lower_in(ARRAYS)
         self._x: list[Column] = [np.zeros(self.batch)] * self.n
         self._load = 0.0  # the external load d of :meth:`disturb`, held like u
         self.warnings: list[str] = []  # an ODE has nothing to warn about
@@ -83,6 +91,15 @@ class ChainPlant:
             rate = self._rates[form] = form.combination(psi + list(self.phi), coefficients)
         return rate
 
+    def _lower_in(self, form: ColumnForm) -> Lower:
+        """``(i, theta^T phi_i)`` on columns of ``form`` for each earlier equation whose regressor
+        row is not 0 (none for the chain of eq. (1)), made once per form."""
+        lower = self._lower_rates.get(form)
+        if lower is None:
+            lower = self._lower_rates[form] = tuple((i, form.combination(list(row), self._coefficients))
+                                                    for i, row in self._rows)
+        return lower
+
     def uncertainty(self, x: np.ndarray) -> np.ndarray:
         """``psi(x) + theta^T phi(x)``, shape ``(batch,)``."""
         total = self._rate_in(ARRAYS)(list(np.asarray(x, dtype=float).T))
@@ -95,6 +112,9 @@ class ChainPlant:
         dx = np.empty_like(x)
         dx[:, :-1] = x[:, 1:]
         dx[:, -1] = u + self.uncertainty(x)
+        columns = list(np.asarray(x, dtype=float).T)
+        for i, rate in self._lower_in(ARRAYS):
+            dx[:, i] = dx[:, i] + rate(columns)
         return dx
 
     def reset(self, x0: np.ndarray) -> None:
@@ -126,20 +146,21 @@ class ChainPlant:
         if not (isinstance(u, np.ndarray) and u.shape == (self.batch,)):
             u = np.broadcast_to(np.asarray(u, dtype=float).reshape(-1), (self.batch,))
         u = self._form.column(u)
-        self._x = _rk4(self._x, u + self._load if self._load else u, h, self._g)
+        self._x = _rk4(self._x, u + self._load if self._load else u, h, self._g, self._lower)
 
     def column_io(self, form: ColumnForm, h: float) -> ChainIO:
         """Observe and step in ``form``, steps of ``h`` (:class:`~.base.ColumnStepping`): the
         state is kept in ``form`` from now on, the same RK4 and terms evaluated in it."""
         x = self.state()
-        self._form, self._g = form, self._rate_in(form)
+        self._form, self._g, self._lower = form, self._rate_in(form), self._lower_in(form)
         self._x = form.columns(x)
         return ChainIO(self, h)
 
     def native_stepper(self, h: float) -> NativeStepper | None:
         """The batch of one as source text for the engine's compiled loop: the same RK4 on the
-        same terms (:class:`ChainNativeForm`); None for a batch."""
-        return ChainNativeForm(self, h).stepper() if self.batch == 1 else None
+        same terms (:class:`ChainNativeForm`); None for a batch or for a plant with regressors
+        before the last equation (the compiled text is the chain's)."""
+        return ChainNativeForm(self, h).stepper() if self.batch == 1 and not self._rows else None
 
 
 class ChainNativeForm:
@@ -209,7 +230,7 @@ class ChainIO:
     load d held (RK4 sees their sum)."""
 
     def __init__(self, plant: ChainPlant, h: float) -> None:
-        self.plant, self.h, self.g = plant, h, plant._g
+        self.plant, self.h, self.g, self.lower = plant, h, plant._g, plant._lower
 
     def observe(self) -> tuple[list[Column], list[Column]]:
         x = self.plant._x
@@ -218,21 +239,25 @@ class ChainIO:
     def step(self, u: Column) -> None:
         plant = self.plant
         d = plant._load
-        plant._x = _rk4(plant._x, u + d if d else u, self.h, self.g)
+        plant._x = _rk4(plant._x, u + d if d else u, self.h, self.g, self.lower)
 
 
-def _derivative(s: list[Column], u: Column, g: Rate) -> list[Column]:
-    """The right-hand side of eq. (1) on columns: ``x_i' = x_{i+1}``, ``x_n' = u + g(x)``."""
-    return s[1:] + [u + g(s)]
+def _derivative(s: list[Column], u: Column, g: Rate, lower: Lower = ()) -> list[Column]:
+    """The right-hand side of eq. (1) on columns: ``x_i' = x_{i+1}``, ``x_n' = u + g(x)``; with
+    ``lower`` (a strict-feedback plant), ``x_i' = x_{i+1} + theta^T phi_i(x)`` for its rows."""
+    rate = s[1:] + [u + g(s)]
+    for i, term in lower:
+        rate[i] = rate[i] + term(s)
+    return rate
 
 
-def _rk4(x: list[Column], u: Column, h: float, g: Rate) -> list[Column]:
+def _rk4(x: list[Column], u: Column, h: float, g: Rate, lower: Lower = ()) -> list[Column]:
     """One classical RK4 step of eq. (1) on the state's columns (floats or arrays alike)."""
     half = 0.5 * h
-    k1 = _derivative(x, u, g)
-    k2 = _derivative([a + half * b for a, b in zip(x, k1, strict=True)], u, g)
-    k3 = _derivative([a + half * b for a, b in zip(x, k2, strict=True)], u, g)
-    k4 = _derivative([a + h * b for a, b in zip(x, k3, strict=True)], u, g)
+    k1 = _derivative(x, u, g, lower)
+    k2 = _derivative([a + half * b for a, b in zip(x, k1, strict=True)], u, g, lower)
+    k3 = _derivative([a + half * b for a, b in zip(x, k2, strict=True)], u, g, lower)
+    k4 = _derivative([a + h * b for a, b in zip(x, k3, strict=True)], u, g, lower)
     sixth = h / 6.0
     return [a + sixth * (b + 2.0 * (c + d) + e) for a, b, c, d, e in zip(x, k1, k2, k3, k4, strict=True)]
 
@@ -245,12 +270,13 @@ def build(terms: Sequence[PlantTerms], options: Sequence[Any], dt: float) -> Cha
     """One ChainPlant copy per variant (theta per copy when there is more than one)."""
     first = terms[0]
     theta = first.theta if len(terms) == 1 else np.array([t.theta for t in terms])
-    return ChainPlant(first.order, first.psi, first.phi, theta, batch=len(terms))
+    return ChainPlant(first.order, first.psi, first.phi, theta, batch=len(terms), rows=first.rows)
 
 
 def structure(terms: PlantTerms, options: Any) -> Hashable:
     """Variants sharing a batch share the plant's form; theta goes per copy."""
-    return terms.order, None if terms.psi is None else terms.psi.source, tuple(p.source for p in terms.phi)
+    chain = terms.order, None if terms.psi is None else terms.psi.source, tuple(p.source for p in terms.phi)
+    return chain + (tuple(tuple(p.source for p in row) for row in terms.rows),) if terms.rows else chain
 
 
 BACKEND = Backend(name="ode", build=build, structure=structure,

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from ..controller.law import KIND_ALIASES, LawContext, law_kind
+from ..controller.law import KIND_ALIASES, LawContext, check_plant_class, law_kind
 from ..disturbance import Disturbance, parse_disturbances
 from ..engine import MetricSettings
 from ..errors import KeyNotForKind, OverrideError, QcontrolInputError, brief, shown
@@ -75,6 +75,7 @@ class Scenario:
     base_dir: Path = field(default=Path("."), repr=False, compare=False)  # paths in it are relative to it
     psi_expr: Expression | None = field(default=None, repr=False)
     phi_expr: tuple[Expression, ...] = field(default=(), repr=False)
+    rows_expr: tuple[tuple[Expression, ...], ...] = field(default=(), repr=False)  # phi_1 .. phi_{n-1}
     unset: tuple[str, ...] = ()  # keys removed from the file (--unset) before the overrides
     paper_example: int | None = None  # the paper's example this scenario reproduces, if any
 
@@ -90,7 +91,7 @@ class Scenario:
     @property
     def terms(self) -> PlantTerms:
         """The right-hand side of eq. (1) as the plants are built from it."""
-        return PlantTerms(self.order, self.psi_expr, self.phi_expr, self.theta)
+        return PlantTerms(self.order, self.psi_expr, self.phi_expr, self.theta, self.rows_expr)
 
     @property
     def law_context(self) -> LawContext:
@@ -98,7 +99,7 @@ class Scenario:
         c = self.controller
         sim = self.simulation
         return LawContext(self.source, self.order, c.delta, c.c, self.psi_expr, self.phi_expr, self.theta,
-                          sim.dt, sim.period)
+                          sim.dt, sim.period, rows=self.rows_expr)
 
     @property
     def psi(self) -> str | None:
@@ -386,7 +387,8 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
         order=terms.order, theta=terms.theta, x0=x0, controller=controller,
         reference=signal, simulation=simulation, backends=MappingProxyType(backends),
         disturbances=disturbances,
-        psi_expr=terms.psi, phi_expr=terms.phi, metrics=metrics, paper_example=meta["paper_example"],
+        psi_expr=terms.psi, phi_expr=terms.phi, rows_expr=terms.rows, metrics=metrics,
+        paper_example=meta["paper_example"],
     )
     _check_terms_at_x0(scenario)
     return scenario
@@ -408,13 +410,52 @@ def _plant_table(root: Table) -> Table:
 def _plant(plant: Table) -> tuple[PlantTerms, tuple[float, ...]]:
     """The terms of eq. (1), compiled, and the initial state."""
     order = plant.integer("order", minimum=2)
-    phi_text = plant.strings("phi", [])
-    v = read_keys(plant, PLANT.keys, {"n": order, "l": len(phi_text)})
+    given = plant.get("phi", [])
+    table_rows = isinstance(given, list) and any(isinstance(row, list) for row in given)
+    rows_text = _regressor_rows(plant, order) if table_rows else ()
+    last = Table(dict(plant.data, phi=list(rows_text[-1])), plant.source, plant.name) if table_rows else plant
+    phi_text = last.strings("phi", [])
+    v = read_keys(last, PLANT.keys, {"n": order, "l": len(phi_text)})
     x_names = [f"x{i + 1}" for i in range(order)]
     where = f"{plant.source}: {plant.name}"
     psi = None if v["psi"] is None else compile_expression(v["psi"], x_names, f"{where}.psi")
-    phi = tuple(compile_expression(p, x_names, f"{where}.phi[{i}]") for i, p in enumerate(v["phi"]))
-    return PlantTerms(order, psi, phi, v["theta"]), v["x0"]
+    if not table_rows:
+        phi = tuple(compile_expression(p, x_names, f"{where}.phi[{i}]") for i, p in enumerate(v["phi"]))
+        return PlantTerms(order, psi, phi, v["theta"]), v["x0"]
+    compiled = tuple(tuple(_regressor(plant, text, x_names, r, j) for j, text in enumerate(row))
+                     for r, row in enumerate(rows_text))
+    return PlantTerms(order, psi, compiled[-1], v["theta"], compiled[:-1]), v["x0"]
+
+
+def _regressor_rows(plant: Table, order: int) -> tuple[tuple[str, ...], ...]:
+    """``plant.phi`` given as n rows (row i: the regressors of equation i, every row of the same
+    length l, "0" where absent), as text."""
+    given = plant.get("phi")
+    if len(given) != order or not all(isinstance(row, list) for row in given):
+        raise plant.error("phi", f"has {len(given)} entries, not {order} rows (one list per equation)",
+                          f"give {order} lists of the same length, \"0\" where a term is absent, or one "
+                          "flat list for the last equation")
+    rows = tuple(Table({"row": row}, plant.source, plant.path(f"phi[{r}]")).strings("row")
+                 for r, row in enumerate(given))
+    for r, row in enumerate(rows):
+        if len(row) != len(rows[-1]):
+            raise plant.error(f"phi[{r}]", f"has {len(row)} regressors but the last row has {len(rows[-1])}",
+                              "give every row the same length l, \"0\" where a term is absent")
+    return rows
+
+
+def _regressor(plant: Table, text: str, x_names: list[str], r: int, j: int) -> Expression:
+    """Regressor j of row r (0-based), compiled; a row before the last reads x1 .. x_{r+1} only
+    (lower-triangular: phi_i depends on the first i states)."""
+    where = f"{plant.source}: {plant.path(f'phi[{r}][{j}]')}"
+    expression = compile_expression(text, x_names, where)
+    allowed = x_names if r == len(x_names) - 1 else x_names[: r + 1]
+    later = sorted(set(expression.used) - set(allowed), key=x_names.index)
+    if later:
+        raise QcontrolInputError(
+            f"{where}: {text!r} reads {later[0]}, a later state than row {r + 1} may read; row {r + 1} "
+            f"(the regressors of x{r + 1}') may read {', '.join(allowed)} only (a strict-feedback plant)")
+    return expression
 
 
 def _chosen(table: Table, section: Section, sizes: dict[str, int] | None = None
@@ -429,7 +470,8 @@ def _controller(table: Table, terms: PlantTerms, simulation: SimulationConfig) -
     v, merged = _chosen(table, controller_section(), {"n": terms.order})
     kind = v["kind"]
     ctx = LawContext(table.source, terms.order, v["delta"], v["c"], terms.psi, terms.phi, terms.theta,
-                     simulation.dt, simulation.period, controller=table)
+                     simulation.dt, simulation.period, controller=table, rows=terms.rows)
+    check_plant_class(kind, ctx, table.path("kind"))
     return ControllerConfig(kind, v["delta"], v["c"], law_kind(kind).parse(merged, ctx))
 
 
@@ -487,8 +529,10 @@ def _backends(plant: Table, terms: PlantTerms, base_dir: Path, simulation: Simul
 def _check_terms_at_x0(sc: Scenario) -> None:
     """The plant's terms must be finite at the initial state."""
     x0 = np.asarray(sc.x0)[None, :]
-    for label, expr in [("plant.psi", sc.psi_expr)] + [(f"plant.phi[{i}]", e) for i,
-                                                       e in enumerate(sc.phi_expr)]:
+    rows = [(f"plant.phi[{r}][{j}]", e) for r, row in enumerate(sc.rows_expr) for j, e in enumerate(row)]
+    last = "plant.phi[{i}]" if not rows else f"plant.phi[{len(rows and sc.rows_expr)}][{{i}}]"
+    for label, expr in [("plant.psi", sc.psi_expr)] + rows + [(last.format(i=i), e) for i,
+                                                              e in enumerate(sc.phi_expr)]:
         if expr is None:
             continue
         with np.errstate(all="ignore"):
