@@ -43,7 +43,9 @@ def run_summary(run: RunRecord, scenario: str, backend: str) -> Summary:
     possibly so large that ``x / delta`` has no fractional digits left), where quantization error
     is meaningless. With the velocity differenced from the encoder (``velocity_source =
     "difference"``) the controller's x2 is no quantized reading and Lemma 2 does not apply: the
-    ratio is still reported, with ``lemma2_applies`` false.
+    ratio is still reported, with ``lemma2_applies`` false; likewise on a plant outside the chain
+    of eq. (1) (a strict-feedback plant with regressors before its last equation), for which
+    Lemma 2's bounds were not derived.
     """
     values = run.reduced()
     final = tuple(float(v) for v in values["final_adaptive"])
@@ -55,7 +57,7 @@ def run_summary(run: RunRecord, scenario: str, backend: str) -> Summary:
         max_abs_u_applied=values["max_abs_u_applied"], saturated_fraction=values["saturated_fraction"],
         final_eps_hat=final, adaptive_state=run.adaptive_name,  # final_eps_hat: alias of final_state
         lemma2_max_ratio=lemma2_max_ratio(values["e_z_max"][None, :], run.L_z),
-        velocity_source=run.velocity_source, lemma2_applies=lemma2_applies(run.velocity_source),
+        velocity_source=run.velocity_source, lemma2_applies=lemma2_applies(run.velocity_source) and run.chain,
         L_z=tuple(float(v) for v in run.L_z), L=float(run.L_z[-1]),
         **bound_constants(run.bound_names, values["bound_constants"], values["smallest_r"]),
         law_diagnostics=law_diagnostics(run.law_diagnostics, values["diagnostics"]),

@@ -74,9 +74,12 @@ def _saturation(fraction: float) -> str:
 
 def _lemma2_line(f: Summary) -> str:
     ratio = f"  Lemma 2: max |e_zi|/L_zi = {f.lemma2_max_ratio:.6f}"
-    if not f.lemma2_applies:
+    if not f.lemma2_applies and f.velocity_source == "difference":
         return (f"{ratio} (not checked: x2 is differenced from the encoder, outside the paper's "
                 "assumptions)")
+    if not f.lemma2_applies:
+        return (f"{ratio} (not checked: Lemma 2's bounds are the chain's, and this plant has regressors "
+                "before its last equation)")
     return f"{ratio} (<= 1 holds: {'yes' if lemma2_holds(f) else 'NO'})"
 
 

@@ -79,7 +79,7 @@ class ClosedLoop:
         actuated = isinstance(plant, Actuated)  # else u is applied as commanded
         actuator = plant.actuator if actuated else applied_as_commanded
         context = SignalContext(law.coordinates, spec.separation, actuator, spec.velocity_source,
-                                actuated and plant.actuator_limited, tuple(law.diagnostics))
+                                actuated and plant.actuator_limited, tuple(law.diagnostics), spec.chain)
         parts = RunParts(grid, law, self.reference, self.divergence, context, spec.metrics, batch, n)
         self.record = (FullRecord(parts, spec.observer, spec.observe_every) if spec.record == "full"
                        else MetricsRecord(parts, spec.observer))

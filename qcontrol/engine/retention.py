@@ -73,7 +73,7 @@ class _Record:
         d, separation = self.divergence, self.context.separation
         return dict(adaptive_name=self.law.state_name, L_z=self.law.coordinates.L_z.copy(), dt=self.grid.dt,
                     duration=self.grid.duration, hold=self.grid.hold,
-                    velocity_source=self.context.velocity_source,
+                    velocity_source=self.context.velocity_source, chain=self.context.chain,
                     actuator_limited=self.context.actuator_limited,
                     diverged=d.times[b] is not None, diverged_time=d.times[b],
                     divergence_reason=d.reasons[b], wall_time_s=now - self.started, metrics=self.metrics,

@@ -69,6 +69,7 @@ class SignalContext:
     velocity_source: str = "sensor"
     actuator_limited: bool = False
     diagnostics: tuple[Diagnostic, ...] = ()  # the law's own signals
+    chain: bool = True  # the plant is the chain of eq. (1) (Lemma 2 applies to it)
 
     @property
     def terms(self) -> int:
