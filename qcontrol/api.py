@@ -17,7 +17,7 @@ import io
 import itertools
 import json
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from ._version import __version__
-from .assembly import build_plant, controller_constants, run_scenario, runnable_backend, scene
+from .assembly import Assembly, assemble, runnable_backend
 from .attribution import realism_attribution
 from .controller import Backstepping
 from .controller import lemma2_bounds as _lemma2_bounds
@@ -34,6 +34,7 @@ from .engine.signals import column_names
 from .errors import QcontrolInputError
 from .metrics import backend_deviation, run_summary, summary
 from .outputs import check_output_file, clean, prepare_output_dir, write_file, write_text
+from .plants import SceneSource
 from .scenario import Scenario
 from .scenario.resolve import scenario_provenance
 from .summary import Summary
@@ -54,13 +55,15 @@ class Result:
     ``(rows, m)``, ``yd`` the reference and its n derivatives ``(rows, n + 1)``, ``z`` and ``zbar``
     the errors (7)-(8) and (31)-(33), ``e_z`` the Lemma 2 errors, ``bound_ratio`` the separation's
     ratios, ``diagnostics`` the law's own signals (the paper's law: ``gain_period``, K T);
-    ``y = x[:, 0]`` and ``t``. A diverged run ends with the row that stopped it.
+    ``y = x[:, 0]`` and ``t``. A diverged run ends with the row that stopped it. ``assembly`` is
+    what the run was put together from (its plant, law, scene; :class:`~qcontrol.assembly.Assembly`).
     """
 
     summary: dict[str, Any]
     scenario: Scenario
     backend: str
     record: Trajectory | RunMetrics
+    assembly: Assembly | None = field(default=None, repr=False, compare=False)
 
     @property
     def typed_summary(self) -> Summary:
@@ -160,10 +163,12 @@ def _call(name: str, sc: Scenario, **kw: Any) -> str:
     return f"qcontrol.{name}(<scenario {sc.name!r} from {sc.source}>{', ' if arguments else ''}{arguments})"
 
 
-def run(scenario: Scenario, backend: str | None = None, *, rrd: str | Path | None = None,
+def run(scenario: Scenario | Assembly, backend: str | None = None, *, rrd: str | Path | None = None,
         spawn: bool = False, record: str = "full", progress: ProgressCallback | None = None,
         command: str | None = None, camera_view: bool = False) -> Result:
     """Run the scenario's closed loop on ``backend`` (None: the scenario's ``simulation.backend``).
+    ``scenario`` may also be a run already put together (:func:`~qcontrol.assembly.assemble`,
+    as the command line does): its parts are used as they are.
 
     ``record="full"`` keeps every row (the Result's arrays); ``"metrics"`` only the summary, in
     memory that does not grow with the run. ``rrd`` writes a rerun recording while it runs,
@@ -171,7 +176,8 @@ def run(scenario: Scenario, backend: str | None = None, *, rrd: str | Path | Non
     MuJoCo's own rendering of the run beside its 3-D view (the run keeps every row for it).
     ``command`` is what the provenance names as the command (default: this call).
     """
-    check_scenario(scenario, "run")
+    asm = scenario if isinstance(scenario, Assembly) else None
+    scenario = check_scenario(scenario.scenario if asm else scenario, "run")
     _check_arguments("run", backend=(backend, str, True), rrd=(rrd, (str, Path), True),
                      spawn=(spawn, bool, False), command=(command, str, True),
                      camera_view=(camera_view, bool, False))
@@ -179,19 +185,29 @@ def run(scenario: Scenario, backend: str | None = None, *, rrd: str | Path | Non
         raise QcontrolInputError(f"run: record must be \"full\" or \"metrics\", got {record!r}")
     if progress is not None and not callable(progress):
         raise QcontrolInputError(f"run: progress must be a callable or None, got {type(progress).__name__}")
-    backend = runnable_backend(scenario, backend)
+    asm = _assembled(asm, scenario, backend, "run")
+    backend = asm.backend
     command = command or _call("run", scenario, backend=backend, rrd=None if rrd is None else str(rrd))
     provenance = scenario_provenance(scenario, command)
-    plant = build_plant(scenario, backend)
-    with recording_for(rrd, spawn, scenario, provenance) as rec:
-        observer = None if rec is None else observer_for(rec, scenario, backend)
-        traj = run_scenario(scenario, backend, plant=plant, observer=observer,
-                            record="full" if camera_view and rec is not None else record, progress=progress)
+    with recording_for(rrd, spawn, asm, provenance) as rec:
+        observer = None if rec is None else observer_for(rec, asm.scene, backend)
+        traj = asm.run("full" if camera_view and rec is not None else record, progress, observer)[0]
         if camera_view and rec is not None:
-            _log_camera_view(rec, scenario, traj)
+            _log_camera_view(rec, asm, traj)
     result = replace(run_summary(traj, scenario.name, backend), provenance=provenance,
-                     physics_warnings=tuple(plant.warnings))
-    return Result(result.to_json(), scenario, backend, traj)
+                     physics_warnings=tuple(asm.report.warnings))
+    return Result(result.to_json(), scenario, backend, traj, asm)
+
+
+def _assembled(asm: Assembly | None, scenario: Scenario, backend: str | None, function: str) -> Assembly:
+    """The run put together once: ``asm`` as given (on ``backend`` if one is named), else the
+    scenario's on ``backend``."""
+    if asm is None:
+        return assemble(scenario, backend)
+    if backend is not None and runnable_backend(scenario, backend) != asm.backend:
+        raise QcontrolInputError(f"{function}: backend={backend!r}, but the run given was put together "
+                                 f"on {asm.backend!r}; leave out backend")
+    return asm
 
 
 @dataclass(frozen=True)
@@ -204,37 +220,43 @@ class Comparison:
     ode: Result
 
 
-def compare(scenario: Scenario, *, rrd: str | Path | None = None, spawn: bool = False,
+def compare(scenario: Scenario | Assembly, *, rrd: str | Path | None = None, spawn: bool = False,
             progress: Callable[[str], ProgressCallback | None] | None = None,
             command: str | None = None, camera_view: bool = False) -> Comparison:
     """Run the scenario on its MuJoCo model and on the ODE with the same step and hold, and
     measure how far they drift apart (``max_abs_dx``, ``max_abs_dy``, ``max_abs_du``, ...).
-    ``progress(backend)`` may give a progress callback per run."""
-    check_scenario(scenario, "compare")
+    ``progress(backend)`` may give a progress callback per run. ``scenario`` may also be its
+    MuJoCo run already put together (:func:`~qcontrol.assembly.assemble`)."""
+    given = scenario if isinstance(scenario, Assembly) else None
+    scenario = check_scenario(scenario.scenario if given else scenario, "compare")
     _check_arguments("compare", rrd=(rrd, (str, Path), True), spawn=(spawn, bool, False),
                      command=(command, str, True), camera_view=(camera_view, bool, False))
     require_twin(scenario)
     command = command or _call("compare", scenario, rrd=None if rrd is None else str(rrd))
     provenance = scenario_provenance(scenario, command)
-    plant = build_plant(scenario, "mujoco")
+    main = given if given is not None else assemble(scenario, "mujoco")
+    if main.backend != "mujoco":
+        raise QcontrolInputError(f"compare: the run given was put together on {main.backend!r}; give the "
+                                 "scenario, or its run on \"mujoco\"")
+    assemblies = {"mujoco": main, "ode": assemble(scenario, "ode")}
     runs: dict[str, Result] = {}
-    with recording_for(rrd, spawn, scenario, provenance) as rec:
-        for backend in ("mujoco", "ode"):  # the ODE run is drawn as the MuJoCo run's twin
+    with recording_for(rrd, spawn, main, provenance) as rec:
+        for backend, asm in assemblies.items():  # the ODE run is drawn as the MuJoCo run's twin
             twin_of = runs["mujoco"].record if backend == "ode" else None
-            observer = None if rec is None else observer_for(rec, scenario, backend, twin_of)
-            traj = run_scenario(scenario, backend, plant=plant if backend == "mujoco" else None,
-                                observer=observer, progress=progress(backend) if progress else None)
-            runs[backend] = Result(summary(traj, scenario.name, backend), scenario, backend, traj)
+            observer = None if rec is None else observer_for(rec, main.scene, backend, twin_of)
+            traj = asm.run(progress=progress(backend) if progress else None, observer=observer)[0]
+            runs[backend] = Result(summary(traj, scenario.name, backend), scenario, backend, traj, asm)
         if camera_view and rec is not None:
-            _log_camera_view(rec, scenario, runs["mujoco"].record, runs["ode"].record)
+            _log_camera_view(rec, main, runs["mujoco"].record, runs["ode"].record)
+    report = main.report
     result = {
         "scenario": scenario.name, "integrator": scenario.backends["mujoco"].integrator,
         "dt": scenario.simulation.dt, **backend_deviation(runs["mujoco"].record, runs["ode"].record),
-        "consistency": plant.consistency_report,
-        "realism_alone": realism_attribution(scenario, runs["ode"].record) if plant.consistency_report.get(
+        "consistency": report.consistency_report,
+        "realism_alone": realism_attribution(scenario, runs["ode"].record) if report.consistency_report.get(
             "realism") else {},
         "mujoco": runs["mujoco"].summary, "ode": runs["ode"].summary,
-        "physics_warnings": list(plant.warnings), "provenance": provenance,
+        "physics_warnings": list(report.warnings), "provenance": provenance,
     }
     return Comparison(result, runs["mujoco"], runs["ode"])
 
@@ -281,12 +303,12 @@ def _check_arguments(function: str, **given: tuple[Any, type | tuple[type, ...],
                                  f"got {type(value).__name__} {value!r}")
 
 
-def check_video(scenario: Scenario, path: str | Path, fps: float = 30.0, camera: str | None = None,
+def check_video(run: Assembly, path: str | Path, fps: float = 30.0, camera: str | None = None,
                 size: tuple[int, int] | None = None) -> Any:
-    """Check, before a run, that its video can be made (:func:`video`): the scenario has a MuJoCo
-    model with a camera, the format is known, the encoder is installed, an offscreen OpenGL context
-    opens. One line (:class:`QcontrolInputError`) otherwise. Returns the checked request."""
-    drawn = scene(scenario)
+    """Check, before a run, that its video can be made (:func:`video`): the run's scenario has a
+    MuJoCo model with a camera, the format is known, the encoder is installed, an offscreen OpenGL
+    context opens. One line (:class:`QcontrolInputError`) otherwise. Returns the checked request."""
+    drawn, scenario = run.scene, run.scenario
     if drawn is None:
         raise QcontrolInputError(f"--video: {scenario.source} has no MuJoCo model to render; add a "
                                  "[plant.mujoco] table, or leave out --video")
@@ -314,30 +336,31 @@ def video(result: Result, path: str | Path, *, fps: float = 30.0, camera: str | 
     translucent ghost. Only reads the trajectories: the runs' numbers do not change."""
     from .render import write_video
 
-    request = check_video(result.scenario, path, fps, camera, size)
-    drawn = scene(result.scenario)
+    asm = result.assembly if result.assembly is not None else assemble(result.scenario, result.backend)
+    request = check_video(asm, path, fps, camera, size)
+    drawn = asm.scene
     return write_video(request, result.trajectory, drawn.model, drawn.joint, str(result.scenario.source),
                        None if twin is None else twin.trajectory, progress)
 
 
-def _log_camera_view(rec: Any, sc: Scenario, traj: Trajectory, twin: Trajectory | None = None) -> None:
+def _log_camera_view(rec: Any, asm: Assembly, traj: Trajectory, twin: Trajectory | None = None) -> None:
     """MuJoCo's rendering of a finished run (and its twin's ghost) into the recording ``rec``."""
     from .render.video import camera_view_frames
 
-    drawn = scene(sc)
+    drawn, source = asm.scene, asm.scenario.source
     if drawn is None:
-        raise QcontrolInputError(f"--camera-view: {sc.source} has no MuJoCo model to render")
-    name, times, jpegs = camera_view_frames(traj, drawn.model, drawn.joint, str(sc.source), twin=twin)
+        raise QcontrolInputError(f"--camera-view: {source} has no MuJoCo model to render")
+    name, times, jpegs = camera_view_frames(traj, drawn.model, drawn.joint, str(source), twin=twin)
     rec.log_camera_frames(name, times, jpegs)
 
 
-def check_camera_view(scenario: Scenario) -> None:
+def check_camera_view(run: Assembly) -> None:
     """Before a run: that its recording can hold MuJoCo's rendering (a model with a camera, an
     offscreen OpenGL context); one line otherwise."""
     from .render import require_offscreen_gl
     from .render.frames import camera_id
 
-    drawn = scene(scenario)
+    drawn, scenario = run.scene, run.scenario
     if drawn is None:
         raise QcontrolInputError(f"--camera-view: {scenario.source} has no MuJoCo model to render; add a "
                                  "[plant.mujoco] table, or leave out --camera-view")
@@ -353,9 +376,9 @@ def require_twin(scenario: Scenario) -> None:
         )
 
 
-def recording_for(rrd: str | Path | None, spawn: bool, sc: Scenario, provenance: dict[str, Any]) -> Any:
-    """A rerun Recording of the scenario (its resolved text, constants, ``provenance`` and
-    disturbances), or nothing without ``rrd`` and ``spawn``."""
+def recording_for(rrd: str | Path | None, spawn: bool, asm: Assembly, provenance: dict[str, Any]) -> Any:
+    """A rerun Recording of the run ``asm`` (its scenario's resolved text, the law's constants,
+    ``provenance`` and the disturbances), or nothing without ``rrd`` and ``spawn``."""
     from contextlib import nullcontext
 
     if rrd is None and not spawn:
@@ -365,21 +388,20 @@ def recording_for(rrd: str | Path | None, spawn: bool, sc: Scenario, provenance:
     from .recording import Recording  # imports rerun when it opens: only when asked for
 
     rec = Recording(None if rrd is None else Path(rrd), spawn=spawn)
-    rec.log_static(provenance["resolved_scenario"], controller_constants(sc), __version__,
-                   provenance=provenance)
+    rec.log_static(provenance["resolved_scenario"], asm.constants, __version__, provenance=provenance)
     from .recording.disturbances import log_disturbances
 
-    log_disturbances(rec, sc)  # arrows and time markers of the scenario's [[disturbance]]s, if any
+    log_disturbances(rec, asm)  # arrows and time markers of the scenario's [[disturbance]]s, if any
     return rec
 
 
-def observer_for(rec: Any, sc: Scenario, label: str, twin_of: Trajectory | None = None,
+def observer_for(rec: Any, drawn: SceneSource | None, label: str, twin_of: Trajectory | None = None,
                  ghost: bool | None = None) -> Any:
-    """The recording's observer of a run labelled ``label`` (its backend, or e.g. "comparison");
-    with ``twin_of`` the run is drawn as that main run's twin (thin lines on its wide ones, an
-    outline body, the differences); ``ghost`` (default: whether it is a twin) draws another run
-    beside the main one."""
-    drawn = scene(sc)
+    """The recording's observer of a run labelled ``label`` (its backend, or e.g. "comparison"),
+    drawn in 3-D in the scene ``drawn`` (an :attr:`Assembly.scene <qcontrol.assembly.Assembly.scene>`;
+    None: no 3-D view); with ``twin_of`` the run is drawn as that main run's twin (thin lines on its
+    wide ones, an outline body, the differences); ``ghost`` (default: whether it is a twin) draws
+    another run beside the main one."""
     ghost = twin_of is not None if ghost is None else ghost
     if drawn is None:
         return rec.observer(label, ghost=ghost, twin_of=twin_of)
@@ -405,7 +427,9 @@ def quantized_backstepping(c: Sequence[float], x_q: np.ndarray, yd: np.ndarray) 
     return coordinates.quantized_errors(np.asarray(x_q, dtype=float), np.asarray(yd, dtype=float))
 
 
-def lemma2_bounds(c: Sequence[float], delta: float) -> np.ndarray:
-    """Lemma 2's bounds ``L_z`` (shape ``(n,)``) on ``|z_i - zbar_i|`` for gains ``c`` and quantizer
-    step ``delta``; the paper's ``L`` is ``L_z[-1]``."""
-    return _lemma2_bounds(c, delta / 2.0)[0]
+def lemma2_bounds(c: Sequence[float], delta: float | Sequence[float]) -> np.ndarray:
+    """Lemma 2's bounds ``L_z`` (shape ``(n,)``) on ``|z_i - zbar_i|`` for gains ``c`` and the
+    uniform quantizer's step ``delta`` (a number, or one step per channel); the paper's ``L`` is
+    ``L_z[-1]``."""
+    half = delta / 2.0 if np.ndim(delta) == 0 else [d / 2.0 for d in delta]
+    return _lemma2_bounds(c, half)[0]

@@ -21,7 +21,7 @@ from typing import Any
 from . import compiled as compiled_paths
 from . import reproduce as _reproduce_package  # noqa: F401  (bound before the function of its name)
 from .api import _call, _check_arguments, check_scenario
-from .assembly import build_controller, build_plant, runnable_backend
+from .assembly import assemble
 from .errors import QcontrolInputError
 from .outputs import check_output_dir, check_output_file
 from .region import Region, default_laws, measure_region, parse_grid, parse_law, write_region
@@ -69,14 +69,12 @@ def check(scenario: Scenario, backend: str | None = None) -> CheckReport:
     :class:`~qcontrol.QcontrolInputError` with the one line a run would give; nothing is written."""
     check_scenario(scenario, "check")
     _check_arguments("check", backend=(backend, str, True))
-    chosen = runnable_backend(scenario, backend)
-    build_controller(scenario)
-    reports = {}
-    for name in [chosen] + [b for b in scenario.backends if b != chosen]:
-        with compiled_paths.not_needed():  # nothing runs: the Python form of MuJoCo's callback serves
-            reports[name] = dict(build_plant(scenario, name).consistency_report or {})
+    with compiled_paths.not_needed():  # nothing runs: the Python form of MuJoCo's callback serves
+        chosen = assemble(scenario, backend)
+        runs = [chosen] + [assemble(scenario, name) for name in scenario.backends if name != chosen.backend]
+    reports = {run.backend: dict(run.report.consistency_report or {}) for run in runs}
     steps = round(scenario.simulation.duration / scenario.simulation.dt)
-    return CheckReport(scenario.name, str(scenario.source), chosen, steps, scenario.simulation.dt,
+    return CheckReport(scenario.name, str(scenario.source), chosen.backend, steps, scenario.simulation.dt,
                        scenario.controller.kind, reports)
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from .api import Result, _call, check_scenario, observer_for, recording_for
-from .assembly import run_scenario, runnable_backend
+from .assembly import assemble, runnable_backend
 from .controller.law import KIND_ALIASES, LAW_KINDS
 from .errors import QcontrolInputError
 from .metrics import summary
@@ -70,13 +70,15 @@ def compare_laws(scenario: Scenario, kinds: Sequence[str], *, backend: str | Non
     backend = runnable_backend(scenario, backend)
     command = command or _call("compare_laws", scenario, backend=backend)
     provenance = scenario_provenance(scenario, command)
+    assemblies = {kind: assemble(sc, backend) for kind, sc in variants.items()}
+    first = next(iter(assemblies.values()))  # the main run: the recording's constants and scene
     runs: dict[str, Result] = {}
-    with recording_for(rrd, False, scenario, provenance) as rec:
-        for kind, sc in variants.items():
+    with recording_for(rrd, False, first, provenance) as rec:
+        for kind, asm in assemblies.items():
             main = next(iter(runs.values())).record if runs else None
-            observer = None if rec is None else observer_for(rec, sc, _entity_label(kind), main)
-            traj = run_scenario(sc, backend, observer=observer)
-            runs[kind] = Result(summary(traj, sc.name, backend), sc, backend, traj)
+            observer = None if rec is None else observer_for(rec, first.scene, _entity_label(kind), main)
+            traj = asm.run(observer=observer)[0]
+            runs[kind] = Result(summary(traj, asm.scenario.name, backend), asm.scenario, backend, traj, asm)
     table = [{"kind": k} | metric_row(r.typed_summary) for k, r in runs.items()]
     return LawComparison(runs, table, provenance)
 

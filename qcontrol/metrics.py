@@ -43,12 +43,16 @@ def run_summary(run: RunRecord, scenario: str, backend: str) -> Summary:
     possibly so large that ``x / delta`` has no fractional digits left), where quantization error
     is meaningless. With the velocity differenced from the encoder (``velocity_source =
     "difference"``) the controller's x2 is no quantized reading and Lemma 2 does not apply: the
-    ratio is still reported, with ``lemma2_applies`` false; likewise on a plant outside the chain
-    of eq. (1) (a strict-feedback plant with regressors before its last equation), for which
-    Lemma 2's bounds were not derived.
+    ratio is still reported, with ``lemma2_applies`` false; likewise with a logarithmic quantizer
+    (no constant bounds its error), when a reading saturated at its channel's range, and on a plant
+    outside the chain of eq. (1) (a strict-feedback plant with regressors before its last
+    equation), for which Lemma 2's bounds were not derived.
     """
     values = run.reduced()
     final = tuple(float(v) for v in values["final_adaptive"])
+    sensors = sensor_figures(run, values)
+    bounds = bound_constants(run.bound_names, values["bound_constants"], values["smallest_r"])
+    bounds["warnings"] = bounds["warnings"] + sensors.pop("warnings")
     return Summary(
         scenario=scenario, backend=backend, duration=run.duration, dt=run.dt, steps=run.steps,
         wall_time_s=run.wall_time_s, diverged=bool(run.diverged), diverged_time=run.diverged_time,
@@ -57,12 +61,34 @@ def run_summary(run: RunRecord, scenario: str, backend: str) -> Summary:
         max_abs_u_applied=values["max_abs_u_applied"], saturated_fraction=values["saturated_fraction"],
         final_eps_hat=final, adaptive_state=run.adaptive_name,  # final_eps_hat: alias of final_state
         lemma2_max_ratio=lemma2_max_ratio(values["e_z_max"][None, :], run.L_z),
-        velocity_source=run.velocity_source, lemma2_applies=lemma2_applies(run.velocity_source) and run.chain,
+        velocity_source=run.velocity_source,
+        lemma2_applies=(lemma2_applies(run.velocity_source) and run.quantizer_sector is None
+                        and not sensors.get("reading_saturated_fraction") and run.chain),
         L_z=tuple(float(v) for v in run.L_z), L=float(run.L_z[-1]),
-        **bound_constants(run.bound_names, values["bound_constants"], values["smallest_r"]),
-        law_diagnostics=law_diagnostics(run.law_diagnostics, values["diagnostics"]),
-        final_state=final,
+        **bounds, law_diagnostics=law_diagnostics(run.law_diagnostics, values["diagnostics"]),
+        final_state=final, **sensors,
     )
+
+
+def sensor_figures(run: RunRecord, values: dict) -> dict:
+    """What the sensors of a ``[quantizer]`` table add to the summary, each only where it applies:
+    the share of readings that saturated at a channel's range (with a warning when there were
+    any: Lemma 2's bounds do not hold at those instants), a logarithmic quantizer's sector bound,
+    and the input quantizer's largest error and share of changed samples."""
+    out: dict = {"warnings": ()}
+    if run.reading_range:
+        share = values["reading_saturated_fraction"]
+        out["reading_saturated_fraction"] = share
+        if share > 0:
+            out["warnings"] = (f"readings saturated at their channel's range at {share:.3%} of the "
+                               "samples: there the quantization error exceeds delta_i / 2 and Lemma 2's "
+                               "bounds no longer hold",)
+    if run.quantizer_sector is not None:
+        out["quantizer_sector"] = run.quantizer_sector
+    if run.quantized_input:
+        out["max_abs_input_quantization_error"] = values["max_abs_input_quantization_error"]
+        out["input_quantized_fraction"] = values["input_quantized_fraction"]
+    return out
 
 
 def law_diagnostics(diagnostics: tuple, reduced: dict[str, np.ndarray]) -> dict:

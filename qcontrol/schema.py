@@ -271,17 +271,33 @@ class Section:
     """The keys of one table: ``keys`` always apply; with ``kinds``, the key ``kind`` chooses one
     of them and that kind's keys apply too (see :func:`kind_table`; a kind whose keys are None is
     a law registered from Python, whose own factory checks them). ``array``: the file holds a list
-    of such tables, ``[[name]]``, each with its kind's keys directly in it (no sub-tables)."""
+    of such tables, ``[[name]]``, each with its kind's keys directly in it (no sub-tables).
+    ``stand_in``: a key of another table that stands in for this whole table when it is left out
+    (``controller.delta`` for ``[quantizer]``)."""
 
     name: str
     keys: tuple[Key, ...]
     meaning: str = ""
     kinds: Mapping[str, KindKeys | None] = field(default_factory=dict)
     array: bool = False
+    stand_in: str = ""
 
     @property
     def names(self) -> tuple[str, ...]:
         return tuple(k.name for k in self.keys)
+
+    @property
+    def optional(self) -> bool:
+        """Whether the whole table may be left out: another key stands in for it, or every key it
+        takes has a default and, in a kinded table, so has every key of the kind chosen by default."""
+        if self.stand_in:
+            return True
+        if any(k.default is REQUIRED for k in self.keys):
+            return False
+        if not self.kinds:
+            return True
+        chosen = self.kinds.get(next((k.default for k in self.keys if k.name == "kind"), None))
+        return chosen is not None and all(k.default is not REQUIRED for k in chosen.keys)
 
 
 def kind_table(table: Table, common: Sequence[str], kinds: Mapping[str, KindKeys | None],

@@ -33,7 +33,13 @@ class Summary:
     (``final_theta_hat`` for the comparison law; for the paper's law that key is ``final_eps_hat``
     itself, kept for every law as an alias). ``provenance`` and
     ``physics_warnings`` are present (not None) in the summary of a single run written by
-    ``qcontrol run`` or :func:`qcontrol.run`.
+    ``qcontrol run`` or :func:`qcontrol.run`. The sensors of a ``[quantizer]`` table, each present
+    only where it applies: ``reading_saturated_fraction`` (the share of readings beyond a channel's
+    range; Lemma 2's bounds do not hold there), ``quantizer_sector`` (a logarithmic quantizer's
+    relative bound xi, reported instead of Lemma 2, ``lemma2_applies`` false),
+    ``max_abs_input_quantization_error`` and ``input_quantized_fraction`` (``[quantizer.input]``:
+    the largest ``|q_u(u) - u|`` and the share of control samples at which the applied input
+    differed from the command).
     """
 
     scenario: str
@@ -64,6 +70,10 @@ class Summary:
     r_below_one: Mapping[str, float] | None = None
     provenance: Mapping[str, Any] | None = field(default=None, compare=False)
     physics_warnings: tuple[str, ...] | None = None
+    reading_saturated_fraction: float | None = None
+    quantizer_sector: float | None = None
+    max_abs_input_quantization_error: float | None = None
+    input_quantized_fraction: float | None = None
 
     def to_json(self) -> dict[str, Any]:
         """``summary.json``'s object: every field in order, lists for tuples, the optional ones
@@ -107,7 +117,8 @@ class Summary:
         return cls(**values)
 
 
-_OPTIONAL = ("bound_constants", "r_below_one", "provenance", "physics_warnings")
+_OPTIONAL = ("bound_constants", "r_below_one", "provenance", "physics_warnings", "reading_saturated_fraction",
+             "quantizer_sector", "max_abs_input_quantization_error", "input_quantized_fraction")
 _DIAGNOSTIC_PREFIXES = ("max_", "last_")  # a law diagnostic's key: <reduce>_<name>
 
 

@@ -45,7 +45,7 @@ LAYERS = [
     {"_version", "errors", "schema", "timegrid", "expr", "progress", "outputs", "error_rate", "resources",
      "provenance", "compiled", "workers"},
     {"columns"},
-    {"quantizer", "reference", "disturbance"},
+    {"quantizer", "quantizers", "reference", "disturbance"},
     {"controller"},
     {"plants"},
     {"engine"},
@@ -320,6 +320,8 @@ def test_recorded_derived_and_reduced_signals() -> None:
     assert needed(("e_z",)) == ("zbar", "e_z")
     assert {r.name for r in REDUCTIONS} == {"error_rate", "max_abs_z1_last_half", "max_abs_u", "e_z_max",
                                              "final_adaptive", "bound_constants", "max_abs_u_applied",
+                                             "reading_saturated_fraction", "max_abs_input_quantization_error",
+                                             "input_quantized_fraction",
                                              "saturated_fraction", "diagnostics", "smallest_r"}
 
 

@@ -558,7 +558,6 @@ def test_usage_errors_are_one_line_exit_2(capsys: pytest.CaptureFixture[str]) ->
     """argparse errors (unknown option, bad choice, missing scenario) follow the same rule."""
     for argv in (
         ["run"],
-        ["run", str(EX2), "--backend", "gpu"],
         ["run", str(EX2), "--frobnicate"],
         ["run", str(EX2), "--duration", "ten"],
         ["fly", str(EX2)],

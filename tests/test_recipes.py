@@ -23,7 +23,8 @@ from conftest import ROOT
 PAGE = ROOT / "docs" / "architecture.md"
 RECIPES = {"law": "**A control law in the package**", "backend": "**A plant backend**",
            "signal": "**A recorded signal**", "command": "**A command**"}
-COPIED = ("qcontrol", "tests", "tools", "docs", "scenarios", "models", "pyproject.toml", "README.md")
+COPIED = ("qcontrol", "tests", "tools", "docs", "scenarios", "models", "pyproject.toml", "README.md",
+          "mkdocs.yml", "LICENSE", "CITATION.cff")
 PLACE = re.compile(r"# (?:(new file|at the end of):? (\S+)|in (\S+), (after|before|replace) the line: (.*))$")
 TIMEOUT = 600
 

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from ..errors import OverrideError, QcontrolInputError
 from ..outputs import check_distinct, check_figure_file, check_output_dir, check_output_file
+from ..plants import BACKENDS
 from ..progress import ProgressLine
 from ..resources import shipped_scenarios
 from ..scenario import Scenario, load_scenario
@@ -54,6 +55,13 @@ def add_scenario_options(p: argparse.ArgumentParser, *, timing: bool = True, sce
         p.add_argument("--duration", type=float, metavar="S", help="simulated time in seconds")
         p.add_argument("--dt", type=float, metavar="S", help="integration step in seconds")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+
+
+def backend_names() -> str:
+    """How ``--backend NAME`` shows in a usage line: the backends registered now. The name is not
+    checked by the parser but once the command's law modules, which may register a backend, have
+    run (an unknown name: one line, exit status 2)."""
+    return "{" + ",".join(BACKENDS) + "}"
 
 
 def add_recording_options(p: argparse.ArgumentParser) -> None:

@@ -16,8 +16,7 @@ from __future__ import annotations
 import argparse
 
 from ..commands import check
-from ..plants import BACKENDS
-from .arguments import EXIT_OK, add_scenario_options, scenario_from_args
+from .arguments import EXIT_OK, add_scenario_options, backend_names, scenario_from_args
 
 
 def add_check_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -30,7 +29,7 @@ def add_check_parser(subparsers: argparse._SubParsersAction) -> None:
         "and compared with eq. (1)). Exit status 0 when it is valid, 2 otherwise (one line on stderr).",
     )
     add_scenario_options(p)
-    p.add_argument("--backend", choices=tuple(BACKENDS),
+    p.add_argument("--backend", metavar=backend_names(),
                    help="the backend to check for (default: the scenario's)")
 
 

@@ -7,6 +7,7 @@ import argparse
 from pathlib import Path
 
 from .. import api
+from ..assembly import assemble
 from ..attribution import attribution_lines
 from ..outputs import prepare_output_dir, write_json
 from ..progress import ProgressLine
@@ -39,15 +40,16 @@ def add_compare_parser(sub: argparse._SubParsersAction) -> None:
 def cmd_compare(args: argparse.Namespace) -> int:
     sc = scenario_from_args(args)
     api.require_twin(sc)  # before --spawn starts a viewer
+    main = assemble(sc, "mujoco")  # the MuJoCo run put together once (api.compare adds its ODE twin)
     check_outputs(args, sc, {"--rrd": args.rrd, "--video": args.video}, ("compare.json",))
-    check_rendering(args, sc)
+    check_rendering(args, main)
     progress: dict[str, ProgressLine] = {}
 
     def progress_of(backend: str) -> ProgressLine:
         progress[backend] = progress_line(sc, backend, args)
         return progress[backend]
 
-    cmp = api.compare(sc, rrd=args.rrd, spawn=args.spawn, progress=progress_of, command=args.command_line,
+    cmp = api.compare(main, rrd=args.rrd, spawn=args.spawn, progress=progress_of, command=args.command_line,
                       camera_view=args.camera_view)
     for line in progress.values():
         line.finish()

@@ -10,9 +10,8 @@ from pathlib import Path
 from ..errors import QcontrolInputError
 from ..law_comparison import compare_laws
 from ..outputs import check_output_dir, check_output_file, prepare_output_dir, write_json
-from ..plants import BACKENDS
 from ..region import parse_law
-from .arguments import EXIT_FAILED, EXIT_OK, add_scenario_options, scenario_from_args
+from .arguments import EXIT_FAILED, EXIT_OK, add_scenario_options, backend_names, scenario_from_args
 
 
 def add_laws_parser(sub: argparse._SubParsersAction) -> None:
@@ -28,7 +27,7 @@ def add_laws_parser(sub: argparse._SubParsersAction) -> None:
                    required=True, help="a law to compare: a controller kind with optional settings of its "
                    "[controller] table (give two or more, e.g. --law proposed --law proposed:hold=exact "
                    "--law comparison)")
-    p.add_argument("--backend", choices=tuple(BACKENDS), help="default: the scenario's simulation.backend")
+    p.add_argument("--backend", metavar=backend_names(), help="default: the scenario's simulation.backend")
     p.add_argument("--out", type=Path, metavar="DIR", help="write DIR/laws.json and DIR/laws.png")
     p.add_argument("--rrd", type=Path, metavar="FILE", help="write a rerun recording with every law")
 

@@ -41,6 +41,7 @@ def format_summary(s: Summary | Mapping, sc: Scenario) -> str:
         *([f"  final {f.adaptive_state}: [{', '.join(f'{v:.4g}' for v in final_state(f))}]"]
           if final_state(f) else []),  # a stateless law has none to print
         _lemma2_line(f),
+        *sensor_lines(f),
         *gain_period_lines(f),
         *law_diagnostic_lines(f),
     ]
@@ -74,6 +75,11 @@ def _saturation(fraction: float) -> str:
 
 def _lemma2_line(f: Summary) -> str:
     ratio = f"  Lemma 2: max |e_zi|/L_zi = {f.lemma2_max_ratio:.6f}"
+    if f.quantizer_sector is not None:
+        return (f"{ratio} (not checked: a logarithmic quantizer's error has no constant bound; its sector "
+                f"bound is |q(x) - x| <= {f.quantizer_sector:.4g} |x|)")
+    if f.reading_saturated_fraction:
+        return f"{ratio} (not checked: readings saturated at their range, where Lemma 2's bounds do not hold)"
     if not f.lemma2_applies and f.velocity_source == "difference":
         return (f"{ratio} (not checked: x2 is differenced from the encoder, outside the paper's "
                 "assumptions)")
@@ -81,6 +87,18 @@ def _lemma2_line(f: Summary) -> str:
         return (f"{ratio} (not checked: Lemma 2's bounds are the chain's, and this plant has regressors "
                 "before its last equation)")
     return f"{ratio} (<= 1 holds: {'yes' if lemma2_holds(f) else 'NO'})"
+
+
+def sensor_lines(f: Summary) -> list[str]:
+    """What a ``[quantizer]`` table's sensors add: saturated readings, the input's quantization."""
+    lines = []
+    if f.reading_saturated_fraction is not None:
+        share = 100 * f.reading_saturated_fraction
+        lines.append(f"  readings beyond their range: {share:.3g}% of the samples")
+    if f.max_abs_input_quantization_error is not None:
+        lines.append(f"  input quantizer: max |q_u(u) - u| = {f.max_abs_input_quantization_error:.4g}    "
+                     f"q_u(u) != u at {100 * f.input_quantized_fraction:.3g}% of the control samples")
+    return lines
 
 
 def lemma2_holds(f: Summary) -> bool:

@@ -13,14 +13,13 @@ from pathlib import Path
 
 from ..errors import QcontrolInputError
 from ..outputs import check_output_dir, check_output_file
-from ..plants import BACKENDS
 from ..progress import ProgressLine
 from ..provenance import command_line
 from ..region import BOX, default_laws, measure_region, parse_grid, parse_law, write_region
 from ..scenario import load_scenario
 from ..scenario.resolve import scenario_provenance
 from ..sweep.runs import SweepInterrupted
-from .arguments import EXIT_OK, add_scenario_options, options_named, timing_overrides
+from .arguments import EXIT_OK, add_scenario_options, backend_names, options_named, timing_overrides
 
 
 def add_region_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -46,7 +45,7 @@ def add_region_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--box", default="10", metavar="H | LO,HI | LO1,HI1,LO2,HI2",
                    help="the grid's extent: [-H, H] on both axes (default 10), or the bounds given")
     p.add_argument("--resolution", type=int, default=21, metavar="N", help="points per axis (default 21)")
-    p.add_argument("--backend", choices=tuple(BACKENDS), default="ode",
+    p.add_argument("--backend", metavar=backend_names(), default="ode",
                    help="plant backend (default ode: batched; mujoco on request)")
     p.add_argument("--workers", type=int, default=1, metavar="N", help="local worker processes (default 1)")
     p.add_argument("--scheduler", metavar="ADDRESS",

@@ -9,10 +9,10 @@ import time
 from pathlib import Path
 
 from .. import api
+from ..assembly import Assembly
 from ..errors import QcontrolInputError
 from ..progress import ProgressLine
 from ..render import DEFAULT_FPS
-from ..scenario import Scenario
 
 
 def _video_size(text: str) -> tuple[int, int]:
@@ -40,15 +40,15 @@ def add_rendering_options(p: argparse.ArgumentParser) -> None:
                    help="the model's camera to render from (default: its first named camera)")
 
 
-def check_rendering(args: argparse.Namespace, sc: Scenario) -> None:
-    """Before the run: that --video and --camera-view can be made (one line and exit status 2)."""
+def check_rendering(args: argparse.Namespace, run: Assembly) -> None:
+    """Before the run ``run``: that --video and --camera-view can be made (one line and exit status 2)."""
     if args.video is not None:
-        api.check_video(sc, args.video, args.video_fps, args.video_camera, args.video_size)
+        api.check_video(run, args.video, args.video_fps, args.video_camera, args.video_size)
     if args.camera_view:
         if args.rrd is None and not args.spawn:
             raise QcontrolInputError("--camera-view puts the rendering in a recording: add --rrd FILE "
                                      "(or --spawn)")
-        api.check_camera_view(sc)
+        api.check_camera_view(run)
 
 
 def write_video(args: argparse.Namespace, result: api.Result, twin: api.Result | None = None) -> None:

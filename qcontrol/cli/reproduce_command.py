@@ -9,8 +9,7 @@ from pathlib import Path
 from ..commands import MAX_DURATION
 from ..errors import QcontrolInputError, shown
 from ..outputs import check_output_dir, path_kind
-from ..plants import BACKENDS
-from .arguments import EXIT_OK
+from .arguments import EXIT_OK, backend_names
 
 SCENARIO_FILES = ("example1.toml", "example2.toml", "example2-rigid.toml", "example2-arm.toml",
                   "example1-cart.toml")
@@ -35,7 +34,7 @@ def add_reproduce_parser(sub: argparse._SubParsersAction) -> None:
     )
     rep.add_argument("--out", type=Path, default=Path("results"), metavar="DIR",
                      help="output folder (default: results)")
-    rep.add_argument("--backend", choices=tuple(BACKENDS), default="mujoco",
+    rep.add_argument("--backend", metavar=backend_names(), default="mujoco",
                      help="plant for the examples (default: mujoco, with the ODE twin beside it)")
     rep.add_argument("--duration", type=float, metavar="S",
                      help="horizon of every run (default: the paper's 10 s); the robustness study keeps its "

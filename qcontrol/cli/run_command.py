@@ -7,13 +7,13 @@ import argparse
 from pathlib import Path
 
 from .. import api
-from ..assembly import runnable_backend
+from ..assembly import assemble
 from ..errors import QcontrolInputError
 from ..outputs import prepare_output_dir, write_json
-from ..plants import BACKENDS
 from .arguments import (
     add_recording_options,
     add_scenario_options,
+    backend_names,
     check_outputs,
     progress_line,
     scenario_from_args,
@@ -31,7 +31,7 @@ def add_run_parser(sub: argparse._SubParsersAction) -> None:
         "Prints a summary; with --out writes DIR/summary.json.",
     )
     add_scenario_options(run)
-    run.add_argument("--backend", choices=tuple(BACKENDS), help="plant backend (default: the scenario's)")
+    run.add_argument("--backend", metavar=backend_names(), help="plant backend (default: the scenario's)")
     run.add_argument("--out", type=Path, metavar="DIR", help="write DIR/summary.json")
     run.add_argument("--save", type=Path, metavar="FILE",
                      help="write the run's signals to FILE.npz (an array per signal) or FILE.csv (a column "
@@ -45,18 +45,18 @@ def add_run_parser(sub: argparse._SubParsersAction) -> None:
 
 def cmd_run(args: argparse.Namespace) -> int:
     sc = scenario_from_args(args)
-    backend = runnable_backend(sc, args.backend)
+    run = assemble(sc, args.backend)  # the run put together once: what follows reads its parts
     if args.save is not None and args.save.suffix not in api.SAVE_FORMATS:
         raise QcontrolInputError(f"--save {args.save}: unknown format {args.save.suffix!r}; "
                                  "give a .npz or .csv file")
     outputs = {"--rrd": args.rrd, "--save": args.save, "--plot": args.plot, "--video": args.video}
     check_outputs(args, sc, outputs, ("summary.json",))
-    check_rendering(args, sc)
+    check_rendering(args, run)
     # a plain run keeps only its metrics (memory stays flat however long the run); --save, --plot
     # and --video need every row
     record = "metrics" if args.save is None and args.plot is None and args.video is None else "full"
-    progress = progress_line(sc, backend, args)
-    result = api.run(sc, backend, rrd=args.rrd, spawn=args.spawn, record=record, progress=progress,
+    progress = progress_line(sc, run.backend, args)
+    result = api.run(run, rrd=args.rrd, spawn=args.spawn, record=record, progress=progress,
                      command=args.command_line, camera_view=args.camera_view)
     progress.finish()
     s = result.typed_summary

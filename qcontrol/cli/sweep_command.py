@@ -23,7 +23,6 @@ from ..outputs import (
     write_json,
     write_text,
 )
-from ..plants import BACKENDS
 from ..progress import ProgressLine
 from ..provenance import command_line
 from ..scenario import Scenario, load_scenario
@@ -31,7 +30,7 @@ from ..scenario.resolve import scenario_provenance
 from ..sweep.grid import check_size, grid_points, parse_grid
 from ..sweep.runs import SweepInterrupted, plan, sweep_summaries
 from ..sweep.table import csv_text, metric_columns, sweep_record, sweep_rows
-from .arguments import EXIT_OK, add_scenario_options, options_named
+from .arguments import EXIT_OK, add_scenario_options, backend_names, options_named
 
 OUTPUTS = ("sweep.csv", "sweep.json", "sweep.png")
 
@@ -63,7 +62,7 @@ def add_sweep_parser(subparsers: argparse._SubParsersAction) -> None:
                    "in all)")
     p.add_argument("--seed", type=int, default=0, metavar="S",
                    help="seed of --random-initial, 0 to 2**63 - 1 (default 0)")
-    p.add_argument("--backend", choices=tuple(BACKENDS),
+    p.add_argument("--backend", metavar=backend_names(),
                    help="plant backend (default: the scenario's; --backend ode runs batched and is faster)")
     p.add_argument("--workers", type=int, default=1, metavar="N", help="local worker processes (default 1)")
     p.add_argument("--scheduler", metavar="ADDRESS",

@@ -59,23 +59,32 @@ def backstepping_coefficients(c: Sequence[float]) -> tuple[np.ndarray, np.ndarra
     return A, B
 
 
-def lemma2_bounds(c: Sequence[float], max_error: float) -> tuple[np.ndarray, np.ndarray]:
-    """Lemma 2 (Appendix A): bounds ``L_z`` and ``L_alpha`` (both shape ``(n,)``).
+def lemma2_bounds(c: Sequence[float], max_error: float | Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    """Lemma 2 (Appendix A) with one bound per channel: ``L_z`` and ``L_alpha`` (both shape ``(n,)``).
 
-    ``max_error`` is the quantizer's bound ``delta/2`` of property (4).
-    ``L_z1 = delta/2``, ``L_alpha1 = c_1 delta/2``; ``L_zi = delta/2 + L_alpha(i-1)``,
-    ``L_alphai = c_i L_zi + (delta/2) sum_{k<i} |a[i-1][k]|``. The paper's ``L`` is ``L_z[-1]``.
+    ``max_error`` is the quantizer's worst-case error m_i of each channel (a number: the same m on
+    every channel, ``delta / 2`` of property (4) for the paper's quantizer):
+    ``L_z1 = m_1``, ``L_alpha1 = c_1 m_1``; ``L_zi = m_i + L_alpha(i-1)``,
+    ``L_alphai = c_i L_zi + sum_{k<i} |a[i-1][k]| m_{k+1}``. The paper's ``L`` is ``L_z[-1]``
+    (``m_2 + c_1 m_1`` for n = 2). With one m for every channel the sum is computed as
+    ``m sum_k |a[i-1][k]|``, the paper's form of the same number.
     """
     c = np.asarray(c, dtype=float)
     A, _ = backstepping_coefficients(c)
     n = c.size
+    same = np.ndim(max_error) == 0
+    m = np.full(n, float(max_error)) if same else np.asarray(max_error, dtype=float)
+    if m.shape != (n,):
+        raise QcontrolInputError(f"the quantizer gives {m.size} channel bound(s) for a plant of order {n}")
     L_z = np.empty(n)
     L_alpha = np.empty(n)
-    L_z[0] = max_error
-    L_alpha[0] = c[0] * max_error
+    L_z[0] = m[0]
+    L_alpha[0] = c[0] * m[0]
     for i in range(1, n):
-        L_z[i] = max_error + L_alpha[i - 1]
-        L_alpha[i] = c[i] * L_z[i] + max_error * np.abs(A[i - 1, :i]).sum()
+        L_z[i] = m[i] + L_alpha[i - 1]
+        weights = np.abs(A[i - 1, :i])
+        spread = m[0] * weights.sum() if same else (weights * m[1 : i + 1]).sum()
+        L_alpha[i] = c[i] * L_z[i] + spread
     return L_z, L_alpha
 
 
@@ -87,7 +96,8 @@ def lemma2_L(c: Sequence[float], delta: float) -> float:
 
 
 class Backstepping:
-    """Backstepping coordinates for gains ``c`` and a quantizer with bound ``max_error``."""
+    """Backstepping coordinates for gains ``c`` and a quantizer with bound ``max_error`` (a number,
+    or one per channel)."""
 
     diagnostics: tuple = ()  # a law's own signals (:class:`~.law.Diagnostic`); none by default
 
@@ -99,11 +109,12 @@ class Backstepping:
             )
         if not np.all(np.isfinite(c)) or np.any(c <= 0):
             raise QcontrolInputError(f"every design gain c_i must be a finite number > 0, got {c.tolist()}")
-        if not (np.isfinite(max_error) and max_error > 0):
+        if not (np.all(np.isfinite(max_error)) and np.all(np.asarray(max_error) > 0)):
             raise QcontrolInputError(f"quantizer step delta must be > 0, got bound {max_error!r}")
         self.c = c
         self.n = c.size
-        self.max_error = float(max_error)
+        # one bound for every channel (a float), or one per channel (a tuple, as the quantizer's)
+        self.max_error = float(max_error) if np.ndim(max_error) == 0 else tuple(float(m) for m in max_error)
         self.A, self.B = backstepping_coefficients(c)
         self.L_z, self.L_alpha = lemma2_bounds(c, max_error)
         self.L = float(self.L_z[-1])

@@ -176,6 +176,9 @@ class ComparisonSettings:
 
 def parse(table: Table, ctx: LawContext) -> ComparisonSettings:
     v = read_keys(table, KEYS.keys, {"n": ctx.order})
+    if any(e.variables[-1:] == ("t",) for e in (ctx.psi, *ctx.phi) if e is not None):
+        raise table.error_at("plant", "law (46) evaluates psi and phi at the quantized state alone and "
+                             "does not take terms in t", "use kind = \"proposed\" for a forced plant")
     return ComparisonSettings(v["gain"], v["theta"])
 
 

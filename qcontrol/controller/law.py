@@ -22,7 +22,7 @@ from ..errors import QcontrolInputError
 from ..expr import Expression
 from ..quantizer import QuantizedReading
 from ..schema import KindKeys, Table
-from .backstepping import Advance, Backstepping, Columns, ControlOutput
+from .backstepping import Advance, Backstepping, Columns, ControlOutput, lemma2_bounds
 
 DIAGNOSTIC_REDUCTIONS = ("max", "last")
 # The plant classes a law declares it supports: the chain of eq. (1) (terms in the last equation
@@ -145,7 +145,8 @@ class LawContext:
     """What a law is built from (public: a law class's ``from_context(context)`` reads it).
 
     * ``n`` (``order``): the plant order; ``delta`` and ``c``: the common controller keys
-      (``max_error = delta / 2``, property (4));
+      (``max_error = delta / 2``, property (4)); with a ``[quantizer]`` table, ``quantizer_error``
+      holds its bound per channel, which ``max_error`` then is (``delta`` is then twice the largest);
     * ``dt``: the simulation step; ``control_period`` (``T``): the time u is held, a whole number
       of steps (``dt`` when the scenario gives none);
     * ``psi``, ``phi``, ``theta``: the plant's terms (the comparison law (46) evaluates them at the
@@ -158,6 +159,10 @@ class LawContext:
       (``[controller.proposed]`` for :class:`~.proposed.PaperLaw` and its subclasses, as a
       :class:`~.proposed.ProposedSettings`; ``[controller.comparison]`` for
       :class:`~.comparison.ComparisonLaw`), else None.
+
+    ``input_gain`` is the plant's known input gain b (``x_n' = b u + ...``): the built-in laws
+    compute their input for b = 1 and the package divides it by b; a law of your own divides
+    its input by it itself.
 
     ``source`` names the scenario in messages; ``controller`` is the whole ``[controller]`` table
     while a scenario is read (None afterwards).
@@ -175,6 +180,8 @@ class LawContext:
     settings: Mapping[str, Any] = field(default_factory=no_settings)
     base: Any = None
     controller: Table | None = field(default=None, repr=False, compare=False)
+    input_gain: float = 1.0
+    quantizer_error: tuple[float, ...] | None = None  # per channel, from [quantizer] (None: delta / 2)
     rows: tuple[tuple[Expression, ...], ...] = ()
 
     @property
@@ -191,7 +198,7 @@ class LawContext:
     def terms(self) -> Any:
         """The plant's terms as a :class:`~qcontrol.plants.base.PlantTerms`."""
         from ..plants.base import PlantTerms
-        return PlantTerms(self.order, self.psi, self.phi, self.theta, self.rows)
+        return PlantTerms(self.order, self.psi, self.phi, self.theta, self.input_gain, rows=self.rows)
 
     @property
     def n(self) -> int:
@@ -204,9 +211,16 @@ class LawContext:
         return len(self.phi) + (self.psi is not None)
 
     @property
-    def max_error(self) -> float:
-        """The quantizer's bound delta / 2, property (4)."""
-        return self.delta / 2.0
+    def max_error(self) -> float | tuple[float, ...]:
+        """The quantizer's bound delta / 2, property (4); with a ``[quantizer]`` table, one bound
+        m_i per channel (what Lemma 2's bounds and the law's L are computed from)."""
+        return self.delta / 2.0 if self.quantizer_error is None else self.quantizer_error
+
+    @property
+    def L(self) -> float:
+        """Lemma 2's ``L = L_zn`` for the gains c and the quantizer's bounds."""
+        with np.errstate(all="ignore"):
+            return float(lemma2_bounds(self.c, self.max_error)[0][-1])
 
 
 @dataclass(frozen=True)

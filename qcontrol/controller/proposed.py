@@ -28,7 +28,6 @@ from .backstepping import (
     Columns,
     ControlOutput,
     Parameter,
-    lemma2_L,
     output,
     parameter,
 )
@@ -360,7 +359,7 @@ def _kappa(table: Table, ctx: LawContext, kappa: float | None, margin: float | N
                           "give either kappa or kappa_margin (kappa = L + kappa_margin), not both")
     if kappa is None and margin is None:
         raise table.error("kappa_margin", "missing", "give kappa_margin (kappa = L + margin) or kappa")
-    L, n = lemma2_L(ctx.c, ctx.delta), ctx.order
+    L, n = ctx.L, ctx.order  # Lemma 2 with the quantizer's bound per channel
     if not math.isfinite(L):
         raise table.error_at("controller.delta", f"with c = {list(ctx.c)} gives L = L_z{n} = {L:g}, not a "
                              "finite number", "use a smaller quantizer step delta or smaller gains c")

@@ -191,6 +191,10 @@ def parse(table: Table, ctx: LawContext) -> TuningSettings:
         raise QcontrolInputError(f"{ctx.source}: plant.phi: the tuning law needs regressors phi (theta^T phi "
                                  "in at least one equation); add plant.phi and plant.theta, or use another "
                                  "controller kind")
+    if any(e.variables[-1:] == ("t",) for e in ctx.phi):
+        raise QcontrolInputError(f"{ctx.source}: plant.phi: a regressor of the last row uses t, which the "
+                                 "tuning law's design does not differentiate; write the term in t as psi, or "
+                                 "use another controller kind")
     return TuningSettings(v["gamma"], v["sigma"])
 
 

@@ -1,7 +1,7 @@
 """The closed-loop engine: the loop (:mod:`.loop`), the signal table (:mod:`.signals`), and the
-parts of a run, each with one job: row buffers (:mod:`.rows`), divergence bookkeeping
+parts of a run, each with one job: row buffers (:mod:`.row_buffer`), divergence bookkeeping
 (:mod:`.divergence`), the reference at the rows (:mod:`.reference_rows`), what a run keeps
-(:mod:`.records`, :mod:`.reductions`) and what it returns (:mod:`.results`)."""
+(:mod:`.retention`, :mod:`.reductions`) and what it returns (:mod:`.results`)."""
 
 from .loop import ClosedLoop, simulate
 from .reductions import MetricSettings

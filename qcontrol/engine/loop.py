@@ -20,7 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from ..plants.base import Actuated, Disturbable, Plant
+from ..plants.base import Disturbable, Plant, actuator_of
+from ..quantizer import Quantizer
+from ..quantizers import SensorQuantizer
 from .compiled_loop import START, Resume
 from .divergence import Divergence
 from .fastpath import compiled_loop, rows_for
@@ -28,7 +30,7 @@ from .reference_rows import ReferenceRows
 from .results import RunRecord
 from .retention import FullRecord, MetricsRecord, RunParts
 from .row_buffer import NEVER
-from .signals import SignalContext, applied_as_commanded
+from .signals import SignalContext
 from .spec import ProgressCallback, RunSpec
 
 
@@ -76,20 +78,23 @@ class ClosedLoop:
         self.divergence = Divergence(batch, grid.rows, grid.dt, spec.state_bound, law.state_name,
                                      spec.terms)
         self.reference = ReferenceRows(spec.reference, n, grid, whole=spec.record == "full")
-        actuated = isinstance(plant, Actuated)  # else u is applied as commanded
-        actuator = plant.actuator if actuated else applied_as_commanded
-        context = SignalContext(law.coordinates, spec.separation, actuator, spec.velocity_source,
-                                actuated and plant.actuator_limited, tuple(law.diagnostics), spec.chain)
+        actuator, limited = actuator_of(plant)  # without an actuator, u is applied as commanded
+        context = SignalContext(law.coordinates, spec.separation, actuator, spec.velocity_source, limited,
+                                tuple(law.diagnostics), spec.quantizer, spec.input_quantizer, spec.chain)
         parts = RunParts(grid, law, self.reference, self.divergence, context, spec.metrics, batch, n)
         self.record = (FullRecord(parts, spec.observer, spec.observe_every) if spec.record == "full"
                        else MetricsRecord(parts, spec.observer))
         self.rows = rows_for(self.record.buffer, batch, spec.state_bound)
+        if isinstance(spec.quantizer, SensorQuantizer):  # (one with memory starts every run afresh)
+            spec.quantizer.reset()
         self.quantize = self.rows.quantizer(spec.quantizer)
         if spec.velocity_source == "difference":
             self.quantize = self.rows.differenced(self.quantize, grid.hold, grid.hold * grid.dt)
         self.progress = ProgressReports(spec.progress, grid.rows)
         self.loads = Loads(plant, spec.loads)
-        self.compiled = compiled_loop(spec)  # None: the Python loop (see .compiled_loop)
+        self.input_quantizer = spec.input_quantizer
+        # None: the Python loop (see .compiled_loop); an input quantizer keeps it too
+        self.compiled = compiled_loop(spec) if spec.input_quantizer is None else None
         self.handover: int | None = None  # the row the Python loop took over from (None: none)
 
     def next_event(self, k: int) -> int:
@@ -136,6 +141,8 @@ class ClosedLoop:
         adaptive, out = resume.adaptive, resume.out
         io = rows.plant_io(plant, dt)
         observe, step = io.observe, io.step
+        if self.input_quantizer is not None:  # the plant is stepped with q_u(u)
+            step = QuantizedInput(step, self.input_quantizer).step
         if resume.step_first:  # the step from the row before, which the compiled loop left
             step(out.u)
             adaptive = advance(adaptive, out)
@@ -151,6 +158,20 @@ class ClosedLoop:
                 due = self.next_event(k)
             step(out.u)
             adaptive = advance(adaptive, out)
+
+
+class QuantizedInput:
+    """A plant's step with the input quantized first, ``step(q_u(u))``: u a float (a batch of one
+    in the float form) or a ``(batch,)`` column; ``q_u`` takes ``(batch, 1)`` arrays."""
+
+    def __init__(self, step: Any, quantizer: Quantizer) -> None:
+        self.inner, self.quantizer = step, quantizer
+
+    def step(self, u: Any) -> None:
+        if isinstance(u, np.ndarray):
+            self.inner(self.quantizer(u.reshape(-1, 1))[:, 0])
+        else:
+            self.inner(float(self.quantizer(np.array([[u]], dtype=float))[0, 0]))
 
 
 def simulate(spec: RunSpec, *legacy: Any, **options: Any) -> list[RunRecord]:

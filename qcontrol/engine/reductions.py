@@ -147,6 +147,32 @@ class SaturatedFraction(Reduction):
         return float(self.clipped[b] / self.samples[b]) if self.samples[b] else math.nan
 
 
+class ReadingSaturatedFraction(SaturatedFraction):
+    """The fraction of rows (readings with a finite value) at which a reading saturated at the end
+    of its channel's range (NaN when there is none)."""
+
+    name, signal = "reading_saturated_fraction", "reading_saturated"
+
+    def add(self, chunk: Chunk, values: np.ndarray) -> None:
+        counted = np.isfinite(values)
+        if not chunk.everyone:
+            counted &= chunk.valid
+        self.samples += counted.sum(axis=0)
+        self.clipped += np.where(counted, values, 0.0).sum(axis=0)
+
+
+class LargestInputQuantizationError(LargestAbs):
+    """The largest finite ``|q_u(u) - u|``: what the input's quantizer changed."""
+
+    name, signal = "max_abs_input_quantization_error", "input_quantization_error"
+
+
+class InputQuantizedFraction(SaturatedFraction):
+    """The fraction of control samples at which the applied input ``q_u(u)`` differed from u."""
+
+    name, signal = "input_quantized_fraction", "input_quantized"
+
+
 class ErrorRate(Reduction):
     """Table 1's error rate E(omega) of ``z_1`` (see :mod:`qcontrol.error_rate`)."""
 

@@ -43,6 +43,9 @@ class RunRecord:
     metrics: MetricSettings = field(default_factory=MetricSettings)  # the error rate's omegas and samples
     bound_names: tuple[str, ...] = ()  # the terms whose separation (37)-(43) was checked
     law_diagnostics: tuple[Diagnostic, ...] = ()  # what the law declared (the diagnostics signal's columns)
+    quantizer_sector: float | None = None  # a logarithmic quantizer's xi (Lemma 2 does not apply), else None
+    reading_range: bool = False  # whether a reading could saturate at its channel's range
+    quantized_input: bool = False  # whether u passed an input quantizer before the actuator
 
     @property
     def diagnostic_columns(self) -> tuple[str, ...]:

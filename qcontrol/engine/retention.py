@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..controller.law import BatchLaw
+from ..quantizers import ChannelQuantizer, SensorQuantizer
 from ..timegrid import TimeGrid
 from .divergence import Divergence
 from .reductions import Chunk, MetricSettings
@@ -71,6 +72,7 @@ class _Record:
     def meta(self, b: int, now: float) -> dict[str, Any]:
         """What copy ``b``'s record carries besides its signals (:class:`RunRecord`'s fields)."""
         d, separation = self.divergence, self.context.separation
+        sensor = self.context.quantizer if isinstance(self.context.quantizer, SensorQuantizer) else None
         return dict(adaptive_name=self.law.state_name, L_z=self.law.coordinates.L_z.copy(), dt=self.grid.dt,
                     duration=self.grid.duration, hold=self.grid.hold,
                     velocity_source=self.context.velocity_source, chain=self.context.chain,
@@ -78,7 +80,10 @@ class _Record:
                     diverged=d.times[b] is not None, diverged_time=d.times[b],
                     divergence_reason=d.reasons[b], wall_time_s=now - self.started, metrics=self.metrics,
                     bound_names=() if separation is None else separation.names,
-                    law_diagnostics=self.context.diagnostics)
+                    law_diagnostics=self.context.diagnostics,
+                    quantizer_sector=sensor.sector if sensor is not None else None,
+                    reading_range=isinstance(sensor, ChannelQuantizer) and sensor.range is not None,
+                    quantized_input=self.context.input_quantizer is not None)
 
     def signals(self, first: int, stop: int, derived: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
         """The signals of run rows ``[first, stop)``: views of the buffer, the reference, and the

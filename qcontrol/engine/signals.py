@@ -17,21 +17,27 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from ..controller.backstepping import Backstepping
 from ..controller.law import Diagnostic
 from ..expr import Expression
+from ..plants.base import applied_as_commanded
+from ..quantizers import SensorQuantizer
 from .reductions import (
     BoundConstants,
     DiagnosticValues,
     ErrorRate,
     FinalValue,
+    InputQuantizedFraction,
     LargestAbs,
     LargestAbsApplied,
+    LargestInputQuantizationError,
     LastHalfLargestAbs,
     Lemma2Largest,
+    ReadingSaturatedFraction,
     Reduction,
     SaturatedFraction,
     SmallestBound,
@@ -50,11 +56,6 @@ class Separation:
     r: tuple[Expression, ...]
 
 
-def applied_as_commanded(u: np.ndarray) -> np.ndarray:
-    """The actuator of a plant that applies u as commanded."""
-    return u
-
-
 @dataclass(frozen=True)
 class SignalContext:
     """What derivations may read besides the block: the coordinates of the recorded errors, the
@@ -69,6 +70,8 @@ class SignalContext:
     velocity_source: str = "sensor"
     actuator_limited: bool = False
     diagnostics: tuple[Diagnostic, ...] = ()  # the law's own signals
+    quantizer: Any = None  # the state's quantizer (its ``saturated`` readings, if it has a range)
+    input_quantizer: Any = None  # the input's quantizer q_u of [quantizer.input] (None: u as computed)
     chain: bool = True  # the plant is the chain of eq. (1) (Lemma 2 applies to it)
 
     @property
@@ -93,15 +96,44 @@ def _zbar(block: Block, ctx: SignalContext) -> np.ndarray:
     return ctx.coordinates.quantized_errors(block["x_q"], block["yd"])[0]
 
 
+def _u_quantized(block: Block, ctx: SignalContext) -> np.ndarray:
+    """The input's quantizer applied to u, ``q_u(u)`` (u itself without one)."""
+    u = block["u"]
+    if ctx.input_quantizer is None:
+        return u
+    return ctx.input_quantizer(u[..., None])[..., 0]
+
+
 def _u_applied(block: Block, ctx: SignalContext) -> np.ndarray:
-    """What the actuator applied for the commanded u (clipped at its limit; u itself for an
-    actuator without one)."""
-    return ctx.actuator(block["u"])
+    """What the actuator applied for the commanded u (``q_u(u)`` with an input quantizer, clipped
+    at the actuator's limit; u itself for an actuator without either)."""
+    return ctx.actuator(block["u_quantized"])
+
+
+def _input_quantization_error(block: Block, ctx: SignalContext) -> np.ndarray:
+    """``q_u(u) - u``: what the input's quantizer changed (0 without one)."""
+    return block["u_quantized"] - block["u"]
+
+
+def _input_quantized(block: Block, ctx: SignalContext) -> np.ndarray:
+    """1 where the applied ``q_u(u)`` differed from the command u, else 0 (NaN where u is not finite)."""
+    u = block["u"]
+    if ctx.input_quantizer is None:
+        return u * 0.0
+    return np.where(np.isfinite(u), (block["u_quantized"] != u).astype(float), np.nan)
+
+
+def _reading_saturated(block: Block, ctx: SignalContext) -> np.ndarray:
+    """1 where a reading saturated at its channel's range, else 0 (NaN where it is not finite)."""
+    x_meas = block["x_meas"]
+    if not isinstance(ctx.quantizer, SensorQuantizer):  # the paper's quantizer: no range
+        return x_meas[..., 0] * 0.0
+    return ctx.quantizer.saturated(x_meas)
 
 
 def _saturated(block: Block, ctx: SignalContext) -> np.ndarray:
     """1 where the actuator clipped the command, 0 where it applied it (NaN where u is not finite)."""
-    u, applied = block["u"], block["u_applied"]
+    u, applied = block["u_quantized"], block["u_applied"]
     if not ctx.actuator_limited:  # nothing clipped; u * 0 keeps NaN where u is not finite
         return u * 0.0
     return np.where(np.isfinite(u), (applied != u).astype(float), np.nan)
@@ -201,10 +233,18 @@ SIGNALS: tuple[Signal, ...] = (
     Signal("x_q", "n", "state", True, "quantized reading q(x_meas), eq. (3): all the controller sees"),
     Signal("u", "1", "input", True, "input held over [t_k, t_k + dt): law (44), (46) or a user law",
            reductions=(LargestAbs,)),
-    Signal("u_applied", "1", "input", True, "input the actuator applied: u, clipped where the actuator "
-           "saturates (the plant's actuator)", _u_applied, reads=("u",), reductions=(LargestAbsApplied,)),
+    Signal("u_quantized", "1", "input", True, "q_u(u): u after the input's quantizer ([quantizer.input]; u "
+           "itself without one)", _u_quantized, reads=("u",)),
+    Signal("u_applied", "1", "input", True, "input the actuator applied: q_u(u), clipped where the actuator "
+           "saturates (the plant's actuator)", _u_applied, reads=("u_quantized",),
+           reductions=(LargestAbsApplied,)),
     Signal("saturated", "1", "-", True, "1 where the actuator clipped the command u over the step, else 0",
-           _saturated, reads=("u", "u_applied"), reductions=(SaturatedFraction,)),
+           _saturated, reads=("u_quantized", "u_applied"), reductions=(SaturatedFraction,)),
+    Signal("input_quantization_error", "1", "input", True, "q_u(u) - u: what the input's quantizer "
+           "changed", _input_quantization_error, reads=("u", "u_quantized"),
+           reductions=(LargestInputQuantizationError,)),
+    Signal("input_quantized", "1", "-", True, "1 where the applied q_u(u) differed from the command u, "
+           "else 0", _input_quantized, reads=("u", "u_quantized"), reductions=(InputQuantizedFraction,)),
     Signal("adaptive", "m", "adaptive", False, "adaptive estimates (eps_hat of (45), theta_hat of (46), ...)",
            reductions=(FinalValue,)),
     Signal("yd", "n+1", "y", False, "reference y_d and its derivatives y_d', ..., y_d^(n)", shared=True),
@@ -221,6 +261,9 @@ SIGNALS: tuple[Signal, ...] = (
     Signal("bound_ratio", "terms", "ratio", False,
            "|term_i| / r_i(x_q) of the separation (37)-(43) (phi_1..phi_l, then psi), at x and at x_q",
            _bound_ratio, reads=("x", "x_q", "r"), reductions=(BoundConstants,)),
+    Signal("reading_saturated", "1", "-", False, "1 where a reading lay beyond its channel's range (the "
+           "[quantizer] table's range), else 0", _reading_saturated, reads=("x_meas",),
+           reductions=(ReadingSaturatedFraction,)),
     Signal("quantization_error", "n", "state", False,
            "quantization error x_meas - q(x_meas) of the reading the quantizer saw (|.| <= delta/2)",
            _quantization_error, reads=("x_meas", "x_q")),

@@ -41,7 +41,8 @@ class RunSpec:
     NaN: ``terms``, the plant's expressions by name (``("plant.psi", psi)``), evaluated where a copy
     turned NaN to say which term went out of its domain. Who watches:
     ``progress(row, last row)`` about every 1% of the run; ``observer`` every ``observe_every``
-    rows and at the end, with the rows that became final.
+    rows and at the end, with the rows that became final. ``input_quantizer``: q_u between the
+    law and the actuator (the plant is stepped with ``q_u(u)``; None: with u).
     """
 
     plant: Plant
@@ -61,6 +62,7 @@ class RunSpec:
     progress: ProgressCallback | None = None
     observer: Observer | None = None
     observe_every: int = OBSERVE_EVERY
+    input_quantizer: Quantizer | None = None
 
     def __post_init__(self) -> None:
         if self.record not in RECORD_MODES:

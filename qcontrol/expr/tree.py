@@ -191,6 +191,10 @@ class Validator:
             return self._apply(row, [])
         if row is not None:
             raise self.fail(f"function {show(name)} used without a call", f"write {name}(...)")
+        if name == "t":  # time: the plant's terms take it (x1..xn, t), nothing else does
+            raise self.fail("t (time) is not allowed here", "only plant.psi and plant.phi may depend on t; "
+                            "a bounding function r is a function of the readings q1..qn alone (a bounded "
+                            "forcing is covered by a constant entry of r)")
         raise self.fail(f"unknown name {show(name)}", f"allowed names are {self.allowed_names()}")
 
     def _unary(self, node: ast.UnaryOp) -> Tree:

@@ -6,13 +6,17 @@ inputs, and declares what else it can do as separate capabilities, each a protoc
 :class:`PhysicsReport` (what the physics engine warned about, its agreement with eq. (1)),
 :class:`ColumnStepping` (a step written over columns of any form, :mod:`qcontrol.columns`, in
 which the engine may step a run) and :class:`NativeStepping` (source text for the engine's
-compiled loop). A plant with only the core works at every batch size.
+compiled loop). A plant with only the core works at every batch size, and everywhere: each
+optional part it lacks has its default here, in one place (:func:`actuator_of`,
+:func:`physics_report`; a plant that is not :class:`Disturbable` takes no ``[[disturbance]]``, which
+a run refuses before it starts; the scene and the inertia are the backend's,
+:class:`~qcontrol.plants.backends.Backend`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -31,22 +35,48 @@ def zero_expression(order: int) -> Expression:
     return compile_expression("0", [f"x{i + 1}" for i in range(order)], "plant.phi")
 
 
+TIME = "t"  # the name of time in the plant's terms, their last variable when they use it
+
+
+def timed(expression: Expression | None) -> bool:
+    """Whether a term of eq. (1) depends on time: its variables are ``x1..xn, t``."""
+    return expression is not None and expression.variables[-1:] == (TIME,)
+
+
+def time_column(columns: Sequence[Column], expression: Expression, t: float) -> Sequence[Column]:
+    """The columns a term is evaluated on: the state's, and ``t`` after them for a term in t."""
+    return [*columns, t] if timed(expression) else columns
+
+
 @dataclass(frozen=True)
 class PlantTerms:
-    """The right-hand side of eq. (1): ``x_i' = x_{i+1}``, ``x_n' = u + psi(x) + theta^T phi(x)``,
+    """The right-hand side of eq. (1): ``x_i' = x_{i+1}``, ``x_n' = b u + psi(x) + theta^T phi(x)``,
     or of the wider parametric strict-feedback class (docs/math.md): ``x_i' = x_{i+1} +
     phi_i(x_1..x_i)^T theta`` for i < n.
 
     ``psi`` is unknown to the controller, ``phi`` (the last row, phi_n) known in form with
-    ``theta`` unknown. ``rows`` holds the regressor rows phi_1 .. phi_{n-1} of the earlier
-    equations when the scenario gives them (each of length l), else ``()``: the chain of eq. (1).
+    ``theta`` unknown; ``b`` is the known input gain (``input_gain`` as the scenario states it;
+    None when it does not, which means b = 1 and, on MuJoCo, a command scaled by the joint's
+    inertia). ``rows`` holds the regressor rows phi_1 .. phi_{n-1} of the earlier equations when
+    the scenario gives them (each of length l), else ``()``: the chain of eq. (1).
     """
 
     order: int
     psi: Expression | None
     phi: tuple[Expression, ...]
     theta: tuple[float, ...]
+    input_gain: float | None = None
     rows: tuple[tuple[Expression, ...], ...] = ()
+
+    @property
+    def timed(self) -> bool:
+        """Whether a term depends on time t (eq. (1)'s ``psi(x, t)``, ``phi(x, t)``)."""
+        return any(timed(e) for e in self.expressions)
+
+    @property
+    def b(self) -> float:
+        """The input gain b of ``x_n' = b u + ...`` (1 unless the scenario states another)."""
+        return 1.0 if self.input_gain is None else float(self.input_gain)
 
     @property
     def first_nonzero_row(self) -> int | None:
@@ -154,6 +184,36 @@ class PhysicsReport(Protocol):
 
     warnings: list[str]  # what the physics engine warned about during the last run
     consistency_report: dict[str, Any]  # how the model agrees with eq. (1)
+
+
+# ---- the defaults of the optional capabilities, for a plant that lacks them
+
+def applied_as_commanded(u: np.ndarray) -> np.ndarray:
+    """The actuator of a plant that is not :class:`Actuated`: u is applied as commanded."""
+    return u
+
+
+def actuator_of(plant: Plant) -> tuple[Callable[[np.ndarray], np.ndarray], bool]:
+    """The plant's actuator and whether it can clip a command (:class:`Actuated`); without the
+    capability, u applied as commanded, never clipped."""
+    if isinstance(plant, Actuated):
+        return plant.actuator, plant.actuator_limited
+    return applied_as_commanded, False
+
+
+@dataclass(frozen=True)
+class NoReport:
+    """The :class:`PhysicsReport` of a plant without one: no physics engine to warn, nothing measured
+    against eq. (1) (the plant is taken to be eq. (1))."""
+
+    warnings: list[str] = field(default_factory=list)
+    consistency_report: dict[str, Any] = field(default_factory=dict)
+
+
+def physics_report(plant: Plant) -> PhysicsReport:
+    """What the plant has to tell users (:class:`PhysicsReport`), or, without the capability, the
+    default: no warnings and an empty consistency report."""
+    return plant if isinstance(plant, PhysicsReport) else NoReport()
 
 
 class ColumnIO(Protocol):

@@ -1,6 +1,6 @@
 """The ideal plant of eq. (1): a chain of integrators with unknown nonlinearities.
 
-    x_i' = x_{i+1} (i < n),    x_n' = u + psi(x) + theta^T phi(x)
+    x_i' = x_{i+1} (i < n),    x_n' = b u + psi(x) + theta^T phi(x)
 
 or a parametric strict-feedback plant, ``x_i' = x_{i+1} + theta^T phi_i(x_1..x_i)`` for i < n
 (docs/math.md; the equations whose regressor row is 0 are computed exactly as in the chain),
@@ -25,7 +25,7 @@ from ..columns import ARRAYS, Column, ColumnForm
 from ..expr import Expression
 from ..expr.source import FLAG, Statements, float_source
 from .backends import Backend
-from .base import NativeStepper, PlantTerms, is_zero
+from .base import NativeStepper, PlantTerms, is_zero, timed
 
 Rate = Callable[[list[Column]], Column]  # psi + theta^T phi on the state's columns
 Lower = tuple[tuple[int, Rate], ...]  # (i - 1, theta^T phi_i) of each earlier equation with terms
@@ -45,6 +45,7 @@ class ChainPlant:
         phi: Sequence[Expression],
         theta: Sequence[float] | np.ndarray,
         batch: int = 1,
+        input_gain: float = 1.0,
         rows: Sequence[Sequence[Expression]] = (),
     ) -> None:
         theta = np.asarray(theta, dtype=float)
@@ -57,6 +58,9 @@ class ChainPlant:
         self.psi = psi
         self.phi = tuple(phi)
         self.theta = theta
+        self.input_gain = float(input_gain)  # b of x_n' = b u + ...: RK4 holds b u (u itself for b = 1)
+        self.timed = any(timed(e) for e in (psi, *phi))  # terms in t: evaluated at each stage's time
+        self._time = 0.0  # t of the state (advanced by h per step, as MuJoCo's data.time)
         # each phi_i's coefficient: a number, or a (batch,) column of per-copy values
         self._coefficients = list(theta.T if theta.ndim == 2 else theta)
         self._rates: dict[ColumnForm, Rate] = {}  # psi + theta^T phi in each form (_rate_in)
@@ -111,7 +115,7 @@ class ChainPlant:
         """Right-hand side of eq. (1)."""
         dx = np.empty_like(x)
         dx[:, :-1] = x[:, 1:]
-        dx[:, -1] = u + self.uncertainty(x)
+        dx[:, -1] = self.input_gain * u + self.uncertainty(x)
         columns = list(np.asarray(x, dtype=float).T)
         for i, rate in self._lower_in(ARRAYS):
             dx[:, i] = dx[:, i] + rate(columns)
@@ -121,6 +125,7 @@ class ChainPlant:
         """Set the state (in the form the plant is stepped in) and clear the load."""
         self._x = self._form.columns(np.broadcast_to(np.asarray(x0, dtype=float), (self.batch, self.n)))
         self._load = 0.0
+        self._time = 0.0
 
     def disturb(self, d: float) -> None:
         """The matched load d, held like u: ``x_n' = u + d + psi + theta^T phi``."""
@@ -146,7 +151,13 @@ class ChainPlant:
         if not (isinstance(u, np.ndarray) and u.shape == (self.batch,)):
             u = np.broadcast_to(np.asarray(u, dtype=float).reshape(-1), (self.batch,))
         u = self._form.column(u)
-        self._x = _rk4(self._x, u + self._load if self._load else u, h, self._g, self._lower)
+        if self.input_gain != 1.0:
+            u = self.input_gain * u
+        if self.timed:
+            self._x = _rk4(self._x, u + self._load if self._load else u, h, self._g, self._time, self._lower)
+            self._time += h
+            return
+        self._x = _rk4(self._x, u + self._load if self._load else u, h, self._g, None, self._lower)
 
     def column_io(self, form: ColumnForm, h: float) -> ChainIO:
         """Observe and step in ``form``, steps of ``h`` (:class:`~.base.ColumnStepping`): the
@@ -158,9 +169,10 @@ class ChainPlant:
 
     def native_stepper(self, h: float) -> NativeStepper | None:
         """The batch of one as source text for the engine's compiled loop: the same RK4 on the
-        same terms (:class:`ChainNativeForm`); None for a batch or for a plant with regressors
-        before the last equation (the compiled text is the chain's)."""
-        return ChainNativeForm(self, h).stepper() if self.batch == 1 and not self._rows else None
+        same terms (:class:`ChainNativeForm`); None for a batch, an input gain other than 1, terms
+        in t or regressors before the last equation (those run in Python)."""
+        native = self.batch == 1 and self.input_gain == 1.0 and not self.timed and not self._rows
+        return ChainNativeForm(self, h).stepper() if native else None
 
 
 class ChainNativeForm:
@@ -238,26 +250,37 @@ class ChainIO:
 
     def step(self, u: Column) -> None:
         plant = self.plant
+        if plant.input_gain != 1.0:
+            u = plant.input_gain * u
         d = plant._load
-        plant._x = _rk4(plant._x, u + d if d else u, self.h, self.g, self.lower)
+        if plant.timed:
+            plant._x = _rk4(plant._x, u + d if d else u, self.h, self.g, plant._time, self.lower)
+            plant._time += self.h
+            return
+        plant._x = _rk4(plant._x, u + d if d else u, self.h, self.g, None, self.lower)
 
 
-def _derivative(s: list[Column], u: Column, g: Rate, lower: Lower = ()) -> list[Column]:
-    """The right-hand side of eq. (1) on columns: ``x_i' = x_{i+1}``, ``x_n' = u + g(x)``; with
-    ``lower`` (a strict-feedback plant), ``x_i' = x_{i+1} + theta^T phi_i(x)`` for its rows."""
-    rate = s[1:] + [u + g(s)]
+def _derivative(s: list[Column], u: Column, g: Rate, t: float | None = None, lower: Lower = ()
+                ) -> list[Column]:
+    """The right-hand side of eq. (1) on columns: ``x_i' = x_{i+1}``, ``x_n' = u + g(x)``
+    (``g(x, t)`` for terms in t, given the stage's time ``t``); with ``lower`` (a strict-feedback
+    plant), ``x_i' = x_{i+1} + theta^T phi_i(x)`` for its rows."""
+    rate = s[1:] + [u + (g(s) if t is None else g([*s, t]))]
     for i, term in lower:
         rate[i] = rate[i] + term(s)
     return rate
 
 
-def _rk4(x: list[Column], u: Column, h: float, g: Rate, lower: Lower = ()) -> list[Column]:
-    """One classical RK4 step of eq. (1) on the state's columns (floats or arrays alike)."""
+def _rk4(x: list[Column], u: Column, h: float, g: Rate, t: float | None = None, lower: Lower = ()
+         ) -> list[Column]:
+    """One classical RK4 step of eq. (1) on the state's columns (floats or arrays alike); for terms
+    in t, from time ``t`` (stages at t, t + h/2, t + h/2, t + h, as MuJoCo's RK4)."""
     half = 0.5 * h
-    k1 = _derivative(x, u, g, lower)
-    k2 = _derivative([a + half * b for a, b in zip(x, k1, strict=True)], u, g, lower)
-    k3 = _derivative([a + half * b for a, b in zip(x, k2, strict=True)], u, g, lower)
-    k4 = _derivative([a + h * b for a, b in zip(x, k3, strict=True)], u, g, lower)
+    mid, end = (None, None) if t is None else (t + half, t + h)
+    k1 = _derivative(x, u, g, t, lower)
+    k2 = _derivative([a + half * b for a, b in zip(x, k1, strict=True)], u, g, mid, lower)
+    k3 = _derivative([a + half * b for a, b in zip(x, k2, strict=True)], u, g, mid, lower)
+    k4 = _derivative([a + h * b for a, b in zip(x, k3, strict=True)], u, g, end, lower)
     sixth = h / 6.0
     return [a + sixth * (b + 2.0 * (c + d) + e) for a, b, c, d, e in zip(x, k1, k2, k3, k4, strict=True)]
 
@@ -270,12 +293,14 @@ def build(terms: Sequence[PlantTerms], options: Sequence[Any], dt: float) -> Cha
     """One ChainPlant copy per variant (theta per copy when there is more than one)."""
     first = terms[0]
     theta = first.theta if len(terms) == 1 else np.array([t.theta for t in terms])
-    return ChainPlant(first.order, first.psi, first.phi, theta, batch=len(terms), rows=first.rows)
+    return ChainPlant(first.order, first.psi, first.phi, theta, batch=len(terms), input_gain=first.b,
+                      rows=first.rows)
 
 
 def structure(terms: PlantTerms, options: Any) -> Hashable:
-    """Variants sharing a batch share the plant's form; theta goes per copy."""
-    chain = terms.order, None if terms.psi is None else terms.psi.source, tuple(p.source for p in terms.phi)
+    """Variants sharing a batch share the plant's form and input gain; theta goes per copy."""
+    chain = (terms.order, None if terms.psi is None else terms.psi.source, tuple(p.source for p in terms.phi),
+             terms.b)
     return chain + (tuple(tuple(p.source for p in row) for row in terms.rows),) if terms.rows else chain
 
 

@@ -21,15 +21,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..assembly import loads, scene
 from ..disturbance import Disturbance
-from ..scenario import Scenario
-from ..timegrid import TimeGrid
 from .scene import Scene
 from .series import PURPLE, TIMELINE
 from .streamer import time_column, time_nanoseconds
 
 if TYPE_CHECKING:
+    from ..assembly import Assembly
     from .recording import Recording
 
 ARROW_SHARE = 0.8  # the strongest disturbance's arrow: this share of the joint-to-tip distance
@@ -64,20 +62,21 @@ def _matrix(quat_wxyz: np.ndarray) -> np.ndarray:
                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
-def log_disturbances(recording: Recording, sc: Scenario) -> None:
-    """Log the scenario's disturbances (nothing without any, or when the recording is closed)."""
+def log_disturbances(recording: Recording, run: Assembly) -> None:
+    """Log the disturbances of the run's scenario (nothing without any, or when the recording is
+    closed)."""
+    sc = run.scenario
     stream = recording.stream
     if stream is None or not sc.disturbances:
         return
     import rerun as rr
 
-    sim = sc.simulation
-    grid = TimeGrid.of(sim.duration, sim.dt, sim.control_period)
-    drawn = scene(sc)
+    grid = run.spec.grid
+    drawn = run.scene
     unit = "" if drawn is None else "N m" if drawn.hinge else "N"  # else generalized force units
     if drawn is not None:
         _arrows(stream, recording.scene_of(drawn.model, drawn.joint), sc.disturbances, unit, grid.duration)
-    changes = loads(sc)  # d = F / I where the load changes
+    changes = run.loads  # d = F / I where the load changes
     times = [k * grid.dt for k, _ in changes] + [grid.duration]
     values = [d for _, d in changes] + [changes[-1][1]]
     stream.log("signals/input/disturbance", rr.SeriesLines(names="disturbance d = F / I", colors=[PURPLE],

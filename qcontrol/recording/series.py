@@ -138,7 +138,8 @@ def _plots(run: Trajectory, twin_drawn_only: bool):
     """(signal, plot, components) of every entity the table draws for a run."""
     for signal in SIGNALS:
         for plot in PLOTS.get(signal.name, ()):
-            if (twin_drawn_only and not plot.twin) or (plot.only_if_clipping and not run.actuator_limited):
+            if ((twin_drawn_only and not plot.twin) or (plot.only_if_clipping and not run.actuator_limited)
+                    or (plot.only_if_input_quantized and not run.quantized_input)):
                 continue
             for shown in _groups(signal, plot, run):
                 yield signal, plot, shown

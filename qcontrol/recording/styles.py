@@ -66,6 +66,7 @@ class Plot:
     guide: Guide | None = None
     color: str = "main"
     only_if_clipping: bool = False
+    only_if_input_quantized: bool = False  # drawn only for runs with an input quantizer ([quantizer.input])
     title: Callable[[Any], str] | None = None
 
 
@@ -75,6 +76,8 @@ PLOTS: Mapping[str, tuple[Plot, ...]] = {
     "x_q": (Plot("signals/state/x{i}/q", "q(x{i})", color="quantized"),),
     "u": (Plot("signals/input/u", "u", twin=True, difference="signals/difference/u"),),
     "u_applied": (Plot("signals/input/u_applied", "u applied", color="applied", only_if_clipping=True),),
+    "u_quantized": (Plot("signals/input/u_quantized", "q_u(u)", color="quantized",
+                         only_if_input_quantized=True),),
     "adaptive": (Plot("signals/adaptive/{a}", "{a}_{i}", color="palette"),),
     "yd": (Plot("signals/tracking/y_d", "y_d", (0,), color="reference"),),
     "z": (Plot("signals/error/z1", "z1", (0,), twin=True),),

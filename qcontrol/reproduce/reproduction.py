@@ -3,9 +3,10 @@
 Runs Example 1 and Example 2 (proposed law and the comparison law of reference [20]) on the
 chosen backend, with the ideal ODE twin beside MuJoCo, then the sensitivity studies (kappa - L,
 a constant scale of r, plant variants) on the ODE backend, then the robustness study on realistic
-hardware (:mod:`qcontrol.robustness`, MuJoCo, in worker processes). Writes PNG figures,
+hardware (:mod:`.robustness_study`, MuJoCo, in worker processes). Writes PNG figures,
 ``table1.md``, ``table1.json``, ``studies.json``, ``region.json`` (the sampled loop's region study,
-:mod:`.region_study`), ``robustness.json``, ``REPORT.md`` and one rerun
+:mod:`.region_study`), ``robustness.json``, ``sensors.json`` (Example 2 with realistic sensors,
+:mod:`.sensor_study`), ``REPORT.md`` and one rerun
 recording per example into the output folder, all put in place together at the end
 (:func:`qcontrol.outputs.staged`): an interrupted or failed reproduction leaves the folder's
 previous files as they were, never a mix of old and new. Parameters come from the paper's Section 4
@@ -25,7 +26,7 @@ import numpy as np
 
 from .. import plots
 from ..api import observer_for, recording_for
-from ..assembly import run_scenario
+from ..assembly import Assembly, assemble, runnable_backend
 from ..controller import lemma2_L
 from ..controller.law import KIND_ALIASES, LAW_KINDS
 from ..engine import Trajectory
@@ -51,6 +52,7 @@ from .report import (
 )
 from .robustness_figures import fig_margins, fig_robustness
 from .robustness_study import EXAMPLES, LAWS, default_workers, robustness_study, study_law
+from .sensor_study import fig_sensors, sensor_markdown, sensor_record, sensor_study
 
 SCENARIO_DIR = shipped_dir("scenarios")
 KAPPA_MARGINS = (0.05, 0.1, 0.2, 0.3, 0.5, 0.75, 1.1, 1.5, 2.0)
@@ -74,6 +76,7 @@ class Run:
     backend: str
     traj: Trajectory
     summary: Summary
+    assembly: Assembly
 
 
 @dataclass
@@ -98,8 +101,9 @@ class Reproduction:
         return load_scenario(self.scenarios / f"{name}.toml", [*overrides, *extra])
 
     def run(self, label: str, sc: Scenario, backend: str) -> Run:
-        traj = run_scenario(sc, backend)
-        run = Run(label, sc, backend, traj, run_summary(traj, sc.name, backend))
+        asm = assemble(sc, backend)
+        traj = asm.run()[0]
+        run = Run(label, sc, backend, traj, run_summary(traj, sc.name, backend), asm)
         self.runs.append(run)
         self.lemma2_ratios.append(run.summary.lemma2_max_ratio)
         if run.summary.diverged:
@@ -207,7 +211,12 @@ def _write_all(rep: Reproduction, o: Path, command: str, workers: int | None, qu
         write_json(o / "region.json",
                    region_record(region) | {"provenance": scenarios_provenance(examples, command)})
     robustness = None if quick else _robustness(o, rep, workers)
-    write_text(o / "REPORT.md", _report(rep, table, studies, deviations, ex1, ex2, robustness, region))
+    rep.log("study: Example 2 with realistic sensors (ODE)")
+    sensors = sensor_study(rep.scenarios, rep.duration, rep.log)
+    fig_sensors(sensors, o / "study_sensors.png")
+    write_json(o / "sensors.json", sensor_record(sensors) | {"provenance": provenance})
+    write_text(o / "REPORT.md", _report(rep, table, studies, deviations, ex1, ex2, robustness, region)
+               + "\n".join(sensor_markdown(sensors)))
     return table
 
 
@@ -259,8 +268,7 @@ def _validate(rep: Reproduction) -> None:
     """Load every scenario variant the reproduction runs; the examples must have the backend's
     section (e.g. [plant.mujoco])."""
     for name in ("example1", "example2"):
-        sc = rep.scenario(name)
-        BACKENDS[rep.backend].require(sc.backends.get(rep.backend), sc.source)
+        runnable_backend(rep.scenario(name), rep.backend)
     for _, name, overrides in PLANT_VARIANTS:
         rep.scenario(name, overrides)
         rep.scenario(name, (*overrides, *COMPARISON))
@@ -317,13 +325,13 @@ def _example2_figures(o: Path, run: Run, twin: Run | None, base: Run) -> None:
 def _record(path: Path, main: Run, ghosts: dict[str, Run | None], command: str) -> None:
     """A rerun recording of the main run with its ghosts: its twin "ode" (the same closed loop on
     the ODE) and the others (the comparison law)."""
-    sc = main.scenario
-    with recording_for(path, False, sc, scenario_provenance(sc, command)) as rec:
-        observer_for(rec, sc, main.backend)(0, len(main.traj.t), [main.traj])
+    sc, drawn = main.scenario, main.assembly.scene
+    with recording_for(path, False, main.assembly, scenario_provenance(sc, command)) as rec:
+        observer_for(rec, drawn, main.backend)(0, len(main.traj.t), [main.traj])
         for label, ghost in ghosts.items():
             if ghost is not None:
                 twin_of = main.traj if label == "ode" else None
-                observer_for(rec, sc, label, twin_of, ghost=True)(0, len(ghost.traj.t), [ghost.traj])
+                observer_for(rec, drawn, label, twin_of, ghost=True)(0, len(ghost.traj.t), [ghost.traj])
 
 
 def _rates(summaries: Sequence[Summary]) -> dict[str, list[float]]:

@@ -47,8 +47,13 @@ Rules that hold for every table:
   sections of backends not chosen by `simulation.backend` are validated too (`qcontrol compare`
   and `--backend` use them).
 * **Defaults.** "required" keys must be given; "optional" keys may be left out and then have no
-  value (the meaning says what happens).
+  value (the meaning says what happens). A whole table may be left out when every key it takes has
+  a default (in a table with a `kind`, every key of the default kind too): its section below says
+  so. A backend's `[plant.<backend>]` whose keys all default is read from its defaults when the
+  file leaves it out.
 """
+
+LEFT_OUT = "The whole table may be left out: every key it takes has a default."
 
 COMMAND_LINE = """\
 ## Changing keys from the command line
@@ -131,11 +136,20 @@ def _alternatives(kind: KindKeys) -> list[str]:
     return [f"Give one of {', '.join(f'`{k}`' for k in group)}, not both." for group in kind.alternatives]
 
 
+def _left_out(section: Section) -> str:
+    """The note of a table that may be left out, and why."""
+    if section.stand_in:
+        return f"The whole table may be left out: `{section.stand_in}` then stands in for it."
+    return LEFT_OUT
+
+
 def section_markdown(section: Section) -> list[str]:
     """A top-level table: its keys, then, for a kinded table, one part per kind."""
     if section.array:
         return array_markdown(section)
     lines = [f"## [{section.name}]", "", f"`[{section.name}]`: {section.meaning}.", ""]
+    if section.optional:
+        lines += [_left_out(section), ""]
     if not section.kinds:
         return [*lines, *key_table(section.keys), "", "Example:", "", *_block(example_lines(section.name,
                                                                                         section.keys))]
@@ -190,8 +204,9 @@ def backend_markdown(name: str, section: Section | None, summary: str) -> list[s
     if section is None:
         note = f"Backend `{name}`: {summary}; it takes no `[plant.{name}]` section."
         return [f"### backend \"{name}\"", "", note, ""]
+    left_out = [_left_out(section), ""] if section.optional else []
     return [f"### [plant.{name}] (backend \"{name}\")", "", f"`[plant.{name}]`: {section.meaning}.",
-            "", *key_table(section.keys), "", "Example:", "",
+            "", *left_out, *key_table(section.keys), "", "Example:", "",
             *_block(example_lines(f"plant.{name}", section.keys))]
 
 

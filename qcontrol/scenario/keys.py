@@ -12,6 +12,7 @@ from ..disturbance import SECTION as DISTURBANCE
 from ..engine.velocity import VELOCITY_SOURCES
 from ..error_rate import TABLE1_OMEGAS, TABLE1_SAMPLES
 from ..plants.backends import BACKENDS
+from ..quantizers import QUANTIZER
 from ..reference import REFERENCE_KINDS
 from ..schema import (
     OPTIONAL,
@@ -28,8 +29,7 @@ from ..schema import (
 )
 
 # see top_sections()
-TOP = ("scenario", "plant", "controller", "reference", "simulation", "metrics", "disturbance")
-REQUIRED_TABLES = ("plant", "controller", "reference", "simulation")
+TOP = ("scenario", "plant", "controller", "quantizer", "reference", "simulation", "metrics", "disturbance")
 # `qcontrol run` keeps only its metrics (memory that does not grow with the run), but a full record
 # (compare, reproduce, the library's default) keeps every row: 20 million steps is a few GB. Longer
 # runs are refused at load, by every command, instead of failing mid-way.
@@ -72,6 +72,10 @@ PLANT = Section(
         Key("theta", numbers("l"), [], meaning="the unknown constants theta_i, one per phi_i",
             example="[-1.0, -3.5, -34.3]"),
         Key("x0", numbers("n"), unit="state", meaning="initial state x(0)", example="[0.3, 0.3]"),
+        Key("input_gain", number(positive=True), OPTIONAL, "-",
+            "the known input gain b of x_n' = b u + psi + theta^T phi (default 1); the built-in laws "
+            "divide their input by it. On MuJoCo it must be what the model realises, gear / I; "
+            "left out, u is scaled by the joint's inertia I so that b = 1"),
     ),
     "the plant of eq. (1); [plant.<backend>] sub-tables hold each backend's model",
 )
@@ -88,8 +92,9 @@ def controller_section() -> Section:
         (
             Key("kind", string(tuple(LAW_KINDS), more=REGISTER_A_KIND), "proposed",
                 meaning="the control law"),
-            Key("delta", number(positive=True), unit="state", meaning="quantizer step delta, eq. (3)",
-                example="0.01"),
+            Key("delta", number(positive=True), OPTIONAL, "state",
+                "quantizer step delta of every state, eq. (3) (required unless a [quantizer] table gives "
+                "the quantizers)", example="0.01"),
             Key("c", numbers("n", positive=True), meaning="backstepping gains c_1..c_n > 0, eqs. (7)-(27)",
                 example="[4.0, 3.0]"),
         ),
@@ -146,5 +151,12 @@ def top_sections(default_name: str = "the file name") -> tuple[Section, ...]:
     """Every top-level table of a scenario file, in the order docs/scenarios.md shows them (each
     backend's ``[plant.<backend>]`` comes from the backend registry). A new table is declared here
     and named in :data:`TOP`."""
-    return (scenario_section(default_name), PLANT, controller_section(), reference_section(),
+    return (scenario_section(default_name), PLANT, controller_section(), QUANTIZER, reference_section(),
             simulation_section(), METRICS, DISTURBANCE)
+
+
+def required_tables() -> tuple[str, ...]:
+    """The top-level tables a file must have: those with a key that has no default
+    (:attr:`Section.optional <qcontrol.schema.Section.optional>`); a table whose keys all default may
+    be left out."""
+    return tuple(s.name for s in top_sections() if not s.array and not s.optional)

@@ -15,6 +15,7 @@ import copy
 import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any
@@ -28,7 +29,8 @@ from ..errors import KeyNotForKind, OverrideError, QcontrolInputError, brief, sh
 from ..expr import Expression, compile_expression
 from ..outputs import check_name, path_kind
 from ..plants.backends import BACKENDS, PlantContext
-from ..plants.base import PlantTerms
+from ..plants.base import TIME, PlantTerms, timed
+from ..quantizers import QuantizerSpec, channel_bounds, quantizer_step, read_quantizers
 from ..reference import REFERENCE_KINDS
 from ..resources import scenario_path, shipped_scenarios
 from ..schema import Section, Table, kind_table, read_keys, show_key
@@ -38,10 +40,10 @@ from .keys import (
     MAX_STEPS,
     METRICS,
     PLANT,
-    REQUIRED_TABLES,
     TOP,
     controller_section,
     reference_section,
+    required_tables,
     scenario_section,
     simulation_section,
 )
@@ -78,6 +80,9 @@ class Scenario:
     rows_expr: tuple[tuple[Expression, ...], ...] = field(default=(), repr=False)  # phi_1 .. phi_{n-1}
     unset: tuple[str, ...] = ()  # keys removed from the file (--unset) before the overrides
     paper_example: int | None = None  # the paper's example this scenario reproduces, if any
+    input_gain: float | None = None  # plant.input_gain as stated (None: not stated, b = 1)
+    quantizer: QuantizerSpec | None = None  # [quantizer] (None: controller.delta's uniform step)
+    input_quantizer: QuantizerSpec | None = None  # [quantizer.input] (None: u applied as computed)
 
     def with_overrides(self, overrides: Mapping[str, Any] | Sequence[str]) -> Scenario:
         """A new scenario: this one's file with its overrides and then ``overrides`` (a dict
@@ -88,18 +93,20 @@ class Scenario:
                               overrides=(*self.overrides, *_as_given(overrides)), default_name=self.name,
                               unset=self.unset)
 
-    @property
+    @cached_property
     def terms(self) -> PlantTerms:
-        """The right-hand side of eq. (1) as the plants are built from it."""
-        return PlantTerms(self.order, self.psi_expr, self.phi_expr, self.theta, self.rows_expr)
+        """The right-hand side of eq. (1) as the plants are built from it (made once)."""
+        return PlantTerms(self.order, self.psi_expr, self.phi_expr, self.theta, self.input_gain,
+                          rows=self.rows_expr)
 
-    @property
+    @cached_property
     def law_context(self) -> LawContext:
-        """What the controller kind reads of the scenario (see :class:`LawContext`)."""
+        """What the controller kind reads of the scenario (see :class:`LawContext`; made once)."""
         c = self.controller
         sim = self.simulation
         return LawContext(self.source, self.order, c.delta, c.c, self.psi_expr, self.phi_expr, self.theta,
-                          sim.dt, sim.period, rows=self.rows_expr)
+                          sim.dt, sim.period, input_gain=self.terms.b,
+                          quantizer_error=channel_bounds(self.quantizer), rows=self.rows_expr)
 
     @property
     def psi(self) -> str | None:
@@ -368,16 +375,18 @@ def set_key(data: dict, key: str, value: Any, item: str | tuple[str, Any]) -> No
 def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[str | tuple[str, Any], ...],
            default_name: str) -> Scenario:
     root = Table(data, source, "", TOP)
-    for key in REQUIRED_TABLES:
+    for key in required_tables():
         if key not in data:
             raise QcontrolInputError(f"{source}: [{key}]: missing table; add a [{key}] section")
     about = scenario_section(default_name)
     meta = read_keys(Table(data.get("scenario", {}), source, "scenario", about.names), about.keys, {})
     plant = _plant_table(root)
     terms, x0 = _plant(plant)
-    simulation = _simulation(root.table("simulation"))
-    controller = _controller(root.table("controller"), terms, simulation)
-    signal = _reference(root.table("reference"), terms.order)
+    simulation = _simulation(root.table("simulation", default={}))
+    quantizer, input_quantizer = (read_quantizers(root.table("quantizer"), terms.order) if "quantizer" in data
+                                  else (None, None))
+    controller = _controller(root.table("controller", default={}), terms, simulation, quantizer)
+    signal = _reference(root.table("reference", default={}), terms.order)
     metrics = _metrics(root.table("metrics", default={}))
     backends = _backends(plant, terms, base_dir, simulation)
     disturbances = parse_disturbances(data.get("disturbance"), source)
@@ -389,6 +398,7 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
         disturbances=disturbances,
         psi_expr=terms.psi, phi_expr=terms.phi, rows_expr=terms.rows, metrics=metrics,
         paper_example=meta["paper_example"],
+        input_gain=terms.input_gain, quantizer=quantizer, input_quantizer=input_quantizer,
     )
     _check_terms_at_x0(scenario)
     return scenario
@@ -418,13 +428,21 @@ def _plant(plant: Table) -> tuple[PlantTerms, tuple[float, ...]]:
     v = read_keys(last, PLANT.keys, {"n": order, "l": len(phi_text)})
     x_names = [f"x{i + 1}" for i in range(order)]
     where = f"{plant.source}: {plant.name}"
-    psi = None if v["psi"] is None else compile_expression(v["psi"], x_names, f"{where}.psi")
+    psi = None if v["psi"] is None else _plant_term(v["psi"], x_names, f"{where}.psi")
     if not table_rows:
-        phi = tuple(compile_expression(p, x_names, f"{where}.phi[{i}]") for i, p in enumerate(v["phi"]))
-        return PlantTerms(order, psi, phi, v["theta"]), v["x0"]
-    compiled = tuple(tuple(_regressor(plant, text, x_names, r, j) for j, text in enumerate(row))
-                     for r, row in enumerate(rows_text))
-    return PlantTerms(order, psi, compiled[-1], v["theta"], compiled[:-1]), v["x0"]
+        phi = tuple(_plant_term(p, x_names, f"{where}.phi[{i}]") for i, p in enumerate(v["phi"]))
+        return PlantTerms(order, psi, phi, v["theta"], v["input_gain"]), v["x0"]
+    earlier = tuple(tuple(_regressor(plant, text, x_names, r, j) for j, text in enumerate(row))
+                    for r, row in enumerate(rows_text[:-1]))
+    last_row = tuple(_plant_term(p, x_names, f"{where}.phi[{order - 1}][{j}]")
+                     for j, p in enumerate(v["phi"]))
+    return PlantTerms(order, psi, last_row, v["theta"], v["input_gain"], rows=earlier), v["x0"]
+
+
+def _plant_term(text: str, x_names: list[str], where: str) -> Expression:
+    """A term of eq. (1) over ``x1..xn``, or over ``x1..xn, t`` when it uses time t."""
+    term = compile_expression(text, [*x_names, TIME], where)
+    return term if TIME in term.used else compile_expression(text, x_names, where)
 
 
 def _regressor_rows(plant: Table, order: int) -> tuple[tuple[str, ...], ...]:
@@ -445,17 +463,17 @@ def _regressor_rows(plant: Table, order: int) -> tuple[tuple[str, ...], ...]:
 
 
 def _regressor(plant: Table, text: str, x_names: list[str], r: int, j: int) -> Expression:
-    """Regressor j of row r (0-based), compiled; a row before the last reads x1 .. x_{r+1} only
+    """Regressor j of row r (0-based) before the last, compiled; it reads x1 .. x_{r+1} only
     (lower-triangular: phi_i depends on the first i states)."""
     where = f"{plant.source}: {plant.path(f'phi[{r}][{j}]')}"
-    expression = compile_expression(text, x_names, where)
-    allowed = x_names if r == len(x_names) - 1 else x_names[: r + 1]
-    later = sorted(set(expression.used) - set(allowed), key=x_names.index)
+    allowed = x_names[: r + 1]
+    expression = compile_expression(text, [*x_names, TIME], where)
+    later = sorted(set(expression.used) - set(allowed), key=[*x_names, TIME].index)
     if later:
         raise QcontrolInputError(
-            f"{where}: {text!r} reads {later[0]}, a later state than row {r + 1} may read; row {r + 1} "
-            f"(the regressors of x{r + 1}') may read {', '.join(allowed)} only (a strict-feedback plant)")
-    return expression
+            f"{where}: {text!r} reads {later[0]}, which row {r + 1} may not read; row {r + 1} (the "
+            f"regressors of x{r + 1}') may read {', '.join(allowed)} only (a strict-feedback plant)")
+    return compile_expression(text, x_names, where)
 
 
 def _chosen(table: Table, section: Section, sizes: dict[str, int] | None = None
@@ -466,13 +484,15 @@ def _chosen(table: Table, section: Section, sizes: dict[str, int] | None = None
     return common, kind_table(table, section.names, section.kinds, common["kind"])
 
 
-def _controller(table: Table, terms: PlantTerms, simulation: SimulationConfig) -> ControllerConfig:
+def _controller(table: Table, terms: PlantTerms, simulation: SimulationConfig,
+                quantizer: QuantizerSpec | None) -> ControllerConfig:
     v, merged = _chosen(table, controller_section(), {"n": terms.order})
-    kind = v["kind"]
-    ctx = LawContext(table.source, terms.order, v["delta"], v["c"], terms.psi, terms.phi, terms.theta,
-                     simulation.dt, simulation.period, controller=table, rows=terms.rows)
+    kind, delta = v["kind"], quantizer_step(table, v["delta"], quantizer)
+    ctx = LawContext(table.source, terms.order, delta, v["c"], terms.psi, terms.phi, terms.theta,
+                     simulation.dt, simulation.period, controller=table, input_gain=terms.b,
+                     quantizer_error=channel_bounds(quantizer), rows=terms.rows)
     check_plant_class(kind, ctx, table.path("kind"))
-    return ControllerConfig(kind, v["delta"], v["c"], law_kind(kind).parse(merged, ctx))
+    return ControllerConfig(kind, delta, v["c"], law_kind(kind).parse(merged, ctx))
 
 
 def _reference(table: Table, order: int) -> ReferenceConfig:
@@ -507,8 +527,9 @@ def _metrics(table: Table) -> MetricSettings:
 
 def _backends(plant: Table, terms: PlantTerms, base_dir: Path, simulation: SimulationConfig) -> dict[str,
                                                                                                      Any]:
-    """Each backend's ``[plant.<name>]`` section, parsed by the backend; the chosen backend must
-    have the section it needs."""
+    """Each backend's ``[plant.<name>]`` section, parsed by the backend (the sections written in
+    the file first, then those left out whose keys all default, parsed from their defaults); the
+    chosen backend must have the section it needs."""
     ctx = PlantContext(terms, base_dir, simulation.dt)
     parsed = {}
     for name, backend in BACKENDS.items():
@@ -516,6 +537,9 @@ def _backends(plant: Table, terms: PlantTerms, base_dir: Path, simulation: Simul
             parsed[name] = backend.parse(plant.table(name), ctx)
         elif name in plant.data:
             raise plant.error(name, f"backend {name!r} takes no settings", f"remove [plant.{name}]")
+    for name, backend in BACKENDS.items():
+        if name not in parsed and backend.section is not None and backend.section.optional and backend.parse:
+            parsed[name] = backend.parse(plant.table(name, default={}), ctx)
     chosen = BACKENDS[simulation.backend]
     if chosen.section is not None and simulation.backend not in parsed:
         raise QcontrolInputError(
@@ -528,15 +552,14 @@ def _backends(plant: Table, terms: PlantTerms, base_dir: Path, simulation: Simul
 
 def _check_terms_at_x0(sc: Scenario) -> None:
     """The plant's terms must be finite at the initial state."""
-    x0 = np.asarray(sc.x0)[None, :]
     rows = [(f"plant.phi[{r}][{j}]", e) for r, row in enumerate(sc.rows_expr) for j, e in enumerate(row)]
-    last = "plant.phi[{i}]" if not rows else f"plant.phi[{len(rows and sc.rows_expr)}][{{i}}]"
+    last = "plant.phi[{i}]" if not rows else f"plant.phi[{len(sc.rows_expr)}][{{i}}]"
     for label, expr in [("plant.psi", sc.psi_expr)] + rows + [(last.format(i=i), e) for i,
                                                               e in enumerate(sc.phi_expr)]:
         if expr is None:
             continue
         with np.errstate(all="ignore"):
-            value = expr(x0)
+            value = expr(np.asarray([[*sc.x0, 0.0] if timed(expr) else list(sc.x0)]))
         if not np.all(np.isfinite(value)):
             raise QcontrolInputError(
                 f"{sc.source}: {label}: {expr.source!r} is not finite at x0 = {list(sc.x0)}; "

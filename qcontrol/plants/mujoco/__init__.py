@@ -1,9 +1,11 @@
 """The MuJoCo backend: one joint of an MJCF model as the plant of eq. (1) with n = 2.
 
-Split by job: :mod:`.options` (the ``[plant.mujoco]`` keys; no mujoco import), :mod:`.model`
-(MjSpec: overrides, realism options, compile once), :mod:`.callbacks` (the process-global
-passive callback and warning handler), :mod:`.plant` (the runtime plant), :mod:`.consistency`
-(MuJoCo's acceleration against eq. (1)).
+Split by job: :mod:`.options` (the ``[plant.mujoco]`` keys; no mujoco import), :mod:`.mjcf`
+(the MJCF through MjSpec: overrides, realism options, compiled once), :mod:`.callbacks` (the
+process-global passive callback and warning handler), :mod:`.native` (the passive terms as a
+compiled C callback), :mod:`.noise` (the sensor noise), :mod:`.plant` (the runtime plant),
+:mod:`.native_step` (one copy's observe and step for the compiled loop), :mod:`.threaded` (a batch
+stepped by ``mujoco.batch``), :mod:`.consistency` (MuJoCo's acceleration against eq. (1)).
 """
 
 from __future__ import annotations
@@ -55,7 +57,8 @@ def structure(terms: PlantTerms, options: MujocoOptions) -> Hashable:
     psi = None if terms.psi is None else terms.psi.source
     native = tuple(c for name, c in zip(terms.names, terms.coefficients, strict=True)
                    if name in options.native_terms)
-    return terms.order, psi, tuple(p.source for p in terms.phi), native, replace(options, noise_seed=None)
+    return (terms.order, psi, tuple(p.source for p in terms.phi), native, replace(options, noise_seed=None),
+            terms.input_gain)
 
 
 def scene(options: MujocoOptions, dt: float) -> SceneSource:

@@ -27,6 +27,7 @@ from typing import Any
 import mujoco
 
 from ...expr import Expression, FloatCombination
+from ..base import timed
 from .native import NativeForce
 
 _ENTRIES: dict[int, Callable[[], None]] = {}  # id(MjData) -> adds the non-native terms to it
@@ -45,9 +46,14 @@ class GeneralizedForce:
 
     def __init__(self, terms: Sequence[tuple[float, Expression]], inertia: float) -> None:
         self.total = FloatCombination([e for _, e in terms], [inertia * c for c, _ in terms])
+        self.timed = any(timed(e) for _, e in terms)  # a term in t: evaluated at MuJoCo's data.time
 
     def at(self, q: float, v: float) -> float:
         return 0.0 + self.total((q, v))  # = ((0.0 + c1 f1) + c2 f2) ..., sign of zero included
+
+    def at_time(self, q: float, v: float, t: float) -> float:
+        """:meth:`at` for terms in t, at time ``t`` (the RK4 stage's, MuJoCo's ``data.time``)."""
+        return 0.0 + self.total((q, v, t))
 
 
 def _dispatch(model: mujoco.MjModel, data: mujoco.MjData) -> None:
@@ -70,6 +76,19 @@ class PassiveApplier:
     def apply(self) -> None:
         dof = self.dof
         self.qfrc[dof] += self.force(self.qpos.item(self.qadr), self.qvel.item(dof))
+
+
+class TimedPassiveApplier(PassiveApplier):
+    """:class:`PassiveApplier` for terms in t, evaluated at ``data.time`` (MuJoCo sets it to each
+    RK4 stage's time before it evaluates the passive forces)."""
+
+    def __init__(self, data: mujoco.MjData, qadr: int, dof: int, force: GeneralizedForce) -> None:
+        super().__init__(data, qadr, dof, force)
+        self.data, self.force = data, force.at_time
+
+    def apply(self) -> None:
+        dof = self.dof
+        self.qfrc[dof] += self.force(self.qpos.item(self.qadr), self.qvel.item(dof), self.data.time)
 
 
 class NativeApplier:
@@ -115,8 +134,9 @@ def passive_forces(model: mujoco.MjModel, datas: Sequence[mujoco.MjData], qadr: 
     keys = []
     try:
         for data, force in zip(datas, forces, strict=True):
+            applier = TimedPassiveApplier if force.timed else PassiveApplier
             _ENTRIES[id(data)] = (NativeApplier(model, data, native).apply if native is not None
-                                  else PassiveApplier(data, qadr, dof, force).apply)
+                                  else applier(data, qadr, dof, force).apply)
             keys.append(id(data))
         yield
     finally:

@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 
 from ...errors import QcontrolInputError
-from ..base import PlantTerms
+from ..base import PlantTerms, timed
 from .callbacks import GeneralizedForce, passive_forces
 from .mjcf import CompiledModel
 from .options import MujocoOptions
@@ -32,10 +32,12 @@ def consistency_report(compiled: CompiledModel, options: MujocoOptions, terms: P
     rng = np.random.default_rng(SEED)
     x = np.column_stack([rng.uniform(-math.pi, math.pi, SAMPLES), rng.uniform(-4.0, 4.0, SAMPLES)])
     u = rng.uniform(-20.0, 20.0, SAMPLES)
-    columns, coefficient = _columns(terms, x, u)
+    t = rng.uniform(0.0, 10.0, SAMPLES) if terms.timed else None  # terms in t: at sampled times too
+    columns, coefficient = _columns(terms, x, u, t)
+    coefficient["u"] = terms.b  # x2' = b u + psi + theta^T phi
     rhs = sum(coefficient[k] * columns[k] for k in columns)
     scale = 1.0 + sum(np.abs(coefficient[k] * columns[k]) for k in columns)
-    residual = _accelerations(compiled, x, u, force) - rhs
+    residual = _accelerations(compiled, x, compiled.ctrl_per_u(terms) * u, force, t) - rhs
     relative = np.abs(residual) / scale
     names = list(columns) + ["constant"]
     basis = np.column_stack([columns[k] for k in columns] + [np.ones(SAMPLES)])
@@ -55,25 +57,29 @@ def consistency_report(compiled: CompiledModel, options: MujocoOptions, terms: P
     return report
 
 
-def _columns(terms: PlantTerms, x: np.ndarray, u: np.ndarray) -> tuple[dict[str, np.ndarray], dict[str,
-                                                                                                   float]]:
-    """Each term's value at the samples, and its coefficient (1 for u and psi, theta_i for phi_i)."""
+def _columns(terms: PlantTerms, x: np.ndarray, u: np.ndarray, t: np.ndarray | None = None
+             ) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+    """Each term's value at the samples (a term in t at the sampled times ``t``), and its
+    coefficient (1 for u and psi, theta_i for phi_i)."""
     exprs, coefficients = terms.expressions, terms.coefficients
-    columns = {"u": u} | {name: np.broadcast_to(e(x), u.shape) for name, e in zip(terms.names, exprs,
-                                                                                  strict=True)}
+    xt = x if t is None else np.column_stack([x, t])
+    columns = {"u": u} | {name: np.broadcast_to(e(xt if timed(e) else x), u.shape)
+                          for name, e in zip(terms.names, exprs, strict=True)}
     return columns, {"u": 1.0} | dict(zip(terms.names, coefficients, strict=True))
 
 
-def _accelerations(compiled: CompiledModel, x: np.ndarray, u: np.ndarray,
-                   force: GeneralizedForce | None) -> np.ndarray:
-    """MuJoCo's ``qacc`` at each sampled state and input (the passive callback installed)."""
+def _accelerations(compiled: CompiledModel, x: np.ndarray, ctrl: np.ndarray,
+                   force: GeneralizedForce | None, t: np.ndarray | None = None) -> np.ndarray:
+    """MuJoCo's ``qacc`` at each sampled state and actuator command (the passive callback installed)."""
     model, ids = compiled.model, compiled.ids
-    qacc = np.empty(len(u))
+    qacc = np.empty(len(ctrl))
     data = mujoco.MjData(model)
     with passive_forces(model, [data], ids.qpos, ids.dof, None if force is None else [force]):
-        for i in range(len(u)):
+        for i in range(len(ctrl)):
             data.qpos[ids.qpos], data.qvel[ids.dof] = x[i]
-            data.ctrl[ids.actuator] = compiled.inertia / ids.actuator_gain * u[i]
+            data.ctrl[ids.actuator] = ctrl[i]
+            if t is not None:
+                data.time = t[i]
             mujoco.mj_forward(model, data)
             qacc[i] = data.qacc[ids.dof]
     return qacc

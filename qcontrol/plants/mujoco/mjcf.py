@@ -28,6 +28,7 @@ import numpy as np
 
 from ...errors import QcontrolInputError, shown
 from ...outputs import path_kind
+from ..base import PlantTerms
 from .callbacks import kept_aside
 from .native import USERDATA_SLOTS
 from .options import MujocoOptions
@@ -62,6 +63,36 @@ class CompiledModel:
     model: mujoco.MjModel
     ids: Ids
     inertia: float
+
+    @property
+    def input_gain(self) -> float:
+        """The input gain b the model realises for its actuator's own command: ``gear / I``
+        (``gear`` the motor's gain times its gear, ``I`` the nominal inertia from ``mj_fullM``)."""
+        return self.ids.actuator_gain / self.inertia
+
+    def ctrl_per_u(self, terms: PlantTerms) -> float:
+        """The actuator command per unit of u: ``I / gear`` when the scenario states no input gain
+        (u per unit inertia: b = 1), else 1 (u is the actuator's command; b = gear / I, which
+        :func:`check_input_gain` has compared with the scenario's)."""
+        return self.inertia / self.ids.actuator_gain if terms.input_gain is None else 1.0
+
+
+INPUT_GAIN_TOLERANCE = 1e-9  # relative, as the consistency check's coefficients
+
+
+def check_input_gain(built: CompiledModel, terms: PlantTerms, where: str) -> None:
+    """A stated ``plant.input_gain`` must be what the model realises, ``gear / I``, to a relative
+    :data:`INPUT_GAIN_TOLERANCE`; else one line with both numbers at full precision."""
+    if terms.input_gain is None:
+        return
+    realised, stated = built.input_gain, float(terms.input_gain)
+    if abs(stated - realised) <= INPUT_GAIN_TOLERANCE * abs(realised):
+        return
+    gear, inertia = built.ids.actuator_gain, built.inertia
+    raise QcontrolInputError(
+        f"{where.rsplit('.', 1)[0]}.input_gain: is {stated!r} but the model realises b = gear / I = "
+        f"{gear!r} / {inertia!r} = {realised!r}; write input_gain = {realised!r} in [plant], or leave it "
+        "out to have u scaled by the inertia (b = 1)")
 
 
 def compiled(options: MujocoOptions, timestep: float | None = None) -> CompiledModel:

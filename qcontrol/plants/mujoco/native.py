@@ -38,6 +38,7 @@ import numpy as np
 from ... import compiled as compiled_paths
 from ...expr import Expression
 from ...expr.source import FLAG, Statements, float_source
+from ..base import timed
 
 FIRST_COEFFICIENT = 3  # userdata slots before the coefficients: tag, qadr, dof
 USERDATA_SLOTS = 32  # every model is built with at least this nuserdata (more terms: the Python callback)
@@ -155,7 +156,7 @@ class NativeForce:
 def native_force(terms: Sequence[Expression]) -> NativeForce | None:
     """The native callback for ``terms`` (compiled, or loaded from the disk cache), or None
     where compiled paths are off or unavailable (then the Python callback serves)."""
-    if not compiled_paths.enabled():
+    if not compiled_paths.enabled() or any(timed(t) for t in terms):  # (terms in t: the Python callback)
         return None
     if userdata_size(len(terms)) > USERDATA_SLOTS:
         compiled_paths.fallback("MuJoCo's passive terms", f"more than {USERDATA_SLOTS - FIRST_COEFFICIENT} "

@@ -1,7 +1,7 @@
 """The ``[plant.mujoco]`` section of a scenario: its keys and the validated :class:`MujocoOptions`.
 
 This module does not import mujoco: a scenario is typed and checked key by key without it. The
-model itself is compiled (and its element names checked) by :mod:`.model` when the scenario loads.
+model itself is compiled (and its element names checked) by :mod:`.mjcf` when the scenario loads.
 """
 
 from __future__ import annotations

@@ -9,7 +9,9 @@ integrates ``I qacc = tau + qfrc_bias + qfrc_passive`` where ``I`` is the joint'
 inertia. So:
 
 * ``u`` is acceleration-level (the ODE's unit input gain); the actuator command is ``I * u``
-  (divided by the motor's gain), with ``I`` read from the model by ``mujoco.mj_fullM``.
+  (divided by the motor's gain), with ``I`` read from the model by ``mujoco.mj_fullM``. A scenario
+  that states ``plant.input_gain = b`` instead commands the actuator with u itself: the model then
+  realises ``x2' = (gear / I) u + ...``, and b must be that ``gear / I`` (checked at load).
 * Terms MuJoCo's own physics produces (``native_terms``, e.g. joint damping for ``theta1 * x2``
   and gravity for ``theta3 * sin(x1)`` in Example 2) are left to MuJoCo; every other term is
   added by the passive callback (:mod:`.callbacks`): compiled code (:mod:`.native`) where numba
@@ -46,7 +48,7 @@ from .callbacks import (
     unstable,
 )
 from .consistency import consistency_report
-from .mjcf import compiled
+from .mjcf import check_input_gain, compiled
 from .native import native_force
 from .native_step import MujocoNativeForm
 from .noise import SensorNoise
@@ -88,7 +90,8 @@ class MujocoPlant:
         for key, value in (("sensor_delay", options.sensor_delay), ("sensor_period", options.sensor_period)):
             if value > 0:
                 whole_steps(value, self.timestep, f"{where}.{key}", "the scenario's dt")
-        self._ctrl_per_u = self.inertia / self._ids.actuator_gain
+        check_input_gain(built, terms, where)
+        self._ctrl_per_u = built.ctrl_per_u(terms)
         self._ctrl_range = _ctrl_range(self.model, self._ids.actuator)  # (low, high) or None
         self.actuator_limited = self._ctrl_range is not None
         native = tuple(name in options.native_terms for name in terms.names)
@@ -309,7 +312,8 @@ def _copies(terms: PlantTerms, copies: Sequence[PlantTerms] | None, batch: int,
 
 
 def _form(terms: PlantTerms) -> tuple:
-    return terms.order, None if terms.psi is None else terms.psi.source, tuple(p.source for p in terms.phi)
+    return (terms.order, None if terms.psi is None else terms.psi.source, tuple(p.source for p in terms.phi),
+            terms.input_gain)
 
 
 def _forces(applied: Sequence, coefficients: Sequence[tuple[float, ...]],
