@@ -20,6 +20,7 @@ import numpy as np
 from ..columns import ColumnForm
 from ..errors import QcontrolInputError
 from ..expr import Expression
+from ..expr.rows import first_nonzero_row, regressor_rows
 from ..quantizer import QuantizedReading
 from ..schema import KindKeys, Table
 from .backstepping import Advance, Backstepping, Columns, ControlOutput, lemma2_bounds
@@ -187,18 +188,12 @@ class LawContext:
     @property
     def regressor_rows(self) -> tuple[tuple[Expression, ...], ...]:
         """The n regressor rows phi_1 .. phi_n of the plant (rows not given: "0" entries)."""
-        return self.terms.regressor_rows
+        return regressor_rows(self.order, self.phi, self.rows)
 
     @property
     def first_nonzero_row(self) -> int | None:
         """The first equation i < n whose regressor row is not 0, or None (the chain of eq. (1))."""
-        return self.terms.first_nonzero_row
-
-    @property
-    def terms(self) -> Any:
-        """The plant's terms as a :class:`~qcontrol.plants.base.PlantTerms`."""
-        from ..plants.base import PlantTerms
-        return PlantTerms(self.order, self.psi, self.phi, self.theta, self.input_gain, rows=self.rows)
+        return first_nonzero_row(self.rows)
 
     @property
     def n(self) -> int:

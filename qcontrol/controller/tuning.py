@@ -65,11 +65,7 @@ class Design:
         x = [Variable(i) for i in range(n)]
         th = [Variable(n + j) for j in range(m)]
         yd = [Variable(n + m + j) for j in range(n + 1)]
-        memo: dict[tuple[int, int], tuple[Tree, Tree]] = {}
-
-        def d(tree: Tree, variable: Tree) -> Tree:
-            return differentiate(tree, variable.index, memo)
-
+        d = Derivatives()
         alpha: list[Tree] = [number(0.0)]  # alpha_0
         z: list[Tree] = []
         tau: list[Tree] = [number(0.0)] * m
@@ -87,6 +83,17 @@ class Design:
             z.append(zi)
             alpha.append(total(terms))
         return cls(add(alpha[n], yd[n]), tuple(z), tuple(tau))
+
+
+class Derivatives:
+    """Partial derivatives of the design's trees, sharing one memo (so that derivatives of trees
+    that share subtrees share theirs): ``d(tree, variable)``."""
+
+    def __init__(self) -> None:
+        self.memo: dict[tuple[int, int], tuple[Tree, Tree]] = {}
+
+    def __call__(self, tree: Tree, variable: Variable) -> Tree:
+        return differentiate(tree, variable.index, self.memo)
 
 
 class TuningLaw(BacksteppingLaw):

@@ -22,18 +22,8 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from ..columns import Column, ColumnForm
-from ..expr import Expression, compile_expression
-
-
-def is_zero(expression: Expression) -> bool:
-    """True when ``expression`` is the constant 0 (an absent regressor, written "0")."""
-    return expression._tree.constant == 0.0
-
-
-def zero_expression(order: int) -> Expression:
-    """The expression "0" over ``x1 .. xn``."""
-    return compile_expression("0", [f"x{i + 1}" for i in range(order)], "plant.phi")
-
+from ..expr import Expression
+from ..expr.rows import first_nonzero_row, regressor_rows
 
 TIME = "t"  # the name of time in the plant's terms, their last variable when they use it
 
@@ -82,18 +72,12 @@ class PlantTerms:
     def first_nonzero_row(self) -> int | None:
         """The first equation i < n (1-based) whose regressor row has a term that is not 0, or
         None: the plant is then the chain of eq. (1), the paper's class."""
-        for i, row in enumerate(self.rows):
-            if any(not is_zero(e) for e in row):
-                return i + 1
-        return None
+        return first_nonzero_row(self.rows)
 
     @property
     def regressor_rows(self) -> tuple[tuple[Expression, ...], ...]:
         """All n regressor rows phi_1 .. phi_n (rows not given: every entry the expression 0)."""
-        if self.rows:
-            return (*self.rows, self.phi)
-        zero = [zero_expression(self.order)] * len(self.phi)
-        return (*([tuple(zero)] * (self.order - 1)), self.phi)
+        return regressor_rows(self.order, self.phi, self.rows)
 
     # Two orders, each defined here once: eq. (1)'s sum ``psi + theta^T phi`` (psi first; the plants
     # add the terms in this order), and eqs. (37)-(43)'s, the order of eps and of a law's bounding

@@ -23,9 +23,10 @@ import numpy as np
 
 from ..columns import ARRAYS, Column, ColumnForm
 from ..expr import Expression
+from ..expr.rows import is_zero
 from ..expr.source import FLAG, Statements, float_source
 from .backends import Backend
-from .base import NativeStepper, PlantTerms, is_zero, timed
+from .base import NativeStepper, PlantTerms, timed
 
 Rate = Callable[[list[Column]], Column]  # psi + theta^T phi on the state's columns
 Lower = tuple[tuple[int, Rate], ...]  # (i - 1, theta^T phi_i) of each earlier equation with terms
