@@ -33,7 +33,17 @@ The Python API (docs/python.md, and the API reference of the documentation site)
 """
 
 from ._version import __version__
-from .api import Comparison, Result, compare, lemma2_bounds, quantized_backstepping, run, sweep
+from .api import (
+    Comparison,
+    Result,
+    compare,
+    lemma2_bounds,
+    model_equation,
+    model_scenario,
+    quantized_backstepping,
+    run,
+    sweep,
+)
 from .commands import CheckReport, Reproduction, check, region, reproduce
 from .controller.backstepping import BacksteppingLaw, ControlOutput
 from .controller.comparison import ComparisonLaw
@@ -76,6 +86,8 @@ __all__ = [
     "load_law_module",
     "load_law_plugins",
     "load_scenario",
+    "model_equation",
+    "model_scenario",
     "quantized_backstepping",
     "region",
     "register_law",

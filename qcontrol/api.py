@@ -20,10 +20,11 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from . import compiled as compiled_paths
 from ._version import __version__
 from .assembly import Assembly, assemble, runnable_backend
 from .attribution import realism_attribution
@@ -35,11 +36,14 @@ from .errors import QcontrolInputError
 from .metrics import backend_deviation, run_summary, summary
 from .outputs import check_output_file, clean, prepare_output_dir, write_file, write_text
 from .plants import SceneSource
-from .scenario import Scenario
+from .scenario import Scenario, parse_scenario
 from .scenario.resolve import scenario_provenance
 from .summary import Summary
 from .sweep.runs import run_variants_batched
 from .sweep.table import sweep_rows
+
+if TYPE_CHECKING:
+    from .plants.mujoco.equation import ModelEquation
 
 SAVE_FORMATS = (".npz", ".csv")
 
@@ -306,8 +310,9 @@ def _check_arguments(function: str, **given: tuple[Any, type | tuple[type, ...],
 def check_video(run: Assembly, path: str | Path, fps: float = 30.0, camera: str | None = None,
                 size: tuple[int, int] | None = None) -> Any:
     """Check, before a run, that its video can be made (:func:`video`): the run's scenario has a
-    MuJoCo model with a camera, the format is known, the encoder is installed, an offscreen OpenGL
-    context opens. One line (:class:`QcontrolInputError`) otherwise. Returns the checked request."""
+    MuJoCo model (its camera, or a default one framing the body), the format is known, the encoder
+    is installed, an offscreen OpenGL context opens. One line (:class:`QcontrolInputError`)
+    otherwise. Returns the checked request."""
     drawn, scenario = run.scene, run.scenario
     if drawn is None:
         raise QcontrolInputError(f"--video: {scenario.source} has no MuJoCo model to render; add a "
@@ -355,7 +360,7 @@ def _log_camera_view(rec: Any, asm: Assembly, traj: Trajectory, twin: Trajectory
 
 
 def check_camera_view(run: Assembly) -> None:
-    """Before a run: that its recording can hold MuJoCo's rendering (a model with a camera, an
+    """Before a run: that its recording can hold MuJoCo's rendering (a MuJoCo model, an
     offscreen OpenGL context); one line otherwise."""
     from .render import require_offscreen_gl
     from .render.frames import camera_id
@@ -433,3 +438,35 @@ def lemma2_bounds(c: Sequence[float], delta: float | Sequence[float]) -> np.ndar
     ``L_z[-1]``."""
     half = delta / 2.0 if np.ndim(delta) == 0 else [d / 2.0 for d in delta]
     return _lemma2_bounds(c, half)[0]
+
+
+def model_equation(model: str | Path, joint: str | None = None) -> ModelEquation:
+    """The equation the one-joint MJCF file ``model`` realises, ``x2' = b u + theta^T phi(x)``: its
+    inertia, input gain b = gear / I, each term MuJoCo's physics produces with its coefficient and
+    what lies outside that form (``qcontrol model``); ``joint`` names the joint meant (checked)."""
+    from .plants.mujoco.equation import model_equation as equation
+
+    _check_arguments("model_equation", model=(model, (str, Path), False), joint=(joint, str, True))
+    return equation(model, joint)
+
+
+def model_scenario(model: str | Path, out: str | Path, joint: str | None = None,
+                   command: str | None = None) -> Path:
+    """Write at ``out`` a scenario of the model's equation (every term native, the paper's law with a
+    bounding function for each, a reference) after loading it and building its law and both plants,
+    MuJoCo's compared with eq. (1) (``qcontrol model --scenario``): nothing is written when it would
+    not run. ``command`` is named in its header."""
+    from .plants.mujoco.model_scenario import scenario_text
+
+    _check_arguments("model_scenario", out=(out, (str, Path), False))
+    eq = model_equation(model, joint)
+    path = check_output_file(out, "--scenario" if command else "model_scenario", "model.toml")
+    if path.suffix != ".toml":
+        raise QcontrolInputError(f"{path}: a scenario is a .toml file; e.g. model.toml")
+    text = scenario_text(eq, Path(model), path, command or f"qcontrol.model_scenario({str(model)!r})",
+                         input_gain=True)
+    sc = parse_scenario(text, source=str(path), base_dir=path.parent, default_name=path.stem)
+    with compiled_paths.not_needed():
+        for backend in ("mujoco", "ode"):
+            assemble(sc, backend)  # its law and plant built, MuJoCo's compared with eq. (1)
+    return write_text(path, text)

@@ -6,8 +6,8 @@ reading before the controller is called.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Protocol
+from collections.abc import Callable, Sequence
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -27,6 +27,13 @@ class Quantizer(Protocol):
     def __call__(self, x: np.ndarray) -> np.ndarray: ...
 
 
+def uniform(x: Any, delta: Any, floor: Callable[[Any], Any] = np.floor) -> Any:
+    """``q(x) = delta floor(x / delta + 1/2)``, eq. (3): the one definition of the uniform
+    quantizer, for a step shared by every channel or one per channel (``delta`` broadcast against
+    ``x``), on a column of any form with that form's ``floor``."""
+    return delta * floor(x / delta + 0.5)
+
+
 class UniformQuantizer:
     """Uniform mid-tread quantizer with step ``delta`` and infinitely many levels, eq. (3).
 
@@ -41,7 +48,12 @@ class UniformQuantizer:
         self.max_error = self.delta / 2.0
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
-        return self.delta * np.floor(np.asarray(x, dtype=float) / self.delta + 0.5)
+        return self.apply(np.asarray(x, dtype=float), np.floor)
+
+    def apply(self, x: Any, floor: Callable[[Any], Any]) -> Any:
+        """:func:`uniform` with this quantizer's step, on a column of any form
+        (:mod:`qcontrol.columns`: an array, a float, a traced symbol) with that form's ``floor``."""
+        return uniform(x, self.delta, floor)
 
     def __repr__(self) -> str:
         return f"UniformQuantizer(delta={self.delta!r})"

@@ -36,7 +36,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from .errors import QcontrolInputError
-from .quantizer import UniformQuantizer
+from .quantizer import UniformQuantizer, uniform
 from .schema import (
     OPTIONAL,
     REQUIRED,
@@ -84,11 +84,6 @@ def _channels(values: float | Sequence[float], n: int, what: str) -> np.ndarray:
     return array.copy()
 
 
-def _uniform(x: np.ndarray, delta: np.ndarray) -> np.ndarray:
-    """``delta * floor(x / delta + 1/2)`` per channel: eq. (3) with each channel's step."""
-    return delta * np.floor(x / delta + 0.5)
-
-
 class ChannelQuantizer:
     """Uniform quantizer with a step per channel, eq. (3), and optionally a finite range per
     channel: readings saturate at ``q(+-R_i)``. Property (4) per channel: ``m_i = delta_i / 2``
@@ -102,7 +97,7 @@ class ChannelQuantizer:
         self.delta = _channels(delta, n, "delta")
         self.range = None if range_ is None else _channels(range_, n, "range")
         if self.range is not None:
-            self.low, self.high = _uniform(-self.range, self.delta), _uniform(self.range, self.delta)
+            self.low, self.high = uniform(-self.range, self.delta), uniform(self.range, self.delta)
         self.worst_case_error: Channels = tuple((self.delta / 2.0).tolist())
         self.max_error: Channels = self.worst_case_error
 
@@ -110,7 +105,7 @@ class ChannelQuantizer:
         """Nothing to forget: the reading depends on the signal alone."""
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
-        q = _uniform(np.asarray(x, dtype=float), self.delta)
+        q = uniform(np.asarray(x, dtype=float), self.delta)
         if self.range is not None:
             q = np.minimum(np.maximum(q, self.low), self.high)
         return q
@@ -121,7 +116,7 @@ class ChannelQuantizer:
         x = np.asarray(x, dtype=float)
         if self.range is None:
             return x[..., 0] * 0.0
-        q = _uniform(x, self.delta)
+        q = uniform(x, self.delta)
         out = ((q < self.low) | (q > self.high)).any(axis=-1).astype(float)
         return np.where(np.isfinite(x).all(axis=-1), out, np.nan)
 
@@ -151,7 +146,7 @@ class HysteresisQuantizer:
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         x = np.asarray(x, dtype=float)
-        nearest = _uniform(x, self.delta)
+        nearest = uniform(x, self.delta)
         if self.level is None or self.level.shape != x.shape:
             self.level = nearest
         else:

@@ -177,15 +177,26 @@ def test_run_without_rrd_does_not_import_rerun():
     assert proc.stdout.strip().splitlines()[-1] == "False", proc.stdout + proc.stderr
 
 
+@pytest.mark.parametrize("backend", ["ode", "mujoco"])
+def test_a_short_run_in_a_new_process_leaves_numba_unstarted(backend: str) -> None:
+    """A single run too short to pay for numba's start (here 2 s, below COLD_MIN_ROWS) runs every
+    part in Python, MuJoCo's passive callback included: the same numbers, without the start."""
+    code = (f"import sys; from qcontrol.cli import main; main(['run', {str(EX2)!r}, '--backend', "
+            f"{backend!r}, '--duration', '2', '-q']); print('numba' in sys.modules)")
+    env = {k: v for k, v in os.environ.items() if k != "QCONTROL_COMPILE"}
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env)
+    assert proc.stdout.strip().splitlines()[-1] == "False", proc.stdout + proc.stderr
+
+
 def test_check_builds_the_mujoco_plant_without_numba_and_run_still_compiles():
     """check compares the model with eq. (1) through the Python passive callback (bit-identical
     to the compiled one; nothing runs), so it does not pay numba's import; a run after it in the
-    same process still gets the compiled callback."""
+    same process still gets the compiled callback (built when a run that pays for it starts)."""
     code = (f"import sys; from qcontrol.cli import main; main(['check', {str(EX2)!r}, '-q']); "
             "print('numba' in sys.modules); from qcontrol.assembly import build_plant; "
             "from qcontrol.scenario import load_scenario; "
-            f"build_plant(load_scenario({str(EX2)!r}), 'mujoco'); "
-            "print('numba' in sys.modules)")
+            f"plant = build_plant(load_scenario({str(EX2)!r}), 'mujoco'); "
+            "print(plant.native_for_run() is not None and 'numba' in sys.modules)")
     env = {k: v for k, v in os.environ.items() if k != "QCONTROL_COMPILE"}
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env)
     assert proc.stdout.strip().splitlines()[-2:] == ["False", "True"], proc.stdout + proc.stderr

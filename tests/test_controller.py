@@ -105,7 +105,7 @@ def test_control_law_44_by_hand():
     q1, q2 = 0.31, -0.42
     yd = np.array([0.2, 1.1, -0.5])
     eps = np.array([[0.7, 1.3, 2.1]])
-    out = ctrl.control(quantize(UniformQuantizer(0.01), np.array([[q1, q2]])), yd, eps)
+    out = ctrl.control(quantize(UniformQuantizer(0.01), np.array([[q1, q2]])), yd, tuple(eps.T))
     c1, c2, kappa, L = 4.0, 3.0, 1.125, 0.025
     q1, q2 = 0.31, -0.42  # both on the 0.01 grid
     zb1 = q1 - yd[0]
@@ -116,35 +116,36 @@ def test_control_law_44_by_hand():
     s = zb2**2 / kappa + L
     u = -(zb2 / kappa) / (kappa - L) * s * (eps[0] @ r) + ab2
     assert out.u[0] == pytest.approx(u, rel=1e-13)
-    np.testing.assert_allclose(out.zbar[0], [zb1, zb2], rtol=1e-13)
+    np.testing.assert_allclose([z[0] for z in out.zbar], [zb1, zb2], rtol=1e-13)
     # eq. (45) over h with x_q held: eps' = gamma (s r - sigma eps), exact exponential
     h = 0.01
     target = s * r / 1.0
     expected = target + (eps[0] - target) * np.exp(-1.0 * 1.0 * h)
-    np.testing.assert_allclose(ctrl.advance(eps, out, h)[0], expected, rtol=1e-13)
+    np.testing.assert_allclose(np.ravel(ctrl.advancer(h)(tuple(eps.T), out)), expected, rtol=1e-13)
 
 
 def test_adaptive_law_45_matches_fine_euler():
     ctrl = _proposed()
     reading = quantize(UniformQuantizer(0.01), np.array([[0.5, 0.8]]))
-    out = ctrl.control(reading, np.array([0.0, 1.0, 0.0]), np.zeros((1, 3)))
+    out = ctrl.control(reading, np.array([0.0, 1.0, 0.0]), tuple(np.zeros((3, 1))))
     eps = np.zeros((1, 3))
     h, m = 0.05, 200000
-    s_r = out.target * ctrl.sigma
+    s_r = np.column_stack(out.target) * ctrl.sigma
     for _ in range(m):
         eps = eps + (h / m) * ctrl.gamma * (s_r - ctrl.sigma * eps)
-    np.testing.assert_allclose(ctrl.advance(np.zeros((1, 3)), out, h), eps, rtol=1e-5)
+    advanced = ctrl.advancer(h)(tuple(np.zeros((3, 1))), out)
+    np.testing.assert_allclose(np.column_stack(advanced), eps, rtol=1e-5)
 
 
 def test_eps_hat_stays_nonnegative():
     ctrl = _proposed()
     rng = np.random.default_rng(1)
-    eps = ctrl.initial_state(50)
-    quant = UniformQuantizer(0.01)
+    eps = tuple(ctrl.initial_state(50).T)
+    quant, advance = UniformQuantizer(0.01), ctrl.advancer(0.01)
     for _ in range(100):
         out = ctrl.control(quantize(quant, rng.normal(size=(50, 2))), rng.normal(size=3), eps)
-        eps = ctrl.advance(eps, out, 0.01)
-    assert np.all(eps >= 0)
+        eps = advance(eps, out)
+    assert np.all(np.column_stack(eps) >= 0)
 
 
 def test_baseline_law_46_by_hand():
@@ -153,22 +154,23 @@ def test_baseline_law_46_by_hand():
     q = np.array([[0.2, -0.3]])
     yd = np.array([0.0, 1.5, 0.0])
     theta_hat = np.array([[0.5, -1.0, 2.0]])
-    out = ctrl.control(quantize(UniformQuantizer(0.01), q), yd, theta_hat)
+    out = ctrl.control(quantize(UniformQuantizer(0.01), q), yd, tuple(theta_hat.T))
     zb1 = 0.2
     ab1 = -4 * zb1 + 1.5
     zb2 = -0.3 - ab1
     ab2 = -3 * zb2 - 4 * (-0.3) + 4 * 1.5
     phi_q = np.array([-0.3, 0.09 * np.cos(0.2), np.sin(0.2)])
     assert out.u[0] == pytest.approx(ab2 - theta_hat[0] @ phi_q, rel=1e-13)
-    np.testing.assert_allclose(ctrl.advance(theta_hat, out, 0.1)[0], theta_hat[0] + 0.1 * phi_q * zb2)
+    np.testing.assert_allclose(np.ravel(ctrl.advancer(0.1)(tuple(theta_hat.T), out)),
+                               theta_hat[0] + 0.1 * phi_q * zb2)
 
 
 def test_controller_refuses_unquantized_state():
     ctrl = _proposed()
     with pytest.raises(TypeError, match="QuantizedReading"):
-        ctrl.control(np.array([[0.3, 0.3]]), np.zeros(3), np.zeros((1, 3)))
+        ctrl.control(np.array([[0.3, 0.3]]), np.zeros(3), tuple(np.zeros((3, 1))))
     with pytest.raises(ValueError, match="Lemma 2"):
-        ctrl.control(quantize(UniformQuantizer(0.1), np.zeros((1, 2))), np.zeros(3), np.zeros((1, 3)))
+        ctrl.control(quantize(UniformQuantizer(0.1), np.zeros((1, 2))), np.zeros(3), tuple(np.zeros((3, 1))))
 
 
 @pytest.mark.parametrize(

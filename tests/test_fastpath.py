@@ -44,7 +44,7 @@ def test_float_columns_and_numpy_columns_give_the_same_control(name: str) -> Non
     state = rng.uniform(-1, 1, (40, ctrl.state_size))
     yd = [0.3, -0.2, 1.1]
     on_arrays = ctrl.control(quantize(quantizer, x), yd, tuple(np.ascontiguousarray(state.T)))
-    advanced = ctrl.advance(tuple(np.ascontiguousarray(state.T)), on_arrays, 1e-3)
+    advanced = ctrl.advancer(1e-3)(tuple(np.ascontiguousarray(state.T)), on_arrays)
     to_floats = float_quantizer(quantizer)
     for b in range(len(x)):
         reading = to_floats(x[b].tolist())

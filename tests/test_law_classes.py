@@ -143,7 +143,7 @@ def test_misuse_is_one_line(call, message: str) -> None:
 
 # --------------------------------------------------------------------------------------------
 # One rule for "a compiled form of the built-in law may stand in for this object": the property,
-# which the engine's compiled loop asks (qcontrol.engine.compiled_laws.law_source)
+# which the engine's compiled loop asks (qcontrol.engine.compiled_loop.compilable)
 
 LONG = ["simulation.duration=5.0"]  # 5001 rows: the engine compiles the built-in law's run
 
@@ -217,12 +217,12 @@ def _signal(record, name: str) -> bytes:
 
 @pytest.mark.parametrize("kind", list(OWN))
 def test_a_subclass_with_anything_of_its_own_runs_its_own_python(equivalence_kinds, kind: str) -> None:
-    from qcontrol.engine.compiled_laws import law_source
+    from qcontrol.engine.compiled_loop import compilable
     law, loop, record = _closed_loop(kind)
     builtin = "comparison" if kind.startswith("comparison") else "proposed"
     _, builtin_loop, builtin_record = _closed_loop(builtin)
     assert builtin_loop.handover is None  # the built-in law's run of the same length is compiled
-    assert law.has_compiled_equivalent is False and law_source(law, 1e-3) is None
+    assert law.has_compiled_equivalent is False and not compilable(law)
     assert loop.handover == 0  # this one runs in Python from its first row
     assert _signal(record, "u") == _signal(builtin_record, "u")  # none of these members enters u
 
@@ -262,11 +262,11 @@ def test_an_instance_attribute_alone_makes_the_object_not_equivalent(equivalence
 
 @pytest.mark.parametrize("kind", list(SAME))
 def test_a_subclass_with_only_a_docstring_is_the_compiled_built_in_law(equivalence_kinds, kind: str) -> None:
-    from qcontrol.engine.compiled_laws import law_source
+    from qcontrol.engine.compiled_loop import compilable
     SAME[kind].__annotations__  # noqa: B018 (Python then adds an empty __annotations__ to the class)
     law, loop, record = _closed_loop(kind)
     _, _, builtin = _closed_loop("comparison" if "comparison" in kind else "proposed")
-    assert law.has_compiled_equivalent and law_source(law, 1e-3) is not None
+    assert law.has_compiled_equivalent and compilable(law)
     assert loop.handover is None
     for name in record.signals:
         assert _signal(record, name) == _signal(builtin, name), name

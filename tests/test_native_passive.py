@@ -144,7 +144,7 @@ def test_plants_of_different_terms_share_the_hook(monkeypatch: pytest.MonkeyPatc
     scs = [load_scenario(ROOT / "scenarios" / f"{n}.toml", ["simulation.duration=0.05"])
            for n in ("example1", "example2")]
     plants = [build_plant(sc, "mujoco") for sc in scs]
-    assert all(p._native is not None for p in plants)
+    assert all(p.native_for_run() is not None for p in plants)
     alone = [run_scenario(sc, "mujoco", plant=p) for sc, p in zip(scs, plants, strict=True)]
     with plants[1]:
         assert mujoco.get_mjcb_passive() is not callbacks._dispatch  # the native callback itself

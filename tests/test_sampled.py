@@ -53,7 +53,7 @@ def _gain_and_input(sc_overrides: list[str], x: np.ndarray, eps: np.ndarray):
     law = build_controller(sc)
     reading = quantize(UniformQuantizer(sc.controller.delta), x)
     yd = [0.0] * (sc.order + 1)
-    out = law.control(reading, yd, eps)
+    out = law.control(reading, yd, tuple(eps.T))
     q = reading.columns
     zbar, alphabar = law.recursion(q, yd)
     kt = np.asarray(law.robust_gain(q, yd, tuple(eps.T))) * law.period

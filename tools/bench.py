@@ -134,6 +134,7 @@ def mujoco_ratio(sc: Scenario, repeat: int) -> dict:
     callback); and ``mj_step`` with the plant's passive callback (native, and Python) against it."""
     steps = round(sc.simulation.duration / sc.simulation.dt)
     plant = build_plant(sc, "mujoco")
+    plant.native_for_run()  # the native callback compiled (or loaded) before the timing
     closed = best_of(repeat, lambda: run_scenario(sc, "mujoco", plant=plant)) / steps
     bare = best_of(repeat, _mj_step_loop(plant, steps, installed=False)) / steps
     native = best_of(repeat, _mj_step_loop(plant, steps, installed=True)) / steps
@@ -161,8 +162,8 @@ def solve_ivp_closed_loop(sc: Scenario) -> None:
     def rhs(t: float, y: np.ndarray) -> np.ndarray:
         x, eps = y[None, :n], y[None, n:]
         reading = QuantizedReading(quantizer(x), quantizer.max_error)
-        out = controller.control(reading, reference.derivatives(t, n), eps)
-        deps = (out.target - eps) * out.rate  # eq. (45): gamma (s r - sigma eps)
+        out = controller.control(reading, reference.derivatives(t, n), tuple(eps.T))
+        deps = (np.column_stack(out.target) - eps) * out.rate  # eq. (45): gamma (s r - sigma eps)
         return np.concatenate([plant.rhs(x, out.u)[0], deps[0]])
 
     y0 = np.concatenate([sc.x0, np.zeros(controller.state_size)])
@@ -338,6 +339,9 @@ def sweep1000(duration: float, workers: int) -> dict:
 
 
 def measure(args: argparse.Namespace) -> dict:
+    # the figures are those of a process that has started numba, whose single runs of 10 s take
+    # the compiled forms (a fresh process leaves a run that short to Python: it would not pay)
+    import numba  # noqa: F401
     duration = 1.0 if args.quick else 10.0
     repeat = 1 if args.quick else args.repeat
     sizes = [1, 10, 100] if args.quick else [1, 10, 100, 1000]

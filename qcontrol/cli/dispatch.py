@@ -1,4 +1,5 @@
-"""The ``qcontrol`` command line: run, compare, reproduce, sweep, region, check (on :mod:`qcontrol.api`).
+"""The ``qcontrol`` command line: run, compare, reproduce, sweep, region, check, model (on
+:mod:`qcontrol.api`).
 
 Exit status: 0 success; 1 the run diverged or a theory check failed; 2 bad input (outputs that
 cannot be written included: checked before the run); 3 an output could not be written during or
@@ -35,6 +36,7 @@ from .arguments import (
 from .check_command import add_check_parser, cmd_check
 from .compare_command import add_compare_parser, cmd_compare
 from .laws_command import add_laws_parser, cmd_laws
+from .model_command import add_model_parser, cmd_model
 from .region_command import add_region_parser, cmd_region
 from .reproduce_command import add_reproduce_parser, cmd_reproduce
 from .run_command import add_run_parser, cmd_run
@@ -53,6 +55,7 @@ COMMANDS: dict[str, tuple[Register, Handler]] = {
     "sweep": (add_sweep_parser, cmd_sweep),
     "region": (add_region_parser, cmd_region),
     "check": (add_check_parser, cmd_check),
+    "model": (add_model_parser, cmd_model),
 }
 
 

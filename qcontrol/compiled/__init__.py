@@ -33,8 +33,9 @@ def requested() -> bool:
 @contextmanager
 def not_needed() -> Iterator[None]:
     """Compiled paths off while the block is open, silently: for work that runs nothing (building
-    a plant only to check it), so that it neither imports numba nor loads compiled code. The same
-    numbers either way: every compiled path is bit-identical to its Python form."""
+    a plant only to check it) or too little to pay for numba's start (a short single run in a
+    fresh process), so that it neither imports numba nor loads compiled code. The same numbers
+    either way: every compiled path is bit-identical to its Python form."""
     _NOT_NEEDED.append(None)
     try:
         yield

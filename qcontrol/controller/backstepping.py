@@ -132,12 +132,6 @@ class Backstepping:
         """The coordinates the engine records z, zbar and the Lemma 2 errors in: these."""
         return self
 
-    @property
-    def recursion_steps(self) -> tuple:
-        """The coefficients :meth:`recursion` applies, ``(-c_i, D_i's y_d terms, D_i's q terms)``
-        per i (read-only; the engine's compiled loop generates the same arithmetic from them)."""
-        return self._steps
-
     def _recursion_steps(self) -> tuple:
         """``alphabar_i = -c_i zbar_i + D_i``, eq. (34), with ``D_1 = y_d'`` and
         ``D_i = sum_{k<i} a[i-1][k] q_{k+1} + sum_{j<i} b[i-1][j] y_d^(j+1)``: one
@@ -220,14 +214,13 @@ class ControlOutput(NamedTuple):
     """One evaluation of a law: input ``u``, ``zbar``, and the held quantities that drive the
     adaptive state until the next sample.
 
-    Array form (``control`` given a ``(batch, m)`` state): ``u`` (batch,), ``zbar`` (batch, n),
-    ``target`` (batch, m). Column form (given a tuple of m columns, as the engine does): ``u`` a
-    column, ``zbar`` and ``target`` tuples of columns, ``rate`` a float or a ``(batch,)`` array.
+    In the form of the columns the law was given: ``u`` a column, ``zbar`` and ``target`` tuples
+    of columns, ``rate`` a float or a ``(batch,)`` array.
     """
 
-    u: np.ndarray
-    zbar: np.ndarray
-    target: np.ndarray  # proposed: s r / sigma; comparison: Gamma phi zbar_n (a rate)
+    u: Column
+    zbar: tuple  # of columns, zbar_1 .. zbar_n
+    target: tuple  # of columns; proposed: s r / sigma; comparison: Gamma phi zbar_n (a rate)
     rate: float | np.ndarray  # proposed: gamma sigma, a float or per copy; comparison: 0
 
 

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from ..columns import ColumnForm, Terms, stack
+from ..columns import ColumnForm, Terms
 from ..errors import QcontrolInputError
 from ..expr import Expression
 from ..quantizer import QuantizedReading
@@ -92,16 +92,12 @@ class ComparisonLaw(BacksteppingLaw):
     def constants(self) -> dict[str, Any]:
         return {"comparison_gain": self.adaptation_gain}
 
-    def control(self, reading: QuantizedReading, yd: Sequence[float],
-                theta_hat: np.ndarray | Columns, t: float = 0.0) -> ControlOutput:
-        """Eq. (46) with the plant's own psi, phi evaluated at the quantized state. Array or
-        column form as in :meth:`ProposedController.control`."""
+    def control(self, reading: QuantizedReading, yd: Sequence[float], theta_hat: Columns,
+                t: float = 0.0) -> ControlOutput:
+        """Eq. (46) with the plant's own psi, phi evaluated at the quantized state; columns as in
+        :meth:`PaperLaw.control <qcontrol.controller.proposed.PaperLaw.control>`."""
         if not isinstance(reading, QuantizedReading) or reading.max_error != self.max_error:
             self.check_reading(reading)
-        if isinstance(theta_hat, np.ndarray):
-            out = self.control(QuantizedReading(reading.values, reading.max_error), yd, tuple(theta_hat.T))
-            batch = len(theta_hat)
-            return ControlOutput(out.u, stack(out.zbar, batch), stack(out.target, batch), 0.0)
         q = reading.columns
         phi_q = self.terms_in(reading.form)(q)  # psi(x_q) (if present), then phi(x_q)
         zbar, alphabar = self.recursion(q, yd)  # eqs. (31)-(34)
@@ -128,15 +124,9 @@ class ComparisonLaw(BacksteppingLaw):
             terms = self._terms[form] = form.terms(exprs)
         return terms
 
-    def advance(self, state: np.ndarray | Columns, out: ControlOutput, h: float) -> np.ndarray | Columns:
-        """``theta_hat`` grows at the held rate (exact for ``x_q`` held over ``h``)."""
-        if isinstance(state, np.ndarray):
-            grown = self.advance(tuple(state.T), out._replace(target=tuple(out.target.T)), h)
-            return stack(grown, len(state))
-        return self.advancer(h)(state, out)
-
     def advancer(self, h: float) -> Advance:
-        """:meth:`advance` over a fixed ``h`` in column form (any form), made once per run."""
+        """``theta_hat`` grown at the held rate over a fixed ``h`` (exact for ``x_q`` held), in
+        column form (any form), made once per run."""
         return RateAdvance(h).advance
 
 

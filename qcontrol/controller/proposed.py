@@ -16,7 +16,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..columns import ARRAYS, ColumnForm, Terms, stack
+from ..columns import ARRAYS, ColumnForm, Terms
 from ..errors import QcontrolInputError
 from ..expr import Expression, compile_expression
 from ..quantizer import QuantizedReading
@@ -148,8 +148,6 @@ class PaperLaw(BacksteppingLaw):
         self.kappa, self.gamma, self.sigma, self.r_scale = kappa, gamma, sigma, r_scale
         self.r = tuple(r)
         self.state_size = len(self.r)
-        rate = self.gamma * sigma
-        self._rate = rate[:, None] if isinstance(rate, np.ndarray) else rate  # array form of ControlOutput
         self._constants: dict[ColumnForm, LawConstants] = {}  # (constants_in)
         self._built_attributes = frozenset(vars(self)) | {"_built_attributes"}  # (has_compiled_equivalent)
 
@@ -201,21 +199,16 @@ class PaperLaw(BacksteppingLaw):
             return 1.0 - gain_period
         return np.exp(-np.asarray(gain_period))
 
-    def control(self, reading: QuantizedReading, yd: Sequence[float],
-                eps_hat: np.ndarray | Columns, t: float = 0.0) -> ControlOutput:
-        """Eq. (44) for the current quantized reading; eq. (45)'s held terms for :meth:`advance`:
+    def control(self, reading: QuantizedReading, yd: Sequence[float], eps_hat: Columns,
+                t: float = 0.0) -> ControlOutput:
+        """Eq. (44) for the current quantized reading; eq. (45)'s held terms for the advance:
         ``u = alphabar_n - robust_term(...)``, targets from :meth:`adaptive_target`.
 
-        ``eps_hat`` is a tuple of m columns in the reading's form (column form, as the engine
-        passes it), or a ``(batch, m)`` array: the same formulas then run on the array's columns
-        and the output is in array form. ``yd`` holds ``y_d .. y_d^(n)``.
+        ``eps_hat`` is a tuple of m columns in the reading's form (``tuple(eps.T)`` of a
+        ``(batch, m)`` array in the array form); ``yd`` holds ``y_d .. y_d^(n)``.
         """
         if not isinstance(reading, QuantizedReading) or reading.max_error != self.max_error:
             self.check_reading(reading)
-        if isinstance(eps_hat, np.ndarray):
-            out = self.control(QuantizedReading(reading.values, reading.max_error), yd, tuple(eps_hat.T))
-            batch = len(eps_hat)
-            return ControlOutput(out.u, stack(out.zbar, batch), stack(out.target, batch), self._rate)
         law = self.constants_in(reading.form)
         q = reading.columns
         zbar, alphabar = self.recursion(q, yd)  # eqs. (31)-(34)
@@ -251,18 +244,11 @@ class PaperLaw(BacksteppingLaw):
         sigma = law.sigma
         return [s * ri / sigma for ri in r]
 
-    def advance(self, state: np.ndarray | Columns, out: ControlOutput, h: float) -> np.ndarray | Columns:
-        """Integrate eq. (45) over ``h`` with ``x_q`` held: exact for the linear ODE
-        ``eps_hat' = gamma sigma (target - eps_hat)``. ``state`` and ``out`` in the same form
-        (array or columns) as :meth:`control` took and gave them."""
-        if isinstance(state, np.ndarray):
-            eps = self.advance(tuple(state.T), out._replace(target=tuple(out.target.T)), h)
-            return stack(eps, len(state))
-        return self.advancer(h)(state, out)
-
     def advancer(self, h: float) -> Advance:
-        """:meth:`advance` over a fixed ``h`` in column form, as a function ``(state, out) ->
-        state`` made once per run: ``exp(-gamma sigma h)`` is computed here, not every step."""
+        """Eq. (45) over a fixed step ``h`` with ``x_q`` held, exact for the linear ODE
+        ``eps_hat' = gamma sigma (target - eps_hat)``, in the array form: a function ``(state,
+        out) -> state`` made once per run (``exp(-gamma sigma h)`` is computed here, not every
+        step). :meth:`advancer_in` gives it in any form."""
         return self._decay_advance(self.constants_in(ARRAYS), h)
 
     def advancer_in(self, form: ColumnForm, h: float) -> Advance:

@@ -1,27 +1,31 @@
 """The compiled loop: a batch of one with a built-in law, run in numba between the engine's
-scheduled rows.
+scheduled rows, generated from the parts' own Python code.
 
 The engine's float path (:mod:`.fastpath`) chooses it for a run whose parts all have a compiled
-form: the uniform quantizer, a built-in law (:mod:`.compiled_laws`), the plant's
-:class:`~qcontrol.plants.base.NativeStepper` (the ODE's RK4 on its terms, or MuJoCo's own
-``mj_step`` called from compiled code), the sensors' velocity. The generated function runs the
-loop body of :meth:`~.loop.ClosedLoop.run` for rows ``[start, stop]`` (observe, quantize
-``delta * floor(x / delta + 1/2)``, control every ``hold`` rows, the row written into the run's
-buffer, step, advance) with the same operations in the same order (numpy's error model, no
-fast-math contraction), so every row is the Python loop's to the last bit. Between calls the
-engine does its rare work (:meth:`~.loop.ClosedLoop.rare_work`) at the rows it schedules, as ever.
+form: the uniform quantizer, a built-in law, the plant's
+:class:`~qcontrol.plants.base.NativeStepper` (the ODE's RK4 on its terms, or MuJoCo's copy step
+calling ``mj_step`` from compiled code), the sensors' velocity. The quantizer's formula
+(:meth:`~qcontrol.quantizer.UniformQuantizer.apply`) and the law's ``control`` and advance are
+not restated here: they run once on the traced column form (:mod:`qcontrol.compiled.traced`),
+whose symbols record every operation they make, in order, as source lines
+(:func:`traced_parts`). The generated function runs the loop body of
+:meth:`~.loop.ClosedLoop.run` for rows ``[start, stop]`` (observe, quantize, control every
+``hold`` rows, the row written into the run's buffer, step, advance) with the same operations
+in the same order (numpy's error model, no fast-math contraction), so every row is the Python
+loop's to the last bit. Between calls the engine does its rare work
+(:meth:`~.loop.ClosedLoop.rare_work`) at the rows it schedules, as ever.
 
 Where the compiled code cannot give the Python loop's numbers (``math`` refusing an evaluation
 the Python form answers with numpy), it stops before the row (or the step) and the Python loop
 runs on from there (:class:`Resume`). Everything else runs in Python from the start: user laws
 and subclasses that change a built-in law, sensor noise, velocity differencing, other
-quantizers, batches, runs shorter than :data:`MIN_ROWS` rows (:data:`COLD_MIN_ROWS` in a
-process that has not started numba), and every run when ``QCONTROL_COMPILE=0`` or numba is
-missing.
+quantizers, batches, runs shorter than :data:`MIN_ROWS` rows, single runs of fewer than
+:data:`COLD_MIN_ROWS` in a process that has not started numba (:func:`numba_pays`), and every
+run when ``QCONTROL_COMPILE=0`` or numba is missing.
 
 The generated text is kept in the user's cache folder (:mod:`qcontrol.compiled.cache`), keyed by
-the text and the versions; the numbers (gains, theta, addresses) are arguments, so one compiled
-function serves every run of the same structure.
+the text and the versions; the numbers (gains, theta, the step, addresses) are arguments, so one
+compiled function serves every run of the same structure.
 """
 
 from __future__ import annotations
@@ -32,18 +36,22 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 
 from .. import compiled as compiled_paths
-from ..controller.backstepping import ControlOutput
+from ..compiled.traced import TRACED, Symbol, Trace, recording
+from ..controller.backstepping import ControlOutput, output
+from ..controller.comparison import ComparisonLaw
+from ..controller.law import BatchLaw
+from ..controller.proposed import PaperLaw
 from ..plants.base import NativeStepper, NativeStepping, Plant
-from ..quantizer import UniformQuantizer
-from .compiled_laws import LawSource, law_source
+from ..quantizer import QuantizedReading, UniformQuantizer
 from .reference_rows import ReferenceRows
 from .spec import RunSpec
 
-# Runs shorter than MIN_ROWS stay in Python: the Python loop takes 15-50 us a row, the compiled
-# one about 1 us, but numba costs about 0.5 s to start in a process and 1-2 s to compile a new
-# structure (once, then cached), so a short run (a test, a quick check) would spend more on the
-# compiler than it saves. In a process that has not started numba yet (an ODE run from the
-# command line; MuJoCo's native callback starts it) only a run of COLD_MIN_ROWS pays for the start.
+# Runs shorter than MIN_ROWS stay in Python: the Python loop takes 15-30 us a row, the compiled
+# one about 1 us on the ODE (MuJoCo's own step, about 12 us, stays), but numba costs about 0.5 s
+# to start in a process and 1.5 s of CPU to compile a new structure (once, then cached), so a
+# short run (a test, a quick check) would spend more on the compiler than it saves. In a process
+# that has not started numba yet (a run from the command line) only a single run of
+# COLD_MIN_ROWS rows pays for the start: there MuJoCo's passive callback stays in Python too.
 MIN_ROWS = 5000
 COLD_MIN_ROWS = 50_000
 DONE, CONTROL_REFUSED, STEP_REFUSED = 0, 1, 2  # what a call returns, with the row it stopped at
@@ -79,41 +87,83 @@ def _indented(lines: list[str], depth: int) -> list[str]:
     return ["    " * depth + line for line in lines]
 
 
-def loop_source(law: LawSource, plant: NativeStepper, n: int, m: int) -> str:
+class TracedParts(NamedTuple):
+    """The run's quantizer and law as lines of the loop, recorded from their own Python code run
+    on symbols (:mod:`qcontrol.compiled.traced`): ``quantize`` (``m1 .. mn`` -> ``q``, the names
+    or constants of ``q_1 .. q_n``), ``control`` (at a sample: fills ``held`` with u, the targets
+    and zbar), ``advance`` (every step), the constants ``lp`` they read, and the output's rate."""
+
+    quantize: list[str]
+    q: list[str]
+    control: list[str]
+    advance: list[str]
+    constants: np.ndarray
+    rate: float
+
+
+def traced_parts(quantizer: UniformQuantizer, law: BatchLaw, n: int, dt: float) -> TracedParts:
+    """:meth:`UniformQuantizer.apply`, ``law.control`` and ``law.advancer_in`` run on the traced
+    form; raises TypeError where a formula cannot be traced (the run keeps the Python loop)."""
+    m, trace = law.state_size, Trace()
+    with recording(trace):
+        q = [quantizer.apply(Symbol(f"m{i}"), TRACED.floor) for i in range(1, n + 1)]
+        q_text = [trace.text(qi) for qi in q]
+        quantize = trace.taken()
+        with trace.refusing(f"return {CONTROL_REFUSED}, k"):
+            reading = QuantizedReading(None, quantizer.max_error, columns=q, form=TRACED, batch=1)
+            yd = [Symbol(f"yd[r, {j}]") for j in range(n + 1)]
+            state = tuple(Symbol(f"adaptive[{i}]") for i in range(m))
+            t = trace.assign(f"k * {trace.constant(dt)}")
+            out = law.control(reading, yd, state, t)
+            held = [out.u, *out.target, *out.zbar]
+            texts = [trace.text(v) for v in held]
+            trace.lines += [f"held[{i}] = {text}" for i, text in enumerate(texts)]
+        control = trace.taken()
+        if isinstance(out.rate, Symbol) or len(out.target) != m or len(out.zbar) != n:
+            raise TypeError("a law output the compiled loop cannot hold")
+        symbols = [Symbol(f"held[{i}]") for i in range(len(held))]
+        kept = output((symbols[0], tuple(symbols[1 + m:]), tuple(symbols[1:1 + m]), out.rate))
+        advanced = law.advancer_in(TRACED, dt)(state, kept)  # (no refusal: it follows the step)
+        texts = [trace.text(v) for v in advanced]
+        trace.lines += [f"adaptive[{i}] = {text}" for i, text in enumerate(texts)]
+        advance = trace.taken()
+    return TracedParts(quantize, q_text, control, advance, np.array(trace.constants), float(out.rate))
+
+
+def loop_source(parts: TracedParts, plant: NativeStepper, n: int, m: int) -> str:
     """The module text of the loop function ``rows(...) -> (status, row)``."""
-    quantize = [f"q{i} = delta * np.floor(m{i} / delta + 0.5)" for i in range(1, n + 1)]
     record = ([f"xb[j, 0, {i - 1}] = x{i}" for i in range(1, n + 1)]
               + [f"mb[j, 0, {i - 1}] = m{i}" for i in range(1, n + 1)]
-              + [f"qb[j, 0, {i - 1}] = q{i}" for i in range(1, n + 1)]
+              + [f"qb[j, 0, {i}] = {q}" for i, q in enumerate(parts.q)]
               + ["ub[j, 0] = u"] + [f"ab[j, 0, {i}] = adaptive[{i}]" for i in range(m)])
     body = [
         *plant.setup,
         "u = held[0]",
         "if step_first:",
         "    k = start - 1",
-        *_indented(plant.step + law.advance, 1),
+        *_indented(plant.step + parts.advance, 1),
         "for k in range(start, stop + 1):",
         "    r = k - start",
-        *_indented(plant.observe + quantize, 1),
+        *_indented(plant.observe + parts.quantize, 1),
         "    if k % hold == 0:",
-        *_indented(law.control, 2),
+        *_indented(parts.control, 2),
         "        u = held[0]",
         "    j = k - base",
         *_indented(record, 1),
         "    if k == stop:",
         "        return 0, k",
-        *_indented(plant.step + law.advance, 1),
+        *_indented(plant.step + parts.advance, 1),
         "return 0, stop",
     ]
     return "\n".join([
         '"""qcontrol\'s compiled loop (generated): see KEY."""',  # (user text only as a repr literal)
         "import math", "", "import numba", "import numpy as np", "",
-        f"KEY = {law.key + '; ' + plant.key!r}", "",
+        f"KEY = {plant.key!r}", "",
         "from qcontrol.compiled.pointers import as_pointer, carray", "",
         plant.helpers, "",
         '@numba.njit(cache=True, error_model="numpy", nogil=True)',
-        "def rows(start, stop, step_first, hold, base, delta, yd, xb, mb, qb, ub, ab, adaptive, held, lp, pf,"
-        " pi, xs):",
+        "def rows(start, stop, step_first, hold, base, yd, xb, mb, qb, ub, ab, adaptive, held, lp, pf, pi,"
+        " xs):",
         *_indented(body, 1), "",
     ])
 
@@ -121,14 +171,19 @@ def loop_source(law: LawSource, plant: NativeStepper, n: int, m: int) -> str:
 class CompiledLoop:
     """The compiled form of one run's law and quantizer; :meth:`run` adds the plant's."""
 
-    def __init__(self, law: LawSource, delta: float, n: int, m: int) -> None:
-        self.law, self.delta, self.n, self.m = law, delta, n, m
+    def __init__(self, parts: TracedParts, n: int, m: int) -> None:
+        self.parts, self.n, self.m = parts, n, m
 
     def function(self, plant: NativeStepper):  # noqa: ANN201 (a numba dispatcher)
         """The generated loop for this law and plant, compiled or loaded from the disk cache."""
         from ..compiled.cache import generated_module
 
-        return generated_module("loop", loop_source(self.law, plant, self.n, self.m)).rows
+        return generated_module("loop", loop_source(self.parts, plant, self.n, self.m)).rows
+
+    def held_output(self, held: np.ndarray) -> ControlOutput:
+        """``held`` (u, targets, zbar) as the output the Python loop continues with."""
+        values, m = held.tolist(), self.m
+        return output((values[0], tuple(values[1 + m:]), tuple(values[1:1 + m]), self.parts.rate))
 
     def run(self, loop: Schedule, plant: Plant, adaptive: tuple) -> Resume | None:
         """The run from row 0 in compiled chunks, the engine's rare work between them; None when
@@ -150,17 +205,40 @@ class CompiledLoop:
             stop = loop.next_event(start - 1)
             yd = np.ascontiguousarray(loop.reference.block(start, stop + 1))
             stepper.sync_in()
-            status, row = rows(start, stop, step_first, hold, loop.record.buffer.base, self.delta, yd,
-                               *buffers, state, held, self.law.constants, stepper.floats, stepper.ints,
-                               stepper.state)
+            status, row = rows(start, stop, step_first, hold, loop.record.buffer.base, yd, *buffers, state,
+                               held, self.parts.constants, stepper.floats, stepper.ints, stepper.state)
             stepper.sync_out()
             if status == CONTROL_REFUSED:
                 return Resume(row, False, tuple(state.tolist()), None)
             if status == STEP_REFUSED:
-                return Resume(row + 1, True, tuple(state.tolist()), self.law.held_output(held))
+                return Resume(row + 1, True, tuple(state.tolist()), self.held_output(held))
             if loop.rare_work(stop):
                 return None
             start, step_first = stop + 1, True
+
+
+COMPILED_LAWS = (PaperLaw, ComparisonLaw)  # the laws whose objects say when their code is their class's
+
+
+def compilable(law: BatchLaw) -> bool:
+    """Whether the law's own code may be traced for the compiled loop: an object of a built-in
+    law class whose ``has_compiled_equivalent`` (the built-in class's definition: a subclass's own
+    property is itself a change) says it runs its class's code, with the parameters of one copy.
+    Anything else (a user law, a subclass with code of its own that may keep state or draw
+    numbers) keeps the Python loop."""
+    for base in COMPILED_LAWS:
+        if isinstance(law, base):
+            return base.has_compiled_equivalent.fget(law) and law.copies in (None, 1)
+    return False
+
+
+def numba_pays(rows: int, batch: int) -> bool:
+    """Whether a run may use numba at all (the compiled loop, MuJoCo's native callback): a batch
+    (sweeps, studies: long, and ``mujoco.batch`` needs the native callback), a run in a process
+    that has started numba already, or a single run of at least :data:`COLD_MIN_ROWS` rows, which
+    pays for numba's start. A shorter single run in a fresh process (a 10 s run from the command
+    line) is faster in Python, cold cache or warm (docs/architecture.md, 'The compiled loop')."""
+    return batch != 1 or "numba" in sys.modules or rows >= COLD_MIN_ROWS
 
 
 def compiled_loop(spec: RunSpec) -> CompiledLoop | None:
@@ -169,13 +247,16 @@ def compiled_loop(spec: RunSpec) -> CompiledLoop | None:
     rows = spec.grid.rows
     if spec.plant.batch != 1 or spec.velocity_source != "sensor" or rows < MIN_ROWS:
         return None
-    if "numba" not in sys.modules and rows < COLD_MIN_ROWS:  # (before enabled(), which imports it)
+    if not numba_pays(rows, 1):  # (before enabled(), which imports it)
         return None
     if type(spec.quantizer) is not UniformQuantizer:  # (a subclass may quantize otherwise)
         return None
     if not compiled_paths.enabled():
         return None
-    law = law_source(spec.law, spec.grid.dt)
-    if law is None:
+    if not compilable(spec.law):
         return None
-    return CompiledLoop(law, spec.quantizer.delta, spec.plant.n, spec.law.state_size)
+    try:
+        parts = traced_parts(spec.quantizer, spec.law, spec.plant.n, spec.grid.dt)
+    except TypeError:  # a formula that cannot be traced: the Python loop
+        return None
+    return CompiledLoop(parts, spec.plant.n, spec.law.state_size)

@@ -97,22 +97,23 @@ FLOATS = FloatForm()
 
 class FloatQuantize:
     """``quantize`` for the readings of one copy, plain floats ``x_1 .. x_n``: the uniform
-    quantizer's ``delta * floor(x / delta + 1/2)`` on floats (``floor`` is exact either way, so
-    bit for bit the array form's); another quantizer through its array form."""
+    quantizer's own formula (:meth:`~qcontrol.quantizer.UniformQuantizer.apply`) on floats with
+    ``math.floor`` (``floor`` is exact either way, so bit for bit the array form's); another
+    quantizer through its array form."""
 
     def __init__(self, quantizer: Quantizer) -> None:
         self.quantizer, self.max_error = quantizer, quantizer.max_error
-        self.delta = quantizer.delta if isinstance(quantizer, UniformQuantizer) else None
+        self.apply = quantizer.apply if isinstance(quantizer, UniformQuantizer) else None
 
     def quantize(self, readings: Sequence[float]) -> QuantizedReading:
         return QuantizedReading(None, self.max_error, columns=self.values(readings), form=FLOATS,
                                  batch=1)
 
     def values(self, readings: Sequence[float]) -> tuple[float, ...]:
-        d = self.delta
-        if d is not None:
+        apply = self.apply
+        if apply is not None:
             try:
-                return tuple([d * math.floor(v / d + 0.5) for v in readings])
+                return tuple([apply(v, math.floor) for v in readings])
             except FLOAT_REFUSED:  # NaN or Inf: numpy's answer
                 pass
         return tuple(self.quantizer(np.array([readings], dtype=float))[0].tolist())

@@ -16,14 +16,16 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from contextlib import nullcontext
 from typing import Any
 
 import numpy as np
 
+from .. import compiled as compiled_paths
 from ..plants.base import Disturbable, Plant, actuator_of
 from ..quantizer import Quantizer
 from ..quantizers import SensorQuantizer
-from .compiled_loop import START, Resume
+from .compiled_loop import START, Resume, numba_pays
 from .divergence import Divergence
 from .fastpath import compiled_loop, rows_for
 from .reference_rows import ReferenceRows
@@ -122,7 +124,9 @@ class ClosedLoop:
         plant = self.plant
         adaptive = self.rows.initial_state(self.law)
         self.record.started = time.perf_counter()
-        with plant, np.errstate(all="ignore"):
+        # a single run too short to pay for numba's start runs every part in Python
+        pays = numba_pays(self.grid.rows, plant.batch)
+        with nullcontext() if pays else compiled_paths.not_needed(), plant, np.errstate(all="ignore"):
             plant.reset(np.broadcast_to(np.asarray(self.x0, dtype=float), (plant.batch, plant.n)))
             resume = (START._replace(adaptive=adaptive) if self.compiled is None
                       else self.compiled.run(self, plant, adaptive))

@@ -56,7 +56,11 @@ class Backend:
     and their parsed options (None: the backend takes no section); ``scene(options, dt)`` what
     recordings draw in 3-D (None: nothing to draw); ``inertia(options, dt)`` the joint's
     generalized inertia I, the gain between u and a generalized force on the joint (None: the
-    backend has no joint of its own, e.g. the ODE with its unit input gain).
+    backend has no joint of its own, e.g. the ODE with its unit input gain);
+    ``model_coefficients(options, terms, dt)`` what the backend's model fixes itself: the
+    coefficient of each term it makes (``{name: value}`` for the names its options leave to it,
+    None where its physics makes no such term) and the input gain b its actuator's own command
+    has (what a scenario's ``"model"`` entries take).
     """
 
     name: str
@@ -67,6 +71,8 @@ class Backend:
     parse: Callable[[Table, PlantContext], Any] | None = None
     scene: Callable[[Any, float], SceneSource | None] | None = None
     inertia: Callable[[Any, float], float] | None = None
+    model_coefficients: Callable[[Any, PlantTerms, float], tuple[dict[str, float | None], float]] | None = (
+        None)
 
     def require(self, options: Any, source: str) -> None:
         """Refuse a scenario that lacks the section this backend needs to run."""

@@ -22,9 +22,9 @@ from typing import Any
 import numpy as np
 
 from ..columns import ARRAYS, Column, ColumnForm
+from ..compiled.traced import TRACED, Symbol, Trace, recording
 from ..expr import Expression
 from ..expr.rows import is_zero
-from ..expr.source import FLAG, Statements, float_source
 from .backends import Backend
 from .base import NativeStepper, PlantTerms, timed
 
@@ -151,14 +151,7 @@ class ChainPlant:
         """One classical RK4 step of eq. (1) with ``u`` held."""
         if not (isinstance(u, np.ndarray) and u.shape == (self.batch,)):
             u = np.broadcast_to(np.asarray(u, dtype=float).reshape(-1), (self.batch,))
-        u = self._form.column(u)
-        if self.input_gain != 1.0:
-            u = self.input_gain * u
-        if self.timed:
-            self._x = _rk4(self._x, u + self._load if self._load else u, h, self._g, self._time, self._lower)
-            self._time += h
-            return
-        self._x = _rk4(self._x, u + self._load if self._load else u, h, self._g, None, self._lower)
+        _advance(self, self._form.column(u), h, self._g)
 
     def column_io(self, form: ColumnForm, h: float) -> ChainIO:
         """Observe and step in ``form``, steps of ``h`` (:class:`~.base.ColumnStepping`): the
@@ -177,50 +170,40 @@ class ChainPlant:
 
 
 class ChainNativeForm:
-    """:func:`_rk4` and ``psi + theta^T phi`` (:func:`qcontrol.expr.combine`) as numba source,
-    generated from the terms' expression trees (:func:`qcontrol.expr.source.float_source`, as
-    MuJoCo's native callback): the same operations in the same order. ``pf`` holds the load d,
-    ``h`` and theta (so one compiled text serves every theta); ``xs`` the state. Where ``math``
-    would refuse a term (the Python form then takes numpy's answer), the step returns 2 before
-    writing the state, and the Python step runs."""
+    """The batch of one for the engine's compiled loop: :func:`_loaded`, :func:`_rk4` and ``psi +
+    theta^T phi`` themselves, run once on the traced form (:mod:`qcontrol.compiled.traced`),
+    which records their arithmetic as the source of one numba function ``plant_step(u, xs, pf)``
+    (the same operations in the same order), which the loop calls at every step. ``pf`` holds the
+    load d (``pf[0]``) and the constants the trace met (h, theta, RK4's own numbers), so one
+    compiled text serves every theta; ``xs`` the state. :func:`_loaded` branches on the load, so
+    it is recorded for a load and for none. Where ``math`` would refuse a term (the Python form
+    then takes numpy's answer), the step returns True before writing the state, the loop returns
+    2, and the Python step runs."""
 
     def __init__(self, plant: ChainPlant, h: float) -> None:
-        self.plant = plant
-        row = plant.theta[0] if plant.theta.ndim == 2 else plant.theta
-        self.floats = np.array([plant._load, h, *[float(c) for c in row]], dtype=float)
+        self.plant, self.h = plant, h
+        self.trace = Trace("pf", "p")
+        self.load = self.trace.constant(plant._load)  # pf[0], kept up to date by sync_in
+        self.helpers = self.step_function()
+        self.floats = np.array(self.trace.constants, dtype=float)
         self.state = plant.state()[0].copy()
 
-    def helpers(self) -> str:
-        """``plant_uncertainty(x1, .., xn, pf) -> (psi + theta^T phi, refused)``, summed as
-        :func:`qcontrol.expr.combine` sums it."""
-        plant, names = self.plant, [f"x{i + 1}" for i in range(self.plant.n)]
-        body = Statements("g")
-        terms = [float_source(plant.psi._tree, names, body)] if plant.psi is not None else []
-        terms += [f"pf[{2 + i}] * {float_source(term._tree, names, body)}"
-                  for i, term in enumerate(plant.phi)]
-        body.lines.append(f"value = {terms[0] if terms else '0.0'}")  # summed as combine() sums
-        body.lines += [f"value = value + {text}" for text in terms[1:]]
-        lines = [f"{FLAG} = False", *body.lines, f"return value, {FLAG}"]
-        head = ("@numba.njit(cache=True, error_model=\"numpy\", nogil=True)\n"
-                f"def plant_uncertainty({', '.join(names)}, pf):\n")
-        return head + "".join(f"    {line}\n" for line in lines)
-
-    def step_lines(self) -> list[str]:
-        """One RK4 step of ``h`` with ``u + d`` held (``u`` if d is 0), as :func:`_rk4`."""
-        n = self.plant.n
-        lines = ["uu = u + pf[0] if pf[0] != 0.0 else u", "h = pf[1]", "half = 0.5 * h"]
-        lines += [f"a{i} = xs[{i - 1}]" for i in range(1, n + 1)]
-        stages = (("a", None), ("b", "half"), ("c", "half"), ("d", "h"))
-        for s, (name, scale) in enumerate(stages, start=1):
-            if scale is not None:
-                lines += [f"{name}{i} = a{i} + {scale} * k{s - 1}_{i}" for i in range(1, n + 1)]
-            args = ", ".join(f"{name}{i}" for i in range(1, n + 1))
-            lines.append(f"gv, bad{s} = plant_uncertainty({args}, pf)")
-            lines += [f"k{s}_{i} = {name}{i + 1}" for i in range(1, n)] + [f"k{s}_{n} = uu + gv"]
-        lines += ["sixth = h / 6.0", "if bad1 or bad2 or bad3 or bad4:", "    return 2, k"]
-        lines += [f"xs[{i - 1}] = a{i} + sixth * (k1_{i} + 2.0 * (k2_{i} + k3_{i}) + k4_{i})"
-                  for i in range(1, n + 1)]
-        return lines
+    def step_function(self) -> str:
+        """``plant_step(u, xs, pf) -> refused``: one step of ``h`` with ``u`` and the load held, as
+        :meth:`ChainIO.step` makes it, recorded."""
+        n, trace = self.plant.n, self.trace
+        lines = []
+        with recording(trace):
+            for header, load in ((f"if {self.load} != 0.0:", Symbol(self.load, truth=True)), ("else:", 0.0)):
+                held = trace.text(_loaded(Symbol("u"), load))
+                lines += [header, *[f"    {line}" for line in trace.taken()], f"    uu = {held}"]
+            with trace.refusing("return True"):
+                stepped = _rk4([Symbol(f"xs[{i}]") for i in range(n)], Symbol("uu"), self.h,
+                               self.plant._rate_in(TRACED))
+                texts = [trace.text(v) for v in stepped]  # written after every refusal
+        lines += trace.taken() + [f"xs[{i}] = {text}" for i, text in enumerate(texts)] + ["return False"]
+        return ('@numba.njit(cache=True, error_model="numpy", nogil=True)\ndef plant_step(u, xs, pf):\n'
+                + "".join(f"    {line}\n" for line in lines))
 
     def sync_in(self) -> None:
         self.floats[0] = self.plant._load
@@ -232,8 +215,9 @@ class ChainNativeForm:
         n = self.plant.n
         observe = [f"x{i} = xs[{i - 1}]" for i in range(1, n + 1)] + [f"m{i} = x{i}" for i in range(1, n + 1)]
         key = f"ode n={n} psi={self.plant.psi is not None} phi={len(self.plant.phi)}"
-        return NativeStepper(key, self.helpers(), [], observe, self.step_lines(), self.floats,
-                             np.zeros(1, dtype=np.int64), self.state, self.sync_in, self.sync_out)
+        step = ["if plant_step(u, xs, pf):", "    return 2, k"]
+        return NativeStepper(key, self.helpers, [], observe, step, self.floats, np.zeros(1, dtype=np.int64),
+                             self.state, self.sync_in, self.sync_out)
 
 
 class ChainIO:
@@ -243,22 +227,33 @@ class ChainIO:
     load d held (RK4 sees their sum)."""
 
     def __init__(self, plant: ChainPlant, h: float) -> None:
-        self.plant, self.h, self.g, self.lower = plant, h, plant._g, plant._lower
+        self.plant, self.h, self.g = plant, h, plant._g
 
     def observe(self) -> tuple[list[Column], list[Column]]:
         x = self.plant._x
         return x, x
 
     def step(self, u: Column) -> None:
-        plant = self.plant
-        if plant.input_gain != 1.0:
-            u = plant.input_gain * u
-        d = plant._load
-        if plant.timed:
-            plant._x = _rk4(plant._x, u + d if d else u, self.h, self.g, plant._time, self.lower)
-            plant._time += self.h
-            return
-        plant._x = _rk4(plant._x, u + d if d else u, self.h, self.g, None, self.lower)
+        _advance(self.plant, u, self.h, self.g)
+
+
+def _advance(plant: ChainPlant, u: Column, h: float, g: Rate) -> None:
+    """One RK4 step of eq. (1) from the plant's state with ``u`` held: ``x_n' = b u + d + ...``
+    (the known input gain b, the load d), from the plant's time for terms in t; the rows before
+    the last with their terms, if any (a strict-feedback plant)."""
+    if plant.input_gain != 1.0:
+        u = plant.input_gain * u
+    u = _loaded(u, plant._load)
+    if plant.timed:
+        plant._x = _rk4(plant._x, u, h, g, plant._time, plant._lower)
+        plant._time += h
+    else:
+        plant._x = _rk4(plant._x, u, h, g, None, plant._lower)
+
+
+def _loaded(u: Column, d: float) -> Column:
+    """The input RK4 holds over a step: ``u + d`` with the load d, u itself without one."""
+    return u + d if d else u
 
 
 def _derivative(s: list[Column], u: Column, g: Rate, t: float | None = None, lower: Lower = ()

@@ -41,14 +41,17 @@ class Instant:
     twin_x1: float | None = None
 
 
+DEFAULT_CAMERA = -1  # a model without a <camera>: a free camera framing the moving body (:func:`framing`)
+DEFAULT_CAMERA_NAME = "default"
+FRAMED = 1.25  # the body's reach fills 1 / FRAMED of the default camera's view
+KEY_LIGHT = {"diffuse": (0.7, 0.7, 0.7), "ambient": (0.35, 0.35, 0.35), "specular": (0.2, 0.2, 0.2)}
+
+
 def camera_id(model: mujoco.MjModel, name: str | None, source: str) -> int:
-    """The id of the model's camera ``name`` (None: its first camera); one line if there is none."""
+    """The id of the model's camera ``name`` (None: its first camera, or :data:`DEFAULT_CAMERA` for
+    a model without one); one line if the model has no camera of that name."""
     if name is None:
-        if model.ncam == 0:
-            raise QcontrolInputError(f"--video: the model of {source} has no <camera>; add a named camera "
-                                     "to its MJCF (e.g. <camera name=\"front\" pos=\"0 -1.3 0\" "
-                                     "xyaxes=\"1 0 0 0 0 1\"/>)")
-        return 0
+        return 0 if model.ncam else DEFAULT_CAMERA
     cid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, name)
     if cid < 0:
         names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_CAMERA, i) for i in range(model.ncam)]
@@ -59,11 +62,12 @@ def camera_id(model: mujoco.MjModel, name: str | None, source: str) -> int:
 
 class FrameRenderer:
     """Renders ``width`` x ``height`` RGB frames of ``model`` with ``joint`` at given positions,
-    from camera ``camera`` (an id, :func:`camera_id`). Use as a context manager (it holds a GL
+    from camera ``camera`` (an id, :func:`camera_id`; :data:`DEFAULT_CAMERA` frames the body over
+    the joint ``positions`` the frames will show). Use as a context manager (it holds a GL
     context)."""
 
     def __init__(self, model: mujoco.MjModel, joint: str, camera: int, width: int, height: int,
-                 twin_label: str = "ODE") -> None:
+                 twin_label: str = "ODE", positions: np.ndarray | None = None) -> None:
         self.model, self.width, self.height, self.twin_label = model, width, height, twin_label
         self.scene_geometry = Scene(model, joint)
         self.adr = self.scene_geometry.qpos_adr
@@ -75,8 +79,12 @@ class FrameRenderer:
         self.data, self.twin = mujoco.MjData(model), mujoco.MjData(model)
         self.scene = mujoco.MjvScene(model, maxgeom=MAX_GEOMS)
         self.camera = mujoco.MjvCamera()
-        self.camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
-        self.camera.fixedcamid = camera
+        if camera == DEFAULT_CAMERA:
+            framing(model, self.scene_geometry, positions, self.camera)
+        else:
+            self.camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
+            self.camera.fixedcamid = camera
+        self.lit = model.nlight > 0  # a model without lights gets a key light (:meth:`_light`)
         self.option, self.perturb = mujoco.MjvOption(), mujoco.MjvPerturb()
         scale = mujoco.mjtFontScale.mjFONTSCALE_150 if width >= 560 else mujoco.mjtFontScale.mjFONTSCALE_100
         self.mjr = mujoco.MjrContext(model, scale)
@@ -108,7 +116,7 @@ class FrameRenderer:
             return
         centre = self.scene_geometry.tip_positions(np.array([position]))[0]
         if in_front:  # moved towards the camera, out of the body it marks
-            eye = self.data.cam_xpos[self.camera.fixedcamid]
+            eye = self._eye()
             toward = (eye - centre) / max(float(np.linalg.norm(eye - centre)), 1e-9)
             centre = centre + toward * (self.scene_geometry.tip_radius + radius)
         mujoco.mjv_initGeom(self.scene.geoms[self.scene.ngeom], int(mujoco.mjtGeom.mjGEOM_SPHERE),
@@ -128,12 +136,35 @@ class FrameRenderer:
                                 int(mujoco.mjtCatBit.mjCAT_DYNAMIC), self.scene)
             for i in range(first, self.scene.ngeom):
                 self.scene.geoms[i].rgba[:] = TWIN_RGBA
+        if not self.lit:
+            self._light()
         self._marker(instant.yd, self.marker_radius, TARGET_RGBA, in_front=False)
         self._marker(instant.q1, 0.4 * self.marker_radius, READING_RGBA, in_front=True)
         mujoco.mjr_render(self.rect, self.scene, self.mjr)
         self._overlay(instant)
         mujoco.mjr_readPixels(self.pixels, None, self.rect, self.mjr)
         return np.flipud(self.pixels)
+
+    def _eye(self) -> np.ndarray:
+        """Where the camera is (a fixed camera's pose, or the free camera's eye)."""
+        if self.camera.type == mujoco.mjtCamera.mjCAMERA_FIXED:
+            return self.data.cam_xpos[self.camera.fixedcamid]
+        return np.mean([self.scene.camera[i].pos for i in range(2)], axis=0)
+
+    def _light(self) -> None:
+        """A directional key light from behind the camera, for a model that has none (MuJoCo's dim
+        headlight alone leaves it almost black)."""
+        if self.scene.nlight >= len(self.scene.lights):
+            return
+        light = self.scene.lights[self.scene.nlight]
+        forward = np.mean([self.scene.camera[i].forward for i in range(2)], axis=0)
+        light.dir[:] = forward + np.array([0.0, 0.0, -0.5])  # from the camera, a little from above
+        light.pos[:] = self._eye()
+        light.type = int(mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
+        light.headlight, light.castshadow = 0, 0
+        for name, rgb in KEY_LIGHT.items():
+            getattr(light, name)[:] = rgb
+        self.scene.nlight += 1
 
     def _overlay(self, instant: Instant) -> None:
         position, input_unit = OVERLAY_UNITS["hinge" if self.scene_geometry.hinge else "slide"]
@@ -145,3 +176,40 @@ class FrameRenderer:
         if instant.twin_x1 is not None:
             legend += f"  blue: {self.twin_label}"
         mujoco.mjr_overlay(font, grid.mjGRID_BOTTOMLEFT, self.rect, legend, None, self.mjr)
+
+
+def framing(model: mujoco.MjModel, geometry: Scene, positions: np.ndarray | None,
+            camera: mujoco.MjvCamera) -> None:
+    """Point the free ``camera`` at the moving body over the joint ``positions`` (None: the model's
+    reference position), from the side on which the joint moves it in the image plane: along a
+    hinge's axis, across a slide's direction, a little from above."""
+    data = mujoco.MjData(model)
+    jid = next(j for j in range(model.njnt) if int(model.jnt_qposadr[j]) == geometry.qpos_adr)
+    span = np.asarray([model.qpos0[geometry.qpos_adr]] if positions is None else positions, dtype=float)
+    span = span[np.isfinite(span)] if np.any(np.isfinite(span)) else np.zeros(1)
+    drawn = [g for g in range(model.ngeom) if int(model.geom_type[g]) != int(mujoco.mjtGeom.mjGEOM_PLANE)]
+    points, reach = [], [float(model.geom_rbound[g]) for g in drawn]
+    for q in np.linspace(span.min(), span.max(), 9):
+        data.qpos[:] = model.qpos0
+        data.qpos[geometry.qpos_adr] = q
+        mujoco.mj_kinematics(model, data)
+        points += [data.geom_xpos[g].copy() for g in drawn]
+    if not points:
+        points, reach = [data.xpos[model.jnt_bodyid[jid]].copy()], [0.1]
+    points = np.array(points)
+    low, high = points.min(axis=0), points.max(axis=0)
+    centre = (low + high) / 2
+    radius = float(np.linalg.norm(high - low) / 2 + max(reach)) or 0.5
+    axis = data.xaxis[jid] / max(float(np.linalg.norm(data.xaxis[jid])), 1e-12)
+    if int(model.jnt_type[jid]) == int(mujoco.mjtJoint.mjJNT_SLIDE):
+        across = np.cross(axis, [0.0, 0.0, 1.0])
+        axis = across / np.linalg.norm(across) if np.linalg.norm(across) > 1e-6 else np.array([0.0, 1.0,
+                                                                                                0.0])
+    forward = axis if axis[1] >= 0 else -axis  # look along +y where it is a choice, as the shipped cameras
+    forward = forward + np.array([0.0, 0.0, -0.15])
+    forward /= np.linalg.norm(forward)
+    camera.type = mujoco.mjtCamera.mjCAMERA_FREE
+    camera.lookat[:] = centre
+    camera.distance = FRAMED * radius / np.tan(np.radians(float(model.vis.global_.fovy)) / 2)
+    camera.azimuth = float(np.degrees(np.arctan2(forward[1], forward[0])))
+    camera.elevation = float(np.degrees(np.arcsin(np.clip(forward[2], -1.0, 1.0))))

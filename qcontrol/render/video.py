@@ -20,7 +20,7 @@ import numpy as np
 from ..engine import Trajectory
 from ..errors import QcontrolInputError
 from ..outputs import atomic_path, check_output_file
-from .frames import FrameRenderer, Instant, camera_id
+from .frames import DEFAULT_CAMERA, DEFAULT_CAMERA_NAME, FrameRenderer, Instant, camera_id
 
 DEFAULT_FPS = 30.0
 VIDEO_FORMATS = (".mp4", ".gif")
@@ -85,6 +85,12 @@ def _instants(traj: Trajectory, fps: float, twin: Trajectory | None) -> list[Ins
     return instants
 
 
+def _positions(instants: list[Instant]) -> np.ndarray:
+    """The joint positions the frames show (the run's, its twin's, the reference's), which the
+    default camera frames."""
+    return np.array([v for i in instants for v in (i.x1, i.yd, i.twin_x1) if v is not None], dtype=float)
+
+
 def _writer(path: Path, suffix: str, size: tuple[int, int], fps: float) -> Generator[None, np.ndarray, None]:
     """imageio-ffmpeg's frame sink writing ``path`` in the format of ``suffix`` (the final name's:
     ``path`` is a temporary one)."""
@@ -117,10 +123,12 @@ def camera_view_frames(traj: Trajectory, model: object, joint: str, source: str,
     from PIL import Image
 
     cid = camera_id(model, camera, source)  # type: ignore[arg-type]
-    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_CAMERA, cid) or f"camera{cid}"
+    name = (DEFAULT_CAMERA_NAME if cid == DEFAULT_CAMERA
+            else mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_CAMERA, cid) or f"camera{cid}")
     instants = _instants(traj, CAMERA_VIEW_FPS, twin)
     jpegs = []
-    with FrameRenderer(model, joint, cid, *CAMERA_VIEW_SIZE) as renderer:  # type: ignore[arg-type]
+    with FrameRenderer(model, joint, cid, *CAMERA_VIEW_SIZE,  # type: ignore[arg-type]
+                       positions=_positions(instants)) as renderer:
         for instant in instants:
             buffer = io.BytesIO()
             Image.fromarray(renderer.render(instant)).save(buffer, format="JPEG", quality=JPEG_QUALITY)
@@ -136,7 +144,8 @@ def write_video(request: VideoRequest, traj: Trajectory, model: object, joint: s
     cid = camera_id(model, request.camera, source)  # type: ignore[arg-type]
     instants = _instants(traj, request.fps, twin)
     width, height = request.frame_size
-    with atomic_path(request.path) as tmp, FrameRenderer(model, joint, cid, width, height) as renderer:  # type: ignore[arg-type]
+    with atomic_path(request.path) as tmp, FrameRenderer(model, joint, cid, width, height,  # type: ignore[arg-type]
+                                                         positions=_positions(instants)) as renderer:
         writer = _writer(tmp, request.path.suffix.lower(), (width, height), request.fps)
         writer.send(None)  # start ffmpeg
         try:

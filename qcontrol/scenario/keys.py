@@ -27,6 +27,7 @@ from ..schema import (
     numbers,
     string,
 )
+from .from_model import read_input_gain, read_theta
 
 # see top_sections()
 TOP = ("scenario", "plant", "controller", "quantizer", "reference", "simulation", "metrics", "disturbance")
@@ -69,13 +70,16 @@ PLANT = Section(
         Key("phi", expressions("x1..xn"), [],
             meaning="known functions phi_i(x) of the uncertain term theta^T phi",
             example='["x2", "x2**2*cos(x1)", "sin(x1)"]'),
-        Key("theta", numbers("l"), [], meaning="the unknown constants theta_i, one per phi_i",
+        Key("theta", custom("list of l numbers (or \"model\")", read_theta), [],
+            meaning="the unknown constants theta_i, one per phi_i; \"model\" for a native term's: read "
+            "from the MuJoCo model at load (qcontrol model prints them)",
             example="[-1.0, -3.5, -34.3]"),
         Key("x0", numbers("n"), unit="state", meaning="initial state x(0)", example="[0.3, 0.3]"),
-        Key("input_gain", number(positive=True), OPTIONAL, "-",
+        Key("input_gain", custom("number > 0 (or \"model\")", read_input_gain), OPTIONAL, "-",
             "the known input gain b of x_n' = b u + psi + theta^T phi (default 1); the built-in laws "
             "divide their input by it. On MuJoCo it must be what the model realises, gear / I; "
-            "left out, u is scaled by the joint's inertia I so that b = 1"),
+            "left out, u is scaled by the joint's inertia I so that b = 1; \"model\": gear / I read from "
+            "the model at load"),
     ),
     "the plant of eq. (1); [plant.<backend>] sub-tables hold each backend's model",
 )

@@ -36,6 +36,7 @@ from ..resources import scenario_path, shipped_scenarios
 from ..schema import Section, Table, kind_table, read_keys, show_key
 from ..timegrid import TimeGrid
 from .definition import ControllerConfig, ReferenceConfig, SimulationConfig
+from .from_model import from_model, provisional
 from .keys import (
     MAX_STEPS,
     METRICS,
@@ -383,12 +384,13 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
     plant = _plant_table(root)
     terms, x0 = _plant(plant)
     simulation = _simulation(root.table("simulation", default={}))
+    backends = _backends(plant, provisional(terms), base_dir, simulation)
+    terms = from_model(plant, terms, backends, simulation.dt)  # the coefficients left to the model
     quantizer, input_quantizer = (read_quantizers(root.table("quantizer"), terms.order) if "quantizer" in data
                                   else (None, None))
     controller = _controller(root.table("controller", default={}), terms, simulation, quantizer)
     signal = _reference(root.table("reference", default={}), terms.order)
     metrics = _metrics(root.table("metrics", default={}))
-    backends = _backends(plant, terms, base_dir, simulation)
     disturbances = parse_disturbances(data.get("disturbance"), source)
     scenario = Scenario(
         name=meta["name"], description=meta["description"], source=source, text=text, overrides=overrides,

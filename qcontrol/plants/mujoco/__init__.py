@@ -74,8 +74,25 @@ def inertia(options: MujocoOptions, dt: float) -> float:
     return compiled(options, dt).inertia
 
 
+def model_coefficients(options: MujocoOptions, terms: PlantTerms, dt: float) -> tuple[dict[str, float | None],
+                                                                                     float]:
+    """The model's coefficient of each native term (None: its physics makes no such term) and
+    its b = gear / I, from the equation of the model as the scenario compiles it, realism off
+    (:mod:`.equation`)."""
+    from .equation import compiled_equation, matches
+    from .mjcf import compiled
+
+    built = compiled(options.nominal(), dt)
+    eq = compiled_equation(built, options.model.name)
+    found = dict(zip(terms.names, matches(eq, terms.expressions), strict=True))
+    coefficients = {name: None if found[name] is None else eq.terms[found[name][0]].theta / found[name][1]
+                    for name in options.native_terms}
+    return coefficients, built.input_gain
+
+
 BACKEND = Backend(name="mujoco", build=build, structure=structure,
                   summary="MuJoCo physics of an MJCF model (order 2: one joint)",
-                  section=SECTION, parse=parse, scene=scene, inertia=inertia)
+                  section=SECTION, parse=parse, scene=scene, inertia=inertia,
+                  model_coefficients=model_coefficients)
 
 __all__ = ["BACKEND", "MujocoOptions"]

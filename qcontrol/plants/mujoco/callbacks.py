@@ -184,15 +184,3 @@ def kept_aside() -> contextlib.AbstractContextManager[None]:
     :data:`UNCLAIMED_WARNINGS` (the last 100), not written to disk."""
     return collect_warnings(UNCLAIMED_WARNINGS)
 
-
-def unstable(messages: Sequence[str]) -> bool:
-    """Whether MuJoCo reported a blow-up among its ``messages``.
-
-    MuJoCo resets a copy whose ctrl/qpos/qvel/qacc turns NaN, Inf or huge and carries on from
-    the reset pose. It reports it through the warning handler the first time per MjData until
-    ``mj_resetData`` clears the counters, which the plant's ``reset`` does before every run; so
-    the first reset of a run always leaves an "unstable" message, and a copy is marked dead from
-    it (the plant's state and readings are NaN from then on).
-    """
-    return any("unstable" in m for m in messages)
-

@@ -8,7 +8,6 @@ on ``u`` and a constant) to say which term disagrees and by how much. With a rea
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import mujoco
@@ -17,22 +16,18 @@ import numpy as np
 from ...errors import QcontrolInputError
 from ..base import PlantTerms, timed
 from .callbacks import GeneralizedForce, passive_forces
+from .equation import SAMPLES, ModelEquation, compiled_equation, matches, sampled_states
 from .mjcf import CompiledModel
 from .options import MujocoOptions
 
-SAMPLES = 300
 TOLERANCE = 1e-9
-SEED = 3160  # the paper's article number; any fixed seed works
 
 
 def consistency_report(compiled: CompiledModel, options: MujocoOptions, terms: PlantTerms,
                        native: tuple[bool, ...], force: GeneralizedForce | None) -> dict[str, Any]:
     """Compare MuJoCo's qacc with eq. (1) at :data:`SAMPLES` states; refuse a mismatch
     (:class:`QcontrolInputError` naming the term) unless a realism option is on."""
-    rng = np.random.default_rng(SEED)
-    x = np.column_stack([rng.uniform(-math.pi, math.pi, SAMPLES), rng.uniform(-4.0, 4.0, SAMPLES)])
-    u = rng.uniform(-20.0, 20.0, SAMPLES)
-    t = rng.uniform(0.0, 10.0, SAMPLES) if terms.timed else None  # terms in t: at sampled times too
+    x, u, t = sampled_states(terms.timed)  # terms in t: at sampled times too
     columns, coefficient = _columns(terms, x, u, t)
     coefficient["u"] = terms.b  # x2' = b u + psi + theta^T phi
     rhs = sum(coefficient[k] * columns[k] for k in columns)
@@ -53,7 +48,7 @@ def consistency_report(compiled: CompiledModel, options: MujocoOptions, terms: P
         "realism": list(options.realism), "inertia": compiled.inertia,
     }
     if not (report["ok"] or options.realism):
-        raise _refusal(report, contribution, terms, options)
+        raise _refusal(report, contribution, terms, options, compiled, native)
     return report
 
 
@@ -85,21 +80,112 @@ def _accelerations(compiled: CompiledModel, x: np.ndarray, ctrl: np.ndarray,
     return qacc
 
 
-def _refusal(report: dict, contribution: dict[str, float], terms: PlantTerms,
-             options: MujocoOptions) -> QcontrolInputError:
-    exprs = terms.expressions
-    labels = {nm: f"{nm} = {e.source}" for nm, e in zip(terms.names, exprs, strict=True)} | {
+def _refusal(report: dict, contribution: dict[str, float], terms: PlantTerms, options: MujocoOptions,
+             compiled: CompiledModel, native: tuple[bool, ...]) -> QcontrolInputError:
+    """One line: every term whose coefficient differs from what MuJoCo realises, at full precision,
+    with its likely cause and the values that fix it (from the model's own equation,
+    :mod:`.equation`); the regression's view where the model's terms do not explain it."""
+    eq = compiled_equation(compiled, options.model.name)
+    found = _diagnoses(eq, terms, native)
+    if found is None:
+        return _unexplained(report, contribution, terms, options, eq)
+    problems, fix = found
+    return QcontrolInputError(
+        f"{options.where}: MuJoCo's acceleration differs from x2' = b u + psi + theta^T phi by up to "
+        f"{report['max_abs_mismatch']:.3g} at {SAMPLES} sampled states: {'; '.join(problems)}; fix: {fix}; "
+        f"or leave each native term's theta to the model: \"model\" in its place; {_model_command(options)}")
+
+
+def _diagnoses(eq: ModelEquation, terms: PlantTerms,
+               native: tuple[bool, ...]) -> tuple[list[str], str] | None:
+    """Each term's problem (a wrong coefficient, a term counted twice, a native term the model does
+    not make, a term of the model the scenario lacks) and the [plant] values that fix them all;
+    None when the model's equation does not explain MuJoCo's acceleration itself."""
+    if eq.unexplained > TOLERANCE:
+        return None
+    problems, used, theta, natives = [], set(), [], []
+    for name, e, c, made, hit in zip(terms.names, terms.expressions, terms.coefficients, native,
+                                     matches(eq, terms.expressions), strict=True):
+        model = None if hit is None else eq.terms[hit[0]].theta / hit[1]
+        source = "" if hit is None else eq.terms[hit[0]].source
+        used |= set() if hit is None else {hit[0]}
+        problem = _problem(f"{name} = {e.source}", made, c, model, source, eq)
+        problems += [problem] if problem else []
+        fixed = model if model is not None and name != "psi" and not _same(model, c) else c
+        theta += [] if name == "psi" else [fixed]
+        natives += [name] if model is not None and _same(model, fixed) else []
+    missing = [t for j, t in enumerate(eq.terms) if j not in used]
+    problems += [f"MuJoCo's physics also makes {t.phi} ({t.theta!r}: {t.source}), which the scenario lacks "
+                 "(a missing native term)" for t in missing]
+    if not problems:
+        return None
+    phi = [p.source for p in terms.phi] + [t.phi for t in missing]
+    natives += [f"phi{len(terms.phi) + k + 1}" for k in range(len(missing))]
+    theta += [t.theta for t in missing]
+    values = ", ".join(map(repr, theta))
+    bounds = (f"; add to the law's r, one per added term: {_toml([t.bound for t in missing])}" if missing
+              else "")
+    return problems, (f"in [plant] write phi = {_toml(phi)}; write theta = [{values}]; in [plant.mujoco] "
+                      f"write native_terms = {_toml(natives)}{bounds}")
+
+
+def _problem(label: str, made: bool, stated: float, model: float | None, source: str,
+             eq: ModelEquation) -> str | None:
+    """What is wrong with one term: ``made`` whether the scenario leaves it to MuJoCo, ``model``
+    MuJoCo's coefficient of it (None: MuJoCo's physics does not make it)."""
+    if made and model is None:
+        return (f"{label} is in native_terms but MuJoCo's physics does not make it (a native term the model "
+                "lacks: leave it out of native_terms and the passive callback adds it)")
+    if made and not _same(model, stated):
+        return f"{label}: MuJoCo's coefficient is {model!r} ({source}), the scenario's {stated!r}" + _scaled(
+            stated, model, eq)
+    if not made and model is not None:
+        return (f"{label} is counted twice: MuJoCo makes it ({model!r}: {source}) and the passive callback "
+                f"adds the scenario's {stated!r} again")
+    return None
+
+
+def _same(model: float, stated: float) -> bool:
+    """Whether a stated coefficient is MuJoCo's to the check's relative :data:`TOLERANCE`."""
+    return abs(model - stated) <= TOLERANCE * max(abs(model), abs(stated), 1.0)
+
+
+def _toml(items: list[str]) -> str:
+    return "[" + ", ".join(f'"{i}"' for i in items) + "]"
+
+
+def _scaled(stated: float, model: float, eq: ModelEquation) -> str:
+    """The likely cause when the scenario's coefficient is MuJoCo's force, not divided by I."""
+    if abs(eq.inertia - 1.0) > 1e-6 and _same(model * eq.inertia, stated):
+        return (f" (the force's coefficient, not divided by the inertia I = {eq.inertia!r}: the input gain "
+                f"is {eq.input_gain!r}, not 1)")
+    return ""
+
+
+def _unexplained(report: dict, contribution: dict[str, float], terms: PlantTerms, options: MujocoOptions,
+                 eq: ModelEquation) -> QcontrolInputError:
+    """The regression's view: the term the mismatch follows, or that it follows none."""
+    labels = {nm: f"{nm} = {e.source}" for nm, e in zip(terms.names, terms.expressions, strict=True)} | {
         "u": "the input gain (u)", "constant": "a constant offset"}
     worst = max(contribution, key=contribution.__getitem__)
     unexplained, mismatch = report["unexplained_by_terms"], report["terms"][worst]
     if contribution[worst] >= unexplained:
-        blame = (f"the mismatch follows {labels[worst]}: MuJoCo's coefficient is {mismatch['mujoco']:.6g}, "
-                 f"the scenario's {mismatch['scenario']:.6g} (up to {contribution[worst]:.3g})")
+        blame = (f"the mismatch follows {labels[worst]}: MuJoCo's coefficient is {mismatch['mujoco']!r}, "
+                 f"the scenario's {mismatch['scenario']!r} (up to {contribution[worst]:.3g})")
     else:
         blame = (f"the mismatch (up to {unexplained:.3g}) is not a multiple of any term; "
                  f"largest term-wise part {labels[worst]} (up to {contribution[worst]:.3g})")
+    outside = "; ".join(f"{o.what} ({o.fix})" for o in eq.outside)
     return QcontrolInputError(
-        f"{options.where}: MuJoCo's acceleration differs from x2' = u + psi + theta^T phi by up to "
-        f"{report['max_abs_mismatch']:.3g} at {SAMPLES} sampled states; {blame}; make the MJCF "
-        "(model, parameters, native_terms) and [plant] (psi, phi, theta) describe the same plant"
+        f"{options.where}: MuJoCo's acceleration differs from x2' = b u + psi + theta^T phi by up to "
+        f"{report['max_abs_mismatch']:.3g} at {SAMPLES} sampled states; {blame}"
+        + (f"; the model has physics outside eq. (1): {outside}" if outside else "")
+        + "; make the MJCF (model, parameters, native_terms) and [plant] (psi, phi, theta) describe the same "
+        f"plant ({_model_command(options)})"
     )
+
+
+def _model_command(options: MujocoOptions) -> str:
+    """Where the model's own equation is printed."""
+    overridden = " (before the scenario's parameters)" if options.parameters else ""
+    return f"qcontrol model {options.model} prints the model's equation{overridden}"

@@ -302,7 +302,7 @@ def _check_elements(model: mujoco.MjModel, options: MujocoOptions, fail: Fail) -
     for key, (name, kind) in wanted.items():
         sid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, name)
         if int(model.sensor_type[sid]) != int(kind) or int(model.sensor_objid[sid]) != jid:
-            tag = kind.name[6:].lower()
+            tag = kind.name.removeprefix("mjSENS_").lower()  # the MJCF element: jointpos, jointvel
             raise fail(key, f"sensor {name!r} is not a {tag} sensor on joint {options.joint!r}",
                        f"use <{tag} joint=\"{options.joint}\"/> in the MJCF")
         sensor_ids[key] = sid

@@ -1,23 +1,29 @@
-"""One MuJoCo copy's observe and step as numba source, for the engine's compiled loop.
+"""One MuJoCo copy's observe and step, written once: the Python stepper runs these functions,
+the engine's compiled loop compiles the very same functions (their source) with numba.
 
-The same calls as :class:`~.plant.CopyStepper` and :meth:`~.plant.MujocoPlant.observe`, made from
-compiled code without the Python interpreter: ``ctrl = (I / gain) u``, ``mj_step`` ``substeps``
-times, ``mj_sensorPos``, ``mj_sensorVel``, all called by symbol from MuJoCo's own library (which
-the process has loaded with the bindings) on ``model._address`` / ``data._address``; the readings
-are the two sensors' ``sensordata`` and the state ``qpos``/``qvel``, read at the addresses the
-bindings report. Sensors that copy the state (a joint position and velocity sensor without
-history or cutoff: the shipped models') read ``qpos``/``qvel`` themselves, so the loop skips the
-two sensor calls and brings ``sensordata`` up to date once per call instead. A copy is dead (NaN
-from then on, no longer stepped) when one of MuJoCo's "unstable" warning counters goes from 0 to
-nonzero during a step: exactly when MuJoCo sends the message the Python stepper reads. The
+:func:`read_copy` and :func:`step_copy` are written in the subset of Python numba compiles. In
+Python they call MuJoCo's bindings (``mujoco.mj_step`` on ``MjModel``/``MjData``); in the
+compiled loop (:class:`MujocoNativeForm`) the names ``mj_step``, ``mj_sensorPos``,
+``mj_sensorVel`` are MuJoCo's own C functions, called by symbol from the library the process
+loaded with the bindings on ``model._address`` / ``data._address``, without the Python
+interpreter. The arrays are the same memory either way (``ctrl``, ``qpos``, ``qvel``,
+``sensordata``, and the warning counters of ``mjData.warning``).
+
+Sensors that copy the state (a joint position and velocity sensor without history or cutoff:
+the shipped models') read ``qpos``/``qvel`` themselves, so the compiled loop skips the two
+sensor calls (``sensed=False``) and brings ``sensordata`` up to date once per call instead. The
 passive terms run as the native callback, which MuJoCo calls itself; a run with the Python
 callback, or with sensor noise, is not compiled.
 """
 
 from __future__ import annotations
 
+import ctypes
 import glob
+import inspect
+import math
 import os
+import textwrap
 from functools import cache
 
 import mujoco
@@ -27,53 +33,90 @@ from ..base import NativeStepper
 from .threaded import UNSTABLE_WARNINGS
 
 DEAD = 13  # pi: model, data, ctrl, sensordata, qpos, qvel, warning, actuator, p, v, qadr, dof, substeps, dead
+WARNINGS = int(mujoco.mjtWarning.mjNWARNING)
+UNSTABLE = tuple(2 * w + 1 for w in UNSTABLE_WARNINGS)  # "unstable" counters in (lastinfo, number) pairs
+mj_step, mj_sensorPos, mj_sensorVel = mujoco.mj_step, mujoco.mj_sensorPos, mujoco.mj_sensorVel  # noqa: N816
 
-HELPERS = '''from numba import types
+
+def read_copy(qpos, qvel, sensordata, qadr, dof, p, v, dead, sensed):  # noqa: ANN001, ANN201 (numba)
+    """``(x1, x2, m1, m2)`` of one copy: the joint's ``qpos``/``qvel`` (the true state of eq. (1))
+    and the position and velocity sensors' ``sensordata`` (the reading; the state itself when the
+    sensors copy it, ``sensed`` False); NaN for a copy MuJoCo had to reset (``dead``)."""
+    if dead:
+        return math.nan, math.nan, math.nan, math.nan
+    x1 = qpos[qadr]
+    x2 = qvel[dof]
+    if sensed:
+        return x1, x2, sensordata[p], sensordata[v]
+    return x1, x2, x1, x2
+
+
+def step_copy(m, d, ctrl, actuator, ctrl_per_u, u, substeps, warning, sensed):  # noqa: ANN001, ANN201
+    """One step of one copy with ``u`` held: ``ctrl = (I / gain) u`` (eq. (1)'s input as the motor
+    takes it), ``substeps`` calls of ``mj_step``, then (``sensed``) ``mj_sensorPos`` and
+    ``mj_sensorVel``, which bring the sensors to the new state (``mj_step`` leaves ``sensordata``
+    at the state before its last substep; with a sensor delay they read MuJoCo's history).
+    True when MuJoCo found the copy unstable during the step: one of its "unstable" warning
+    counters (``warning``, the ``(lastinfo, number)`` pairs of ``mjData.warning``) left 0, which
+    is exactly when MuJoCo sends its message (a blow-up always warns; MuJoCo then resets the copy)."""
+    ctrl[actuator] = ctrl_per_u * u
+    calm = 0
+    for i in UNSTABLE:
+        if warning[i] == 0:
+            calm += 1 << i
+    for _ in range(substeps):
+        mj_step(m, d)
+    if sensed:
+        mj_sensorPos(m, d)
+        mj_sensorVel(m, d)
+    for i in UNSTABLE:
+        if (calm >> i) & 1 and warning[i] != 0:
+            return True
+    return False
+
+
+def warning_counters(data: mujoco.MjData) -> ctypes.Array:
+    """``data.warning`` as its ``(lastinfo, number)`` pairs of int32 (the memory itself)."""
+    return (ctypes.c_int32 * (2 * WARNINGS)).from_address(data.warning.lastinfo.ctypes.data)
+
+
+EXTERNAL = '''from numba import types
 
 mj_step = types.ExternalFunction("mj_step", types.void(types.voidptr, types.voidptr))
 mj_sensorPos = types.ExternalFunction("mj_sensorPos", types.void(types.voidptr, types.voidptr))
 mj_sensorVel = types.ExternalFunction("mj_sensorVel", types.void(types.voidptr, types.voidptr))
 '''
+
+
+def helpers() -> str:
+    """The module text the compiled loop's lines call: MuJoCo's functions by symbol, and
+    :func:`read_copy` and :func:`step_copy` themselves (their source, as this module holds them
+    now), compiled by numba."""
+    functions = (("read_copy", globals()["read_copy"]), ("step_copy", globals()["step_copy"]))
+    texts = [textwrap.dedent(inspect.getsource(f)).replace(f"def {f.__name__}(", f"def {name}(", 1)
+             for name, f in functions]
+    jit = '@numba.njit(cache=True, error_model="numpy", nogil=True)'
+    return f"{EXTERNAL}UNSTABLE = {UNSTABLE!r}\n\n" + "".join(f"{jit}\n{text}\n" for text in texts)
+
+
 SETUP = [
     "mp, dp = as_pointer(pi[0]), as_pointer(pi[1])",
     "ctrl = carray(as_pointer(pi[2]), pi[7] + 1, dtype=np.float64)",
     "sensordata = carray(as_pointer(pi[3]), max(pi[8], pi[9]) + 1, dtype=np.float64)",
     "qpos = carray(as_pointer(pi[4]), pi[10] + 1, dtype=np.float64)",
     "qvel = carray(as_pointer(pi[5]), pi[11] + 1, dtype=np.float64)",
-    f"warning = carray(as_pointer(pi[6]), {2 * max(UNSTABLE_WARNINGS) + 1}, dtype=np.int32)",
-]
-OBSERVE = [
-    "if pi[13] != 0:",
-    "    x1 = math.nan",
-    "    x2 = math.nan",
-    "    m1 = math.nan",
-    "    m2 = math.nan",
-    "else:",
-    "    x1 = qpos[pi[10]]",
-    "    x2 = qvel[pi[11]]",
-    "    m1 = sensordata[pi[8]]",
-    "    m2 = sensordata[pi[9]]",
-]
-# sensors that copy the state (no history, no cutoff): their reading is qpos/qvel itself
-OBSERVE_PLAIN = [*OBSERVE[:-2], "    m1 = x1", "    m2 = x2"]
-_NEWLY = " or ".join(f"(calm{w} and warning[{2 * w}] != 0)" for w in UNSTABLE_WARNINGS)
-STEP = [
-    "if pi[13] == 0:",
-    "    ctrl[pi[7]] = pf[0] * u",
-    *[f"    calm{w} = warning[{2 * w}] == 0" for w in UNSTABLE_WARNINGS],
-    "    for _ in range(pi[12]):",
-    "        mj_step(mp, dp)",
-    "    mj_sensorPos(mp, dp)",
-    "    mj_sensorVel(mp, dp)",
-    f"    if {_NEWLY}:",
-    "        pi[13] = 1",
+    f"warning = carray(as_pointer(pi[6]), {2 * WARNINGS}, dtype=np.int32)",
 ]
 
 
-def step_lines(plain: bool) -> list[str]:
-    """:data:`STEP`; with ``plain`` sensors without the sensor calls (their reading is the state,
-    :data:`OBSERVE_PLAIN`; ``sensordata`` is brought up to date after each call instead)."""
-    return [line for line in STEP if not (plain and "mj_sensor" in line)]
+def observe_lines(sensed: bool) -> list[str]:
+    return ["x1, x2, m1, m2 = read_copy(qpos, qvel, sensordata, pi[10], pi[11], pi[8], pi[9],"
+            f" pi[{DEAD}] != 0, {sensed})"]
+
+
+def step_lines(sensed: bool) -> list[str]:
+    return [f"if pi[{DEAD}] == 0 and step_copy(mp, dp, ctrl, pi[7], pf[0], u, pi[12], warning, {sensed}):",
+            f"    pi[{DEAD}] = 1"]
 
 
 def plain_sensors(plant) -> bool:  # noqa: ANN001 (a MujocoPlant)
@@ -113,7 +156,7 @@ class MujocoNativeForm:
         p, v = plant._sadr
         self.ints = np.array([plant.model._address, data._address, data.ctrl.ctypes.data,
                               data.sensordata.ctypes.data, data.qpos.ctypes.data, data.qvel.ctypes.data,
-                              data.warning.number.ctypes.data, ids.actuator, p, v, ids.qpos, ids.dof,
+                              data.warning.lastinfo.ctypes.data, ids.actuator, p, v, ids.qpos, ids.dof,
                               substeps, int(plant._dead[0])], dtype=np.int64)
         self.floats = np.array([plant._ctrl_per_u], dtype=float)
         self.plain = plain_sensors(plant)
@@ -130,6 +173,6 @@ class MujocoNativeForm:
 
     def stepper(self) -> NativeStepper:
         key = f"mujoco {load_mujoco_library()} {mujoco.__version__} plain sensors={self.plain}"
-        observe = OBSERVE_PLAIN if self.plain else OBSERVE
-        return NativeStepper(key, HELPERS, SETUP, observe, step_lines(self.plain), self.floats, self.ints,
-                             np.zeros(0), self.sync_in, self.sync_out)
+        sensed = not self.plain
+        return NativeStepper(key, helpers(), SETUP, observe_lines(sensed), step_lines(sensed), self.floats,
+                             self.ints, np.zeros(0), self.sync_in, self.sync_out)

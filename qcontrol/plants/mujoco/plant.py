@@ -39,23 +39,21 @@ from ... import compiled as compiled_paths
 from ...errors import QcontrolInputError
 from ...timegrid import whole_steps
 from ..base import NativeStepper, PlantTerms
+from . import native_step
 from .callbacks import (
     GeneralizedForce,
     collect_warnings,
     kept_aside,
     passive_forces,
     python_callback_installed,
-    unstable,
 )
 from .consistency import consistency_report
 from .mjcf import check_input_gain, compiled
-from .native import native_force
-from .native_step import MujocoNativeForm
+from .native import NativeForce, native_force
+from .native_step import MujocoNativeForm, warning_counters
 from .noise import SensorNoise
 from .options import MujocoOptions
 from .threaded import ThreadedCopies, threadable
-
-_mj_step, _mj_sensor_pos, _mj_sensor_vel = mujoco.mj_step, mujoco.mj_sensorPos, mujoco.mj_sensorVel
 
 
 class MujocoPlant:
@@ -100,7 +98,10 @@ class MujocoPlant:
         coefficients = [tuple(c for c, n in zip(t.coefficients, native, strict=True) if not n)
                         for t in copies]
         self._forces = _forces(applied, coefficients, self.inertia) if applied else None
-        self._native = native_force(applied) if applied else None
+        self._applied, self._built_native = tuple(applied), None  # (native_for_run)
+        # a batch decides its stepping here (mujoco.batch needs the native callback); a single
+        # copy at each run, where the engine says whether compiled code pays (__enter__)
+        self._native = self.native_for_run() if self.batch > 1 else None
         # each copy's products I c_i, the numbers the Python force uses (theta per copy)
         self._userdata = [[self.inertia * c for c in row] for row in coefficients]
         self._datas = [mujoco.MjData(self.model) for _ in range(self.batch)]
@@ -130,6 +131,8 @@ class MujocoPlant:
             raise RuntimeError("MujocoPlant is already in use by a 'with' block")
         self.warnings = []
         self._steppers = {}  # (they hold the warnings list)
+        if self.batch == 1:
+            self._native = self.native_for_run()
         if self._native is not None:
             for data, userdata in zip(self._datas, self._userdata, strict=True):
                 self._native.fill(data, self._ids.qpos, self._ids.dof, userdata)
@@ -143,6 +146,17 @@ class MujocoPlant:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    def native_for_run(self) -> NativeForce | None:
+        """The passive terms as the native callback (:mod:`.native`), compiled or loaded once per
+        plant, where compiled paths are requested now (the engine turns them off for a single run
+        too short to pay for numba's start, :func:`qcontrol.compiled.not_needed`); None: the
+        Python callback (the same numbers)."""
+        if not self._applied or not compiled_paths.requested():
+            return None
+        if self._built_native is None:
+            self._built_native = native_force(self._applied)
+        return self._built_native
 
     def close(self) -> None:
         """Remove the passive callback's entries and stop collecting warnings (the end of a run)."""
@@ -229,11 +243,9 @@ class MujocoPlant:
         a copy MuJoCo had to reset."""
         q, dof = self._ids.qpos, self._ids.dof
         p, v = self._sadr
-        both = np.array([(qpos.item(q), qvel.item(dof), data.item(p), data.item(v))
-                         for _, data, qpos, qvel in self._views])
-        if True in self._dead:
-            both[np.asarray(self._dead)] = np.nan
-        return both
+        views, dead, read_copy = self._views, self._dead, native_step.read_copy
+        return np.array([read_copy(qpos, qvel, data, q, dof, p, v, dead[b], True)
+                         for b, (_, data, qpos, qvel) in enumerate(views)])
 
     def step(self, u: np.ndarray, h: float) -> None:
         """Hold ``u`` for ``h`` seconds: ``h / timestep`` calls of ``mj_step`` per copy.
@@ -281,20 +293,15 @@ class CopyStepper:
     def __init__(self, plant: MujocoPlant, b: int, substeps: int) -> None:
         self.b, self.substeps = b, substeps
         self.model, self.data, self.ctrl = plant.model, plant._datas[b], plant._views[b][0]
-        self.dead, self.messages = plant._dead, plant.warnings
+        self.dead, self.warning = plant._dead, warning_counters(self.data)
         self.actuator, self.ctrl_per_u = plant._ids.actuator, plant._ctrl_per_u
 
     def step(self, u: float) -> None:
-        if self.dead[self.b]:
-            return
-        self.ctrl[self.actuator] = self.ctrl_per_u * u
-        model, data, messages = self.model, self.data, self.messages
-        seen = len(messages)
-        _mj_step(model, data, self.substeps)
-        _mj_sensor_pos(model, data)
-        _mj_sensor_vel(model, data)
-        if len(messages) != seen and unstable(messages[seen:]):  # a blow-up always warns
-            self.dead[self.b] = True
+        """:func:`~.native_step.step_copy`, the one definition the compiled loop compiles too."""
+        b = self.b
+        if not self.dead[b] and native_step.step_copy(self.model, self.data, self.ctrl, self.actuator,
+                                                      self.ctrl_per_u, u, self.substeps, self.warning, True):
+            self.dead[b] = True
 
 
 def _copies(terms: PlantTerms, copies: Sequence[PlantTerms] | None, batch: int,

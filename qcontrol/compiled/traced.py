@@ -1,0 +1,245 @@
+"""The traced column form: the formulas' own Python code run once on symbols, recorded as source.
+
+The laws' formulas, the quantizer and the ODE plant's RK4 are written once over *columns*
+(:mod:`qcontrol.columns`) with elementwise arithmetic. Run on columns of this form, each column
+a :class:`Symbol` (the name of a local variable of the generated code), every ``+ - * /`` a
+formula makes is recorded, in the order the formula makes it, as one line of Python source
+``t7 = t3 * lp[12]``; every number that meets a symbol (a gain, a coefficient, the step ``h``)
+is put in the array ``lp`` (:meth:`Trace.constant`), so one generated text serves every value
+of the constants. Arithmetic between plain numbers (a law's constants, ``h / 6``) runs in
+Python as it does in the float form. The text is therefore the float form's computation, the
+same IEEE operations in the same order, which numba compiles (numpy's error model, no
+fast-math contraction) for the engine's compiled loop: the compiled form is *derived* from the
+one definition, never restated.
+
+Where the float form would raise instead of giving a number (``math`` refusing an evaluation,
+a division by zero), the recorded code cannot: it runs :attr:`Trace.refusal` instead (the
+compiled loop's ``return status, k``), and the Python form runs from there.
+
+A symbol has no truth value (a formula that branches on a column's value cannot be traced and
+keeps the Python loop), unless the trace is told which branch holds (``Symbol(text, truth)``:
+a load known to be nonzero in the branch being traced).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from contextlib import contextmanager
+from functools import partial
+from typing import Any
+
+import numpy as np
+
+from ..expr import Expression, combine
+from ..expr.source import FLAG, Statements, float_source
+
+Value = Any  # a Symbol, or a plain number
+
+
+class Trace:
+    """The source lines and constants of one generated function, being recorded."""
+
+    def __init__(self, array: str = "lp", prefix: str = "t") -> None:
+        """Constants go to the array named ``array``, locals are named ``{prefix}{i}``."""
+        self.array, self.prefix = array, prefix
+        self.lines: list[str] = []
+        self.constants: list[float] = []
+        self.refusal: str | None = None  # the statement where Python would raise; None: untraceable
+        self._count = 0
+
+    def name(self, prefix: str = "") -> str:
+        self._count += 1
+        return f"{self.prefix}{prefix}{self._count}"
+
+    def constant(self, value: float) -> str:
+        """``value`` as a slot of the constants' array (a new slot each time: the text depends on
+        no value)."""
+        self.constants.append(float(value))
+        return f"{self.array}[{len(self.constants) - 1}]"
+
+    def taken(self) -> list[str]:
+        """The lines recorded so far, handed over and forgotten."""
+        lines, self.lines = self.lines, []
+        return lines
+
+    def text(self, value: Value) -> str:
+        """The source of a column: a symbol's name, or a number's slot of ``lp``."""
+        if isinstance(value, Symbol):
+            return value.text
+        if isinstance(value, bool | np.bool_) or not isinstance(value, int | float | np.number):
+            raise TypeError(f"a traced formula met {type(value).__name__} {value!r}, not a column")
+        return self.constant(value)
+
+    def assign(self, expression: str) -> Symbol:
+        """A new local holding ``expression``."""
+        name = self.name()
+        self.lines.append(f"{name} = {expression}")
+        return Symbol(name)
+
+    def refuse_if(self, condition: str) -> None:
+        """Where ``condition`` holds the float form raises: the code runs :attr:`refusal` (none
+        set: the formula cannot be traced here)."""
+        if self.refusal is None:
+            raise TypeError("a traced formula may raise where no hand-over to Python is possible")
+        self.lines += [f"if {condition}:", f"    {self.refusal}"]
+
+    @contextmanager
+    def refusing(self, statement: str | None):  # noqa: ANN201 (a context manager)
+        """Record with ``statement`` as the refusal (the compiled loop's ``return 2, k``)."""
+        before, self.refusal = self.refusal, statement
+        try:
+            yield self
+        finally:
+            self.refusal = before
+
+
+_CURRENT: list[Trace] = []  # the trace being recorded (a stack: recordings do not nest in practice)
+
+
+def current() -> Trace:
+    if not _CURRENT:
+        raise RuntimeError("a traced column used outside qcontrol.compiled.traced.recording()")
+    return _CURRENT[-1]
+
+
+@contextmanager
+def recording(trace: Trace):  # noqa: ANN201 (a context manager)
+    """Symbols' arithmetic inside the block is recorded in ``trace``."""
+    _CURRENT.append(trace)
+    try:
+        yield trace
+    finally:
+        _CURRENT.pop()
+
+
+def _binary(symbol: str, left: Value, right: Value) -> Symbol:
+    trace = current()
+    a, b = trace.text(left), trace.text(right)
+    if symbol == "/" and isinstance(right, Symbol):
+        trace.refuse_if(f"{b} == 0.0")  # a float division by zero raises
+    return trace.assign(f"{a} {symbol} {b}")
+
+
+class Symbol:
+    """A column of the traced form: the name of a float local of the generated code. Its
+    arithmetic is recorded in the current :class:`Trace` (module docstring)."""
+
+    __slots__ = ("text", "truth")
+
+    def __init__(self, text: str, truth: bool | None = None) -> None:
+        self.text, self.truth = text, truth
+
+    def __add__(self, other: Value) -> Symbol:
+        return _binary("+", self, other)
+
+    def __radd__(self, other: Value) -> Symbol:
+        return _binary("+", other, self)
+
+    def __sub__(self, other: Value) -> Symbol:
+        return _binary("-", self, other)
+
+    def __rsub__(self, other: Value) -> Symbol:
+        return _binary("-", other, self)
+
+    def __mul__(self, other: Value) -> Symbol:
+        return _binary("*", self, other)
+
+    def __rmul__(self, other: Value) -> Symbol:
+        return _binary("*", other, self)
+
+    def __truediv__(self, other: Value) -> Symbol:
+        return _binary("/", self, other)
+
+    def __rtruediv__(self, other: Value) -> Symbol:
+        return _binary("/", other, self)
+
+    def __neg__(self) -> Symbol:
+        return current().assign(f"-{self.text}")
+
+    def __bool__(self) -> bool:
+        if self.truth is None:
+            raise TypeError("a traced formula branches on a column's value: it keeps the Python loop")
+        return self.truth
+
+    def __repr__(self) -> str:
+        return f"Symbol({self.text!r})"
+
+
+class TracedTerms:
+    """Expressions evaluated on symbols: their trees as source (:func:`float_source`), refusing
+    where the float form's ``math`` would refuse (the float form then takes numpy's answer)."""
+
+    def __init__(self, expressions: Sequence[Expression]) -> None:
+        self.expressions = tuple(expressions)
+
+    def __call__(self, columns: Sequence[Value]) -> list[Value]:
+        return [evaluate(e, columns) for e in self.expressions]
+
+
+def evaluate(expression: Expression, columns: Sequence[Value]) -> Symbol:
+    """One expression on traced columns, recorded (``columns[i]`` its ``variables[i]``)."""
+    trace = current()
+    names = [trace.text(c) for c in columns]
+    body = Statements(trace.name("e") + "_")
+    value = float_source(expression._tree, names, body)
+    if any(FLAG in line for line in body.lines):  # math may refuse: the flag and its test
+        trace.lines += [f"{FLAG} = False", *body.lines]
+        trace.refuse_if(FLAG)
+    else:
+        trace.lines += body.lines
+    return trace.assign(value)
+
+
+def _expm1(x: Value) -> Value:
+    """``exp(x) - 1``; where ``math.expm1`` raises (an infinite result of a finite argument), the
+    refusal."""
+    if not isinstance(x, Symbol):
+        return math.expm1(x)
+    trace = current()
+    result = trace.assign(f"math.expm1({x.text})")
+    trace.refuse_if(f"math.isinf({result.text}) and math.isfinite({x.text})")
+    return result
+
+
+def _floor(x: Value) -> Value:
+    """numpy's floor (the float form's ``math.floor`` where it answers, numpy's value where it
+    refuses: the same number)."""
+    if not isinstance(x, Symbol):
+        return float(np.floor(x))
+    return current().assign(f"np.floor({x.text})")
+
+
+class TracedForm:
+    """The :class:`~qcontrol.columns.ColumnForm` whose columns are :class:`Symbol`\\ s; a
+    parameter is a plain number, as in the float form (a batch of one)."""
+
+    expm1: Callable[[Value], Value] = staticmethod(_expm1)
+    floor: Callable[[Value], Value] = staticmethod(_floor)
+
+    def column(self, values: Any) -> float:
+        array = np.asarray(values, dtype=float)
+        if array.size != 1:
+            raise ValueError(f"{array.size} per-copy values for a batch of one")
+        return float(array.reshape(1)[0])
+
+    def terms(self, expressions: Sequence[Expression]) -> TracedTerms:
+        return TracedTerms(expressions)
+
+    def combination(self, expressions: Sequence[Expression], coefficients: Sequence[Any]
+                    ) -> Callable[[Sequence[Value]], Value]:
+        pairs = tuple(zip([None if c is None else self.column(c) for c in coefficients],
+                          [partial(evaluate, e) for e in expressions], strict=True))
+        return partial(combine, pairs)  # the array form's sum, left to right
+
+    def columns(self, rows: Any) -> list[Value]:
+        raise TypeError("the traced form's columns are symbols: made by the compiled loop, not from arrays")
+
+    def array(self, columns: Sequence[Value], batch: int) -> Any:
+        raise TypeError("the traced form's columns are symbols: they have no array")
+
+    def __repr__(self) -> str:
+        return "TRACED"
+
+
+TRACED = TracedForm()

@@ -1,0 +1,129 @@
+"""Every formula is written once and every faster form is derived from it: a formula changed in
+its one place (monkeypatched here) changes the result of every form that runs it, the Python loop
+of a single run (float form), a batch (array form) and the compiled loop (generated from the same
+code), and the compiled loop still gives the Python loop's numbers to the last bit."""
+
+import math
+
+import mujoco
+import numpy as np
+import pytest
+from conftest import SCENARIOS
+
+import qcontrol.engine.compiled_loop as compiled_loop
+import qcontrol.plants.ode as ode
+from qcontrol.assembly import build_controller, build_plant, build_separation, run_spec, run_variants
+from qcontrol.controller.backstepping import Backstepping
+from qcontrol.controller.comparison import ComparisonLaw, RateAdvance
+from qcontrol.controller.proposed import DecayAdvance, PaperLaw
+from qcontrol.engine import ClosedLoop
+from qcontrol.plants.mujoco import native_step
+from qcontrol.quantizer import UniformQuantizer
+from qcontrol.scenario import load_scenario
+
+# the names the MuJoCo step below calls, as native_step defines them (and as the compiled loop's
+# module defines them: MuJoCo's C functions by symbol)
+mj_step, mj_sensorPos, mj_sensorVel = mujoco.mj_step, mujoco.mj_sensorPos, mujoco.mj_sensorVel  # noqa: N816
+UNSTABLE = native_step.UNSTABLE
+RK4 = ode._rk4
+
+
+def half_torque_step(m, d, ctrl, actuator, ctrl_per_u, u, substeps, warning, sensed):  # noqa: ANN001, ANN201
+    """:func:`native_step.step_copy` with the motor's command halved."""
+    ctrl[actuator] = 0.5 * ctrl_per_u * u
+    calm = 0
+    for i in UNSTABLE:
+        if warning[i] == 0:
+            calm += 1 << i
+    for _ in range(substeps):
+        mj_step(m, d)
+    if sensed:
+        mj_sensorPos(m, d)
+        mj_sensorVel(m, d)
+    for i in UNSTABLE:
+        if (calm >> i) & 1 and warning[i] != 0:
+            return True
+    return False
+
+
+def offset_reading(qpos, qvel, sensordata, qadr, dof, p, v, dead, sensed):  # noqa: ANN001, ANN201
+    """:func:`native_step.read_copy` with the angle read 0.02 rad high."""
+    if dead:
+        return math.nan, math.nan, math.nan, math.nan
+    x1 = qpos[qadr]
+    x2 = qvel[dof]
+    return x1, x2, x1 + 0.02, x2
+
+
+def _wrapped(owner, name: str, change):  # noqa: ANN001, ANN202
+    original = getattr(owner, name)
+
+    def changed(*args):  # noqa: ANN002, ANN202
+        return change(original(*args))
+    return changed
+
+
+def _quantizer(self, x, floor):  # noqa: ANN001, ANN202
+    return self.delta * floor(x / self.delta + 0.25)  # levels shifted by delta / 4
+
+
+# (what is changed, in its one place) -> (object, attribute, replacement, scenario overrides, backend)
+CHANGES = {
+    "quantizer (3)": (UniformQuantizer, "apply", _quantizer, [], "ode"),
+    "law (44), paper hold": (PaperLaw, "robust_term", _wrapped(PaperLaw, "robust_term", lambda v: 2.0 * v),
+                             [], "ode"),
+    "law (44), exact hold": (PaperLaw, "robust_term", _wrapped(PaperLaw, "robust_term", lambda v: 2.0 * v),
+                             ['controller.hold="exact"'], "ode"),
+    "adaptive law (45)": (DecayAdvance, "advance",
+                          _wrapped(DecayAdvance, "advance", lambda eps: tuple(e + 1e-3 for e in eps)), [],
+                          "ode"),
+    "law (46)": (ComparisonLaw, "control",
+                 _wrapped(ComparisonLaw, "control", lambda out: out._replace(u=out.u - 1.0)),
+                 ['controller.kind="comparison"'], "ode"),
+    "adaptive law of (46)": (RateAdvance, "advance",
+                             _wrapped(RateAdvance, "advance", lambda th: tuple(e - 1e-3 for e in th)),
+                             ['controller.kind="comparison"'], "ode"),
+    "recursion (31)-(34)": (Backstepping, "recursion",
+                            _wrapped(Backstepping, "recursion", lambda za: (za[0], [a * 1.5 for a in za[1]])),
+                            [], "ode"),
+    "RK4 of eq. (1)": (ode, "_rk4", lambda x, u, h, g: RK4(x, u, 0.5 * h, g), [], "ode"),  # half the step
+    "MuJoCo step": (native_step, "step_copy", half_torque_step, [], "mujoco"),
+    "MuJoCo observe": (native_step, "read_copy", offset_reading, [], "mujoco"),
+}
+
+
+def _single(sc, backend: str):
+    spec = run_spec(sc, build_plant(sc, backend), build_controller(sc), [sc.x0], build_separation(sc))
+    loop = ClosedLoop(spec)
+    return loop, loop.run()[0]
+
+
+def _runs(monkeypatch, sc, backend: str) -> dict:
+    """The Python loop of a single run, a batch of two copies (copy 0) and the compiled loop."""
+    monkeypatch.setenv("QCONTROL_COMPILE", "0")
+    python_loop, python = _single(sc, backend)
+    batch = run_variants([sc, sc], backend)[0]
+    monkeypatch.delenv("QCONTROL_COMPILE")
+    compiled_run, compiled = _single(sc, backend)
+    assert python_loop.handover == 0 and compiled_run.handover is None  # each form ran as meant
+    return {"python": python, "batch": batch, "compiled": compiled}
+
+
+def _bytes(record, name: str) -> bytes:
+    return np.asarray(record.signals[name]).tobytes()
+
+
+@pytest.mark.parametrize("change", list(CHANGES))
+def test_a_formula_changed_in_its_one_place_changes_every_form(monkeypatch, change: str) -> None:
+    owner, name, replacement, overrides, backend = CHANGES[change]
+    monkeypatch.setattr(compiled_loop, "MIN_ROWS", 0)  # short runs compiled too
+    monkeypatch.setattr(compiled_loop, "COLD_MIN_ROWS", 0)
+    sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=0.3", *overrides])
+    before = _runs(monkeypatch, sc, backend)
+    monkeypatch.setattr(owner, name, replacement)
+    after = _runs(monkeypatch, sc, backend)
+    for form in ("python", "batch", "compiled"):
+        assert _bytes(after[form], "u") != _bytes(before[form], "u"), form  # the change reached it
+    for form in ("batch", "compiled"):  # and each form still gives the Python loop's numbers
+        for signal in ("x", "x_q", "u", "adaptive"):
+            assert _bytes(after[form], signal) == _bytes(after["python"], signal), (form, signal)
