@@ -285,7 +285,7 @@ def run_spec(sc: Scenario, plant: Plant, law: BatchLaw, x0: Sequence, separation
                    grid=TimeGrid.of(sim.duration, sim.dt, sim.control_period), state_bound=sim.state_bound,
                    record=record, metrics=sc.metrics, separation=separation, loads=loads(sc),
                    velocity_source=sim.velocity_source, terms=named_terms(sc), progress=progress,
-                   observer=observer,
+                   observer=observer, chain=sc.terms.first_nonzero_row is None,
                    input_quantizer=None if sc.input_quantizer is None else sc.input_quantizer.build())
 
 

@@ -44,7 +44,9 @@ def run_summary(run: RunRecord, scenario: str, backend: str) -> Summary:
     is meaningless. With the velocity differenced from the encoder (``velocity_source =
     "difference"``) the controller's x2 is no quantized reading and Lemma 2 does not apply: the
     ratio is still reported, with ``lemma2_applies`` false; likewise with a logarithmic quantizer
-    (no constant bounds its error) and when a reading saturated at its channel's range.
+    (no constant bounds its error), when a reading saturated at its channel's range, and on a plant
+    outside the chain of eq. (1) (a strict-feedback plant with regressors before its last
+    equation), for which Lemma 2's bounds were not derived.
     """
     values = run.reduced()
     final = tuple(float(v) for v in values["final_adaptive"])
@@ -61,7 +63,7 @@ def run_summary(run: RunRecord, scenario: str, backend: str) -> Summary:
         lemma2_max_ratio=lemma2_max_ratio(values["e_z_max"][None, :], run.L_z),
         velocity_source=run.velocity_source,
         lemma2_applies=(lemma2_applies(run.velocity_source) and run.quantizer_sector is None
-                        and not sensors.get("reading_saturated_fraction")),
+                        and not sensors.get("reading_saturated_fraction") and run.chain),
         L_z=tuple(float(v) for v in run.L_z), L=float(run.L_z[-1]),
         **bounds, law_diagnostics=law_diagnostics(run.law_diagnostics, values["diagnostics"]),
         final_state=final, **sensors, law_failure=run.law_failure,

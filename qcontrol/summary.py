@@ -21,7 +21,8 @@ class Summary:
     ``final_eps_hat``, the adaptive estimates at the end (named ``adaptive_state``: eps_hat of
     (45), theta_hat of (46), ...). Lemma 2: ``lemma2_max_ratio`` = max over time and i of
     ``|e_zi| / L_zi`` (<= 1 holds), ``lemma2_applies`` (false when x2 is differenced,
-    ``velocity_source``), the bounds ``L_z`` and ``L = L_zn``. The separation (37)-(43):
+    ``velocity_source``, and on a plant outside the chain of eq. (1)), the bounds ``L_z`` and
+    ``L = L_zn``. The separation (37)-(43):
     ``bound_constants`` (term -> largest ``|term| / r(x_q)``, None where unbounded; None, and absent
     from ``summary.json``, when not checked: a law without bounding functions, a sweep's batch) and
     ``warnings``; ``r_below_one`` (term -> smallest ``r_i(x_q)``), present only when a bounding

@@ -20,7 +20,7 @@ COMMANDS = [line.strip() for block in re.findall(r"```bash\n(.*?)```", DOC, re.S
 def test_the_laws_tutorial_runs(tmp_path: Path) -> None:
     for name in ("scenarios", "models"):
         (tmp_path / name).symlink_to(ROOT / name)
-    assert len(PYTHON_BLOCKS) >= 5 and len(COMMANDS) == 7
+    assert len(PYTHON_BLOCKS) >= 5 and len(COMMANDS) == 10
     done = subprocess.run([sys.executable, "-c", "\n".join(PYTHON_BLOCKS)], cwd=tmp_path,
                           capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr

@@ -20,7 +20,8 @@ from qcontrol.plants.mujoco import callbacks
 from qcontrol.plants.mujoco.native import native_force, struct_offsets
 from qcontrol.scenario import load_scenario
 
-SCENARIOS = [p for p in sorted(ROOT.glob("scenarios/*.toml")) if load_scenario(p).order == 2]  # MuJoCo's
+SCENARIOS = [p for p in sorted(ROOT.glob("scenarios/*.toml"))  # MuJoCo's: order 2, with a MuJoCo twin
+             if load_scenario(p).order == 2 and "mujoco" in load_scenario(p).backends]
 PROBE = """<mujoco><size nuserdata="32"/><worldbody><body><joint type="slide" axis="1 0 0"/>
 <geom size="0.1" mass="1"/></body></worldbody></mujoco>"""
 

@@ -86,7 +86,7 @@ CHANGES = {
     "recursion (31)-(34)": (Backstepping, "recursion",
                             _wrapped(Backstepping, "recursion", lambda za: (za[0], [a * 1.5 for a in za[1]])),
                             [], "ode"),
-    "RK4 of eq. (1)": (ode, "_rk4", lambda x, u, h, g: RK4(x, u, 0.5 * h, g), [], "ode"),  # half the step
+    "RK4 of eq. (1)": (ode, "_rk4", lambda x, u, h, g, *rest: RK4(x, u, 0.5 * h, g, *rest), [], "ode"),  # h/2
     "MuJoCo step": (native_step, "step_copy", half_torque_step, [], "mujoco"),
     "MuJoCo observe": (native_step, "read_copy", offset_reading, [], "mujoco"),
 }

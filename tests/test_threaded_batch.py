@@ -12,7 +12,8 @@ from qcontrol.compiled import ENVIRONMENT_SWITCH
 from qcontrol.plants.mujoco.plant import MujocoPlant
 from qcontrol.scenario import load_scenario
 
-SCENARIOS = [p for p in sorted(ROOT.glob("scenarios/*.toml")) if load_scenario(p).order == 2]  # MuJoCo's
+SCENARIOS = [p for p in sorted(ROOT.glob("scenarios/*.toml"))  # MuJoCo's: order 2, with a MuJoCo twin
+             if load_scenario(p).order == 2 and "mujoco" in load_scenario(p).backends]
 
 
 def variants(path: pathlib.Path, extra: list[str], x0s: tuple[str, ...] = ("[0.3, 0.3]", "[-0.5, 0.2]",

@@ -50,8 +50,10 @@ def cmd_laws(args: argparse.Namespace) -> int:
     header = "".join(f"E({k[11:]})  " for k in rates) + "max|z1|,2nd half  max|u|    Lemma 2"
     width = max(16, *(len(row["kind"]) + 2 for row in cmp.table))
     print(f"  {'law':<{width}}{header}")
-    for row in cmp.table:
-        shown = "DIVERGED" if row["diverged"] else f"{row['lemma2_max_ratio']:.6f}"
+    checked = {k: r.summary.get("lemma2_applies", True) for k, r in cmp.runs.items()}
+    for row in cmp.table:  # n/a: Lemma 2 does not apply (a strict-feedback plant, a differenced x2, ...)
+        ratio = f"{row['lemma2_max_ratio']:.6f}" if checked.get(row["kind"], True) else "n/a"
+        shown = "DIVERGED" if row["diverged"] else ratio
         print(f"  {row['kind']:<{width}}" + "".join(f"{row[k]:.4f}    " for k in rates)
               + f"{row['max_abs_z1_last_half']:<17.4g} {row['max_abs_u']:<9.4g} {shown}")
     if args.out is not None:

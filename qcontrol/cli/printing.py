@@ -80,9 +80,12 @@ def _lemma2_line(f: Summary) -> str:
                 f"bound is |q(x) - x| <= {f.quantizer_sector:.4g} |x|)")
     if f.reading_saturated_fraction:
         return f"{ratio} (not checked: readings saturated at their range, where Lemma 2's bounds do not hold)"
-    if not f.lemma2_applies:
+    if not f.lemma2_applies and f.velocity_source == "difference":
         return (f"{ratio} (not checked: x2 is differenced from the encoder, outside the paper's "
                 "assumptions)")
+    if not f.lemma2_applies:
+        return (f"{ratio} (not checked: Lemma 2's bounds are the chain's, and this plant has regressors "
+                "before its last equation)")
     return f"{ratio} (<= 1 holds: {'yes' if lemma2_holds(f) else 'NO'})"
 
 

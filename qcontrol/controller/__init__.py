@@ -10,7 +10,7 @@
 * :mod:`.user`: the :class:`~.user.Law` protocol of a law written one copy at a time.
 """
 
-from . import comparison, proposed
+from . import comparison, proposed, tuning
 from .backstepping import (
     Backstepping,
     ControlOutput,
@@ -31,9 +31,11 @@ from .law import (
     seal_built_in_kinds,
 )
 from .proposed import PaperLaw
+from .tuning import TuningLaw
 
 register_law("proposed", PaperLaw, keys=proposed.LAW_KEYS)
 register_law("comparison", ComparisonLaw, keys=comparison.LAW_KEYS)
+register_law("tuning", TuningLaw, keys=tuning.LAW_KEYS)
 seal_built_in_kinds()
 
 
@@ -56,6 +58,7 @@ __all__ = [
     "LawKeys",
     "LawKind",
     "PaperLaw",
+    "TuningLaw",
     "backstepping_coefficients",
     "law_kind",
     "lemma2_L",

@@ -27,7 +27,7 @@ from typing import Any
 from ..errors import QcontrolInputError
 from ..schema import Table
 from .backstepping import BacksteppingLaw
-from .law import LAW_KINDS, LawContext, LawKeys, LawKind, add_kind, check_kind_name
+from .law import CHAIN, LAW_KINDS, LawContext, LawKeys, LawKind, add_kind, check_kind_name
 from .user import UserKind, _freeze, _thaw
 from .user_diagnostics import checked_class_diagnostics
 
@@ -120,7 +120,8 @@ class ClassKind:
                        self.structure,
                        bounds=self.bounds if base is not None and base.bounds is not None else None,
                        divergence_hint=own.divergence_hint if own is not None else "", extends=self.extends,
-                       declared=own, also_measure=own.also_measure if own is not None else None)
+                       declared=own, also_measure=own.also_measure if own is not None else None,
+                       plants=base.plants if base is not None else CHAIN)
 
     def parse(self, table: Table, ctx: LawContext) -> Any:
         """The settings of a variant: the :class:`~.law.LawKeys`' own parse when the keys are

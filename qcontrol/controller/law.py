@@ -20,11 +20,17 @@ import numpy as np
 from ..columns import ColumnForm
 from ..errors import QcontrolInputError
 from ..expr import Expression
+from ..expr.rows import first_nonzero_row, regressor_rows
 from ..quantizer import QuantizedReading
 from ..schema import KindKeys, Table
 from .backstepping import Advance, Backstepping, Columns, ControlOutput, lemma2_bounds
 
 DIAGNOSTIC_REDUCTIONS = ("max", "last")
+# The plant classes a law declares it supports: the chain of eq. (1) (terms in the last equation
+# only: the paper's law (44)-(45) and law (46)), or the parametric strict-feedback plants, with a
+# regressor row in every equation (docs/math.md).
+CHAIN, STRICT_FEEDBACK = "chain", "strict-feedback"
+PLANT_CLASSES = (CHAIN, STRICT_FEEDBACK)
 
 # (x_q, yd, state) -> values: x_q a tuple of n columns, yd a tuple of n + 1 columns and state a
 # tuple of m columns, each ``(rows, batch)``; returns ``(rows, batch)`` for a width of 1, else
@@ -145,7 +151,9 @@ class LawContext:
     * ``dt``: the simulation step; ``control_period`` (``T``): the time u is held, a whole number
       of steps (``dt`` when the scenario gives none);
     * ``psi``, ``phi``, ``theta``: the plant's terms (the comparison law (46) evaluates them at the
-      quantized state; the paper's law counts them);
+      quantized state; the paper's law counts them); ``rows``: the regressor rows phi_1 ..
+      phi_{n-1} of a strict-feedback plant, when the scenario gives them (else ``()``), and
+      :attr:`regressor_rows` all n rows;
     * ``settings``: the law's own keys, from ``[controller.<kind>]`` and ``[controller]``, as a
       read-only mapping (empty for the built-in kinds, whose keys are parsed into ``base``);
     * ``base``: the parsed, checked settings of the built-in kind the law is or extends
@@ -175,6 +183,17 @@ class LawContext:
     controller: Table | None = field(default=None, repr=False, compare=False)
     input_gain: float = 1.0
     quantizer_error: tuple[float, ...] | None = None  # per channel, from [quantizer] (None: delta / 2)
+    rows: tuple[tuple[Expression, ...], ...] = ()
+
+    @property
+    def regressor_rows(self) -> tuple[tuple[Expression, ...], ...]:
+        """The n regressor rows phi_1 .. phi_n of the plant (rows not given: "0" entries)."""
+        return regressor_rows(self.order, self.phi, self.rows)
+
+    @property
+    def first_nonzero_row(self) -> int | None:
+        """The first equation i < n whose regressor row is not 0, or None (the chain of eq. (1))."""
+        return first_nonzero_row(self.rows)
 
     @property
     def n(self) -> int:
@@ -211,7 +230,9 @@ class LawKeys:
     (37)-(43) the law uses, whose separation is checked along single runs; ``divergence_hint``,
     what usually makes this law diverge, for the message of a diverged run; ``also_measure(settings)``,
     settings of the same kind that a study of the law measures beside it by default (``(key,
-    value)`` pairs each, e.g. the paper's law held as printed: also its exact hold)."""
+    value)`` pairs each, e.g. the paper's law held as printed: also its exact hold); ``plants``,
+    the plant class it supports (:data:`PLANT_CLASSES`: a chain law is refused at load on a plant
+    with a regressor before its last equation)."""
 
     keys: KindKeys
     parse: Callable[[Table, LawContext], Any]
@@ -220,6 +241,7 @@ class LawKeys:
     bounds: Callable[[Any], tuple[Expression, ...]] | None = None
     divergence_hint: str = ""
     also_measure: Callable[[Any], tuple[tuple[tuple[str, str], ...], ...]] | None = None
+    plants: str = CHAIN
 
 
 @dataclass(frozen=True)
@@ -232,8 +254,9 @@ class LawKind:
     controller table into the kind's settings; ``build`` makes one law for a batch of variants
     that share ``structure(settings, context)`` (the settings that may differ within a batch
     become per-copy parameters); the first variant's context is passed. ``bounds`` and
-    ``divergence_hint``, ``also_measure``: as :class:`LawKeys` says. ``extends``: the kind whose
-    ``[controller.<kind>]`` settings it reads, if any.
+    ``divergence_hint``, ``also_measure``, ``plants``: as :class:`LawKeys` says (a per-copy law
+    sees the regressor rows in its context: ``plants`` is the strict-feedback class).
+    ``extends``: the kind whose ``[controller.<kind>]`` settings it reads, if any.
     """
 
     name: str
@@ -246,6 +269,7 @@ class LawKind:
     extends: str | None = None  # the built-in kind whose [controller.<kind>] settings it reads, if any
     declared: LawKeys | None = None  # its keys declared with their types and parsing, if so
     also_measure: Callable[[Any], tuple[tuple[tuple[str, str], ...], ...]] | None = None
+    plants: str = STRICT_FEEDBACK  # the plant class the law supports (:data:`PLANT_CLASSES`)
 
 
 LAW_KINDS: dict[str, LawKind] = {}
@@ -288,6 +312,19 @@ def seal_built_in_kinds() -> None:
 
 # Former names of kinds: a scenario written with one still loads, as the kind it now names.
 KIND_ALIASES: dict[str, str] = {"baseline": "comparison"}
+
+
+def check_plant_class(kind: str, ctx: LawContext, where: str) -> None:
+    """Refuse a law that supports the chain of eq. (1) only on a plant with a regressor before its
+    last equation: one line naming the first such row and the laws that apply."""
+    row = ctx.first_nonzero_row
+    if row is None or LAW_KINDS[kind].plants != CHAIN:
+        return
+    apply = [name for name, entry in LAW_KINDS.items() if entry.plants == STRICT_FEEDBACK]
+    raise QcontrolInputError(
+        f"{ctx.source}: {where}: law {kind!r} needs a chain x1' = x2, .., terms in the last equation only, "
+        f"but plant.phi[{row - 1}] (the regressors of x{row}') is not 0; use a law for strict-feedback "
+        f"plants: {', '.join(apply)}")
 
 
 def law_kind(name: str) -> LawKind:

@@ -82,7 +82,7 @@ class ClosedLoop:
         self.reference = ReferenceRows(spec.reference, n, grid, whole=spec.record == "full")
         actuator, limited = actuator_of(plant)  # without an actuator, u is applied as commanded
         context = SignalContext(law.coordinates, spec.separation, actuator, spec.velocity_source, limited,
-                                tuple(law.diagnostics), spec.quantizer, spec.input_quantizer)
+                                tuple(law.diagnostics), spec.quantizer, spec.input_quantizer, spec.chain)
         parts = RunParts(grid, law, self.reference, self.divergence, context, spec.metrics, batch, n)
         self.record = (FullRecord(parts, spec.observer, spec.observe_every) if spec.record == "full"
                        else MetricsRecord(parts, spec.observer))

@@ -34,6 +34,7 @@ class RunRecord:
     duration: float
     hold: int = 1
     velocity_source: str = "sensor"
+    chain: bool = True  # the plant is the chain of eq. (1), the class of Lemma 2
     actuator_limited: bool = False  # whether the plant's actuator could clip u (u_applied may differ)
     diverged: bool = False
     diverged_time: float | None = None

@@ -75,7 +75,7 @@ class _Record:
         sensor = self.context.quantizer if isinstance(self.context.quantizer, SensorQuantizer) else None
         return dict(adaptive_name=self.law.state_name, L_z=self.law.coordinates.L_z.copy(), dt=self.grid.dt,
                     duration=self.grid.duration, hold=self.grid.hold,
-                    velocity_source=self.context.velocity_source,
+                    velocity_source=self.context.velocity_source, chain=self.context.chain,
                     actuator_limited=self.context.actuator_limited,
                     diverged=d.times[b] is not None, diverged_time=d.times[b],
                     divergence_reason=d.reasons[b], law_failure=d.reasons[b] if d.law_failed[b] else None,

@@ -72,6 +72,7 @@ class SignalContext:
     diagnostics: tuple[Diagnostic, ...] = ()  # the law's own signals
     quantizer: Any = None  # the state's quantizer (its ``saturated`` readings, if it has a range)
     input_quantizer: Any = None  # the input's quantizer q_u of [quantizer.input] (None: u as computed)
+    chain: bool = True  # the plant is the chain of eq. (1) (Lemma 2 applies to it)
 
     @property
     def terms(self) -> int:

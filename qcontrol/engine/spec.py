@@ -36,7 +36,8 @@ class RunSpec:
     (the terms of eq. (1) and their bounding functions to check along the run, eqs. (37)-(43);
     None: not checked). What it applies: ``loads``, ``(row, d)`` where the external load changes
     (u's units, :mod:`qcontrol.disturbance`); ``velocity_source``, ``"sensor"`` or
-    ``"difference"`` (x2 differenced from the quantized position, :mod:`.velocity`). What explains a
+    ``"difference"`` (x2 differenced from the quantized position, :mod:`.velocity`); ``chain``,
+    whether the plant is the chain of eq. (1) (else Lemma 2 does not apply). What explains a
     NaN: ``terms``, the plant's expressions by name (``("plant.psi", psi)``), evaluated where a copy
     turned NaN to say which term went out of its domain. Who watches:
     ``progress(row, last row)`` about every 1% of the run; ``observer`` every ``observe_every``
@@ -56,6 +57,7 @@ class RunSpec:
     separation: Separation | None = None
     loads: Sequence[tuple[int, float]] = ()
     velocity_source: str = "sensor"
+    chain: bool = True  # the plant is the chain of eq. (1), the class Lemma 2's bounds are derived for
     terms: Sequence[tuple[str, Expression]] = ()
     progress: ProgressCallback | None = None
     observer: Observer | None = None

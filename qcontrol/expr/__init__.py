@@ -23,6 +23,7 @@ from functools import cached_property
 import numpy as np
 
 from ..errors import QcontrolInputError
+from .calculus import differentiate, text
 from .generators import columns_closure, float_closure
 from .operations import FLOAT_REFUSED, NAMED, OPERATIONS, ColumnsFn, Operation, ScalarFn
 from .tree import (
@@ -31,8 +32,10 @@ from .tree import (
     MAX_NODES,
     MAX_SOURCE_LENGTH,
     SHOWN_SOURCE,
+    Apply,
     Tree,
     Validator,
+    Variable,
     parse,
     show,
 )
@@ -52,6 +55,7 @@ __all__ = [
     "ScalarFn",
     "combine",
     "compile_expression",
+    "derivative",
     "expression",
     "scalar_function",
 ]
@@ -182,6 +186,36 @@ class FloatCombination:
         except FLOAT_REFUSED:
             return combine(self.safe, values)
         return 0.0 if total is None else total
+
+
+def derivative(expression: Expression, variable: str) -> Expression:
+    """The partial derivative of ``expression`` in ``variable`` (one of its variables), as an
+    :class:`Expression` over the same variables: its tree by the chain rule
+    (:func:`~.calculus.differentiate`), its source the tree written out. Where the expression
+    is not differentiable (``abs`` at 0, ``min``/``max`` at a tie, ``sign`` at 0), the value is
+    the rule's (``sign(0) = 0``, the mean of the two sides)."""
+    if variable not in expression.variables:
+        raise QcontrolInputError(f"derivative: {variable!r} is not a variable of {show(expression.source)} "
+                                 f"(its variables are {', '.join(expression.variables)})")
+    tree = differentiate(expression._tree, expression.variables.index(variable))
+    used = frozenset(v for v in expression.variables if v in _used(tree, expression.variables))
+    names = expression.variables
+    return Expression(text(tree, names), names, used, columns_closure(tree), tree)
+
+
+def _used(tree: Tree, names: Sequence[str]) -> set[str]:
+    """The names of the variables a (calculus-built) tree reads."""
+    found, stack, seen = set(), [tree], set()
+    while stack:
+        node = stack.pop()
+        if id(node) in seen:
+            continue
+        seen.add(id(node))
+        if isinstance(node, Variable):
+            found.add(names[node.index])
+        elif isinstance(node, Apply):
+            stack.extend(node.operands)
+    return found
 
 
 def expression(source: str, variables: Sequence[str] = ("x1", "x2")) -> Expression:

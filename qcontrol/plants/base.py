@@ -23,6 +23,7 @@ import numpy as np
 
 from ..columns import Column, ColumnForm
 from ..expr import Expression
+from ..expr.rows import first_nonzero_row, regressor_rows
 
 TIME = "t"  # the name of time in the plant's terms, their last variable when they use it
 
@@ -39,11 +40,15 @@ def time_column(columns: Sequence[Column], expression: Expression, t: float) -> 
 
 @dataclass(frozen=True)
 class PlantTerms:
-    """The right-hand side of eq. (1): ``x_i' = x_{i+1}``, ``x_n' = b u + psi(x) + theta^T phi(x)``.
+    """The right-hand side of eq. (1): ``x_i' = x_{i+1}``, ``x_n' = b u + psi(x) + theta^T phi(x)``,
+    or of the wider parametric strict-feedback class (docs/math.md): ``x_i' = x_{i+1} +
+    phi_i(x_1..x_i)^T theta`` for i < n.
 
-    ``psi`` is unknown to the controller, ``phi`` known in form with ``theta`` unknown; ``b`` is
-    the known input gain (``input_gain`` as the scenario states it; None when it does not, which
-    means b = 1 and, on MuJoCo, a command scaled by the joint's inertia).
+    ``psi`` is unknown to the controller, ``phi`` (the last row, phi_n) known in form with
+    ``theta`` unknown; ``b`` is the known input gain (``input_gain`` as the scenario states it;
+    None when it does not, which means b = 1 and, on MuJoCo, a command scaled by the joint's
+    inertia). ``rows`` holds the regressor rows phi_1 .. phi_{n-1} of the earlier equations when
+    the scenario gives them (each of length l), else ``()``: the chain of eq. (1).
     """
 
     order: int
@@ -51,6 +56,7 @@ class PlantTerms:
     phi: tuple[Expression, ...]
     theta: tuple[float, ...]
     input_gain: float | None = None
+    rows: tuple[tuple[Expression, ...], ...] = ()
 
     @property
     def timed(self) -> bool:
@@ -61,6 +67,17 @@ class PlantTerms:
     def b(self) -> float:
         """The input gain b of ``x_n' = b u + ...`` (1 unless the scenario states another)."""
         return 1.0 if self.input_gain is None else float(self.input_gain)
+
+    @property
+    def first_nonzero_row(self) -> int | None:
+        """The first equation i < n (1-based) whose regressor row has a term that is not 0, or
+        None: the plant is then the chain of eq. (1), the paper's class."""
+        return first_nonzero_row(self.rows)
+
+    @property
+    def regressor_rows(self) -> tuple[tuple[Expression, ...], ...]:
+        """All n regressor rows phi_1 .. phi_n (rows not given: every entry the expression 0)."""
+        return regressor_rows(self.order, self.phi, self.rows)
 
     # Two orders, each defined here once: eq. (1)'s sum ``psi + theta^T phi`` (psi first; the plants
     # add the terms in this order), and eqs. (37)-(43)'s, the order of eps and of a law's bounding

@@ -2,6 +2,8 @@
 
     x_i' = x_{i+1} (i < n),    x_n' = b u + psi(x) + theta^T phi(x)
 
+or a parametric strict-feedback plant, ``x_i' = x_{i+1} + theta^T phi_i(x_1..x_i)`` for i < n
+(docs/math.md; the equations whose regressor row is 0 are computed exactly as in the chain),
 integrated with classical fixed-step RK4, the input held over each step. A fixed step is
 deliberate: an adaptive-step solver either steps over the quantizer's jumps or crawls at them.
 
@@ -22,10 +24,12 @@ import numpy as np
 from ..columns import ARRAYS, Column, ColumnForm
 from ..compiled.traced import TRACED, Symbol, Trace, recording
 from ..expr import Expression
+from ..expr.rows import is_zero
 from .backends import Backend
 from .base import NativeStepper, PlantTerms, timed
 
 Rate = Callable[[list[Column]], Column]  # psi + theta^T phi on the state's columns
+Lower = tuple[tuple[int, Rate], ...]  # (i - 1, theta^T phi_i) of each earlier equation with terms
 
 
 class ChainPlant:
@@ -43,6 +47,7 @@ class ChainPlant:
         theta: Sequence[float] | np.ndarray,
         batch: int = 1,
         input_gain: float = 1.0,
+        rows: Sequence[Sequence[Expression]] = (),
     ) -> None:
         theta = np.asarray(theta, dtype=float)
         if theta.shape[-1:] != (len(phi),) and not (theta.size == 0 and not phi):
@@ -60,8 +65,12 @@ class ChainPlant:
         # each phi_i's coefficient: a number, or a (batch,) column of per-copy values
         self._coefficients = list(theta.T if theta.ndim == 2 else theta)
         self._rates: dict[ColumnForm, Rate] = {}  # psi + theta^T phi in each form (_rate_in)
+        # the earlier equations with a regressor that is not 0: (index i - 1, row), summed as theta^T phi_i
+        self._rows = tuple((i, tuple(row)) for i, row in enumerate(rows) if any(not is_zero(e) for e in row))
+        self._lower_rates: dict[ColumnForm, Lower] = {}
         self._form: ColumnForm = ARRAYS  # the form the state's columns are in (column_io)
         self._g: Rate = self._rate_in(ARRAYS)
+        self._lower: Lower = self._lower_in(ARRAYS)
         self._x: list[Column] = [np.zeros(self.batch)] * self.n
         self._load = 0.0  # the external load d of :meth:`disturb`, held like u
         self.warnings: list[str] = []  # an ODE has nothing to warn about
@@ -87,6 +96,15 @@ class ChainPlant:
             rate = self._rates[form] = form.combination(psi + list(self.phi), coefficients)
         return rate
 
+    def _lower_in(self, form: ColumnForm) -> Lower:
+        """``(i, theta^T phi_i)`` on columns of ``form`` for each earlier equation whose regressor
+        row is not 0 (none for the chain of eq. (1)), made once per form."""
+        lower = self._lower_rates.get(form)
+        if lower is None:
+            lower = self._lower_rates[form] = tuple((i, form.combination(list(row), self._coefficients))
+                                                    for i, row in self._rows)
+        return lower
+
     def uncertainty(self, x: np.ndarray) -> np.ndarray:
         """``psi(x) + theta^T phi(x)``, shape ``(batch,)``."""
         total = self._rate_in(ARRAYS)(list(np.asarray(x, dtype=float).T))
@@ -99,6 +117,9 @@ class ChainPlant:
         dx = np.empty_like(x)
         dx[:, :-1] = x[:, 1:]
         dx[:, -1] = self.input_gain * u + self.uncertainty(x)
+        columns = list(np.asarray(x, dtype=float).T)
+        for i, rate in self._lower_in(ARRAYS):
+            dx[:, i] = dx[:, i] + rate(columns)
         return dx
 
     def reset(self, x0: np.ndarray) -> None:
@@ -136,15 +157,15 @@ class ChainPlant:
         """Observe and step in ``form``, steps of ``h`` (:class:`~.base.ColumnStepping`): the
         state is kept in ``form`` from now on, the same RK4 and terms evaluated in it."""
         x = self.state()
-        self._form, self._g = form, self._rate_in(form)
+        self._form, self._g, self._lower = form, self._rate_in(form), self._lower_in(form)
         self._x = form.columns(x)
         return ChainIO(self, h)
 
     def native_stepper(self, h: float) -> NativeStepper | None:
         """The batch of one as source text for the engine's compiled loop: the same RK4 on the
-        same terms (:class:`ChainNativeForm`); None for a batch, an input gain other than 1 or terms
-        in t (those run in Python)."""
-        native = self.batch == 1 and self.input_gain == 1.0 and not self.timed
+        same terms (:class:`ChainNativeForm`); None for a batch, an input gain other than 1, terms
+        in t or regressors before the last equation (those run in Python)."""
+        native = self.batch == 1 and self.input_gain == 1.0 and not self.timed and not self._rows
         return ChainNativeForm(self, h).stepper() if native else None
 
 
@@ -218,15 +239,16 @@ class ChainIO:
 
 def _advance(plant: ChainPlant, u: Column, h: float, g: Rate) -> None:
     """One RK4 step of eq. (1) from the plant's state with ``u`` held: ``x_n' = b u + d + ...``
-    (the known input gain b, the load d), from the plant's time for terms in t."""
+    (the known input gain b, the load d), from the plant's time for terms in t; the rows before
+    the last with their terms, if any (a strict-feedback plant)."""
     if plant.input_gain != 1.0:
         u = plant.input_gain * u
     u = _loaded(u, plant._load)
     if plant.timed:
-        plant._x = _rk4(plant._x, u, h, g, plant._time)
+        plant._x = _rk4(plant._x, u, h, g, plant._time, plant._lower)
         plant._time += h
     else:
-        plant._x = _rk4(plant._x, u, h, g)
+        plant._x = _rk4(plant._x, u, h, g, None, plant._lower)
 
 
 def _loaded(u: Column, d: float) -> Column:
@@ -234,21 +256,27 @@ def _loaded(u: Column, d: float) -> Column:
     return u + d if d else u
 
 
-def _derivative(s: list[Column], u: Column, g: Rate, t: float | None = None) -> list[Column]:
+def _derivative(s: list[Column], u: Column, g: Rate, t: float | None = None, lower: Lower = ()
+                ) -> list[Column]:
     """The right-hand side of eq. (1) on columns: ``x_i' = x_{i+1}``, ``x_n' = u + g(x)``
-    (``g(x, t)`` for terms in t, given the stage's time ``t``)."""
-    return s[1:] + [u + (g(s) if t is None else g([*s, t]))]
+    (``g(x, t)`` for terms in t, given the stage's time ``t``); with ``lower`` (a strict-feedback
+    plant), ``x_i' = x_{i+1} + theta^T phi_i(x)`` for its rows."""
+    rate = s[1:] + [u + (g(s) if t is None else g([*s, t]))]
+    for i, term in lower:
+        rate[i] = rate[i] + term(s)
+    return rate
 
 
-def _rk4(x: list[Column], u: Column, h: float, g: Rate, t: float | None = None) -> list[Column]:
+def _rk4(x: list[Column], u: Column, h: float, g: Rate, t: float | None = None, lower: Lower = ()
+         ) -> list[Column]:
     """One classical RK4 step of eq. (1) on the state's columns (floats or arrays alike); for terms
     in t, from time ``t`` (stages at t, t + h/2, t + h/2, t + h, as MuJoCo's RK4)."""
     half = 0.5 * h
     mid, end = (None, None) if t is None else (t + half, t + h)
-    k1 = _derivative(x, u, g, t)
-    k2 = _derivative([a + half * b for a, b in zip(x, k1, strict=True)], u, g, mid)
-    k3 = _derivative([a + half * b for a, b in zip(x, k2, strict=True)], u, g, mid)
-    k4 = _derivative([a + h * b for a, b in zip(x, k3, strict=True)], u, g, end)
+    k1 = _derivative(x, u, g, t, lower)
+    k2 = _derivative([a + half * b for a, b in zip(x, k1, strict=True)], u, g, mid, lower)
+    k3 = _derivative([a + half * b for a, b in zip(x, k2, strict=True)], u, g, mid, lower)
+    k4 = _derivative([a + h * b for a, b in zip(x, k3, strict=True)], u, g, end, lower)
     sixth = h / 6.0
     return [a + sixth * (b + 2.0 * (c + d) + e) for a, b, c, d, e in zip(x, k1, k2, k3, k4, strict=True)]
 
@@ -261,13 +289,15 @@ def build(terms: Sequence[PlantTerms], options: Sequence[Any], dt: float) -> Cha
     """One ChainPlant copy per variant (theta per copy when there is more than one)."""
     first = terms[0]
     theta = first.theta if len(terms) == 1 else np.array([t.theta for t in terms])
-    return ChainPlant(first.order, first.psi, first.phi, theta, batch=len(terms), input_gain=first.b)
+    return ChainPlant(first.order, first.psi, first.phi, theta, batch=len(terms), input_gain=first.b,
+                      rows=first.rows)
 
 
 def structure(terms: PlantTerms, options: Any) -> Hashable:
     """Variants sharing a batch share the plant's form and input gain; theta goes per copy."""
-    return (terms.order, None if terms.psi is None else terms.psi.source, tuple(p.source for p in terms.phi),
-            terms.b)
+    chain = (terms.order, None if terms.psi is None else terms.psi.source, tuple(p.source for p in terms.phi),
+             terms.b)
+    return chain + (tuple(tuple(p.source for p in row) for row in terms.rows),) if terms.rows else chain
 
 
 BACKEND = Backend(name="ode", build=build, structure=structure,

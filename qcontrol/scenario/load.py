@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ..controller.law import KIND_ALIASES, LawContext, law_kind
+from ..controller.law import KIND_ALIASES, LawContext, check_plant_class, law_kind
 from ..disturbance import Disturbance, parse_disturbances
 from ..engine import MetricSettings
 from ..errors import KeyNotForKind, OverrideError, QcontrolInputError, brief, shown
@@ -78,6 +78,7 @@ class Scenario:
     base_dir: Path = field(default=Path("."), repr=False, compare=False)  # paths in it are relative to it
     psi_expr: Expression | None = field(default=None, repr=False)
     phi_expr: tuple[Expression, ...] = field(default=(), repr=False)
+    rows_expr: tuple[tuple[Expression, ...], ...] = field(default=(), repr=False)  # phi_1 .. phi_{n-1}
     unset: tuple[str, ...] = ()  # keys removed from the file (--unset) before the overrides
     paper_example: int | None = None  # the paper's example this scenario reproduces, if any
     input_gain: float | None = None  # plant.input_gain as stated (None: not stated, b = 1)
@@ -96,7 +97,8 @@ class Scenario:
     @cached_property
     def terms(self) -> PlantTerms:
         """The right-hand side of eq. (1) as the plants are built from it (made once)."""
-        return PlantTerms(self.order, self.psi_expr, self.phi_expr, self.theta, self.input_gain)
+        return PlantTerms(self.order, self.psi_expr, self.phi_expr, self.theta, self.input_gain,
+                          rows=self.rows_expr)
 
     @cached_property
     def law_context(self) -> LawContext:
@@ -105,7 +107,7 @@ class Scenario:
         sim = self.simulation
         return LawContext(self.source, self.order, c.delta, c.c, self.psi_expr, self.phi_expr, self.theta,
                           sim.dt, sim.period, input_gain=self.terms.b,
-                          quantizer_error=channel_bounds(self.quantizer))
+                          quantizer_error=channel_bounds(self.quantizer), rows=self.rows_expr)
 
     @property
     def psi(self) -> str | None:
@@ -400,7 +402,8 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
         order=terms.order, theta=terms.theta, x0=x0, controller=controller,
         reference=signal, simulation=simulation, backends=MappingProxyType(backends),
         disturbances=disturbances,
-        psi_expr=terms.psi, phi_expr=terms.phi, metrics=metrics, paper_example=meta["paper_example"],
+        psi_expr=terms.psi, phi_expr=terms.phi, rows_expr=terms.rows, metrics=metrics,
+        paper_example=meta["paper_example"],
         input_gain=terms.input_gain, quantizer=quantizer, input_quantizer=input_quantizer,
     )
     _check_terms_at_x0(scenario)
@@ -423,19 +426,60 @@ def _plant_table(root: Table) -> Table:
 def _plant(plant: Table) -> tuple[PlantTerms, tuple[float, ...]]:
     """The terms of eq. (1), compiled, and the initial state."""
     order = plant.integer("order", minimum=2)
-    phi_text = plant.strings("phi", [])
-    v = read_keys(plant, PLANT.keys, {"n": order, "l": len(phi_text)})
+    given = plant.get("phi", [])
+    table_rows = isinstance(given, list) and any(isinstance(row, list) for row in given)
+    rows_text = _regressor_rows(plant, order) if table_rows else ()
+    last = Table(dict(plant.data, phi=list(rows_text[-1])), plant.source, plant.name) if table_rows else plant
+    phi_text = last.strings("phi", [])
+    v = read_keys(last, PLANT.keys, {"n": order, "l": len(phi_text)})
     x_names = [f"x{i + 1}" for i in range(order)]
     where = f"{plant.source}: {plant.name}"
     psi = None if v["psi"] is None else _plant_term(v["psi"], x_names, f"{where}.psi")
-    phi = tuple(_plant_term(p, x_names, f"{where}.phi[{i}]") for i, p in enumerate(v["phi"]))
-    return PlantTerms(order, psi, phi, v["theta"], v["input_gain"]), v["x0"]
+    if not table_rows:
+        phi = tuple(_plant_term(p, x_names, f"{where}.phi[{i}]") for i, p in enumerate(v["phi"]))
+        return PlantTerms(order, psi, phi, v["theta"], v["input_gain"]), v["x0"]
+    earlier = tuple(tuple(_regressor(plant, text, x_names, r, j) for j, text in enumerate(row))
+                    for r, row in enumerate(rows_text[:-1]))
+    last_row = tuple(_plant_term(p, x_names, f"{where}.phi[{order - 1}][{j}]")
+                     for j, p in enumerate(v["phi"]))
+    return PlantTerms(order, psi, last_row, v["theta"], v["input_gain"], rows=earlier), v["x0"]
 
 
 def _plant_term(text: str, x_names: list[str], where: str) -> Expression:
     """A term of eq. (1) over ``x1..xn``, or over ``x1..xn, t`` when it uses time t."""
     term = compile_expression(text, [*x_names, TIME], where)
     return term if TIME in term.used else compile_expression(text, x_names, where)
+
+
+def _regressor_rows(plant: Table, order: int) -> tuple[tuple[str, ...], ...]:
+    """``plant.phi`` given as n rows (row i: the regressors of equation i, every row of the same
+    length l, "0" where absent), as text."""
+    given = plant.get("phi")
+    if len(given) != order or not all(isinstance(row, list) for row in given):
+        raise plant.error("phi", f"has {len(given)} entries, not {order} rows (one list per equation)",
+                          f"give {order} lists of the same length, \"0\" where a term is absent, or one "
+                          "flat list for the last equation")
+    rows = tuple(Table({"row": row}, plant.source, plant.path(f"phi[{r}]")).strings("row")
+                 for r, row in enumerate(given))
+    for r, row in enumerate(rows):
+        if len(row) != len(rows[-1]):
+            raise plant.error(f"phi[{r}]", f"has {len(row)} regressors but the last row has {len(rows[-1])}",
+                              "give every row the same length l, \"0\" where a term is absent")
+    return rows
+
+
+def _regressor(plant: Table, text: str, x_names: list[str], r: int, j: int) -> Expression:
+    """Regressor j of row r (0-based) before the last, compiled; it reads x1 .. x_{r+1} only
+    (lower-triangular: phi_i depends on the first i states)."""
+    where = f"{plant.source}: {plant.path(f'phi[{r}][{j}]')}"
+    allowed = x_names[: r + 1]
+    expression = compile_expression(text, [*x_names, TIME], where)
+    later = sorted(set(expression.used) - set(allowed), key=[*x_names, TIME].index)
+    if later:
+        raise QcontrolInputError(
+            f"{where}: {text!r} reads {later[0]}, which row {r + 1} may not read; row {r + 1} (the "
+            f"regressors of x{r + 1}') may read {', '.join(allowed)} only (a strict-feedback plant)")
+    return compile_expression(text, x_names, where)
 
 
 def _chosen(table: Table, section: Section, sizes: dict[str, int] | None = None
@@ -452,7 +496,8 @@ def _controller(table: Table, terms: PlantTerms, simulation: SimulationConfig,
     kind, delta = v["kind"], quantizer_step(table, v["delta"], quantizer)
     ctx = LawContext(table.source, terms.order, delta, v["c"], terms.psi, terms.phi, terms.theta,
                      simulation.dt, simulation.period, controller=table, input_gain=terms.b,
-                     quantizer_error=channel_bounds(quantizer))
+                     quantizer_error=channel_bounds(quantizer), rows=terms.rows)
+    check_plant_class(kind, ctx, table.path("kind"))
     return ControllerConfig(kind, delta, v["c"], law_kind(kind).parse(merged, ctx))
 
 
@@ -513,8 +558,10 @@ def _backends(plant: Table, terms: PlantTerms, base_dir: Path, simulation: Simul
 
 def _check_terms_at_x0(sc: Scenario) -> None:
     """The plant's terms must be finite at the initial state."""
-    for label, expr in [("plant.psi", sc.psi_expr)] + [(f"plant.phi[{i}]", e) for i,
-                                                       e in enumerate(sc.phi_expr)]:
+    rows = [(f"plant.phi[{r}][{j}]", e) for r, row in enumerate(sc.rows_expr) for j, e in enumerate(row)]
+    last = "plant.phi[{i}]" if not rows else f"plant.phi[{len(sc.rows_expr)}][{{i}}]"
+    for label, expr in [("plant.psi", sc.psi_expr)] + rows + [(last.format(i=i), e) for i,
+                                                              e in enumerate(sc.phi_expr)]:
         if expr is None:
             continue
         with np.errstate(all="ignore"):

@@ -14,6 +14,7 @@ from collections.abc import Hashable, Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
+from ...errors import QcontrolInputError
 from ...schema import Table
 from ..backends import Backend, PlantContext, SceneSource
 from ..base import PlantTerms
@@ -29,6 +30,11 @@ def parse(table: Table, ctx: PlantContext) -> MujocoOptions:
     errors are reported when the scenario loads (the plant reuses the compiled model)."""
     from .mjcf import compiled
 
+    row = ctx.terms.first_nonzero_row
+    if row is not None:
+        raise QcontrolInputError(f"{table.source}: plant.phi[{row - 1}]: row {row} has a regressor, but "
+                                 f"[{table.name}] realises a chain (terms in the last equation only); run "
+                                 "this plant on the ode backend, or give every row before the last as \"0\"")
     options = parse_options(table, ctx.terms, ctx.base_dir)
     compiled(options, ctx.dt)
     return options
