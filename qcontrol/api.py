@@ -8,6 +8,10 @@
 
 The command line is built on these functions, so a run from Python and from ``qcontrol run`` give
 the same summary (apart from ``wall_time_s`` and the ``command`` of the provenance).
+
+Threads: ``run``, ``compare`` and ``sweep`` may be called from several threads of one process at
+once; each gives what it gives alone. MuJoCo's passive callback and warning handler belong to the
+whole process, so MuJoCo runs take turns on them (ODE runs go side by side).
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ import csv
 import io
 import itertools
 import json
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
@@ -34,11 +39,12 @@ from .engine import SIGNALS, ProgressCallback, RunMetrics, Trajectory
 from .engine.signals import column_names
 from .errors import QcontrolInputError
 from .metrics import backend_deviation, run_summary, summary
-from .outputs import check_output_file, clean, prepare_output_dir, write_file, write_text
+from .outputs import check_figure_file, check_output_file, clean, prepare_output_dir, write_file, write_text
 from .plants import SceneSource
 from .scenario import Scenario, parse_scenario
 from .scenario.resolve import scenario_provenance
 from .summary import Summary
+from .sweep.grid import MAX_RUNS
 from .sweep.runs import run_variants_batched
 from .sweep.table import sweep_rows
 
@@ -93,6 +99,7 @@ class Result:
         name, plus ``t``, the summary as JSON and each of the law's diagnostics by its own name)
         or ``.csv`` (one header row, a column per component: ``t, x1, x2, x_meas1, ...``, the
         diagnostics by name). Written atomically."""
+        _check_arguments("save", path=(path, (str, Path), False))
         path = check_output_file(path, "save")
         if path.suffix not in SAVE_FORMATS:
             raise QcontrolInputError(f"{path}: unknown format {path.suffix!r}; save as .npz or .csv")
@@ -114,7 +121,8 @@ class Result:
         ``qcontrol run --plot`` draws) to ``path`` (.png, .pdf or .svg); returns the path."""
         from .plots import fig_run, scenario_units  # matplotlib: imported only when a figure is drawn
 
-        path = check_output_file(path, "plot")
+        _check_arguments("plot", path=(path, (str, Path), False))
+        path = check_figure_file(path, "plot")
         s = self.typed_summary
         notes = [f"{s.scenario} on {s.backend}, {s.duration:g} s, dt = {s.dt:g} s"]
         notes += [f"E({k}) = {v:.4f}" for k, v in s.error_rate.items()]
@@ -282,6 +290,10 @@ def sweep(scenario: Scenario, grid: Mapping[str, Sequence[Any]], *, backend: str
         if not isinstance(key, str) or not listed:
             raise QcontrolInputError(f"sweep: grid[{key!r}] must be a non-empty list of values, "
                                      f"got {values!r}")
+    runs = math.prod(len(values) for values in grid.values())
+    if runs > MAX_RUNS:
+        raise QcontrolInputError(f"sweep: {runs:,} runs is more than the {MAX_RUNS:,} a sweep may make; "
+                                 "split it into several sweeps")
     backend = runnable_backend(scenario, backend)
     points = [dict(zip(grid, combo, strict=True)) for combo in itertools.product(*grid.values())]
     variants = [scenario.with_overrides(point) for point in points]
@@ -321,7 +333,7 @@ def check_video(run: Assembly, path: str | Path, fps: float = 30.0, camera: str 
     from .render.frames import camera_id
 
     camera_id(drawn.model, camera, str(scenario.source))
-    request = check_video_request(path, fps, camera, size)
+    request = check_video_request(path, fps, camera, size, scenario.simulation.duration)
     try:
         import imageio_ffmpeg  # noqa: F401
     except ImportError:

@@ -40,6 +40,12 @@ class QcontrolOutputError(OSError):
     a run: the previous file at that name is intact. The CLI prints it as one line, exit 3."""
 
 
+class QcontrolLawFailure(RuntimeError):
+    """A control law written in Python failed during runs whose results were written anyway (its
+    runs stopped there, their summaries say why): the message is the first failure's one line. The
+    CLI prints it, exit 4."""
+
+
 class Terminated(KeyboardInterrupt):
     """The process was asked to stop (SIGTERM): handled like Ctrl-C (every output path cleans up
     its temporaries, keeps partial data under its partial name), exit status 143."""

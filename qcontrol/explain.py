@@ -44,9 +44,10 @@ def gain_period_lines(s: Summary) -> list[str]:
 
 def divergence_lines(s: Summary, sc: Scenario) -> list[str]:
     """Two lines for a diverged run: when and why it stopped, and what usually helps."""
-    lines = [f"  DIVERGED: stopped at t = {s.diverged_time:g} s of {sc.simulation.duration:g} s: "
+    what = "THE LAW FAILED" if s.law_failure else "DIVERGED"
+    lines = [f"  {what}: stopped at t = {s.diverged_time:g} s of {sc.simulation.duration:g} s: "
              f"{s.divergence_reason}"]
-    if s.divergence_reason.endswith(DOMAIN_ERROR):  # a term's domain, which no step size fixes
+    if s.divergence_reason.endswith(DOMAIN_ERROR) or s.law_failure:  # no step size fixes these
         return lines
     helps = ["a smaller --dt or simulation.control_period"]
     hint = law_kind(sc.controller.kind).divergence_hint

@@ -64,7 +64,7 @@ def run_summary(run: RunRecord, scenario: str, backend: str) -> Summary:
                         and not sensors.get("reading_saturated_fraction")),
         L_z=tuple(float(v) for v in run.L_z), L=float(run.L_z[-1]),
         **bounds, law_diagnostics=law_diagnostics(run.law_diagnostics, values["diagnostics"]),
-        final_state=final, **sensors,
+        final_state=final, **sensors, law_failure=run.law_failure,
     )
 
 

@@ -26,6 +26,7 @@ import math
 import os
 import secrets
 import stat
+import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -39,7 +40,7 @@ MAX_NAME_BYTES = 255  # one path component, as Linux, macOS and Windows file sys
 MAX_PATH_BYTES = 4096
 FIGURE_FORMATS = (".png", ".pdf", ".svg")  # what a figure's suffix may be (matplotlib writes each)
 _LIVE: set[Path] = set()  # temporaries made by this process and not yet moved or removed
-_STAGED: list[AtomicFile] | None = None  # files written inside staged(), moved into place at its end
+_STAGING = threading.local()  # .files: this thread's files written inside staged(), moved at its end
 
 
 def check_name(path: str | Path, option: str) -> Path:
@@ -123,6 +124,29 @@ def prepare_output_dir(path: str | Path, option: str = "--out") -> Path:
     return path
 
 
+@contextmanager
+def output_dir(path: str | Path, option: str = "--out") -> Iterator[Path]:
+    """:func:`prepare_output_dir` for a block that writes into the folder: when the block fails
+    (bad input found only while running, a write error, Ctrl-C) the folders it made are removed
+    again if they hold nothing, so a command that fails leaves nothing behind."""
+    path = Path(path)
+    made = []
+    missing = path
+    while not missing.exists() and missing != missing.parent:
+        made.append(missing)
+        missing = missing.parent
+    folder = prepare_output_dir(path, option)
+    try:
+        yield folder
+    except BaseException:
+        for created in made:  # innermost first
+            try:
+                created.rmdir()
+            except OSError:
+                break
+        raise
+
+
 def check_output_file(path: str | Path, option: str, example: str | None = None,
                       fix: str | None = None) -> Path:
     """Check, without creating anything, that an output file can be written: its name is a
@@ -140,12 +164,12 @@ def check_output_file(path: str | Path, option: str, example: str | None = None,
 
 def check_figure_file(path: str | Path, option: str) -> Path:
     """:func:`check_output_file` for a figure, whose suffix must be one of :data:`FIGURE_FORMATS`."""
-    path = Path(path)
+    path = check_output_file(path, option, "run.png")  # a folder there is named as one first
     if path.suffix.lower() not in FIGURE_FORMATS:
         suffix = path.suffix or "(none)"
         raise QcontrolInputError(f"{option} {shown(path)}: unknown figure format {suffix!r}; "
                                  f"give a file ending in {', '.join(FIGURE_FORMATS)}")
-    return check_output_file(path, option, "run.png")
+    return path
 
 
 def partial_path(path: str | Path) -> Path:
@@ -286,9 +310,10 @@ def _fsync_folder(folder: Path) -> None:
 
 def finish(file: AtomicFile) -> Path:
     """Move a complete file into place now or, inside :func:`staged`, with the others at its end."""
-    if _STAGED is None:
+    files = getattr(_STAGING, "files", None)
+    if files is None:
         return file.commit()
-    _STAGED.append(file)
+    files.append(file)
     return file.path
 
 
@@ -298,16 +323,16 @@ def staged() -> Iterator[None]:
     until the block ends cleanly; then each final name is checked (a regular file or free) and
     only then are all moved into place. On an exception (Ctrl-C included) every one is removed,
     so the folder keeps its previous files, none mixed with new ones. Inside another
-    :func:`staged` block the files join the outer set."""
-    global _STAGED
-    if _STAGED is not None:
+    :func:`staged` block the files join the outer set. The set is the calling thread's: another
+    thread's files are its own."""
+    if getattr(_STAGING, "files", None) is not None:
         yield
         return
     files: list[AtomicFile] = []
-    _STAGED = files
+    _STAGING.files = files
     try:
         yield
-        _STAGED = None
+        _STAGING.files = None
         for file in files:
             kind = path_kind(file.path)
             if kind is not None:
@@ -317,7 +342,7 @@ def staged() -> Iterator[None]:
             files[0].commit()
             files.pop(0)
     finally:
-        _STAGED = None
+        _STAGING.files = None
         for file in files:
             file.discard()
 

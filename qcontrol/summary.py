@@ -39,6 +39,9 @@ class Summary:
     ``max_abs_input_quantization_error`` and ``input_quantized_fraction`` (``[quantizer.input]``:
     the largest ``|q_u(u) - u|`` and the share of control samples at which the applied input
     differed from the command).
+    ``law_failure`` is present only when a law written in Python failed during the run (raised,
+    or returned what its method must not): the one line that says so, also the
+    ``divergence_reason`` of the run it stopped.
     """
 
     scenario: str
@@ -73,6 +76,7 @@ class Summary:
     quantizer_sector: float | None = None
     max_abs_input_quantization_error: float | None = None
     input_quantized_fraction: float | None = None
+    law_failure: str | None = None
 
     def to_json(self) -> dict[str, Any]:
         """``summary.json``'s object: every field in order, lists for tuples, the optional ones
@@ -117,7 +121,8 @@ class Summary:
 
 
 _OPTIONAL = ("bound_constants", "r_below_one", "provenance", "physics_warnings", "reading_saturated_fraction",
-             "quantizer_sector", "max_abs_input_quantization_error", "input_quantized_fraction")
+             "quantizer_sector", "max_abs_input_quantization_error", "input_quantized_fraction",
+             "law_failure")
 _DIAGNOSTIC_PREFIXES = ("max_", "last_")  # a law diagnostic's key: <reduce>_<name>
 
 

@@ -3,6 +3,7 @@ import EX2``, and as fixtures), and nothing may write under the real HOME (the r
 analytics there)."""
 
 import os
+import subprocess
 import tempfile
 from pathlib import Path
 
@@ -76,3 +77,18 @@ def ctrl_c_on_second_chunk(monkeypatch):
         monkeypatch.setattr(runs, "_run_chunk", stop_on_the_second_chunk)
 
     return arm
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 64 KiB tmpfs (root only): a disk that fills up."""
+    if os.geteuid() != 0:
+        pytest.skip("mounting a tmpfs needs root; the injected write errors cover the same paths")
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(disk)],
+                             capture_output=True, text=True, check=False)
+    if mounted.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {mounted.stderr.strip()}")
+    yield disk
+    subprocess.run(["umount", str(disk)], check=False)

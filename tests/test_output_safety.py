@@ -164,21 +164,6 @@ def test_two_runs_at_once_into_one_recording_both_verify(tmp_path):
 # 2. write errors are errors: exit 3, one line, the previous file intact
 
 
-@pytest.fixture
-def small_disk(tmp_path):
-    """A 64 KiB tmpfs (root only)."""
-    if os.geteuid() != 0:
-        pytest.skip("mounting a tmpfs needs root; test_injected_write_errors covers the same paths")
-    disk = tmp_path / "disk"
-    disk.mkdir()
-    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(disk)],
-                             capture_output=True, text=True, check=False)
-    if mounted.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {mounted.stderr.strip()}")
-    yield disk
-    subprocess.run(["umount", str(disk)], check=False)
-
-
 def test_a_full_disk_keeps_the_previous_recording(small_disk, tmp_path):
     old = small_disk / "r.rrd"
     old.write_bytes(b"a previous complete recording" * 500)
@@ -239,9 +224,11 @@ def test_injected_write_errors(tmp_path, capsys, monkeypatch, code, words):
 def test_exit_statuses_are_documented():
     from qcontrol.cli.dispatch import build_parser
 
-    assert "3 an output could not be written" in build_parser().format_help()
+    text = " ".join(build_parser().format_help().split())
+    assert "3 an output could not be written" in text and "4 a control law written in Python failed" in text
+    assert "QCONTROL_DEBUG=1" in text and "143 terminated" in text
     readme = (ROOT / "README.md").read_text()
-    assert "| 3 |" in readme and "| 143 |" in readme
+    assert all(f"| {code} |" in readme for code in (0, 1, 2, 3, 4, 130, 143))
 
 
 # --------------------------------------------------------------------------------------------
@@ -627,3 +614,25 @@ def test_a_missing_scenarios_folder_is_named(tmp_path, capsys):
     assert main(["reproduce", "--scenarios", str(tmp_path / "none"), "--out", str(tmp_path / "r"), "-q"]) == 2
     err = _one_line(capsys, "--scenarios", "does not exist", "example1.toml")
     assert "shipped" not in err
+
+
+@pytest.mark.parametrize("option, name", [("--rrd", "r.rrd"), ("--save", "x.npz"), ("--plot", "x.png")])
+def test_a_disk_with_no_space_at_all_is_exit_3(small_disk, tmp_path, option, name):
+    """Not one byte free (the file's first write fails, rerun's header included): exit 3, one line,
+    the previous file intact."""
+    target = small_disk / name
+    target.write_bytes(b"previous")
+    fd = os.open(small_disk / "ballast", os.O_WRONLY | os.O_CREAT)
+    try:  # fill the disk to its last byte
+        while os.write(fd, b"\0" * 512):
+            pass
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+    proc = _cli("run", str(EX2), *SHORT, option, str(target), cwd=tmp_path)
+    assert proc.returncode == 3, proc.stderr
+    err = proc.stderr.strip()
+    assert len(err.splitlines()) == 1 and "no space left" in err and "Traceback" not in err, err
+    assert target.read_bytes() == b"previous"
+    assert not _temporaries(small_disk)

@@ -6,6 +6,8 @@ Tests that render are skipped, with the reason, on a machine without an offscree
 """
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import mujoco
@@ -101,6 +103,9 @@ def test_frame_rows_sample_simulated_time():
 @pytest.mark.parametrize("args, expected", [
     (["--video", "run.avi"], "give a .mp4 or .gif"),
     (["--video", "run.mp4", "--video-fps", "0"], "--video-fps must be > 0"),
+    (["--video", "run.mp4", "--video-fps", "1e-9"], "must be 1 to 240 frames per simulated second"),
+    (["--video", "run.mp4", "--video-fps", "1e9"], "must be 1 to 240 frames per simulated second"),
+    (["--video", "run.mp4", "--video-fps", "240", "--duration", "200"], "48,001 frames, more than"),
     (["--video", "run.mp4", "--video-camera", "nope"], "no camera of that name"),
 ])
 def test_bad_video_request_exit_2_before_the_run(tmp_path, capsys, args, expected):
@@ -191,3 +196,52 @@ def test_cart_cameras_keep_the_whole_cart_inside_the_picture(camera, low, high):
         for end in (-1, 1):
             point = data.geom_xpos[cart.id] + end * np.array([cart.size[0], 0.0, 0.0])
             assert abs(_across(model, data, cid, point, 4 / 3)) <= 0.9, (camera, x, end)
+
+
+def _run_video(cwd: Path, target: str, *extra: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "qcontrol.cli", "run", str(EX2), "--duration", "0.3", "-q",
+                           "--video", target, "--video-fps", "10", "--video-size", "64x48", *extra],
+                          cwd=cwd, capture_output=True, text=True, timeout=300, check=False)
+
+
+@needs_gl
+def test_a_full_disk_keeps_the_previous_video(small_disk, tmp_path):
+    """The encoder cannot finish the new video: exit 3, one line, the previous video as it was and
+    still playable, no temporary left."""
+    previous = small_disk / "prev.mp4"
+    assert _run_video(tmp_path, str(previous)).returncode == 0
+    before = previous.read_bytes()
+    (small_disk / "ballast").write_bytes(b"\0" * (64 * 1024 - 4096 - len(before)))
+    proc = _run_video(tmp_path, str(previous), "--video-size", "320x240", "--duration", "2")
+    assert proc.returncode == 3, proc.stderr
+    err = proc.stderr.strip()
+    assert len(err.splitlines()) == 1 and "no space left" in err and "nothing was replaced" in err, err
+    assert "wrote" not in proc.stdout
+    assert previous.read_bytes() == before and len(_frames(previous)) == 4
+    assert sorted(p.name for p in small_disk.iterdir()) == ["ballast", "prev.mp4"]
+
+
+@needs_gl
+def test_an_encoder_that_fails_replaces_nothing(tmp_path, monkeypatch, capsys):
+    """ffmpeg refusing its arguments (its exit status) is a write error: exit 3, the file kept."""
+    from qcontrol.render import video
+
+    target = tmp_path / "v.mp4"
+    target.write_bytes(b"a previous video")
+    real = video._encoder_command
+    monkeypatch.setattr(video, "_encoder_command",
+                        lambda *a: [*real(*a)[:-1], "-no-such-option", str(a[0])])
+    assert main(["run", str(EX2), "--duration", "0.2", "-q", "--video", str(target), "--video-fps", "10",
+                 "--video-size", "64x48"]) == 3
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "cannot write the video" in err and "exit status" in err, err
+    assert target.read_bytes() == b"a previous video"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["v.mp4"]
+
+
+@needs_gl
+def test_the_video_folder_is_made_like_saves(tmp_path, capsys):
+    target = tmp_path / "new" / "sub" / "v.gif"
+    assert main(["run", str(EX2), "--duration", "0.2", "-q", "--video", str(target), "--video-fps", "10",
+                 "--video-size", "64x48"]) == 0
+    assert len(_frames(target)) == 3

@@ -17,11 +17,14 @@ from ..progress import ProgressLine
 from ..resources import shipped_scenarios
 from ..scenario import Scenario, load_scenario
 
-EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_WRITE_FAILED = 0, 1, 2, 3
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_WRITE_FAILED, EXIT_LAW_FAILED = 0, 1, 2, 3, 4
 EXIT_INTERRUPTED, EXIT_TERMINATED = 130, 143
-EXIT_STATUS = ("Exit status: 0 ok, 1 diverged or a theory check failed, 2 bad input (checked before the run, "
-               "outputs included), 3 an output could not be written (disk full, I/O error, no permission; "
-               "the previous file is kept), 130 interrupted, 143 terminated (SIGTERM).")
+EXIT_STATUS = ("Exit status: 0 ok, 1 diverged or a theory check failed, 2 bad input (checked before the "
+               "run, outputs included; a --law-module that fails or exits at import too), 3 an output "
+               "could not be written (disk full, I/O error, no permission; the previous file is kept), "
+               "4 a control law written in Python failed during a run (raised, or returned what its "
+               "method must not: one line names the method, the error and the line of its file; "
+               "QCONTROL_DEBUG=1 prints the traceback), 130 interrupted (Ctrl-C), 143 terminated (SIGTERM).")
 
 SET_HELP = ("override a scenario key, e.g. --set controller.kappa_margin=0.1 (repeatable; the value is "
             "read as TOML, otherwise as a string)")

@@ -9,7 +9,7 @@ from pathlib import Path
 from .. import api
 from ..assembly import assemble
 from ..attribution import attribution_lines
-from ..outputs import prepare_output_dir, write_json
+from ..outputs import output_dir, write_json
 from ..progress import ProgressLine
 from .arguments import (
     add_recording_options,
@@ -18,7 +18,7 @@ from .arguments import (
     progress_line,
     scenario_from_args,
 )
-from .printing import format_summary, print_paper_line, print_warnings, status
+from .printing import format_summary, law_failed, print_paper_line, print_warnings, status
 from .rendering import add_rendering_options, check_rendering, write_video
 
 
@@ -72,10 +72,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if result["realism_alone"]:
         print("\n".join(attribution_lines(result["realism_alone"], result)))
     if args.out is not None:
-        out = prepare_output_dir(args.out)
-        write_json(out / "compare.json", result)
+        with output_dir(args.out) as out:
+            write_json(out / "compare.json", result)
         print(f"  wrote {out / 'compare.json'}")
     if args.rrd is not None:
         print(f"  wrote {args.rrd} (open it with: rerun {args.rrd})")
     write_video(args, cmp.mujoco, twin=cmp.ode)
-    return max(status(s) for s in runs)
+    return law_failed(runs) or max(status(s) for s in runs)

@@ -3,8 +3,9 @@
 
 Exit status: 0 success; 1 the run diverged or a theory check failed; 2 bad input (outputs that
 cannot be written included: checked before the run); 3 an output could not be written during or
-after the run (no space left, an I/O error, no permission: the previous file is intact); 130
-interrupted (Ctrl-C); 143 terminated (SIGTERM). Bad input is reported as one line on stderr, never
+after the run (no space left, an I/O error, no permission: the previous file is intact); 4 a law
+written in Python failed during a run (the run stopped there, what was recorded is written);
+130 interrupted (Ctrl-C); 143 terminated (SIGTERM). Bad input is reported as one line on stderr, never
 as a traceback, and every input is checked before any folder or file is made. Each command is one
 module of this package with its parser and its handler; they share the scenario options of
 :mod:`.arguments`.
@@ -23,11 +24,12 @@ from pathlib import Path
 
 from .._version import __version__
 from ..controller.plugins import load_law_module, load_law_plugins
-from ..errors import QcontrolInputError, QcontrolOutputError, Terminated
+from ..errors import QcontrolInputError, QcontrolLawFailure, QcontrolOutputError, Terminated
 from ..provenance import command_line
 from .arguments import (
     EXIT_BAD_INPUT,
     EXIT_INTERRUPTED,
+    EXIT_LAW_FAILED,
     EXIT_STATUS,
     EXIT_TERMINATED,
     EXIT_WRITE_FAILED,
@@ -113,6 +115,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except QcontrolOutputError as exc:
         print(f"qcontrol: error: {exc.strerror or exc}", file=sys.stderr)
         return EXIT_WRITE_FAILED
+    except QcontrolLawFailure as exc:
+        print(f"qcontrol: error: the law failed: {exc}", file=sys.stderr)
+        return EXIT_LAW_FAILED
     except KeyboardInterrupt as exc:
         how = "terminated" if isinstance(exc, Terminated) else "interrupted"
         print(f"\nqcontrol: {how} after {time.perf_counter() - started:.1f} s", file=sys.stderr)

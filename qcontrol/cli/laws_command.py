@@ -12,6 +12,7 @@ from ..law_comparison import compare_laws
 from ..outputs import check_output_dir, check_output_file, prepare_output_dir, write_json
 from ..region import parse_law
 from .arguments import EXIT_FAILED, EXIT_OK, add_scenario_options, backend_names, scenario_from_args
+from .printing import law_failed
 
 
 def add_laws_parser(sub: argparse._SubParsersAction) -> None:
@@ -60,4 +61,5 @@ def cmd_laws(args: argparse.Namespace) -> int:
         print(f"  wrote {out / 'laws.json'} and {cmp.plot(out / 'laws.png')}")
     if args.rrd is not None:
         print(f"  wrote {args.rrd} (open it with: rerun {args.rrd})")
-    return EXIT_FAILED if any(row["diverged"] for row in cmp.table) else EXIT_OK
+    failed = law_failed(r.summary for r in cmp.runs.values())
+    return failed or (EXIT_FAILED if any(row["diverged"] for row in cmp.table) else EXIT_OK)

@@ -4,13 +4,13 @@
 from __future__ import annotations
 
 import sys
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 
 from ..explain import MONITORED_DIAGNOSTICS, divergence_lines, gain_period_lines, paper_line
 from ..metrics import LEMMA2_TOLERANCE
 from ..scenario import Scenario
 from ..summary import Summary
-from .arguments import EXIT_FAILED, EXIT_OK
+from .arguments import EXIT_FAILED, EXIT_LAW_FAILED, EXIT_OK
 
 
 def print_warnings(warnings: Sequence[str], physics: Sequence[str]) -> None:
@@ -110,9 +110,28 @@ def print_paper_line(sc: Scenario) -> None:
         print(told)
 
 
+def law_failed(summaries: Iterable[Summary | Mapping | None]) -> int | None:
+    """When a law written in Python failed in any of the runs: the first failure's line on stderr
+    (and how many runs it stopped) and the exit status 4; else None."""
+    return report_law_failures([f.law_failure for f in (typed(s) for s in summaries if s is not None)
+                                if f.law_failure])
+
+
+def report_law_failures(failures: Sequence[str]) -> int | None:
+    """:func:`law_failed` for the failures' lines themselves."""
+    if not failures:
+        return None
+    runs = f" (it stopped {len(failures)} runs)" if len(failures) > 1 else ""
+    print(f"qcontrol: error: the law failed: {failures[0]}{runs}", file=sys.stderr)
+    return EXIT_LAW_FAILED
+
+
 def status(s: Summary | Mapping) -> int:
-    """The exit status a run's summary gives: 1 when it diverged or broke a Lemma 2 bound, else 0."""
+    """The exit status a run's summary gives: 4 when its law failed, 1 when it diverged or broke a
+    Lemma 2 bound, else 0."""
     f = typed(s)
+    if f.law_failure is not None:
+        return law_failed([f]) or EXIT_LAW_FAILED
     if f.diverged:
         return EXIT_FAILED
     if f.lemma2_applies and not lemma2_holds(f):

@@ -3,7 +3,7 @@ states, written as DIR/region.csv, DIR/region.json (with provenance) and DIR/reg
 
 Exit status: 0 when every run finished (diverged points are results, not failures); 2 for bad
 input (everything is checked before any run, and the output folder is made only when the results
-are written); 130 when interrupted (nothing is written).
+are written); 130 when interrupted, 143 when terminated (SIGTERM) (nothing is written either way).
 """
 
 from __future__ import annotations
@@ -11,15 +11,16 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..errors import QcontrolInputError
+from ..errors import QcontrolInputError, Terminated
 from ..outputs import check_output_dir, check_output_file
 from ..progress import ProgressLine
 from ..provenance import command_line
-from ..region import BOX, default_laws, measure_region, parse_grid, parse_law, write_region
+from ..region import BOX, check_region_size, default_laws, measure_region, parse_grid, parse_law, write_region
 from ..scenario import load_scenario
 from ..scenario.resolve import scenario_provenance
-from ..sweep.runs import SweepInterrupted
+from ..sweep.runs import DASK_CONNECT_TIMEOUT, SweepInterrupted
 from .arguments import EXIT_OK, add_scenario_options, backend_names, options_named, timing_overrides
+from .printing import report_law_failures
 
 
 def add_region_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -32,7 +33,7 @@ def add_region_parser(subparsers: argparse._SubParsersAction) -> None:
         "diverged (and when) or Lemma 2 violated, with the largest K T of the run. Writes DIR/region.csv "
         "(one row per run), DIR/region.json (counts per law, the points failing in the box |x_i| <= "
         f"{BOX:g}, the largest working scale per direction, provenance) and DIR/region.png (a map per law). "
-        "Exit status: 0 ok, 2 bad input, 130 interrupted.",
+        "Exit status: 0 ok, 2 bad input, 3 a write error, 130 interrupted, 143 terminated.",
     )
     add_scenario_options(p, scenario_help="scenario file (TOML) or a shipped scenario's name",
                          set_help="a fixed override for every run, e.g. simulation.control_period=0.005",
@@ -49,7 +50,8 @@ def add_region_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="plant backend (default ode: batched; mujoco on request)")
     p.add_argument("--workers", type=int, default=1, metavar="N", help="local worker processes (default 1)")
     p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="send the runs to a running Dask scheduler (needs qcontrol[cluster])")
+                   help="send the runs to a running Dask scheduler (needs qcontrol[cluster]); one that "
+                   f"does not complete Dask's handshake within {DASK_CONNECT_TIMEOUT:g} s is refused")
     p.add_argument("--out", type=Path, default=Path("region"), metavar="DIR",
                    help="output folder (default ./region)")
     p.set_defaults(command_line=None)
@@ -68,12 +70,13 @@ def cmd_region(args: argparse.Namespace) -> int:
         base = load_scenario(args.scenario, overrides, args.unset)
     grid = parse_grid(base, args.axes, args.box, args.resolution)
     laws = [parse_law(text) for text in args.laws] or default_laws(base)
+    check_region_size(grid, len(laws))
     progress = ProgressLine("region", not args.quiet, "runs")
     try:
         region = measure_region(base.source, grid, laws, args.backend, overrides, args.unset, args.workers,
                                 args.scheduler, progress)
-    except SweepInterrupted:
-        raise KeyboardInterrupt from None
+    except SweepInterrupted as exc:
+        raise (Terminated if exc.terminated else KeyboardInterrupt)() from None
     region.settings = {"fixed_overrides": overrides, "unset": list(args.unset)}
     write_region(region, args.out, scenario_provenance(base, args.command_line or command_line()))
     for law in region.laws:
@@ -84,4 +87,4 @@ def cmd_region(args: argparse.Namespace) -> int:
               f"{s['lemma2']} Lemma 2 violated of {s['points']}); max K T {kt}")
     print(f"  wrote {args.out / 'region.csv'}, {args.out / 'region.json'} and {args.out / 'region.png'} "
           f"({region.wall_time_s:.1f} s)")
-    return EXIT_OK
+    return report_law_failures([p.law_failure for p in region.points if p.law_failure]) or EXIT_OK

@@ -13,6 +13,7 @@ from ..assembly import Assembly
 from ..errors import QcontrolInputError
 from ..progress import ProgressLine
 from ..render import DEFAULT_FPS
+from ..render.video import FPS_RANGE, MAX_FRAMES
 
 
 def _video_size(text: str) -> tuple[int, int]:
@@ -33,7 +34,8 @@ def add_rendering_options(p: argparse.ArgumentParser) -> None:
                    help="render the run as MuJoCo draws it to FILE.mp4 or FILE.gif, headless (EGL or "
                    "OSMesa), after the run: about 1-2 s per simulated second at 30 fps on a CPU")
     p.add_argument("--video-fps", type=float, default=DEFAULT_FPS, metavar="N",
-                   help=f"video frames per second of simulated time (default {DEFAULT_FPS:g})")
+                   help=f"video frames per second of simulated time, {FPS_RANGE[0]:g} to {FPS_RANGE[1]:g} "
+                   f"(default {DEFAULT_FPS:g}); a video has at most {MAX_FRAMES:,} frames")
     p.add_argument("--video-size", type=_video_size, metavar="WxH",
                    help="video frame size in pixels (default 640x480 for .mp4, 400x300 for .gif)")
     p.add_argument("--video-camera", metavar="NAME",

@@ -9,7 +9,7 @@ from pathlib import Path
 from .. import api
 from ..assembly import assemble
 from ..errors import QcontrolInputError
-from ..outputs import prepare_output_dir, write_json
+from ..outputs import output_dir, write_json
 from .arguments import (
     add_recording_options,
     add_scenario_options,
@@ -64,8 +64,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     print_paper_line(sc)
     print_warnings(s.warnings, s.physics_warnings or ())
     if args.out is not None:
-        out = prepare_output_dir(args.out)
-        write_json(out / "summary.json", result.summary)
+        with output_dir(args.out) as out:
+            write_json(out / "summary.json", result.summary)
         print(f"  wrote {out / 'summary.json'}")
     if args.save is not None:
         print(f"  wrote {result.save(args.save)}")

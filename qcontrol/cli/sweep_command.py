@@ -28,9 +28,10 @@ from ..provenance import command_line
 from ..scenario import Scenario, load_scenario
 from ..scenario.resolve import scenario_provenance
 from ..sweep.grid import check_size, grid_points, parse_grid
-from ..sweep.runs import SweepInterrupted, plan, sweep_summaries
+from ..sweep.runs import DASK_CONNECT_TIMEOUT, SweepInterrupted, plan, sweep_summaries
 from ..sweep.table import csv_text, metric_columns, sweep_record, sweep_rows
 from .arguments import EXIT_OK, add_scenario_options, backend_names, options_named
+from .printing import law_failed
 
 OUTPUTS = ("sweep.csv", "sweep.json", "sweep.png")
 
@@ -66,7 +67,8 @@ def add_sweep_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="plant backend (default: the scenario's; --backend ode runs batched and is faster)")
     p.add_argument("--workers", type=int, default=1, metavar="N", help="local worker processes (default 1)")
     p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="send the runs to a running Dask scheduler (needs qcontrol[cluster])")
+                   help="send the runs to a running Dask scheduler (needs qcontrol[cluster]); one that "
+                   f"does not complete Dask's handshake within {DASK_CONNECT_TIMEOUT:g} s is refused")
     p.add_argument("--out", type=Path, default=Path("sweep"), metavar="DIR",
                    help="output folder (default: ./sweep)")
     p.set_defaults(command_line=None)  # the command line's main() names the command it runs
@@ -138,4 +140,4 @@ def cmd_sweep(args: argparse.Namespace) -> int:
               f"({out / OUTPUTS[0]} and the others are unchanged)")
         raise interrupted
     print(f"  wrote {csv_path}, {json_path} and {png_path}")
-    return EXIT_OK
+    return law_failed(finished) or EXIT_OK

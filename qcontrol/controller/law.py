@@ -267,6 +267,10 @@ def check_kind_name(name: object, what: str) -> str:
 def add_kind(kind: LawKind, *, replace: bool = False) -> None:
     """Add a controller kind (only :func:`qcontrol.register_law` calls this); its name must be
     new, unless ``replace`` is true and the kind it replaces is not built in."""
+    if kind.name in KIND_ALIASES:
+        raise QcontrolInputError(f"controller kind {kind.name!r} is a built-in name (of kind "
+                                 f"{KIND_ALIASES[kind.name]!r}) and cannot be registered; choose another "
+                                 "name")
     taken = LAW_KINDS.get(kind.name)
     if taken is not None and kind.name in BUILT_IN_KINDS:
         raise QcontrolInputError(f"controller kind {kind.name!r} is built in and cannot be replaced; "

@@ -48,6 +48,11 @@ def load_law_module(path: str | Path, option: str = "--law-module") -> str:
     except QcontrolInputError as exc:
         del sys.modules[name]
         raise QcontrolInputError(f"{option} {path}: {exc}") from None
+    except SystemExit as exc:  # sys.exit() at import: nothing was registered, and nothing is run
+        del sys.modules[name]
+        raise QcontrolInputError(f"{option} {path}: the file called sys.exit({exc.code!r}) while it was "
+                                 f"imported{_line_of(exc, file)}; a law module only registers laws: remove "
+                                 "the call") from None
     except Exception as exc:  # noqa: BLE001 -- any failure of the user's file is reported in one line
         del sys.modules[name]
         raise QcontrolInputError(f"{option} {path}: importing it failed ({type(exc).__name__}: {exc}"

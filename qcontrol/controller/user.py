@@ -19,12 +19,14 @@ of the scenario's ``c`` and ``delta``, as for the built-in laws.
 
 The adapter serves every form the engine drives a law in (:class:`~.law.AnyColumnForm`): it calls
 each copy's law in turn with fresh ``(n,)`` arrays made from the reading, and gives ``u`` and the
-state back in the reading's form.
+state back in the reading's form. A law that raises, or returns what its method must not, at any
+call stops its copy like a divergence, with one line saying why (:mod:`.user_failure`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass
 from types import MappingProxyType
@@ -39,6 +41,7 @@ from ..schema import Table
 from .backstepping import Backstepping, Columns
 from .law import LawContext
 from .user_diagnostics import declared_diagnostics
+from .user_failure import describe, describe_call, returned
 
 
 @runtime_checkable
@@ -117,9 +120,16 @@ class UserLaw(Backstepping):
         self.copies = len(self.laws) if len(self.laws) > 1 else None
         self.stepped = all(advances_itself(law) for law in self.laws)
         self.diagnostics = declared_diagnostics(self.laws, kind)  # a law's own, if it declares them
+        self.failures: dict[int, tuple[float, str, bool]] = {}  # copy -> (t, the line, in control())
 
     def initial_state(self, batch: int) -> np.ndarray:
-        rows = [self._checked_array(law.initial_state(), "initial_state()") for law in self.laws]
+        try:
+            rows = [self._checked_array(law.initial_state(), "initial_state()") for law in self.laws]
+        except QcontrolInputError:
+            raise
+        except Exception as exc:
+            line = describe(self.kind, "initial_state()", exc, 0.0, self.laws[0].initial_state)
+            raise QcontrolInputError(f"{line}; fix the law") from None
         return np.array(rows if len(rows) == batch else rows * batch).reshape(batch, self.state_size)
 
     def constants(self) -> dict[str, Any]:
@@ -134,9 +144,16 @@ class UserLaw(Backstepping):
         yd_row = np.array(yd, dtype=float)
         x_q, form = reading.values, reading.form
         states = form.array(state, len(x_q))
-        laws = self.copies_laws(len(x_q))
-        u = [self._number(laws[b].control(t, x_q[b].copy(), yd_row.copy(), states[b].copy()))
-             for b in range(len(x_q))]
+        laws, failures, u = self.copies_laws(len(x_q)), self.failures, []
+        for b in range(len(x_q)):
+            try:
+                u.append(0.0 if failures and b in failures else
+                         self._number(laws[b].control(t, x_q[b].copy(), yd_row.copy(), states[b].copy())))
+            except QcontrolInputError:
+                raise
+            except Exception as exc:  # the user's code failed: this copy stops here (see .user_failure)
+                failures[b] = (t, describe(self.kind, "control()", exc, t, laws[b].control), True)
+                u.append(0.0)  # no input: the engine stops the copy at this row
         return _Sample(form.column(u), t, x_q, yd_row)
 
     def copies_laws(self, batch: int) -> list[Law]:
@@ -144,7 +161,22 @@ class UserLaw(Backstepping):
         return self.laws if len(self.laws) == batch else self.laws * batch
 
     def step_state(self, law: Law, sample: _Sample, x_q: np.ndarray, state: np.ndarray,
-                   h: float) -> np.ndarray:
+                   h: float, copy: int = 0) -> np.ndarray:
+        """One copy's state one step ``h`` on (NaN once its law failed: see :mod:`.user_failure`)."""
+        if self.failures and copy in self.failures:
+            return np.full(self.state_size, math.nan)
+        try:
+            return self._step_state(law, sample, x_q, state, h)
+        except QcontrolInputError:
+            raise
+        except Exception as exc:  # the user's code failed: this copy stops here (see .user_failure)
+            method = "advance()" if self.stepped else "state_rate()"
+            function = law.advance if self.stepped else law.state_rate  # type: ignore[union-attr]
+            self.failures[copy] = (sample.t, describe(self.kind, method, exc, sample.t, function), False)
+            return np.full(self.state_size, math.nan)
+
+    def _step_state(self, law: Law, sample: _Sample, x_q: np.ndarray, state: np.ndarray,
+                    h: float) -> np.ndarray:
         """One copy's state one step ``h`` on: its own ``advance``, else one classical RK4 step of
         its ``state_rate`` (``s + h/6 (k1 + 2 (k2 + k3) + k4)``), with the sample held."""
         t, yd = sample.t, sample.yd
@@ -161,10 +193,15 @@ class UserLaw(Backstepping):
         return QcontrolInputError(f"controller kind {self.kind!r}: {field} {problem}; fix the law")
 
     def _number(self, value: object) -> float:
-        """``control()``'s u as a float, checked at the first call: a real, finite number (a
-        numpy scalar or a 0-d array too)."""
+        """``control()``'s u as a float, checked at every call: a real number (a numpy scalar or a
+        0-d array too); at the first call also finite, and a refusal there is bad input."""
         if "control()" in self._checked:
-            return float(value)
+            if isinstance(value, float):
+                return float(value)
+            if isinstance(value, bool) or not isinstance(value, int | np.number | np.ndarray) \
+                    or np.ndim(value) != 0 or not np.isrealobj(value):
+                raise returned(value, "a real number u")
+            return float(value)  # type: ignore[arg-type]
         if isinstance(value, bool) or not isinstance(value, int | float | np.number | np.ndarray) \
                 or np.ndim(value) != 0 or not np.isrealobj(value):
             raise self._refuse("control()", f"must return a real number u, got {type(value).__name__} "
@@ -176,9 +213,17 @@ class UserLaw(Backstepping):
 
     def _checked_array(self, value: object, field: str) -> np.ndarray:
         """An ``(m,)`` array of finite real numbers from ``initial_state()``, ``state_rate()`` or
-        ``advance()``, checked at the method's first call (later calls: only made an array)."""
+        ``advance()``, checked at the method's first call (a refusal there is bad input); at later
+        calls an array of m real numbers (else a failure of the law)."""
         if field in self._checked:
-            return np.asarray(value, dtype=float).reshape(self.state_size)
+            if isinstance(value, np.ndarray) and value.dtype.kind in "iuf" and value.size == self.state_size \
+                    and value.ndim <= 1:
+                return np.asarray(value, dtype=float).reshape(self.state_size)
+            array = np.asarray(value) if isinstance(value, list | tuple | float | int | np.number) else None
+            if isinstance(value, bool) or array is None or array.dtype.kind not in "iuf" or array.ndim > 1 \
+                    or array.size != self.state_size:
+                raise returned(value, f"an array of {self.state_size} real numbers")
+            return array.astype(float).reshape(self.state_size)
         arrays = np.ndarray | np.number | list | tuple | float
         array = np.asarray(value) if isinstance(value, arrays) else None
         if array is None or array.dtype.kind not in "iuf":
@@ -215,7 +260,7 @@ class StateUpdate:
             return state
         s = self.form.array(state, len(sample.x_q))
         laws = law.copies_laws(len(s))
-        s = np.array([law.step_state(laws[b], sample, sample.x_q[b], s[b], h) for b in range(len(s))])
+        s = np.array([law.step_state(laws[b], sample, sample.x_q[b], s[b], h, b) for b in range(len(s))])
         return tuple(self.form.columns(s))
 
 
@@ -305,6 +350,9 @@ def _call(factory: LawFactory, settings: UserSettings, ctx: LawContext) -> Law:
             f"{ctx.source}: controller: the law's factory refused the table ({type(exc).__name__}: {exc}); "
             "fix the [controller] keys"
         ) from None
+    except Exception as exc:  # the user's code failed: one line naming it (see .user_failure)
+        raise QcontrolInputError(f"{ctx.source}: controller: the law's factory failed "
+                                 f"({describe_call(exc, factory)}); fix the factory") from None
     _state_size(law)
     return law
 

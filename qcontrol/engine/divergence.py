@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -17,7 +17,12 @@ class Divergence:
     ``|x_i|`` exceeds ``state_bound``: the copy keeps the rows up to and including that one."""
 
     def __init__(self, batch: int, rows: int, dt: float, state_bound: float,
-                 adaptive_name: str = "adaptive state", terms: Sequence[tuple[str, Expression]] = ()) -> None:
+                 adaptive_name: str = "adaptive state", terms: Sequence[tuple[str, Expression]] = (),
+                 law_failures: Mapping[int, tuple[float, str, bool]] | None = None) -> None:
+        # a law's failures as it records them (copy -> (t, the line, whether control() failed)):
+        # the copy stops at that row, the line its reason (see controller/user_failure.py)
+        self.law_failures = law_failures if law_failures is not None else {}
+        self.law_failed = [False] * batch
         self.terms = tuple(terms)  # the plant's expressions by name, to explain a NaN (see _domain_error)
         self.before: np.ndarray | None = None  # the last row of the rows tested before, (batch, n)
         self.dt = dt
@@ -36,14 +41,34 @@ class Divergence:
         x, adaptive = rows["x"], rows["adaptive"]  # (rows, batch, n), (rows, batch, m)
         bad_state = ~np.isfinite(x).all(axis=2) | ~np.isfinite(adaptive).all(axis=2)
         bad = (bad_state | (np.abs(x) > self.state_bound).any(axis=2)) & self.alive
+        failed = self._law_failed(first, stop, bad) if self.law_failures else None
         for b in np.flatnonzero(bad.any(axis=0)):
             row = int(np.argmax(bad[:, b]))
             self.kept[b] = first + row + 1
             self.times[b] = (first + row) * self.dt
             before = x[row - 1, b] if row > 0 else None if self.before is None else self.before[b]
-            self.reasons[b] = self._reason(x[row, b], adaptive[row, b], before)
+            if failed is not None and b in failed and failed[b] <= first + row:
+                self.reasons[b], self.law_failed[b] = self.law_failures[b][1], True
+            else:
+                self.reasons[b] = self._reason(x[row, b], adaptive[row, b], before)
             self.alive[b] = False
         self.before = np.array(x[-1])
+
+    def _law_failed(self, first: int, stop: int, bad: np.ndarray) -> dict[int, int]:
+        """The row at which each running copy's law failed, among rows before ``stop``; a failure in
+        ``control()`` marks its row in ``bad`` (its u is NaN), one in the state's update shows as
+        the NaN state of the next row. A law failing at the very row where the state had already
+        gone bad (fed NaN) is not the reason."""
+        rows = {}
+        for b, (t, _, in_control) in self.law_failures.items():
+            row = int(round(t / self.dt)) + (0 if in_control else 1)
+            if row < stop and self.alive[b]:
+                natural = bool(bad[row - first, b]) if row >= first else False
+                if in_control and not natural and row >= first:
+                    bad[row - first, b] = True
+                if not natural or not in_control:
+                    rows[b] = row
+        return rows
 
     def _reason(self, x: np.ndarray, adaptive: np.ndarray, before: np.ndarray | None = None) -> str:
         """Which value stopped the copy, e.g. ``x2 = 1.2e+06 left the bound |x_i| <= 1e+06``."""

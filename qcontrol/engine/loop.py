@@ -78,7 +78,7 @@ class ClosedLoop:
         n, batch = plant.n, plant.batch
         self.plant, self.law, self.grid, self.x0 = plant, law, grid, spec.x0
         self.divergence = Divergence(batch, grid.rows, grid.dt, spec.state_bound, law.state_name,
-                                     spec.terms)
+                                     spec.terms, getattr(law, "failures", None))  # a user law's, if any
         self.reference = ReferenceRows(spec.reference, n, grid, whole=spec.record == "full")
         actuator, limited = actuator_of(plant)  # without an actuator, u is applied as commanded
         context = SignalContext(law.coordinates, spec.separation, actuator, spec.velocity_source, limited,

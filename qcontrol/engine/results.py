@@ -38,6 +38,7 @@ class RunRecord:
     diverged: bool = False
     diverged_time: float | None = None
     divergence_reason: str = ""
+    law_failure: str | None = None  # a user law's failure that stopped the run (also its divergence_reason)
     wall_time_s: float = 0.0
     metrics: MetricSettings = field(default_factory=MetricSettings)  # the error rate's omegas and samples
     bound_names: tuple[str, ...] = ()  # the terms whose separation (37)-(43) was checked

@@ -28,7 +28,9 @@ leaves its temporary file (readable up to its last chunk but one at least).
 
 from __future__ import annotations
 
+import errno
 import json
+import os
 import re
 import warnings
 from collections.abc import Mapping, Sequence
@@ -40,7 +42,7 @@ import numpy as np
 
 from ..engine import Observer, Trajectory
 from ..errors import QcontrolInputError
-from ..outputs import clean
+from ..outputs import clean, output_error
 from .camera import TRAVEL_MARGIN, Camera, fixed_camera
 from .layout import default_blueprint
 from .rrd_file import RrdFile, quiet_rerun_logging
@@ -139,7 +141,14 @@ class Recording:
                 )
         if not sinks:  # nowhere to write: stay inert rather than buffer the run in memory
             return
-        stream.set_sinks(*sinks)
+        try:
+            stream.set_sinks(*sinks)  # writes the file's header: a disk with no space left fails here
+        except RuntimeError as exc:
+            if self._file is None:
+                raise
+            self._file.discard()
+            code = errno.ENOSPC if "No space left" in str(exc) else errno.EIO
+            raise output_error(self.path, OSError(code, os.strerror(code))) from None
         stream.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         self._stream = stream
 

@@ -27,6 +27,7 @@ from ..errors import QcontrolInputError
 from ..metrics import LEMMA2_TOLERANCE
 from ..scenario import Scenario, load_scenario
 from ..summary import Summary
+from ..sweep.grid import MAX_RUNS
 from ..sweep.runs import CHUNK, RunsDone, plan, run_batch, sweep_summaries
 
 if TYPE_CHECKING:
@@ -126,17 +127,40 @@ def parse_grid(sc: Scenario, axes: str, box: str, resolution: int) -> RegionGrid
         bounds = [float(v) for v in box.split(",")]
     except ValueError:
         bounds = []
+    if len(bounds) == 1 and not bounds[0] > 0:
+        raise QcontrolInputError(f"--box {box!r}: a half-width must be > 0 (the grid is [-H, H]); "
+                                 "e.g. --box 10, or give LO,HI")
     if len(bounds) == 1:
-        bounds = [-abs(bounds[0]), abs(bounds[0])] * 2
+        bounds = [-bounds[0], bounds[0]] * 2
     elif len(bounds) == 2:
         bounds = bounds * 2
     if len(bounds) != 4 or not all(math.isfinite(v) for v in bounds) or not (
             bounds[0] < bounds[1] and bounds[2] < bounds[3]):
         raise QcontrolInputError(f"--box {box!r}: give a half-width (10), LO,HI, or LO1,HI1,LO2,HI2 "
                                  "with LO < HI")
-    if resolution < 2:
-        raise QcontrolInputError(f"--resolution {resolution}: need at least 2 points per axis")
-    return RegionGrid(picked, (bounds[0], bounds[2]), (bounds[1], bounds[3]), resolution)  # type: ignore[arg-type]
+    bound = sc.simulation.state_bound
+    if not all(abs(v) <= bound for v in bounds):
+        raise QcontrolInputError(f"--box {box!r}: the grid's bounds must be within the divergence bound "
+                                 f"simulation.state_bound = {bound:g} (a start further out has diverged "
+                                 "already); e.g. --box 10")
+    if isinstance(resolution, bool) or not isinstance(resolution, int) or resolution < 2:
+        raise QcontrolInputError(f"--resolution {resolution!r}: need at least 2 points per axis")
+    grid = RegionGrid(picked, (bounds[0], bounds[2]), (bounds[1], bounds[3]), resolution)  # type: ignore[arg-type]
+    check_region_size(grid, 1)
+    return grid
+
+
+def check_region_size(grid: RegionGrid, laws: int) -> int:
+    """The number of runs (every start for every law), refused as one line over the sweep's cap
+    :data:`~qcontrol.sweep.grid.MAX_RUNS`, before any is made."""
+    runs = grid.resolution ** 2 * max(1, laws)
+    if runs > MAX_RUNS:
+        largest, side = math.isqrt(MAX_RUNS // max(1, laws)), grid.resolution
+        raise QcontrolInputError(
+            f"--resolution {side}: {side} x {side} starts for {max(1, laws)} "
+            f"law(s) is {runs:,} runs, more than the {MAX_RUNS:,} a region (like a sweep) may make; "
+            f"give --resolution {largest} or less")
+    return runs
 
 
 def classify(s: Summary) -> str:
@@ -161,6 +185,7 @@ class RegionPoint:
     lemma2_max_ratio: float
     max_gain_period: float | None
     max_abs_u: float
+    law_failure: str | None = None  # the line of a law written in Python that failed (and stopped the run)
 
 
 @dataclass
@@ -332,6 +357,10 @@ def measure_region(scenario: str | Path, grid: RegionGrid, laws: Sequence[LawSpe
         raise QcontrolInputError(f"--law: a law is given twice ({', '.join(labels)}); give each once")
     if workers < 1:
         raise QcontrolInputError(f"--workers {workers}: must be >= 1")
+    if not isinstance(grid, RegionGrid):
+        raise QcontrolInputError(f"measure_region: grid must be a RegionGrid (from parse_grid), got "
+                                 f"{type(grid).__name__}")
+    check_region_size(grid, len(laws))
     runs, sets = region_sets(grid, laws, base.x0, overrides)
     started = time.perf_counter()
     if workers == 1 and scheduler is None:
@@ -342,7 +371,7 @@ def measure_region(scenario: str | Path, grid: RegionGrid, laws: Sequence[LawSpe
         chunks = plan(base.source, sets, backend, unset)
         summaries = sweep_summaries(base.source, sets, backend, workers, scheduler, progress, chunks, unset)
     points = [RegionPoint(law.label, x, classify(s), s.diverged_time, s.lemma2_max_ratio,
-                          s.law_diagnostics.get("max_gain_period"), s.max_abs_u)
+                          s.law_diagnostics.get("max_gain_period"), s.max_abs_u, s.law_failure)
               for (law, x), s in zip(runs, summaries, strict=True)]
     return Region(base, grid, list(laws), backend, points, time.perf_counter() - started)
 
@@ -369,11 +398,10 @@ def csv_text(region: Region) -> str:
 def write_region(region: Region, out: Path, provenance: dict) -> None:
     """region.csv, region.json and region.png in ``out`` (made now), put in place together once all
     three are complete (:func:`qcontrol.outputs.staged`): the folder never mixes two regions."""
-    from ..outputs import prepare_output_dir, staged, write_json, write_text
+    from ..outputs import output_dir, staged, write_json, write_text
     from ..plots.region import fig_region  # matplotlib: imported only when a figure is drawn
 
-    out = prepare_output_dir(out)
-    with staged():
+    with output_dir(out) as out, staged():
         write_text(out / "region.csv", csv_text(region))
         write_json(out / "region.json", region.record(provenance))
         fig_region([region.maps()], OUTCOMES, out / "region.png", region.title())

@@ -5,26 +5,39 @@ imageio-ffmpeg is a small wrapper around a static ffmpeg binary in its wheel (no
 download at run time); frames are piped to it as raw RGB. A GIF gets its own 256-colour palette
 (ffmpeg's palettegen/paletteuse), which keeps the README's animation small and sharp.
 
-The video is written under a temporary name and moved into place when complete: an interrupted
-render leaves nothing under the final name.
+The video is an output like the others (:mod:`qcontrol.outputs`): written under a temporary name
+of its own, checked complete (the encoder's exit status and its errors, then the container read
+back and its frames counted) and only then moved over the final name. An encoder that fails (a
+full disk among others) is a :class:`~qcontrol.errors.QcontrolOutputError` naming the file and
+the cause; an interrupted render leaves nothing under the final name, and a previous video there
+is never touched. The frame rate and the frame count are bounded before the run
+(:data:`FPS_RANGE`, :data:`MAX_FRAMES`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Generator
+import errno
+import os
+import subprocess
+import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass
+from fractions import Fraction
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 
 from ..engine import Trajectory
-from ..errors import QcontrolInputError
-from ..outputs import atomic_path, check_output_file
+from ..errors import QcontrolInputError, QcontrolOutputError, shown
+from ..outputs import atomic_path, check_output_file, output_dir, output_error
 from .frames import DEFAULT_CAMERA, DEFAULT_CAMERA_NAME, FrameRenderer, Instant, camera_id
 
 DEFAULT_FPS = 30.0
 VIDEO_FORMATS = (".mp4", ".gif")
 SIZES = {".mp4": (640, 480), ".gif": (400, 300)}  # a GIF is for a web page: smaller
+FPS_RANGE = (1.0, 240.0)  # frames per second of simulated time a video may ask for
+MAX_FRAMES = 36_000  # 20 minutes of simulated time at 30 fps: about 10-20 hours of rendering on a CPU
 
 
 @dataclass(frozen=True)
@@ -52,15 +65,30 @@ def parse_size(text: str) -> tuple[int, int]:
     return width, height
 
 
+def frame_count(duration: float, fps: float) -> int:
+    """How many frames a run of ``duration`` simulated seconds gives at ``fps`` (:func:`frame_rows`)."""
+    return int(np.floor(duration * fps + 1e-9)) + 1
+
+
 def check_video_request(path: str | Path, fps: float, camera: str | None = None,
-                        size: tuple[int, int] | None = None) -> VideoRequest:
+                        size: tuple[int, int] | None = None, duration: float | None = None) -> VideoRequest:
     """One line (a :class:`QcontrolInputError`) for a video that cannot be written, before the run:
-    its format, its folder, the frame rate."""
+    its format, its folder, the frame rate (within :data:`FPS_RANGE`) and, for a run of
+    ``duration`` seconds, the frame count (at most :data:`MAX_FRAMES`)."""
     path = check_output_file(path, "--video")
     if path.suffix.lower() not in VIDEO_FORMATS:
-        raise QcontrolInputError(f"--video {path}: unknown format {path.suffix!r}; give a .mp4 or .gif file")
-    if not (np.isfinite(fps) and fps > 0):
+        raise QcontrolInputError(f"--video {shown(path)}: unknown format {path.suffix!r}; "
+                                 "give a .mp4 or .gif file")
+    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not np.isfinite(fps) or fps <= 0:
         raise QcontrolInputError(f"--video-fps must be > 0, got {fps!r}")
+    low, high = FPS_RANGE
+    if not low <= fps <= high:
+        raise QcontrolInputError(f"--video-fps {fps!r}: must be {low:g} to {high:g} frames per simulated "
+                                 f"second; e.g. --video-fps {DEFAULT_FPS:g}")
+    if duration is not None and frame_count(duration, fps) > MAX_FRAMES:
+        raise QcontrolInputError(
+            f"--video: {duration:g} s at {fps:g} fps is {frame_count(duration, fps):,} frames, more than the "
+            f"{MAX_FRAMES:,} a video may have; lower --video-fps or --duration")
     return VideoRequest(path, float(fps), camera, size)
 
 
@@ -68,7 +96,7 @@ def frame_rows(traj: Trajectory, fps: float) -> np.ndarray:
     """The rows shown: the one at or just before each instant i / fps of simulated time, up to
     the run's last row (a diverged run's video ends where it stopped)."""
     dt = float(traj.t[1] - traj.t[0]) if len(traj.t) > 1 else 1.0
-    count = int(np.floor(traj.t[-1] * fps + 1e-9)) + 1
+    count = frame_count(float(traj.t[-1]), fps)
     rows = np.floor(np.arange(count) / fps / dt + 1e-9).astype(int)
     return np.minimum(rows, len(traj.t) - 1)
 
@@ -91,21 +119,89 @@ def _positions(instants: list[Instant]) -> np.ndarray:
     return np.array([v for i in instants for v in (i.x1, i.yd, i.twin_x1) if v is not None], dtype=float)
 
 
-def _writer(path: Path, suffix: str, size: tuple[int, int], fps: float) -> Generator[None, np.ndarray, None]:
-    """imageio-ffmpeg's frame sink writing ``path`` in the format of ``suffix`` (the final name's:
-    ``path`` is a temporary one)."""
+def _encoder_command(path: Path, suffix: str, size: tuple[int, int], fps: float) -> list[str]:
+    """The ffmpeg command that reads raw RGB frames on its stdin and writes ``path`` in the format
+    of ``suffix`` (the final name's: ``path`` is a temporary one)."""
     import imageio_ffmpeg
 
+    width, height = size
+    rate = str(Fraction(fps).limit_denominator())
+    command = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-f", "rawvideo", "-vcodec", "rawvideo",
+               "-s", f"{width:d}x{height:d}", "-pix_fmt", "rgb24", "-r", rate, "-i", "-", "-an"]
     if suffix == ".gif":
         palette = ("split[a][b];[a]palettegen=stats_mode=diff[p];"
                    "[b][p]paletteuse=dither=none:diff_mode=rectangle")
-        return imageio_ffmpeg.write_frames(str(path), size, fps=fps, codec="gif", pix_fmt_out="pal8",
-                                           output_params=["-filter_complex", palette, "-f", "gif"],
-                                           macro_block_size=1, ffmpeg_log_level="error")
-    return imageio_ffmpeg.write_frames(str(path), size, fps=fps, codec="libx264", pix_fmt_out="yuv420p",
-                                       quality=None, output_params=["-crf", "26", "-preset", "fast",
-                                                                    "-movflags", "+faststart", "-f", "mp4"],
-                                       macro_block_size=16, ffmpeg_log_level="error")
+        return [*command, "-vcodec", "gif", "-pix_fmt", "pal8", "-v", "error",
+                "-filter_complex", palette, "-f", "gif", str(path)]
+    command += ["-vcodec", "libx264", "-pix_fmt", "yuv420p"]
+    if width % 16 or height % 16:  # H.264 players want whole macro blocks: scale up to them
+        command += ["-vf", f"scale={width + -width % 16}:{height + -height % 16}"]
+    return [*command, "-v", "error", "-crf", "26", "-preset", "fast", "-movflags", "+faststart",
+            "-f", "mp4", str(path)]
+
+
+def _encoder_failure(path: Path, log: IO[bytes], what: str) -> QcontrolOutputError:
+    """The encoder's failure as one line naming the final file: a full disk as the other outputs
+    name it, anything else with the encoder's last message."""
+    log.seek(0)
+    lines = [line.strip() for line in log.read().decode(errors="replace").splitlines() if line.strip()]
+    if any("No space left" in line or "Disk quota" in line for line in lines):
+        return output_error(path, OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)))
+    last = shown(lines[-1][:200]) if lines else "no message"
+    return QcontrolOutputError(errno.EIO, f"{shown(path)}: cannot write the video ({what}: {last}); "
+                                          "check the disk or write elsewhere (nothing was replaced)")
+
+
+class _Encoder:
+    """ffmpeg fed frames on its stdin; :meth:`finish` waits for it and checks its exit status and
+    the file it wrote. Every exit path ends the process."""
+
+    def __init__(self, path: Path, final: Path, size: tuple[int, int], fps: float) -> None:
+        self.path, self.final = path, final
+        self.log = tempfile.TemporaryFile()
+        self.process = subprocess.Popen(_encoder_command(path, final.suffix.lower(), size, fps),
+                                        stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=self.log,
+                                        start_new_session=True)  # Ctrl-C reaches qcontrol, which ends it
+
+    def send(self, frame: np.ndarray) -> None:
+        try:
+            self.process.stdin.write(np.ascontiguousarray(frame).data)  # type: ignore[union-attr]
+        except (BrokenPipeError, OSError):
+            self.process.wait()
+            raise _encoder_failure(self.final, self.log, f"the encoder stopped, exit status "
+                                   f"{self.process.returncode}") from None
+
+    def finish(self, frames: int) -> None:
+        """Close the input, wait, and check the exit status and that the file holds ``frames``."""
+        try:
+            self.process.stdin.close()  # type: ignore[union-attr]
+        except OSError:
+            pass
+        status = self.process.wait()
+        if status != 0:
+            raise _encoder_failure(self.final, self.log, f"the encoder's exit status {status}")
+        counted = _frames_in(self.path)
+        if counted != frames:
+            raise QcontrolOutputError(errno.EIO, f"{shown(self.final)}: the video written holds {counted} "
+                                      f"frames of {frames}; check the disk or write elsewhere "
+                                      "(nothing was replaced)")
+
+    def close(self) -> None:
+        if self.process.poll() is None:
+            self.process.kill()
+            self.process.wait()
+        self.log.close()
+
+
+def _frames_in(path: Path) -> int:
+    """The frames of the video at ``path`` as ffmpeg reads its container back (its packets, not
+    decoded); -1 when it cannot be read."""
+    import imageio_ffmpeg
+
+    try:
+        return int(imageio_ffmpeg.count_frames_and_secs(str(path))[0])
+    except (RuntimeError, OSError, ValueError, subprocess.CalledProcessError):
+        return -1
 
 
 CAMERA_VIEW_FPS = 15.0  # a recording's rendered frames per second of simulated time
@@ -144,15 +240,17 @@ def write_video(request: VideoRequest, traj: Trajectory, model: object, joint: s
     cid = camera_id(model, request.camera, source)  # type: ignore[arg-type]
     instants = _instants(traj, request.fps, twin)
     width, height = request.frame_size
-    with atomic_path(request.path) as tmp, FrameRenderer(model, joint, cid, width, height,  # type: ignore[arg-type]
-                                                         positions=_positions(instants)) as renderer:
-        writer = _writer(tmp, request.path.suffix.lower(), (width, height), request.fps)
-        writer.send(None)  # start ffmpeg
+    folder = request.path.parent if str(request.path.parent) else Path(".")
+    renderer = FrameRenderer(model, joint, cid, width, height,  # type: ignore[arg-type]
+                             positions=_positions(instants))
+    with output_dir(folder, "--video"), atomic_path(request.path) as tmp, renderer:
+        encoder = _Encoder(tmp, request.path, (width, height), request.fps)
         try:
             for done, instant in enumerate(instants, start=1):
-                writer.send(np.ascontiguousarray(renderer.render(instant)))
+                encoder.send(renderer.render(instant))
                 if progress is not None:
                     progress(done, len(instants))
+            encoder.finish(len(instants))
         finally:
-            writer.close()
+            encoder.close()
     return request.path

@@ -30,9 +30,9 @@ from ..assembly import Assembly, assemble, runnable_backend
 from ..controller import lemma2_L
 from ..controller.law import KIND_ALIASES, LAW_KINDS
 from ..engine import Trajectory
-from ..errors import QcontrolInputError
+from ..errors import QcontrolInputError, QcontrolLawFailure
 from ..metrics import backend_deviation, run_summary
-from ..outputs import check_output_dir, prepare_output_dir, staged, write_json, write_text
+from ..outputs import check_output_dir, output_dir, staged, write_json, write_text
 from ..plants import BACKENDS
 from ..resources import shipped_dir
 from ..scenario import Scenario, load_scenario
@@ -95,6 +95,7 @@ class Reproduction:
     study_runs: int = 0
     lemma2_ratios: list[float] = field(default_factory=list)
     diverged: list[str] = field(default_factory=list)
+    law_failures: list[str] = field(default_factory=list)  # a law written in Python failed in these runs
 
     def scenario(self, name: str, overrides: Sequence[str] = ()) -> Scenario:
         extra = [f"simulation.duration={self.duration!r}"] if self.duration is not None else []
@@ -108,6 +109,8 @@ class Reproduction:
         self.lemma2_ratios.append(run.summary.lemma2_max_ratio)
         if run.summary.diverged:
             self.diverged.append(f"{label} on {backend}")
+        if run.summary.law_failure:
+            self.law_failures.append(run.summary.law_failure)
         self.log(f"  {label} on {backend}: E(0.100) = {run.summary.error_rate['0.100']:.4f}, "
                  f"Lemma 2 ratio {run.summary.lemma2_max_ratio:.5f} "
                  f"({time.perf_counter() - self.started:.1f} s elapsed)")
@@ -128,6 +131,7 @@ class Reproduction:
         self.lemma2_ratios += [s.lemma2_max_ratio for s in summaries]
         self.diverged += [f"{label} {' '.join(o)}" for o, s in zip(override_sets, summaries, strict=True)
                           if s.diverged]
+        self.law_failures += [s.law_failure for s in summaries if s.law_failure]
         self.log(f"study: {label}: {len(summaries)} runs batched on the ODE "
                  f"({time.perf_counter() - self.started:.1f} s elapsed)")
         return summaries
@@ -164,14 +168,15 @@ def reproduce(
     rep = Reproduction(check_output_dir(out), backend, duration, Path(scenarios), log, command=command,
                        laws=laws)
     _validate(rep)
-    o = prepare_output_dir(out)
-    with staged():  # every file is put in place at the end, together: the folder is never mixed
+    with output_dir(out) as o, staged():  # every file put in place at the end, together: never mixed
         table = _write_all(rep, o, command, workers, quick)
     extra = "" if quick else "region.json, robustness.json, "
     study = "no region or robustness study (--quick)" if quick else "then the region and robustness studies"
     log(f"wrote {o}: REPORT.md, table1.md, table1.json, studies.json, {extra}figures, recordings "
         f"({len(rep.lemma2_ratios)} example and study runs, {study}; "
         f"{time.perf_counter() - rep.started:.1f} s)")
+    if rep.law_failures:  # the files are written; the runs it stopped say so in them
+        raise QcontrolLawFailure(f"{rep.law_failures[0]} (it stopped {len(rep.law_failures)} run(s))")
     return table
 
 

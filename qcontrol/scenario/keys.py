@@ -11,6 +11,7 @@ from ..controller.law import LAW_KINDS
 from ..disturbance import SECTION as DISTURBANCE
 from ..engine.velocity import VELOCITY_SOURCES
 from ..error_rate import TABLE1_OMEGAS, TABLE1_SAMPLES
+from ..errors import shown
 from ..plants.backends import BACKENDS
 from ..quantizers import QUANTIZER
 from ..reference import REFERENCE_KINDS
@@ -49,9 +50,20 @@ def _paper_example(table: Table, key: str, default: object, sizes: object) -> in
     return value
 
 
+def _printable(table: Table, key: str, default: object, sizes: object) -> str:
+    """A string with no control characters: the name is printed on terminals, which would act on
+    an escape sequence in it."""
+    value = table.string(key, default)
+    if not value.isprintable():
+        raise table.error(key, f"{shown(value)} holds control characters (a terminal would act on them)",
+                          'write a name of printable characters, e.g. "my-plant"')
+    return value
+
+
 def scenario_section(default_name: str = "the file name") -> Section:
     return Section("scenario", (
-        Key("name", string(), default_name, meaning="the scenario's name in outputs", example='"my-plant"',
+        Key("name", custom("string", _printable), default_name, meaning="the scenario's name in outputs",
+            example='"my-plant"',
             default_text="the file's name without .toml"),
         Key("description", string(), "", meaning="what it models", example='"what it models"'),
         Key("paper_example", custom("1 or 2", _paper_example), OPTIONAL,

@@ -158,7 +158,7 @@ def load_scenario(path: str | Path, overrides: Overrides = (), unset: Sequence[s
         raise QcontrolInputError(f"load_scenario: path must be a file path (str or Path) or a shipped "
                                  f"scenario's name, got {type(path).__name__}")
     check_overrides(overrides, "load_scenario")
-    if isinstance(unset, str) or not all(isinstance(k, str) for k in unset):
+    if not isinstance(unset, list | tuple) or not all(isinstance(k, str) for k in unset):
         raise QcontrolInputError(f"load_scenario: unset must be a list of keys (strings), got {unset!r}")
     path = scenario_path(check_name(path, "scenario"))
     kind = path_kind(path)
@@ -173,7 +173,8 @@ def load_scenario(path: str | Path, overrides: Overrides = (), unset: Sequence[s
     except (OSError, UnicodeDecodeError) as exc:
         raise QcontrolInputError(f"{shown(path)}: cannot read the scenario ({exc}); check the file") from None
     return parse_scenario(text, source=str(path), base_dir=path.parent, overrides=overrides,
-                          default_name=path.stem, unset=unset)
+                          default_name=path.stem if path.stem.isprintable() else repr(path.stem)[1:-1],
+                          unset=unset)
 
 
 def parse_scenario(
@@ -189,6 +190,9 @@ def parse_scenario(
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
+        if text.startswith("\ufeff"):
+            raise QcontrolInputError(f"{source}: the file starts with a byte-order mark (U+FEFF), which TOML "
+                                     "does not allow; save it as UTF-8 without a BOM") from None
         raise QcontrolInputError(f"{source}: malformed TOML ({exc}); fix the syntax") from None
     except (RecursionError, ValueError):  # ValueError: an integer literal of thousands of digits
         raise QcontrolInputError(f"{source}: arrays or tables nested too deep, or a number too long, to "

@@ -34,13 +34,15 @@ workers (which start as copies of this process); a Dask cluster's workers do not
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
 from itertools import pairwise
 from pathlib import Path
+from typing import Any
 
 from ..assembly import batch_structure, run_variants
-from ..errors import QcontrolInputError, Terminated
+from ..errors import QcontrolInputError, Terminated, shown
 from ..metrics import run_summary
 from ..plants import BACKENDS
 from ..scenario import Scenario, load_scenario
@@ -49,7 +51,7 @@ from ..workers import worker_count, worker_pool
 
 CHUNK = 250  # runs per batch at most (fewer when there are more workers than chunks)
 MIN_BATCH = 5  # smaller groups run run by run; chunks cut for workers stay at least this long
-DASK_CONNECT_TIMEOUT = 10.0  # seconds to reach a --scheduler
+DASK_CONNECT_TIMEOUT = 10.0  # seconds to reach a --scheduler and complete Dask's handshake
 RunsDone = Callable[[int, int], None]  # (runs done, runs in total)
 ChunkJob = tuple[str, list[list[str]], str, list[str]]  # (path, override sets of a chunk, backend, unset)
 
@@ -205,6 +207,37 @@ def _on_workers(workers: int, chunks: list[list[int]], tasks: list[ChunkJob],
         pool.join()
 
 
+def _connect(client_class: Any, address: str) -> Any:
+    """A Dask client of the scheduler at ``address``, connected in a thread of its own while this
+    one waits in short steps, so that Ctrl-C stops the wait at once and a scheduler that accepts
+    the connection but never completes Dask's handshake is refused after
+    :data:`DASK_CONNECT_TIMEOUT` seconds (one line, as any address that does not work)."""
+    made: list[Any] = []
+    failed: list[BaseException] = []
+
+    def connect() -> None:
+        try:
+            made.append(client_class(address, timeout=DASK_CONNECT_TIMEOUT))
+        except BaseException as exc:  # any failure of the address is reported below, as one line
+            failed.append(exc)
+
+    fix = "give the address of a running Dask scheduler, e.g. tcp://host:8786"
+    thread = threading.Thread(target=connect, daemon=True, name="qcontrol-dask-connect")
+    thread.start()
+    deadline = time.monotonic() + DASK_CONNECT_TIMEOUT + 1.0
+    while thread.is_alive() and time.monotonic() < deadline:
+        thread.join(0.1)
+    if thread.is_alive():
+        raise QcontrolInputError(f"--scheduler {shown(address)}: no Dask handshake within "
+                                 f"{DASK_CONNECT_TIMEOUT:g} s (something answers there, but not a Dask "
+                                 f"scheduler); {fix}")
+    if failed:
+        exc = failed[0]
+        why = " ".join(f"{type(exc).__name__}: {exc}".split())[:200]
+        raise QcontrolInputError(f"--scheduler {shown(address)}: cannot connect ({why}); {fix}")
+    return made[0]
+
+
 def _on_dask(address: str, jobs: Callable[[int], tuple[list[list[int]], list[ChunkJob]]],
              store: Callable[[list[int], list[Summary]], None]) -> None:
     """Run the chunks on an existing Dask cluster (optional extra ``cluster``), cut for its threads."""
@@ -214,13 +247,7 @@ def _on_dask(address: str, jobs: Callable[[int], tuple[list[list[int]], list[Chu
         raise QcontrolInputError(
             "--scheduler needs Dask distributed: pip install 'qcontrol[cluster]'"
         ) from None
-    try:
-        client = Client(address, timeout=DASK_CONNECT_TIMEOUT)
-    except (OSError, TimeoutError, ValueError) as exc:
-        raise QcontrolInputError(
-            f"--scheduler {address}: cannot connect ({exc}); "
-            "give the address of a running Dask scheduler, e.g. tcp://host:8786"
-        ) from None
+    client = _connect(Client, address)
     with client:
         threads = sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values())
         chunks, tasks = jobs(max(1, threads))

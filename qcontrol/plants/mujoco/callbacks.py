@@ -14,12 +14,19 @@ MuJoCo's default warning handler appends to ``MUJOCO_LOG.TXT`` in the working fo
 reported as a divergence), and warnings of the model checks are kept in
 :data:`UNCLAIMED_WARNINGS`, never written to disk. When the last block closes, the handler found
 before the first one is restored: importing this module changes nothing.
+
+Both hooks belong to the whole process, so one lock (:data:`HOOKS`, reentrant) is held by
+whatever uses them, from a plant's ``with`` block (its run) and a model's compilation or check to
+their end: runs in several threads of one process take turns on MuJoCo, each with its own
+callback and warnings, and give what each gives alone (ODE runs do not take the lock).
 """
 
 from __future__ import annotations
 
 import contextlib
 import ctypes
+import os
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
@@ -36,6 +43,16 @@ _NATIVE: list[str] = []  # [key] while a native callback (of that key) is instal
 UNCLAIMED_WARNINGS: list[str] = []  # warnings while no run collects them (the last 100)
 _SINKS: list[list[str]] = []  # the innermost collecting run's list is last
 _PREVIOUS_WARNING: list[Any] = []  # the warning handler found when the first block opened
+HOOKS = threading.RLock()  # held while the process's passive callback or warning handler is in use
+
+
+def _fresh_lock_in_child() -> None:
+    """A forked worker starts with the lock free (its parent's holder is not copied into it)."""
+    global HOOKS
+    HOOKS = threading.RLock()
+
+
+os.register_at_fork(after_in_child=_fresh_lock_in_child)
 
 
 class GeneralizedForce:
@@ -123,9 +140,18 @@ def passive_forces(model: mujoco.MjModel, datas: Sequence[mujoco.MjData], qadr: 
     in each copy's userdata) MuJoCo calls compiled code directly while every plant in use shares
     its terms; otherwise the Python dispatcher serves every plant, calling the native callbacks
     through ctypes."""
-    if forces is None:
-        yield
-        return
+    with HOOKS:
+        if forces is None:
+            yield
+            return
+        with _registered(model, datas, qadr, dof, forces, native):
+            yield
+
+
+@contextmanager
+def _registered(model: mujoco.MjModel, datas: Sequence[mujoco.MjData], qadr: int, dof: int,
+                forces: Sequence[GeneralizedForce], native: NativeForce | None) -> Iterator[None]:
+    """:func:`passive_forces`' work, with :data:`HOOKS` held."""
     if not _ENTRIES:
         _install(native)
     elif _NATIVE and (native is None or native.key != _NATIVE[0]):
@@ -166,6 +192,13 @@ def _warn(message: str) -> None:
 def collect_warnings(sink: list[str]) -> Iterator[None]:
     """MuJoCo's warnings go to ``sink`` inside the block (nested blocks: the innermost); the
     handler is installed by the first block and the previous one restored after the last."""
+    with HOOKS, _collecting(sink):
+        yield
+
+
+@contextmanager
+def _collecting(sink: list[str]) -> Iterator[None]:
+    """:func:`collect_warnings`' work, with :data:`HOOKS` held."""
     if not _SINKS:
         _PREVIOUS_WARNING[:] = [mujoco.get_mju_user_warning()]
         mujoco.set_mju_user_warning(_warn)

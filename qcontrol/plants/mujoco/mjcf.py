@@ -100,6 +100,10 @@ def compiled(options: MujocoOptions, timestep: float | None = None) -> CompiledM
     buffers), compiled once per options, step and MJCF file content. Compile errors and missing or
     unsuitable elements raise :class:`QcontrolInputError`. Users of the result must not modify
     the model (it is shared)."""
+    kind = path_kind(options.model)
+    if kind is not None:
+        raise _fail(options)("model", f"{shown(options.model)} is {kind}, not a regular file",
+                             "give an MJCF file")
     try:
         content = options.model.read_bytes()
     except OSError as exc:
@@ -160,6 +164,29 @@ def _check_includes(model: pathlib.Path, fail: Fail) -> None:
                 pending.append(included)
 
 
+ASSET_FILES = (("meshes", "mesh", "meshdir", ("file",)),
+               ("hfields", "height field", "meshdir", ("file",)),
+               ("skins", "skin", "meshdir", ("file",)),
+               ("textures", "texture", "texturedir", ("file", "cubefiles")))
+
+
+def _check_assets(spec: mujoco.MjSpec, model: pathlib.Path, fail: Fail) -> None:
+    """Every file the model's assets name (meshes, height fields, skins, textures and their cube
+    faces), where MuJoCo will look for it (the model's folder, then meshdir or texturedir), is a
+    regular file or nothing: checked before MuJoCo opens it, which would block forever on a FIFO."""
+    for elements, what, folder, attributes in ASSET_FILES:
+        base = model.parent / (getattr(spec, folder) or "")
+        for element in getattr(spec, elements):
+            for attribute in attributes:
+                value = getattr(element, attribute)
+                for name in [value] if isinstance(value, str) else list(value):
+                    kind = path_kind(base / name) if name else None
+                    if kind is not None:
+                        raise fail("model", f"{model.name}'s {what} {shown(element.name or name)} reads "
+                                   f"{shown(name)}, which is {kind}, not a regular file",
+                                   "name a regular file")
+
+
 def _compile(options: MujocoOptions, timestep: float | None) -> tuple[mujoco.MjModel, Ids]:
     fail = _fail(options)
     _check_includes(options.model, fail)
@@ -168,6 +195,7 @@ def _compile(options: MujocoOptions, timestep: float | None) -> tuple[mujoco.MjM
     except Exception as exc:  # MuJoCo raises ValueError with a multi-line parser message
         raise fail("model", f"MuJoCo cannot load {options.model.name}: {_one_line(exc)}",
                    "fix the MJCF file") from None
+    _check_assets(spec, options.model, fail)
     joint, actuator = _find_elements(spec, options, fail)
     if timestep is not None:
         spec.option.timestep = timestep
