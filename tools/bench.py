@@ -1,7 +1,7 @@
 """qcontrol's performance figures, as ratios measured in one process against the physical limit
 (the targets: docs/performance.md).
 
-    python tools/bench.py [--quick] [--json FILE] [--repeat N] [--sweep1000] [--reproduce]
+    python tools/bench.py [--quick] [--json FILE] [--repeat N] [--sweeps] [--reproduce]
 
 * MuJoCo closed loop: us per step, and the ratio to a bare C ``mj_step`` loop on the same model
   and integrator with no passive callback; ``mj_step`` with the plant's native callback, and with
@@ -12,14 +12,17 @@
   right-hand side.
 * 1000 Example 2 runs batched on MuJoCo (``mujoco.batch``), per copy and step against bare
   ``mj_step``; ``--reproduce``: the wall time of ``qcontrol reproduce``.
-* Batched ODE runs of Example 2 (per-copy kappa, ``record="metrics"``): N = 1, 10, 100, 1000
-  and the ratio to one run (target: 1000 runs <= 20x one run).
-* Recording overhead: the seconds ``--rrd`` adds to ``qcontrol run`` of Example 2 (MuJoCo) and
-  their fraction of the run without it (target <= 0.25); the peak traced memory of a 10 s,
-  10 kHz run (full record).
+* Batched ODE runs of Example 2 (per-copy kappa, ``record="metrics"``): N = 1, 10, 100, 1000,
+  the cost per copy and step against one step of the compiled bare RK4 of the right-hand side
+  (target: <= 3 at N = 1000).
+* Recording: the seconds ``--rrd`` adds to ``qcontrol run`` of Example 2 (MuJoCo), per simulated
+  second (target <= 5 ms); the peak traced memory of a 10 s, 10 kHz run (full record).
 * User laws: the paper's law (44)-(45) written by hand in each documented form of a user law
   against the built-in kind, single run and batch (tools/bench_laws.py; target <= 2x).
-* ``--sweep1000``: wall time of a 1000-run ``sweep_summaries`` on each backend (slow).
+* ``--sweeps``: 200- and 1000-run ``sweep_summaries`` of 10 s Example 2 runs on ``--workers``:
+  on MuJoCo the wall time against the runs' bare C ``mj_step`` steps on one core (targets on 2
+  workers: <= 0.65 and <= 0.6), on the ODE against the runs' compiled bare RK4 on one core (target
+  for 1000 runs <= 4); wall and CPU time (this process and its workers) per simulated second (slow).
 
 Timings are best-of-N (the machine may be shared); ``--quick`` shortens every horizon.
 """
@@ -228,8 +231,12 @@ def ode_speedup(sc: Scenario, repeat: int) -> dict:
 
 
 def batch_times(duration: float, sizes: list[int], repeat: int) -> dict:
-    """Example 2 on the ODE, N copies with different kappa in one simulate call (metrics record)."""
+    """Example 2 on the ODE, N copies with different kappa in one simulate call (metrics record):
+    seconds, and the cost per copy and step against a step of the compiled bare RK4 of the rhs."""
     path = ROOT / "scenarios" / "example2.toml"
+    steps = round(duration / scenario("example2", duration).simulation.dt)
+    rk4 = compiled_rk4(scenario("example2", duration))
+    rk4_step = best_of(repeat, lambda: rk4(steps)) / steps
     times = {}
     for size in sizes:
         margins = np.linspace(0.1, 1.1, size).tolist() if size > 1 else [1.1]
@@ -243,12 +250,12 @@ def batch_times(duration: float, sizes: list[int], repeat: int) -> dict:
                              grid=TimeGrid.of(duration, sc.simulation.dt), record="metrics"))
 
         times[str(size)] = best_of(repeat if size <= 100 else max(1, repeat // 2), run)
-        if size == 1:  # the one run in the Python loop too (the target was set against it)
-            with compiled_off():
-                python_one = best_of(repeat, run)
     one = times["1"]
     return {"seconds": times, "ratio_to_one": {k: v / one for k, v in times.items()},
-            "python_one_s": python_one, "ratio_to_python_one": {k: v / python_one for k, v in times.items()}}
+            "rk4_ns_per_step": rk4_step * 1e9,
+            "ns_per_copy_step": {k: v / (int(k) * steps) * 1e9 for k, v in times.items()},
+            "per_copy_step_ratio_to_rk4": {k: v / (int(k) * steps) / rk4_step for k, v in times.items()},
+            "target": "N = 1000: <= 3 (x a compiled bare RK4 step)"}
 
 
 def mujoco_batch(duration: float, size: int, repeat: int) -> dict:
@@ -311,6 +318,7 @@ def recording_overhead(duration: float, repeat: int) -> dict:
         size = (Path(tmp) / "bench.rrd").stat().st_size
     extra = min(recorded) - min(bare)
     return {"ratio": extra / min(bare), "recording_s": extra, "run_s": min(bare), "file_mb": size / 2**20,
+            "ms_per_simulated_s": extra / duration * 1e3, "target": "<= 5 ms per simulated second",
             "note": f"qcontrol run example2 --rrd, MuJoCo, {duration:g} s, best of {repeat}"}
 
 
@@ -323,16 +331,28 @@ def peak_memory_mb(duration: float) -> float:
     return peak / 2**20
 
 
-def sweep1000(duration: float, workers: int) -> dict:
+def sweep_limits(duration: float, workers: int, mj_step_s: float) -> dict:
+    """200- and 1000-run sweeps of Example 2 (per-copy kappa) on ``workers`` local workers: wall
+    and CPU time, per simulated second, and the wall time against the runs' bare steps on one core
+    (``mj_step_s`` a bare C ``mj_step``; on the ODE a step of the compiled bare RK4 of the rhs)."""
     path = ROOT / "scenarios" / "example2.toml"
-    sets = [[f"simulation.duration={duration!r}", f"controller.kappa_margin={m!r}"]
-            for m in np.linspace(0.1, 1.1, 1000).tolist()]
-    out, cpu = {}, {}
-    for backend in ("ode", "mujoco"):
+    sc = scenario("example2", duration)
+    steps = round(duration / sc.simulation.dt)
+    rk4 = compiled_rk4(sc)
+    limit = {"mujoco": mj_step_s, "ode": best_of(3, lambda: rk4(steps)) / steps}
+    out, targets = {}, {"mujoco_200": "<= 0.65", "mujoco_1000": "<= 0.6", "ode_1000": "<= 4"}
+    for backend, runs in (("mujoco", 200), ("mujoco", 1000), ("ode", 1000)):
+        sets = [[f"simulation.duration={duration!r}", f"controller.kappa_margin={m!r}"]
+                for m in np.linspace(0.1, 1.1, runs).tolist()]
         started, used = time.perf_counter(), cpu_seconds()
         sweep_summaries(path, sets, backend=backend, workers=workers)
-        out[backend], cpu[backend] = time.perf_counter() - started, cpu_seconds() - used
-    return {"duration_s": duration, "workers": workers, "wall_s": out, "cpu_s": cpu}
+        wall, cpu = time.perf_counter() - started, cpu_seconds() - used
+        out[f"{backend}_{runs}"] = {
+            "wall_s": wall, "cpu_s": cpu, "ratio_to_bare_one_core": wall / (runs * steps * limit[backend]),
+            "wall_ms_per_simulated_s": wall / (runs * duration) * 1e3,
+            "cpu_ms_per_simulated_s": cpu / (runs * duration) * 1e3,
+            "target": targets[f"{backend}_{runs}"]}
+    return {"duration_s": duration, "workers": workers, "load": os.getloadavg()[0], "runs": out}
 
 
 # --------------------------------------------------------------------------------------------
@@ -359,22 +379,24 @@ def measure(args: argparse.Namespace) -> dict:
         result["ode_speedup_vs_solve_ivp"][name] = details["ode"][name]["speedup"]
     details["compile"] = {backend: compile_times(backend) for backend in ("ode", "mujoco")}
     details["batch"] = batch_times(duration, sizes, repeat)
-    result["batch1000_ratio"] = details["batch"]["ratio_to_one"].get("1000")
+    per_copy_step = details["batch"]["per_copy_step_ratio_to_rk4"]
+    result["batch_per_copy_step_ratio_to_rk4"] = per_copy_step[str(sizes[-1])]
     # 1000 MuJoCo copies of 10 s are 1e7 copy-steps (about a minute): 1 s runs unless --quick (100)
     details["mujoco_batch"] = mujoco_batch(1.0 if not args.quick else 0.2, 1000 if not args.quick else 100,
                                            1 if args.quick else max(1, repeat // 2))
     details["recording"] = recording_overhead(duration, repeat)
     if args.quick:  # opening, the static logs and closing cost ~10 ms a file: a 1 s run is no test
         details["recording"]["note"] += "; quick: per-file costs dominate a 1 s run, the target is for 10 s"
-    result["recording_overhead"] = details["recording"]["ratio"]
+    result["recording_ms_per_simulated_s"] = details["recording"]["ms_per_simulated_s"]
     result["recording_s"] = details["recording"]["recording_s"]
     details["user_laws"] = bench_laws.measure(duration, duration / 5, 10 if args.quick else 50, repeat)
     result["user_law_ratio"] = {"single": details["user_laws"]["single_ratio"],
                                 "batch": details["user_laws"]["batch_ratio"]}
     result["peak_memory_mb"] = peak_memory_mb(duration)
     result["peak_memory_note"] = f"Example 2, ODE, full record, {duration:g} s at dt = 1e-4 (tracemalloc)"
-    if args.sweep1000:
-        result["sweep1000"] = sweep1000(duration, args.workers)
+    if args.sweeps:
+        bare = details["mujoco"]["example2"]["bare_mj_step_us_per_step"] * 1e-6
+        result["sweeps"] = sweep_limits(duration, args.workers, bare)
     if args.reproduce:
         result["reproduce"] = reproduce_wall(args.workers)
     result["details"] = details
@@ -411,31 +433,33 @@ def report(result: dict, args: argparse.Namespace) -> None:
               f"{times['first_run_s']:10.3f}           (empty cache: compiles; cached, new process: "
               f"{times['cached_run_s']:.3f} s; Python loop: {times['python_loop_s']:.3f} s)")
     batches = details["batch"]
-    for size, ratio in batches["ratio_to_one"].items():
-        target = "<= 20" if size == "1000" else ""
-        print(f"{'ODE Example 2 batch of ' + size + ' / one run':52s} {ratio:10.2f}  {target:7s} "
-              f"({batches['seconds'][size]:.3f} s; one run in the compiled loop)")
-    for size, ratio in batches["ratio_to_python_one"].items():
-        print(f"{'ODE Example 2 batch of ' + size + ' / one run in the Python loop':52s} {ratio:10.2f}  "
-              f"{'<= 20' if size == '1000' else '':7s} ({batches['python_one_s']:.3f} s the Python run)")
+    for size, ratio in batches["per_copy_step_ratio_to_rk4"].items():
+        target = "<= 3" if size == "1000" else ""
+        print(f"{'ODE Example 2 batch of ' + size + ', per copy-step / bare RK4 step':52s} {ratio:10.2f}  "
+              f"{target:7s} ({batches['ns_per_copy_step'][size]:.0f} vs {batches['rk4_ns_per_step']:.0f} ns; "
+              f"{batches['seconds'][size]:.3f} s)")
     mb = details["mujoco_batch"]
     print(f"{'MuJoCo batch of ' + str(mb['size']) + ' (per copy-step) / bare mj_step':52s} "
           f"{mb['ratio_to_bare_mj_step']:10.2f}           "
           f"({mb['wall_s']:.2f} s for {mb['duration_s']:g} s runs; "
           f"mujoco.batch: {mb['on_mujoco_batch']})")
     rec = details["recording"]
-    print(f"{'recording overhead (fraction of the run)':52s} {rec['ratio']:10.3f}  <= 0.25 "
+    print(f"{'recording cost per simulated second [ms]':52s} {rec['ms_per_simulated_s']:10.2f}  <= 5    "
           f"({rec['recording_s']:.4f} s of recording on a {rec['run_s']:.3f} s run, "
           f"{rec['file_mb']:.1f} MB; {rec['note']})")
     bench_laws.report(details["user_laws"])
     print(f"{'peak memory, 10 kHz run [MB]':52s} {result['peak_memory_mb']:10.1f}  "
           f"({result['peak_memory_note']})")
-    if "sweep1000" in result:
-        for backend, wall in result["sweep1000"]["wall_s"].items():
-            target = "<= 20" if backend == "mujoco" else ""
-            print(f"{'1000-run sweep wall time, ' + backend + ' [s]':52s} {wall:10.1f}  {target:7s} "
-                  f"({result['duration_s']:g} s runs, {args.workers} workers; "
-                  f"CPU {result['sweep1000']['cpu_s'][backend]:.1f} s)")
+    if "sweeps" in result:
+        sweeps = result["sweeps"]
+        for label, r in sweeps["runs"].items():
+            backend, runs = label.split("_")
+            limit = "bare C mj_step" if backend == "mujoco" else "bare RK4"
+            print(f"{runs + '-run ' + backend + ' sweep, wall / ' + limit + ' on one core':52s} "
+                  f"{r['ratio_to_bare_one_core']:10.2f}  {r['target']:7s} ({r['wall_s']:.1f} s wall, "
+                  f"CPU {r['cpu_s']:.1f} s; per simulated s {r['wall_ms_per_simulated_s']:.2f} ms wall, "
+                  f"{r['cpu_ms_per_simulated_s']:.2f} ms CPU; {sweeps['workers']} workers, "
+                  f"load {sweeps['load']:.1f})")
     if "reproduce" in result:
         print(f"{'qcontrol reproduce wall time [s]':52s} {result['reproduce']['wall_s']:10.1f}  <= 15    "
               f"({args.workers} workers; CPU {result['reproduce']['cpu_s']:.1f} s)")
@@ -446,9 +470,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="short horizons, small batches (smoke run)")
     parser.add_argument("--json", type=Path, metavar="FILE", help="write the figures as JSON")
     parser.add_argument("--repeat", type=int, default=3, help="best of N (default 3)")
-    parser.add_argument("--sweep1000", action="store_true", help="also time 1000-run sweeps (slow)")
+    parser.add_argument("--sweeps", "--sweep1000", action="store_true",
+                        help="also time 200- and 1000-run sweeps against the bare steps (slow)")
     parser.add_argument("--reproduce", action="store_true", help="also time qcontrol reproduce (slow)")
-    parser.add_argument("--workers", type=int, default=2, help="workers for --sweep1000, --reproduce (2)")
+    parser.add_argument("--workers", type=int, default=2, help="workers for --sweeps, --reproduce (2)")
     args = parser.parse_args(argv)
     result = measure(args)
     report(result, args)

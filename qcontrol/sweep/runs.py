@@ -8,13 +8,19 @@ terms the passive callback adds and the sensor noise's seed). Such variants are 
 together as one batch in one :func:`qcontrol.engine.simulate` call (``record="metrics"``).
 Anything else (e.g. a grid over ``controller.c``) splits the runs into groups, each its own batch.
 
-Determinism. Groups are cut into chunks of at most ``CHUNK`` runs in input order, whatever the
-executor; a chunk is one batch. A group of fewer than ``MIN_BATCH`` runs goes run by run instead:
+Chunks. Groups are cut into chunks of at most ``CHUNK`` runs in input order, of even sizes; a chunk
+is one batch. With several workers (local processes, or a Dask cluster's threads) the chunks are
+cut smaller, down to ``MIN_BATCH``, so that there are at least as many as workers: a 200-run
+sweep on 2 workers runs as two batches of 100, one per worker. A group of fewer than ``MIN_BATCH``
+runs goes run by run instead:
 a batch's array form costs a fixed amount per step, which a single run (the engine's fast path)
 does not pay, so small batches are slower than their runs alone (measured on Example 2, 10 s, both
-backends: a batch of 2 costs 2.3-2.8x its two runs, 4 about 1.2x, 8 about 0.6-0.8x). Numbers are
-the same either way. So the in-process path, local worker processes and a Dask cluster
-run the very same batches and give identical numbers (only ``wall_time_s`` differs).
+backends: a batch of 2 costs 2.3-2.8x its two runs, 4 about 1.2x, 8 about 0.6-0.8x).
+
+Determinism. A copy's numbers do not depend on the batch it is stepped in (its size or its
+neighbours), so the in-process path, local worker processes and a Dask cluster give identical
+numbers however they chunk (only ``wall_time_s`` differs). Even cuts never leave a batched group's
+run alone in a chunk, so every run of a batched group has the same summary keys.
 
 MuJoCo. Chunks run as MuJoCo plant batches, spread over worker processes: on ``mujoco.batch``
 (the copies stepped in C, the unmodelled term in the native passive callback) where the plant
@@ -31,6 +37,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -42,8 +49,8 @@ from ..scenario import Scenario, load_scenario
 from ..summary import Summary
 from ..workers import worker_count, worker_pool
 
-CHUNK = 250  # runs per batch: fixed, so every executor runs the same batches
-MIN_BATCH = 5  # smaller groups run run by run (see the module docstring)
+CHUNK = 250  # runs per batch at most (fewer when there are more workers than chunks)
+MIN_BATCH = 5  # smaller groups run run by run; chunks cut for workers stay at least this long
 DASK_CONNECT_TIMEOUT = 10.0  # seconds to reach a --scheduler and complete Dask's handshake
 RunsDone = Callable[[int, int], None]  # (runs done, runs in total)
 ChunkJob = tuple[str, list[list[str]], str, list[str]]  # (path, override sets of a chunk, backend, unset)
@@ -70,14 +77,33 @@ def run_batch(scs: Sequence[Scenario], backend: str) -> list[Summary]:
     return out
 
 
-def chunks_of(groups: Iterable[list[int]]) -> list[list[int]]:
-    """Each group (indices of runs that share their batch structure, in input order) cut into
-    chunks of at most :data:`CHUNK`; a group smaller than :data:`MIN_BATCH`, one chunk per run."""
-    out = []
-    for ids in groups:
-        size = CHUNK if len(ids) >= MIN_BATCH else 1
-        out += [ids[k : k + size] for k in range(0, len(ids), size)]
-    return out
+def _even(ids: list[int], size: int) -> list[list[int]]:
+    """``ids`` cut in order into even chunks of at most ``size`` runs, as few as that allows, none
+    cut below :data:`MIN_BATCH` runs for the workers' sake (never above :data:`CHUNK`)."""
+    pieces = max(-(-len(ids) // CHUNK), min(-(-len(ids) // size), len(ids) // MIN_BATCH))
+    bounds = [len(ids) * k // pieces for k in range(pieces + 1)]
+    return [ids[a:b] for a, b in pairwise(bounds)]
+
+
+def _chunk_size(runs: int, workers: int) -> int:
+    """At most :data:`CHUNK` runs, fewer (down to :data:`MIN_BATCH`) so each worker gets a chunk."""
+    return min(CHUNK, max(MIN_BATCH, -(-runs // max(1, workers))))
+
+
+def chunks_of(groups: Iterable[list[int]], workers: int = 1) -> list[list[int]]:
+    """Each group (indices of runs that share their batch structure, in input order) cut into even
+    chunks of at most :data:`CHUNK`, smaller (down to :data:`MIN_BATCH`) where that gives each of
+    ``workers`` a chunk; a group smaller than :data:`MIN_BATCH`, one chunk per run."""
+    groups = [list(ids) for ids in groups]
+    size = _chunk_size(sum(len(ids) for ids in groups), workers)
+    return [piece for ids in groups
+            for piece in (_even(ids, size) if len(ids) >= MIN_BATCH else [[i] for i in ids])]
+
+
+def for_workers(chunks: list[list[int]], workers: int) -> list[list[int]]:
+    """``chunks`` (a :func:`plan`) cut further, where they are long, to give each of ``workers`` one."""
+    size = _chunk_size(sum(len(ids) for ids in chunks), workers)
+    return [piece for ids in chunks for piece in (_even(ids, size) if len(ids) > size else [ids])]
 
 
 def run_variants_batched(scs: Sequence[Scenario], backend: str) -> list[Summary]:
@@ -127,8 +153,8 @@ def sweep_summaries(
     """One :class:`~qcontrol.summary.Summary` per override set, in input order.
 
     Variants are batched (see the module docstring); ``workers > 1`` spreads the batches over
-    local processes, ``scheduler`` (a Dask ``distributed`` address) over a cluster. Every
-    executor runs the same batches, so the numbers are identical; ``wall_time_s`` is the batch's
+    local processes, ``scheduler`` (a Dask ``distributed`` address) over a cluster, the chunks cut
+    so that each worker gets one. The numbers are identical on every executor; ``wall_time_s`` is the batch's
     wall time divided by its size. Bad input raises :class:`QcontrolInputError` before any run
     (``chunks``: the :func:`plan` already made). Ctrl-C raises :class:`SweepInterrupted` with the
     finished runs. ``unset`` keys are removed from the file of every variant before its overrides.
@@ -148,15 +174,19 @@ def sweep_summaries(
         if progress is not None:
             progress(done, len(sets))
 
-    tasks = [(path, [sets[i] for i in ids], backend, unset) for ids in chunks]
+    def jobs(parts: int) -> tuple[list[list[int]], list[ChunkJob]]:
+        """The chunks cut again for ``parts`` workers (the numbers stay: see the module docstring)."""
+        cut = for_workers(chunks, parts)
+        return cut, [(path, [sets[i] for i in ids], backend, unset) for ids in cut]
+
     try:
         if scheduler is not None:
-            for ids, summaries in zip(chunks, _on_dask(scheduler, tasks), strict=True):
-                store(ids, summaries)
-        elif workers > 1 and len(chunks) > 1:
-            _on_workers(worker_count(workers, len(chunks)), chunks, tasks, store)
+            _on_dask(scheduler, jobs, store)
+        elif workers > 1 and len(sets) > 1:
+            cut, tasks = jobs(worker_count(workers, len(sets)))
+            _on_workers(worker_count(workers, len(cut)), cut, tasks, store)
         else:
-            for ids, task in zip(chunks, tasks, strict=True):
+            for ids, task in zip(*jobs(1), strict=True):
                 store(ids, _run_chunk(*task))
     except KeyboardInterrupt as stop:
         raise SweepInterrupted(results, isinstance(stop, Terminated)) from None
@@ -208,8 +238,9 @@ def _connect(client_class: Any, address: str) -> Any:
     return made[0]
 
 
-def _on_dask(address: str, tasks: list[ChunkJob]) -> list[list[Summary]]:
-    """Run the chunks on an existing Dask cluster (optional extra ``cluster``)."""
+def _on_dask(address: str, jobs: Callable[[int], tuple[list[list[int]], list[ChunkJob]]],
+             store: Callable[[list[int], list[Summary]], None]) -> None:
+    """Run the chunks on an existing Dask cluster (optional extra ``cluster``), cut for its threads."""
     try:
         from distributed import Client
     except ImportError:
@@ -218,5 +249,8 @@ def _on_dask(address: str, tasks: list[ChunkJob]) -> list[list[Summary]]:
         ) from None
     client = _connect(Client, address)
     with client:
+        threads = sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values())
+        chunks, tasks = jobs(max(1, threads))
         futures = [client.submit(_run_chunk, *task, pure=False) for task in tasks]
-        return client.gather(futures)
+        for ids, summaries in zip(chunks, client.gather(futures), strict=True):
+            store(ids, summaries)
