@@ -66,7 +66,7 @@ def test_a_region_terminated_exits_143(tmp_path):
     """SIGTERM during a region on worker processes: 143 (as a sweep), nothing written."""
     out = tmp_path / "region"
     proc = subprocess.Popen([sys.executable, "-m", "qcontrol.cli", "region", str(EX2), "--workers", "2",
-                             "--resolution", "300", "--duration", "10", "-q", "--out", str(out)],
+                             "--resolution", "40", "--duration", "10", "-q", "--out", str(out)],
                             cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "HOME": str(tmp_path)})
     deadline = time.monotonic() + 60
