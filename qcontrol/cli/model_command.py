@@ -67,8 +67,8 @@ def equation_text(eq: ModelEquation, label: str) -> str:
         lines = [
             f"{label}: joint {eq.joint!r} ({eq.kind}), actuator {eq.actuator!r} (gear x gain {eq.gear!r}), "
             f"sensors {sensors}",
-            f"  x1' = x2,  x2' = b u + theta^T phi(x)    (x1 [{position}], x2 [{position}/s], u = the actuator's "
-            f"command [{force}])",
+            f"  x1' = x2,  x2' = b u + theta^T phi(x)    (x1 [{position}], x2 [{position}/s], u = the "
+            f"actuator's command [{force}])",
             f"  I = {eq.inertia!r} {mass}    (mj_fullM: the bodies and the armature)",
             f"  b = gear / I = {eq.input_gain!r}",
         ]

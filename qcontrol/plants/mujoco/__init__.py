@@ -37,8 +37,8 @@ def parse(table: Table, ctx: PlantContext) -> MujocoOptions:
         what = ("a chain (terms in the last equation only)" if ctx.terms.order == 2 else
                 "x1' = x2 exactly (a joint's position and velocity)")
         raise QcontrolInputError(f"{table.source}: plant.phi[{row - 1}]: row {row} has a regressor, but "
-                                 f"[{table.name}] realises {what}; run this plant on the ode backend, or give "
-                                 f"row {row} as \"0\"")
+                                 f"[{table.name}] realises {what}; run this plant on the ode backend, or "
+                                 f"give row {row} as \"0\"")
     options = parse_options(table, ctx.terms, ctx.base_dir)
     compiled(options, ctx.dt)
     return options
@@ -96,7 +96,8 @@ def model_coefficients(options: MujocoOptions, terms: PlantTerms, dt: float) -> 
     return coefficients, built.input_gain
 
 
-def _filter_coefficients(eq: ModelEquation, terms: PlantTerms, options: MujocoOptions) -> dict[str, float | None]:
+def _filter_coefficients(eq: ModelEquation, terms: PlantTerms,
+                         options: MujocoOptions) -> dict[str, float | None]:
     """Order 3: each native term's coefficient, matched in its own equation (row 2 against the
     joint's terms, row 3 against the filter's), None where MuJoCo makes no such term or the term
     sits in both."""
@@ -105,15 +106,16 @@ def _filter_coefficients(eq: ModelEquation, terms: PlantTerms, options: MujocoOp
     rows = terms.regressor_rows
     found: dict[str, float | None] = {}
     for j, name in enumerate(terms.names):
-        hits = [(model_terms, row[j]) for model_terms, row in ((eq.terms, rows[1]), (eq.filter_terms, rows[2]))
-                if not is_zero(row[j])]
+        pairs = ((eq.terms, rows[1]), (eq.filter_terms, rows[2]))
+        hits = [(model_terms, row[j]) for model_terms, row in pairs if not is_zero(row[j])]
         hit = matches(replace(eq, terms=hits[0][0]), [hits[0][1]], 3)[0] if len(hits) == 1 else None
         found[name] = None if hit is None else hits[0][0][hit[0]].theta / hit[1]
     return {name: found[name] for name in options.native_terms}
 
 
 BACKEND = Backend(name="mujoco", build=build, structure=structure,
-                  summary="MuJoCo physics of an MJCF model (order 2: one joint; order 3: through a filter actuator)",
+                  summary="MuJoCo physics of an MJCF model (order 2: one joint; order 3: through a filter "
+                  "actuator)",
                   section=SECTION, parse=parse, scene=scene, inertia=inertia,
                   model_coefficients=model_coefficients)
 

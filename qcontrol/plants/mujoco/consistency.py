@@ -192,7 +192,8 @@ def _model_command(options: MujocoOptions) -> str:
     return f"qcontrol model {options.model} prints the model's equation{overridden}"
 
 
-def filter_consistency_report(compiled: CompiledModel, options: MujocoOptions, terms: PlantTerms) -> dict[str, Any]:
+def filter_consistency_report(compiled: CompiledModel, options: MujocoOptions,
+                              terms: PlantTerms) -> dict[str, Any]:
     """:func:`consistency_report` for order 3 (a joint driven through a filter actuator, every term
     MuJoCo's own): at sampled states (x1, x2, x3) and inputs, MuJoCo's ``qacc`` against ``x3 +
     theta^T phi_2(x)`` and its ``act_dot`` (times gear / I) against ``b u + theta^T phi_3(x)``;
@@ -236,7 +237,7 @@ def filter_consistency_report(compiled: CompiledModel, options: MujocoOptions, t
     if not (report["ok"] or options.realism):
         found = "; ".join(problems) or "the mismatch is not a multiple of any term"
         raise QcontrolInputError(
-            f"{options.where}: MuJoCo's rates differ from x2' = x3 + theta^T phi_2, x3' = b u + theta^T phi_3 "
-            f"by up to {report['max_abs_mismatch']:.3g} at {SAMPLES} sampled states: {found}; "
+            f"{options.where}: MuJoCo's rates differ from x2' = x3 + theta^T phi_2, x3' = b u + theta^T "
+            f"phi_3 by up to {report['max_abs_mismatch']:.3g} at {SAMPLES} sampled states: {found}; "
             f"{_model_command(options)}")
     return report

@@ -106,8 +106,8 @@ class ModelEquation:
         """Order 3: the term of x3' = b u - x3 / tau besides b u, ``-1 / tau`` times x3."""
         if self.tau is None:
             return ()
-        return (ModelTerm("x3", -1.0 / self.tau, f"the actuator's filter, time constant tau = {self.tau!r} s: "
-                          "-1 / tau", "1 + q3**2"),)
+        source = f"the actuator's filter, time constant tau = {self.tau!r} s: -1 / tau"
+        return (ModelTerm("x3", -1.0 / self.tau, source, "1 + q3**2"),)
 
     @property
     def all_terms(self) -> tuple[ModelTerm, ...]:
@@ -257,12 +257,14 @@ def filter_actuator_problem(model: mujoco.MjModel, aid: int) -> str | None:
     (``act' = (ctrl - act) / tau``, ``force = gain gear act``), or None."""
     name = repr(_name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, aid) or f"#{aid}")
     if int(model.actuator_dyntype[aid]) != int(mujoco.mjtDyn.mjDYN_FILTER):
-        return direct_actuator_problem(model, aid) or f"actuator {name} has no filter; write dyntype=\"filter\""
+        return direct_actuator_problem(model, aid) or f"actuator {name} has no filter; write " \
+            "dyntype=\"filter\""
     if model.actuator_actearly[aid]:
         return (f"actuator {name} has actearly=\"true\" (its force uses the next activation, which no ODE "
                 "of the state has); remove actearly")
     if not model.actuator_dynprm[aid, 0] > 0:
-        return f"actuator {name} has a filter time constant dynprm {model.actuator_dynprm[aid, 0]!r}; give dynprm > 0"
+        return f"actuator {name} has a filter time constant dynprm {model.actuator_dynprm[aid, 0]!r}; " \
+            "give dynprm > 0"
     if int(model.actuator_gaintype[aid]) != int(mujoco.mjtGain.mjGAIN_FIXED) or \
             int(model.actuator_biastype[aid]) != int(mujoco.mjtBias.mjBIAS_NONE):
         return (f"actuator {name} has a gain that is not fixed, or a bias; a filter actuator needs "
@@ -376,10 +378,10 @@ def _sensors(model: mujoco.MjModel, jid: int) -> tuple[str | None, str | None]:
 
 def _activation_sensor(model: mujoco.MjModel, aid: int) -> str | None:
     """The name of the (first named) actuatorfrc sensor on actuator ``aid``: the reading of x3."""
-    return next((name for s in range(model.nsensor)
-                 if int(model.sensor_type[s]) == int(mujoco.mjtSensor.mjSENS_ACTUATORFRC)
-                 and int(model.sensor_objid[s]) == aid and (name := _name(model, mujoco.mjtObj.mjOBJ_SENSOR, s))),
-                None)
+    kind = int(mujoco.mjtSensor.mjSENS_ACTUATORFRC)
+    named = (_name(model, mujoco.mjtObj.mjOBJ_SENSOR, s) for s in range(model.nsensor)
+             if int(model.sensor_type[s]) == kind and int(model.sensor_objid[s]) == aid)
+    return next((name for name in named if name), None)
 
 
 def _outside(model: mujoco.MjModel, jid: int, aid: int, kind: str) -> list[Outside]:
@@ -492,10 +494,11 @@ def compiled_equation(compiled: CompiledModel, label: str) -> ModelEquation:
         return equation_of(compiled.model, compiled.ids.joint, compiled.ids.actuator, label)
 
 
-def matches(eq: ModelEquation, expressions: Sequence[Expression], order: int = 2) -> list[tuple[int, float] | None]:
-    """For each expression over x1, x2, the model term it is a constant multiple of, as ``(j, k)``
-    with ``expression = k * eq.terms[j].phi`` at the sampled states (k = 1 exactly for the same
-    values), or None."""
+def matches(eq: ModelEquation, expressions: Sequence[Expression],
+            order: int = 2) -> list[tuple[int, float] | None]:
+    """For each expression over x1, x2 (x1 .. x3 for ``order`` 3), the model term it is a constant
+    multiple of, as ``(j, k)`` with ``expression = k * eq.terms[j].phi`` at the sampled states (k =
+    1 exactly for the same values), or None."""
     x, _, _ = sampled_states(order=order)
     with np.errstate(all="ignore"):
         model = [compile_expression(t.phi, ("x1", "x2", "x3")[:order])(x) for t in eq.terms]

@@ -384,9 +384,10 @@ def _filter_ids(model: mujoco.MjModel, options: MujocoOptions, ids: Ids, fail: F
                    f"{options.joint!r}", f"use <general joint=\"{options.joint}\" dyntype=\"filter\" "
                    "dynprm=\"TAU\" gainprm=\"1\" gear=\"1\"/> in the MJCF")
     sid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, options.activation_sensor)
-    if int(model.sensor_type[sid]) != int(mujoco.mjtSensor.mjSENS_ACTUATORFRC) or int(model.sensor_objid[sid]) != aid:
-        raise fail("activation_sensor", f"sensor {options.activation_sensor!r} is not an actuatorfrc sensor on "
-                   f"actuator {name!r}", f"use <actuatorfrc actuator=\"{name}\"/> in the MJCF")
+    kind = int(mujoco.mjtSensor.mjSENS_ACTUATORFRC)
+    if int(model.sensor_type[sid]) != kind or int(model.sensor_objid[sid]) != aid:
+        raise fail("activation_sensor", f"sensor {options.activation_sensor!r} is not an actuatorfrc sensor "
+                   f"on actuator {name!r}", f"use <actuatorfrc actuator=\"{name}\"/> in the MJCF")
     return replace(ids, activation_sensor=sid, act=int(model.actuator_actadr[aid]),
                    tau=float(model.actuator_dynprm[aid, 0]))
 

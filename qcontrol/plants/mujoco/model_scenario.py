@@ -33,9 +33,9 @@ def scenario_problem(eq: ModelEquation, label: str) -> str | None:
         return (f"{label}: no named {' or '.join(missing)} sensor on joint {joint!r}, which a scenario reads "
                 f"x1 and x2 from; add <sensor>{sensors}</sensor> to the MJCF")
     if eq.order == 3 and eq.activation_sensor is None:
-        return (f"{label}: no named actuatorfrc sensor on the filter actuator {eq.actuator!r}, which a scenario "
-                f"reads x3 from; add <sensor><actuatorfrc name=\"x3\" actuator=\"{eq.actuator}\"/></sensor> to "
-                "the MJCF")
+        return (f"{label}: no named actuatorfrc sensor on the filter actuator {eq.actuator!r}, which a "
+                f"scenario reads x3 from; add <sensor><actuatorfrc name=\"x3\" actuator=\"{eq.actuator}\"/>"
+                "</sensor> to the MJCF")
     if eq.order == 3 and any(o.option for o in eq.outside):
         return (f"{label}: {'; '.join(o.what for o in eq.outside if o.option)}: realism options are not "
                 "supported through a filter actuator yet; remove it from the MJCF")
@@ -131,7 +131,8 @@ def filter_scenario_text(eq: ModelEquation, model: Path, out: Path, command: str
         "# equation. A term in x2' puts the plant outside the paper's chain class: the tuning-function law.",
         *(f"#   {n} = {t.phi}: {t.source}" for n, t in zip(names, terms, strict=True)),
         "", "[scenario]", f"name = {_toml_string(model.stem)}",
-        f"description = {_toml_string(f'The MJCF model {model.name} through its filter actuator, tuning-function law')}",
+        "description = " + _toml_string(f"The MJCF model {model.name} through its filter actuator, "
+                                        "tuning-function law"),
         "", "[plant]", "order = 3", "phi = [" + ", ".join(_strings(row) for row in rows) + "]",
         "theta = [" + ", ".join(repr(t.theta) for t in terms) + "]",
         f"input_gain = {eq.input_gain!r}  # b = gear / (I tau): u is the actuator's command ({force})",
@@ -140,7 +141,7 @@ def filter_scenario_text(eq: ModelEquation, model: Path, out: Path, command: str
         f"velocity_sensor = {_toml_string(eq.velocity_sensor or '')}",
         f"activation_sensor = {_toml_string(eq.activation_sensor or '')}",
         f"actuator = {_toml_string(eq.actuator)}", f"native_terms = {_strings(names)}",
-        "", "[quantizer]  # what the controller reads of x1, x2, x3: a uniform quantizer per channel, eq. (3)",
+        "", "[quantizer]  # what the controller reads of x1, x2, x3: uniform per channel, eq. (3)",
         'kind = "uniform"', f"delta = [0.01, 0.01, 0.01]  # [{position}, {position}/s, {position}/s^2]",
         "", "[controller]", 'kind = "tuning"  # the tuning-function law at the quantized readings',
         "c = [10.0, 10.0, 10.0]", "", "[controller.tuning]", "gamma = 1.0", "sigma = 0.0", "",

@@ -263,8 +263,8 @@ def _check_order(table: Table, terms: PlantTerms, v: dict[str, Any]) -> None:
         return
     if v["activation_sensor"] is None:
         raise table.error_at(table.name, "plant order 3 on MuJoCo reads x3 from the filter actuator, but "
-                             "activation_sensor is missing", "name an <actuatorfrc actuator=\"...\"/> sensor: "
-                             "activation_sensor = \"NAME\"")
+                             "activation_sensor is missing", "name an <actuatorfrc actuator=\"...\"/> "
+                             "sensor: activation_sensor = \"NAME\"")
     added = [name for name in terms.names if name not in v["native_terms"]]
     if added:
         raise table.error("native_terms", f"plant order 3 on MuJoCo needs every term made by MuJoCo's own "

@@ -74,9 +74,10 @@ class MujocoPlant:
         where = options.where
         if terms.order != (2 if options.activation_sensor is None else 3):
             raise QcontrolInputError(
-                f"{where}: the MuJoCo backend models one joint (plant order 2), or one driven through a filter "
-                f"actuator read by activation_sensor (order 3), but the plant has order {terms.order}; use "
-                "backend = \"ode\" for this scenario"
+                f"{where}: the MuJoCo backend models one joint (plant order 2), or one driven through a "
+                f"filter actuator read by activation_sensor (order 3), but the plant has order "
+                f"{terms.order}; "
+                "use backend = \"ode\" for this scenario"
             )
         if batch < 1:
             raise QcontrolInputError(f"{where}: batch must be >= 1, got {batch}")
@@ -124,9 +125,9 @@ class MujocoPlant:
         self._threads = False  # whether this run steps the copies on the batch (set at __enter__)
         self.warnings: list[str] = []  # MuJoCo's warnings during the last run
         with kept_aside():  # the model check's warnings, outside any run
-            self.consistency_report = (
-                consistency_report(built, options, terms, native, None if self._forces is None else self._forces[0])
-                if self.n == 2 else filter_consistency_report(built, options, terms))
+            force = None if self._forces is None else self._forces[0]
+            self.consistency_report = (consistency_report(built, options, terms, native, force) if self.n == 2
+                                       else filter_consistency_report(built, options, terms))
 
     # ---- context manager: the process-global passive callback, and the run's warnings
     def __enter__(self) -> MujocoPlant:
