@@ -37,7 +37,7 @@ from ...errors import QcontrolInputError, shown
 from ...expr import Expression, compile_expression
 from ..base import timed
 from .callbacks import kept_aside
-from .mjcf import CompiledModel, joint_inertia
+from .mjcf import CompiledModel, filter_actuator_problem, joint_inertia
 
 TOLERANCE = 1e-9  # relative, as the consistency check at load
 SAMPLES = 300
@@ -247,28 +247,6 @@ def direct_actuator_problem(model: mujoco.MjModel, aid: int) -> str | None:
     if int(model.actuator_biastype[aid]) != int(mujoco.mjtBias.mjBIAS_NONE):
         return (f"actuator {name} has a bias (a position or velocity servo: its force depends on the state, "
                 f"not on the command alone); {supported}")
-    if model.actuator_gainprm[aid, 0] * model.actuator_gear[aid, 0] == 0.0:
-        return f"actuator {name} has gear or gain 0 (it applies no force); give it gear=\"1\""
-    return None
-
-
-def filter_actuator_problem(model: mujoco.MjModel, aid: int) -> str | None:
-    """Why actuator ``aid`` is not a direct torque or force through a first-order filter
-    (``act' = (ctrl - act) / tau``, ``force = gain gear act``), or None."""
-    name = repr(_name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, aid) or f"#{aid}")
-    if int(model.actuator_dyntype[aid]) != int(mujoco.mjtDyn.mjDYN_FILTER):
-        return direct_actuator_problem(model, aid) or f"actuator {name} has no filter; write " \
-            "dyntype=\"filter\""
-    if model.actuator_actearly[aid]:
-        return (f"actuator {name} has actearly=\"true\" (its force uses the next activation, which no ODE "
-                "of the state has); remove actearly")
-    if not model.actuator_dynprm[aid, 0] > 0:
-        return f"actuator {name} has a filter time constant dynprm {model.actuator_dynprm[aid, 0]!r}; " \
-            "give dynprm > 0"
-    if int(model.actuator_gaintype[aid]) != int(mujoco.mjtGain.mjGAIN_FIXED) or \
-            int(model.actuator_biastype[aid]) != int(mujoco.mjtBias.mjBIAS_NONE):
-        return (f"actuator {name} has a gain that is not fixed, or a bias; a filter actuator needs "
-                "gaintype=\"fixed\" and biastype=\"none\"")
     if model.actuator_gainprm[aid, 0] * model.actuator_gear[aid, 0] == 0.0:
         return f"actuator {name} has gear or gain 0 (it applies no force); give it gear=\"1\""
     return None

@@ -372,11 +372,30 @@ def _check_elements(model: mujoco.MjModel, options: MujocoOptions, fail: Fail) -
 FILTERS = (int(mujoco.mjtDyn.mjDYN_FILTER), int(mujoco.mjtDyn.mjDYN_FILTEREXACT))
 
 
+def filter_actuator_problem(model: mujoco.MjModel, aid: int) -> str | None:
+    """Why actuator ``aid`` is not a direct torque or force through a first-order filter
+    (``act' = (ctrl - act) / tau``, ``force = gain gear act``), or None."""
+    name = repr(mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, aid) or f"#{aid}")
+    if int(model.actuator_dyntype[aid]) != int(mujoco.mjtDyn.mjDYN_FILTER):
+        return f"actuator {name} is not a first-order filter; write dyntype=\"filter\" dynprm=\"TAU\""
+    if model.actuator_actearly[aid]:
+        return (f"actuator {name} has actearly=\"true\" (its force uses the next activation, which no ODE "
+                "of the state has); remove actearly")
+    if not model.actuator_dynprm[aid, 0] > 0:
+        return f"actuator {name} has a filter time constant dynprm {model.actuator_dynprm[aid, 0]!r}; " \
+            "give dynprm > 0"
+    if int(model.actuator_gaintype[aid]) != int(mujoco.mjtGain.mjGAIN_FIXED) or \
+            int(model.actuator_biastype[aid]) != int(mujoco.mjtBias.mjBIAS_NONE):
+        return (f"actuator {name} has a gain that is not fixed, or a bias; a filter actuator needs "
+                "gaintype=\"fixed\" and biastype=\"none\"")
+    if model.actuator_gainprm[aid, 0] * model.actuator_gear[aid, 0] == 0.0:
+        return f"actuator {name} has gear or gain 0 (it applies no force); give it gear=\"1\""
+    return None
+
+
 def _filter_ids(model: mujoco.MjModel, options: MujocoOptions, ids: Ids, fail: Fail) -> Ids:
     """Order 3: the actuator a first-order filter on the joint (fixed gain, no bias, activation
     neither clamped nor early), read by an actuatorfrc sensor."""
-    from .equation import filter_actuator_problem
-
     aid, name = ids.actuator, options.actuator
     problem = filter_actuator_problem(model, aid)
     if problem is not None or not _plain_motor(model, aid, ids.joint, FILTERS) or ids.actuator_gain == 0.0:
