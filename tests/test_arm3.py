@@ -107,3 +107,11 @@ def test_the_model_command_writes_a_runnable_order_3_scenario(tmp_path: Path) ->
     eq = model_equation(ARM3)
     assert sc.order == 3 and sc.controller.kind == "tuning"
     assert list(sc.theta) == [t.theta for t in eq.all_terms]
+
+
+def test_a_load_on_the_order_3_arm_is_refused_before_the_run() -> None:
+    """A load torque on the joint is not the ODE twin's matched load of x3': one line, no run."""
+    sc = qcontrol.load_scenario(SCENARIOS / "arm3.toml", {"simulation.duration": 0.1, "disturbance": [
+        {"kind": "step", "start": 0.05, "value": 2.0}]})
+    with pytest.raises(qcontrol.QcontrolInputError, match=r"\[\[disturbance\]\]: backend 'mujoco' takes no "):
+        qcontrol.run(sc, backend="mujoco")

@@ -47,9 +47,10 @@ def parse(table: Table, ctx: PlantContext) -> MujocoOptions:
 def build(terms: Sequence[PlantTerms], options: Sequence[MujocoOptions], dt: float) -> MujocoPlant:
     """A batch of ``len(terms)`` MuJoCo copies of variants that share ``structure``: each copy
     with its own theta for the terms the passive callback adds, and its own noise seed."""
-    from .plant import MujocoPlant
+    from .plant import FilteredJointPlant, MujocoPlant
 
-    return MujocoPlant(options[0], terms[0], batch=len(terms), timestep=dt, copies=terms,
+    kind = MujocoPlant if terms[0].order == 2 else FilteredJointPlant
+    return kind(options[0], terms[0], batch=len(terms), timestep=dt, copies=terms,
                        noise_seeds=[o.noise_seed for o in options])
 
 

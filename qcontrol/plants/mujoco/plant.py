@@ -296,6 +296,14 @@ class MujocoPlant:
         return MujocoNativeForm(self, substeps).stepper()
 
 
+class FilteredJointPlant(MujocoPlant):
+    """The plant of order 3 (a joint driven through a filter actuator), which takes no external
+    load: a load torque on the joint enters x2', not the last equation x3' where eq. (1)'s matched
+    load, and so the ODE twin's, enters; a ``[[disturbance]]`` is refused before a run starts."""
+
+    disturb = None  # type: ignore[assignment]  (not Disturbable)
+
+
 class CopyStepper:
     """Copy ``b`` of a :class:`MujocoPlant` through ``substeps`` calls of ``mj_step`` with u held;
     a copy MuJoCo reported unstable is marked dead and no longer stepped."""
