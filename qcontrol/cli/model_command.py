@@ -7,7 +7,9 @@ I, the input gain b = gear / I, each term MuJoCo's physics produces with its coe
 precision (the shortest decimal that reads back as the same double), and what the model does
 outside that smooth form. ``--scenario`` writes a scenario of that plant (every term native, the
 paper's law with a bounding function for each) after checking it as ``qcontrol check`` would:
-nothing is written when it would not run.
+nothing is written when it would not run. A joint driven through a first-order filter actuator
+(``dyntype="filter"``) is a plant of order 3, x3 its scaled activation: x2' = x3 + theta^T phi_2,
+x3' = b u + theta^T phi_3 with b = gear / (I tau); its scenario runs the tuning-function law.
 """
 
 from __future__ import annotations
@@ -31,7 +33,9 @@ def add_model_parser(sub: argparse._SubParsersAction) -> None:
         description="Print the equation x2' = b u + theta^T phi(x) that MuJoCo realises for the model's "
         "one actuated hinge or slide joint (input gain b = gear / I, each term MuJoCo's physics produces "
         "with its coefficient to full precision, and what lies outside that form); with --scenario, write "
-        "a scenario of it that runs as it is (checked first: nothing is written when it would not run).",
+        "a scenario of it that runs as it is (checked first: nothing is written when it would not run). "
+        "Through a filter actuator (dyntype=\"filter\") the equation has order 3, x3 the actuator's "
+        "activation times gear / I: x2' = x3 + theta^T phi_2, x3' = b u + theta^T phi_3, b = gear / (I tau).",
     )
     p.add_argument("model", type=Path, help="an MJCF file (.xml) with one actuated hinge or slide joint")
     p.add_argument("--joint", metavar="NAME", help="the joint meant (checked: it must be the actuated one)")
