@@ -465,9 +465,10 @@ def model_equation(model: str | Path, joint: str | None = None) -> ModelEquation
 def model_scenario(model: str | Path, out: str | Path, joint: str | None = None,
                    command: str | None = None) -> Path:
     """Write at ``out`` a scenario of the model's equation (every term native, the paper's law with a
-    bounding function for each, a reference) after loading it and building its law and both plants,
-    MuJoCo's compared with eq. (1) (``qcontrol model --scenario``): nothing is written when it would
-    not run. ``command`` is named in its header."""
+    bounding function for each, or through a filter actuator the tuning-function law, a reference)
+    after loading it and building its law and both plants, MuJoCo's compared with eq. (1) (``qcontrol
+    model --scenario``): nothing is written when it would not run. ``command`` is named in its
+    header."""
     from .plants.mujoco.model_scenario import scenario_text
 
     _check_arguments("model_scenario", out=(out, (str, Path), False))

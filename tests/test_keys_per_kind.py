@@ -203,16 +203,18 @@ def test_an_unknown_key_in_a_backend_section_is_refused(backend: str) -> None:
     assert _names_override(message, f"plant.{backend}.no_such_key", "unknown key")
 
 
-def test_the_mujoco_section_needs_a_plant_of_order_two(tmp_path: Path) -> None:
-    """The MuJoCo backend models one joint: a [plant.mujoco] on an order-3 plant is refused at
-    load, whatever backend runs."""
+def test_the_mujoco_section_needs_a_plant_of_order_two_or_a_filter_actuator(tmp_path: Path) -> None:
+    """The MuJoCo backend models one joint, or (order 3) one driven through a filter actuator read
+    by an activation sensor: a [plant.mujoco] on an order-3 plant without one is refused at load,
+    whatever backend runs."""
     text = CHAIN3.read_text() + (
         f'\n[plant.mujoco]\nmodel = "{ROOT}/models/slider.xml"\njoint = "slide"\n'
         'position_sensor = "position"\nvelocity_sensor = "velocity"\nactuator = "force"\n'
     )
     (tmp_path / "c3.toml").write_text(text)
     message = _refused([], scenario=tmp_path / "c3.toml")
-    assert "plant.mujoco: the MuJoCo backend models one joint, i.e. plant order 2" in message
+    assert "plant.mujoco: plant order 3 on MuJoCo reads x3 from the filter actuator, but activation_sensor " \
+        "is missing" in message
 
 
 # --------------------------------------------------------------------------------------------

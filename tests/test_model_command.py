@@ -244,8 +244,9 @@ BAD = {
                    '</actuator></mujoco>', "is a ball joint"),
     "position servo": (_one_joint('<actuator><position name="s" joint="j" kp="10"/></actuator>'),
                        "has a bias"),
-    "filter": (_one_joint('<actuator><general name="f" joint="j" dyntype="filter" dynprm="0.1"/></actuator>'),
-               'dyntype="filter"'),
+    "filter without its sensor": (_one_joint('<actuator><general name="f" joint="j" dyntype="filter" '
+                                             'dynprm="0.1"/></actuator>'),
+                                  '<actuatorfrc name="x3" actuator="f"/>'),
     "urdf": ('<?xml version="1.0"?>\n<robot name="r"><link name="a"/></robot>\n',
              "its root element is <robot>"),
     "not xml": ("hello\n", "not an MJCF file"),

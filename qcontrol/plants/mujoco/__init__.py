@@ -15,6 +15,7 @@ from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from ...errors import QcontrolInputError
+from ...expr.rows import is_zero
 from ...schema import Table
 from ..backends import Backend, PlantContext, SceneSource
 from ..base import PlantTerms
@@ -22,6 +23,7 @@ from .options import SECTION, MujocoOptions
 from .options import parse as parse_options
 
 if TYPE_CHECKING:
+    from .equation import ModelEquation
     from .plant import MujocoPlant
 
 
@@ -31,10 +33,12 @@ def parse(table: Table, ctx: PlantContext) -> MujocoOptions:
     from .mjcf import compiled
 
     row = ctx.terms.first_nonzero_row
-    if row is not None:
+    if row is not None and (ctx.terms.order == 2 or row == 1):
+        what = ("a chain (terms in the last equation only)" if ctx.terms.order == 2 else
+                "x1' = x2 exactly (a joint's position and velocity)")
         raise QcontrolInputError(f"{table.source}: plant.phi[{row - 1}]: row {row} has a regressor, but "
-                                 f"[{table.name}] realises a chain (terms in the last equation only); run "
-                                 "this plant on the ode backend, or give every row before the last as \"0\"")
+                                 f"[{table.name}] realises {what}; run this plant on the ode backend, or "
+                                 f"give row {row} as \"0\"")
     options = parse_options(table, ctx.terms, ctx.base_dir)
     compiled(options, ctx.dt)
     return options
@@ -43,9 +47,10 @@ def parse(table: Table, ctx: PlantContext) -> MujocoOptions:
 def build(terms: Sequence[PlantTerms], options: Sequence[MujocoOptions], dt: float) -> MujocoPlant:
     """A batch of ``len(terms)`` MuJoCo copies of variants that share ``structure``: each copy
     with its own theta for the terms the passive callback adds, and its own noise seed."""
-    from .plant import MujocoPlant
+    from .plant import FilteredJointPlant, MujocoPlant
 
-    return MujocoPlant(options[0], terms[0], batch=len(terms), timestep=dt, copies=terms,
+    kind = MujocoPlant if terms[0].order == 2 else FilteredJointPlant
+    return kind(options[0], terms[0], batch=len(terms), timestep=dt, copies=terms,
                        noise_seeds=[o.noise_seed for o in options])
 
 
@@ -84,14 +89,34 @@ def model_coefficients(options: MujocoOptions, terms: PlantTerms, dt: float) -> 
 
     built = compiled(options.nominal(), dt)
     eq = compiled_equation(built, options.model.name)
+    if terms.order == 3:
+        return _filter_coefficients(eq, terms, options), built.input_gain
     found = dict(zip(terms.names, matches(eq, terms.expressions), strict=True))
     coefficients = {name: None if found[name] is None else eq.terms[found[name][0]].theta / found[name][1]
                     for name in options.native_terms}
     return coefficients, built.input_gain
 
 
+def _filter_coefficients(eq: ModelEquation, terms: PlantTerms,
+                         options: MujocoOptions) -> dict[str, float | None]:
+    """Order 3: each native term's coefficient, matched in its own equation (row 2 against the
+    joint's terms, row 3 against the filter's), None where MuJoCo makes no such term or the term
+    sits in both."""
+    from .equation import matches
+
+    rows = terms.regressor_rows
+    found: dict[str, float | None] = {}
+    for j, name in enumerate(terms.names):
+        pairs = ((eq.terms, rows[1]), (eq.filter_terms, rows[2]))
+        hits = [(model_terms, row[j]) for model_terms, row in pairs if not is_zero(row[j])]
+        hit = matches(replace(eq, terms=hits[0][0]), [hits[0][1]], 3)[0] if len(hits) == 1 else None
+        found[name] = None if hit is None else hits[0][0][hit[0]].theta / hit[1]
+    return {name: found[name] for name in options.native_terms}
+
+
 BACKEND = Backend(name="mujoco", build=build, structure=structure,
-                  summary="MuJoCo physics of an MJCF model (order 2: one joint)",
+                  summary="MuJoCo physics of an MJCF model (order 2: one joint; order 3: through a filter "
+                  "actuator)",
                   section=SECTION, parse=parse, scene=scene, inertia=inertia,
                   model_coefficients=model_coefficients)
 

@@ -14,6 +14,7 @@ import mujoco
 import numpy as np
 
 from ...errors import QcontrolInputError
+from ...expr.rows import is_zero
 from ..base import PlantTerms, timed
 from .callbacks import GeneralizedForce, passive_forces
 from .equation import SAMPLES, ModelEquation, compiled_equation, matches, sampled_states
@@ -189,3 +190,54 @@ def _model_command(options: MujocoOptions) -> str:
     """Where the model's own equation is printed."""
     overridden = " (before the scenario's parameters)" if options.parameters else ""
     return f"qcontrol model {options.model} prints the model's equation{overridden}"
+
+
+def filter_consistency_report(compiled: CompiledModel, options: MujocoOptions,
+                              terms: PlantTerms) -> dict[str, Any]:
+    """:func:`consistency_report` for order 3 (a joint driven through a filter actuator, every term
+    MuJoCo's own): at sampled states (x1, x2, x3) and inputs, MuJoCo's ``qacc`` against ``x3 +
+    theta^T phi_2(x)`` and its ``act_dot`` (times gear / I) against ``b u + theta^T phi_3(x)``;
+    each term's coefficient as MuJoCo realises it fitted per equation. A mismatch is refused in
+    one line naming the equation and the term, unless a realism option is on."""
+    x, u, _ = sampled_states(order=3)
+    model, ids = compiled.model, compiled.ids
+    data = mujoco.MjData(model)
+    rates = np.empty((SAMPLES, 2))
+    for i in range(SAMPLES):
+        data.qpos[ids.qpos], data.qvel[ids.dof] = x[i, 0], x[i, 1]
+        data.act[ids.act] = x[i, 2] / compiled.x3_per_act
+        data.ctrl[ids.actuator] = compiled.ctrl_per_u(terms) * u[i]
+        mujoco.mj_forward(model, data)
+        rates[i] = data.qacc[ids.dof], compiled.x3_per_act * data.act_dot[ids.act]
+    rows = terms.regressor_rows
+    report: dict[str, Any] = {"ok": True, "samples": SAMPLES, "tolerance": TOLERANCE, "max_abs_mismatch": 0.0,
+                              "max_relative_mismatch": 0.0, "terms": {}, "realism": list(options.realism),
+                              "inertia": compiled.inertia}
+    problems = []
+    for row, known, name in ((1, x[:, 2], "x3"), (2, terms.b * u, "u")):
+        columns = {name: known / (1.0 if name == "x3" else terms.b)} | {
+            f"{n}": np.broadcast_to(e(x), (SAMPLES,)) for n, e in zip(terms.names, rows[row], strict=True)
+            if not is_zero(e)}
+        coefficient = {name: 1.0 if name == "x3" else terms.b} | {
+            n: c for n, c in zip(terms.names, terms.theta, strict=True) if n in columns}
+        residual = rates[:, row - 1] - sum(coefficient[k] * columns[k] for k in columns)
+        scale = 1.0 + sum(np.abs(coefficient[k] * columns[k]) for k in columns)
+        fit, *_ = np.linalg.lstsq(np.column_stack(list(columns.values())), residual, rcond=None)
+        label = f"x{row + 1}'"
+        for j, k in enumerate(columns):
+            mujoco_value = coefficient[k] + float(fit[j])
+            report["terms"][f"{label} {k}"] = {"scenario": coefficient[k], "mujoco": mujoco_value}
+            if not _same(mujoco_value, coefficient[k]):
+                problems.append(f"in {label}, {k}: MuJoCo's coefficient is {mujoco_value!r}, the scenario's "
+                                f"{coefficient[k]!r}")
+        relative = float(np.max(np.abs(residual) / scale))
+        report["max_abs_mismatch"] = max(report["max_abs_mismatch"], float(np.max(np.abs(residual))))
+        report["max_relative_mismatch"] = max(report["max_relative_mismatch"], relative)
+        report["ok"] = report["ok"] and relative <= TOLERANCE
+    if not (report["ok"] or options.realism):
+        found = "; ".join(problems) or "the mismatch is not a multiple of any term"
+        raise QcontrolInputError(
+            f"{options.where}: MuJoCo's rates differ from x2' = x3 + theta^T phi_2, x3' = b u + theta^T "
+            f"phi_3 by up to {report['max_abs_mismatch']:.3g} at {SAMPLES} sampled states: {found}; "
+            f"{_model_command(options)}")
+    return report

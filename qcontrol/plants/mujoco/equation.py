@@ -28,7 +28,7 @@ import math
 import pathlib
 import re
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import mujoco
 import numpy as np
@@ -37,7 +37,7 @@ from ...errors import QcontrolInputError, shown
 from ...expr import Expression, compile_expression
 from ..base import timed
 from .callbacks import kept_aside
-from .mjcf import CompiledModel, joint_inertia
+from .mjcf import CompiledModel, filter_actuator_problem, joint_inertia
 
 TOLERANCE = 1e-9  # relative, as the consistency check at load
 SAMPLES = 300
@@ -86,11 +86,33 @@ class ModelEquation:
     position_sensor: str | None
     velocity_sensor: str | None
     unexplained: float  # max |MuJoCo's qacc - this equation| / scale at sampled states (outside off)
+    tau: float | None = None  # a filter actuator's time constant (order 3), None for a direct one
+    activation_sensor: str | None = None  # order 3: the (first named) actuatorfrc sensor on the actuator
+
+    @property
+    def order(self) -> int:
+        """2 for a direct actuator; 3 through a filter (x3 the activation, scaled)."""
+        return 2 if self.tau is None else 3
 
     @property
     def input_gain(self) -> float:
-        """b = gear / I: x2' per unit of the actuator's command."""
-        return self.gear / self.inertia
+        """b = gear / I: x2' per unit of the actuator's command; through a filter, b = gear / (I tau):
+        x3' per unit of the command."""
+        b = self.gear / self.inertia
+        return b if self.tau is None else b / self.tau
+
+    @property
+    def filter_terms(self) -> tuple[ModelTerm, ...]:
+        """Order 3: the term of x3' = b u - x3 / tau besides b u, ``-1 / tau`` times x3."""
+        if self.tau is None:
+            return ()
+        source = f"the actuator's filter, time constant tau = {self.tau!r} s: -1 / tau"
+        return (ModelTerm("x3", -1.0 / self.tau, source, "1 + q3**2"),)
+
+    @property
+    def all_terms(self) -> tuple[ModelTerm, ...]:
+        """Every term: x2''s (:attr:`terms`), then x3''s (:attr:`filter_terms`)."""
+        return self.terms + self.filter_terms
 
     @property
     def units(self) -> tuple[str, str, str]:
@@ -98,14 +120,17 @@ class ModelEquation:
         return UNITS[self.kind]
 
 
-def sampled_states(timed: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """The :data:`SAMPLES` states ``(SAMPLES, 2)``, inputs and, for terms in t (``timed``), times
-    at which a model is checked against eq. (1): x1 in [-pi, pi], x2 in [-4, 4], u in [-20, 20],
-    t in [0, 10], the same each call."""
+def sampled_states(timed: bool = False, order: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The :data:`SAMPLES` states ``(SAMPLES, order)``, inputs and, for terms in t (``timed``),
+    times at which a model is checked against eq. (1): x1 in [-pi, pi], x2 in [-4, 4], u in
+    [-20, 20], t in [0, 10], and for order 3 x3 in [-20, 20] (drawn last), the same each call."""
     rng = np.random.default_rng(SEED)
     x = np.column_stack([rng.uniform(-math.pi, math.pi, SAMPLES), rng.uniform(-4.0, 4.0, SAMPLES)])
     u = rng.uniform(-20.0, 20.0, SAMPLES)
-    return x, u, rng.uniform(0.0, 10.0, SAMPLES) if timed else None
+    t = rng.uniform(0.0, 10.0, SAMPLES) if timed else None
+    if order == 3:
+        x = np.column_stack([x, rng.uniform(-20.0, 20.0, SAMPLES)])
+    return x, u, t
 
 
 def model_equation(path: str | pathlib.Path, joint: str | None = None) -> ModelEquation:
@@ -197,7 +222,8 @@ def _actuated_joint(model: mujoco.MjModel, joint: str | None, label: str) -> tup
         raise QcontrolInputError(f"{label}: {len(driven[jid])} actuators drive joint {joints[jid]!r} "
                                  f"({names}); keep one <motor> on it")
     aid = driven[jid][0]
-    problem = direct_actuator_problem(model, aid)
+    filtered = int(model.actuator_dyntype[aid]) == int(mujoco.mjtDyn.mjDYN_FILTER)
+    problem = filter_actuator_problem(model, aid) if filtered else direct_actuator_problem(model, aid)
     if problem is not None:
         raise QcontrolInputError(f"{label}: {problem}")
     return jid, aid
@@ -207,11 +233,13 @@ def direct_actuator_problem(model: mujoco.MjModel, aid: int) -> str | None:
     """Why actuator ``aid`` is not a direct torque or force (``force = gain gear ctrl``), or None."""
     name = repr(_name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, aid) or f"#{aid}")
     supported = ("qcontrol supports a direct torque or force: <motor joint=\"NAME\" gear=\"...\"/>, or "
-                 "<general> with no dyntype, gaintype \"fixed\" and no bias")
+                 "<general> with no dyntype, gaintype \"fixed\" and no bias; or one through a first-order "
+                 "filter: <general dyntype=\"filter\" dynprm=\"TAU\"> (plant order 3)")
     dyn = int(model.actuator_dyntype[aid])
-    if dyn == int(mujoco.mjtDyn.mjDYN_FILTER) or dyn == int(mujoco.mjtDyn.mjDYN_FILTEREXACT):
-        return f"actuator {name} has dyntype=\"filter\" (the command passes a first-order filter): not " \
-               f"supported yet; {supported}"
+    if dyn == int(mujoco.mjtDyn.mjDYN_FILTEREXACT):
+        return (f"actuator {name} has dyntype=\"filterexact\", whose activation MuJoCo advances by its exact "
+                "discrete formula, not by the integrator the ODE twin shares; write dyntype=\"filter\" "
+                "(the same first-order equation)")
     if dyn != int(mujoco.mjtDyn.mjDYN_NONE):
         return f"actuator {name} has activation dynamics ({mujoco.mjtDyn(dyn).name[6:].lower()}); {supported}"
     if int(model.actuator_gaintype[aid]) != int(mujoco.mjtGain.mjGAIN_FIXED):
@@ -232,10 +260,13 @@ def equation_of(model: mujoco.MjModel, jid: int, aid: int, label: str) -> ModelE
              *_gravity(model, jid, inertia, kind))
     gear = float(model.actuator_gainprm[aid, 0] * model.actuator_gear[aid, 0])
     sensors = _sensors(model, jid)
+    filtered = int(model.actuator_dyntype[aid]) == int(mujoco.mjtDyn.mjDYN_FILTER)
+    tau = float(model.actuator_dynprm[aid, 0]) if filtered else None
     eq = ModelEquation(_name(model, mujoco.mjtObj.mjOBJ_JOINT, jid), kind,
                        _name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, aid), gear, inertia, terms,
-                       tuple(_outside(model, jid, aid, kind)), *sensors, 0.0)
-    unexplained, contacts = _check(model, jid, aid, eq)
+                       tuple(_outside(model, jid, aid, kind)), *sensors, 0.0, tau,
+                       _activation_sensor(model, aid) if filtered else None)
+    unexplained, contacts = (_check if tau is None else _check_filter)(model, jid, aid, eq)
     touching = Outside("contacts (geoms touch at some positions)", "disable them: <option><flag contact="
                        "\"disable\"/></option>, or contype=\"0\" conaffinity=\"0\" on the geoms")
     outside = eq.outside + ((touching,) if contacts else ())
@@ -323,6 +354,14 @@ def _sensors(model: mujoco.MjModel, jid: int) -> tuple[str | None, str | None]:
     return found.get(int(mujoco.mjtSensor.mjSENS_JOINTPOS)), found.get(int(mujoco.mjtSensor.mjSENS_JOINTVEL))
 
 
+def _activation_sensor(model: mujoco.MjModel, aid: int) -> str | None:
+    """The name of the (first named) actuatorfrc sensor on actuator ``aid``: the reading of x3."""
+    kind = int(mujoco.mjtSensor.mjSENS_ACTUATORFRC)
+    named = (_name(model, mujoco.mjtObj.mjOBJ_SENSOR, s) for s in range(model.nsensor)
+             if int(model.sensor_type[s]) == kind and int(model.sensor_objid[s]) == aid)
+    return next((name for name in named if name), None)
+
+
 def _outside(model: mujoco.MjModel, jid: int, aid: int, kind: str) -> list[Outside]:
     """What the model does besides the smooth terms, and what a scenario does about it."""
     position, force, _ = UNITS[kind]
@@ -356,6 +395,10 @@ def _outside(model: mujoco.MjModel, jid: int, aid: int, kind: str) -> list[Outsi
                              "(stiffness, damping)"))
     if model.neq and _flag(model, _DISABLE.mjDSBL_EQUALITY):
         found.append(Outside("equality constraints", "remove the <equality> elements"))
+    if model.actuator_actlimited[aid]:
+        low, high = (float(v) for v in model.actuator_actrange[aid])
+        found.append(Outside(f"an activation range actrange [{low!r}, {high!r}]", "remove actlimited and "
+                             "actrange: the filter's equation has no clamp"))
     if model.jnt_plasticadr[jid] >= 0:
         found.append(Outside("a plastic spring (springyield)", "remove springyield"))
     return found
@@ -386,6 +429,30 @@ def _check(model: mujoco.MjModel, jid: int, aid: int, eq: ModelEquation) -> tupl
     return float(np.max(np.abs(qacc - sum(parts)) / scale)), contacts
 
 
+def _check_filter(model: mujoco.MjModel, jid: int, aid: int, eq: ModelEquation) -> tuple[float, bool]:
+    """:func:`_check` through a filter actuator (order 3): at sampled states (x1, x2, x3) and
+    commands, MuJoCo's ``qacc`` against ``x3 + theta^T phi(x1, x2)`` and its ``act_dot`` (times
+    gear / I) against ``b u - x3 / tau``; the largest relative difference of either."""
+    x, u, _ = sampled_states(order=3)
+    per_act = eq.gear / eq.inertia  # x3 = (gear / I) act
+    check = _unconstrained(model)
+    data = mujoco.MjData(check)
+    qadr, dof, adr = int(model.jnt_qposadr[jid]), int(model.jnt_dofadr[jid]), int(model.actuator_actadr[aid])
+    rates = np.empty((len(u), 2))
+    for i in range(len(u)):
+        data.qpos[qadr], data.qvel[dof], data.act[adr] = x[i, 0], x[i, 1], x[i, 2] / per_act
+        data.ctrl[aid] = u[i]
+        mujoco.mj_forward(check, data)
+        rates[i] = data.qacc[dof], per_act * data.act_dot[adr]
+    worst = 0.0
+    for column, first, terms in ((0, x[:, 2], eq.terms), (1, eq.input_gain * u, eq.filter_terms)):
+        parts = [first] + [t.theta * compile_expression(t.phi, ("x1", "x2", "x3"))(x) for t in terms]
+        scale = 1.0 + sum(np.abs(p) for p in parts)
+        worst = max(worst, float(np.max(np.abs(rates[:, column] - sum(parts)) / scale)))
+    contacts = _check(model, jid, aid, replace(eq, tau=None))[1]
+    return worst, contacts
+
+
 def _unconstrained(model: mujoco.MjModel) -> mujoco.MjModel:
     """A copy of ``model`` with constraints (limits, friction, contacts) and the command clamp off."""
     import copy
@@ -405,13 +472,14 @@ def compiled_equation(compiled: CompiledModel, label: str) -> ModelEquation:
         return equation_of(compiled.model, compiled.ids.joint, compiled.ids.actuator, label)
 
 
-def matches(eq: ModelEquation, expressions: Sequence[Expression]) -> list[tuple[int, float] | None]:
-    """For each expression over x1, x2, the model term it is a constant multiple of, as ``(j, k)``
-    with ``expression = k * eq.terms[j].phi`` at the sampled states (k = 1 exactly for the same
-    values), or None."""
-    x, _, _ = sampled_states()
+def matches(eq: ModelEquation, expressions: Sequence[Expression],
+            order: int = 2) -> list[tuple[int, float] | None]:
+    """For each expression over x1, x2 (x1 .. x3 for ``order`` 3), the model term it is a constant
+    multiple of, as ``(j, k)`` with ``expression = k * eq.terms[j].phi`` at the sampled states (k =
+    1 exactly for the same values), or None."""
+    x, _, _ = sampled_states(order=order)
     with np.errstate(all="ignore"):
-        model = [compile_expression(t.phi, ("x1", "x2"))(x) for t in eq.terms]
+        model = [compile_expression(t.phi, ("x1", "x2", "x3")[:order])(x) for t in eq.terms]
         found: list[tuple[int, float] | None] = []
         for e in expressions:
             if timed(e):  # MuJoCo's physics makes no term in t

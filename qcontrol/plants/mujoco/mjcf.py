@@ -19,7 +19,7 @@ import math
 import pathlib
 import re
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache, partial
 from typing import Any
 
@@ -53,6 +53,9 @@ class Ids:
     velocity_sensor: int
     actuator: int
     actuator_gain: float
+    activation_sensor: int = -1  # order 3: the actuatorfrc sensor reading x3 (-1: none)
+    act: int = -1  # order 3: the actuator's address in act
+    tau: float | None = None  # order 3: the filter's time constant (None: a direct actuator)
 
 
 @dataclass(frozen=True)
@@ -67,14 +70,31 @@ class CompiledModel:
     @property
     def input_gain(self) -> float:
         """The input gain b the model realises for its actuator's own command: ``gear / I``
-        (``gear`` the motor's gain times its gear, ``I`` the nominal inertia from ``mj_fullM``)."""
+        (``gear`` the motor's gain times its gear, ``I`` the nominal inertia from ``mj_fullM``);
+        through a filter of time constant tau (order 3), ``gear / (I tau)``."""
+        b = self.ids.actuator_gain / self.inertia
+        return b if self.ids.tau is None else b / self.ids.tau
+
+    @property
+    def x3_per_act(self) -> float:
+        """Order 3: x3 per unit of the actuator's activation, ``gear / I`` (x2' = x3 + ...)."""
         return self.ids.actuator_gain / self.inertia
 
+    @property
+    def x3_per_reading(self) -> float:
+        """Order 3: x3 per unit of the actuatorfrc sensor's reading (the force ``gain act``): the
+        actuator's gear over I."""
+        return float(self.model.actuator_gear[self.ids.actuator, 0]) / self.inertia
+
     def ctrl_per_u(self, terms: PlantTerms) -> float:
-        """The actuator command per unit of u: ``I / gear`` when the scenario states no input gain
-        (u per unit inertia: b = 1), else 1 (u is the actuator's command; b = gear / I, which
+        """The actuator command per unit of u: ``1 / b`` of :attr:`input_gain` when the scenario
+        states no input gain (b = 1: u per unit inertia, ``I / gear``, and through a filter ``I tau /
+        gear``), else 1 (u is the actuator's command; b as the model realises it, which
         :func:`check_input_gain` has compared with the scenario's)."""
-        return self.inertia / self.ids.actuator_gain if terms.input_gain is None else 1.0
+        if terms.input_gain is not None:
+            return 1.0
+        per_u = self.inertia / self.ids.actuator_gain
+        return per_u if self.ids.tau is None else per_u * self.ids.tau
 
 
 INPUT_GAIN_TOLERANCE = 1e-9  # relative, as the consistency check's coefficients
@@ -88,11 +108,13 @@ def check_input_gain(built: CompiledModel, terms: PlantTerms, where: str) -> Non
     realised, stated = built.input_gain, float(terms.input_gain)
     if abs(stated - realised) <= INPUT_GAIN_TOLERANCE * abs(realised):
         return
-    gear, inertia = built.ids.actuator_gain, built.inertia
+    gear, inertia, tau = built.ids.actuator_gain, built.inertia, built.ids.tau
+    formula = (f"gear / I = {gear!r} / {inertia!r}" if tau is None else
+               f"gear / (I tau) = {gear!r} / ({inertia!r} * {tau!r})")
     raise QcontrolInputError(
-        f"{where.rsplit('.', 1)[0]}.input_gain: is {stated!r} but the model realises b = gear / I = "
-        f"{gear!r} / {inertia!r} = {realised!r}; write input_gain = {realised!r} in [plant], or leave it "
-        "out to have u scaled by the inertia (b = 1)")
+        f"{where.rsplit('.', 1)[0]}.input_gain: is {stated!r} but the model realises b = {formula} = "
+        f"{realised!r}; write input_gain = {realised!r} in [plant], or leave it out to have u scaled by "
+        "the inertia (b = 1)")
 
 
 def compiled(options: MujocoOptions, timestep: float | None = None) -> CompiledModel:
@@ -218,8 +240,9 @@ def _find_elements(spec: mujoco.MjSpec, options: MujocoOptions, fail: Fail) -> t
         raise fail("joint", f"no joint named {options.joint!r} in {options.model.name}",
                    f"use one of {_names(spec.joints)}")
     for key, name in (("position_sensor", options.position_sensor), ("velocity_sensor",
-                                                                     options.velocity_sensor)):
-        if _find(spec.sensors, name) is None:
+                                                                     options.velocity_sensor),
+                      ("activation_sensor", options.activation_sensor)):
+        if name is not None and _find(spec.sensors, name) is None:
             raise fail(key, f"no sensor named {name!r} in {options.model.name}",
                        f"use one of {_names(spec.sensors)}")
     actuator = _find(spec.actuators, options.actuator)
@@ -336,18 +359,64 @@ def _check_elements(model: mujoco.MjModel, options: MujocoOptions, fail: Fail) -
         sensor_ids[key] = sid
     aid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, options.actuator)
     gain = float(model.actuator_gainprm[aid, 0] * model.actuator_gear[aid, 0])
+    ids = Ids(jid, int(model.jnt_dofadr[jid]), int(model.jnt_qposadr[jid]), sensor_ids["position_sensor"],
+              sensor_ids["velocity_sensor"], aid, gain)
+    if options.activation_sensor is not None:
+        return _filter_ids(model, options, ids, fail)
     if not _plain_motor(model, aid, jid) or gain == 0.0:
         raise fail("actuator", f"actuator {options.actuator!r} is not a <motor> on joint {options.joint!r}",
                    f"use <motor joint=\"{options.joint}\" gear=\"1\"/> in the MJCF")
-    return Ids(jid, int(model.jnt_dofadr[jid]), int(model.jnt_qposadr[jid]), sensor_ids["position_sensor"],
-               sensor_ids["velocity_sensor"], aid, gain)
+    return ids
 
 
-def _plain_motor(model: mujoco.MjModel, aid: int, jid: int) -> bool:
+FILTERS = (int(mujoco.mjtDyn.mjDYN_FILTER), int(mujoco.mjtDyn.mjDYN_FILTEREXACT))
+
+
+def filter_actuator_problem(model: mujoco.MjModel, aid: int) -> str | None:
+    """Why actuator ``aid`` is not a direct torque or force through a first-order filter
+    (``act' = (ctrl - act) / tau``, ``force = gain gear act``), or None."""
+    name = repr(mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, aid) or f"#{aid}")
+    if int(model.actuator_dyntype[aid]) != int(mujoco.mjtDyn.mjDYN_FILTER):
+        return f"actuator {name} is not a first-order filter; write dyntype=\"filter\" dynprm=\"TAU\""
+    if model.actuator_actearly[aid]:
+        return (f"actuator {name} has actearly=\"true\" (its force uses the next activation, which no ODE "
+                "of the state has); remove actearly")
+    if not model.actuator_dynprm[aid, 0] > 0:
+        return f"actuator {name} has a filter time constant dynprm {model.actuator_dynprm[aid, 0]!r}; " \
+            "give dynprm > 0"
+    if int(model.actuator_gaintype[aid]) != int(mujoco.mjtGain.mjGAIN_FIXED) or \
+            int(model.actuator_biastype[aid]) != int(mujoco.mjtBias.mjBIAS_NONE):
+        return (f"actuator {name} has a gain that is not fixed, or a bias; a filter actuator needs "
+                "gaintype=\"fixed\" and biastype=\"none\"")
+    if model.actuator_gainprm[aid, 0] * model.actuator_gear[aid, 0] == 0.0:
+        return f"actuator {name} has gear or gain 0 (it applies no force); give it gear=\"1\""
+    return None
+
+
+def _filter_ids(model: mujoco.MjModel, options: MujocoOptions, ids: Ids, fail: Fail) -> Ids:
+    """Order 3: the actuator a first-order filter on the joint (fixed gain, no bias, activation
+    neither clamped nor early), read by an actuatorfrc sensor."""
+    aid, name = ids.actuator, options.actuator
+    problem = filter_actuator_problem(model, aid)
+    if problem is not None or not _plain_motor(model, aid, ids.joint, FILTERS) or ids.actuator_gain == 0.0:
+        raise fail("actuator", problem or f"actuator {name!r} is not a <general dyntype=\"filter\"> on joint "
+                   f"{options.joint!r}", f"use <general joint=\"{options.joint}\" dyntype=\"filter\" "
+                   "dynprm=\"TAU\" gainprm=\"1\" gear=\"1\"/> in the MJCF")
+    sid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, options.activation_sensor)
+    kind = int(mujoco.mjtSensor.mjSENS_ACTUATORFRC)
+    if int(model.sensor_type[sid]) != kind or int(model.sensor_objid[sid]) != aid:
+        raise fail("activation_sensor", f"sensor {options.activation_sensor!r} is not an actuatorfrc sensor "
+                   f"on actuator {name!r}", f"use <actuatorfrc actuator=\"{name}\"/> in the MJCF")
+    return replace(ids, activation_sensor=sid, act=int(model.actuator_actadr[aid]),
+                   tau=float(model.actuator_dynprm[aid, 0]))
+
+
+def _plain_motor(model: mujoco.MjModel, aid: int, jid: int,
+                 dyntypes: tuple[int, ...] = (int(mujoco.mjtDyn.mjDYN_NONE),)) -> bool:
     return (
         int(model.actuator_trntype[aid]) == int(mujoco.mjtTrn.mjTRN_JOINT)
         and int(model.actuator_trnid[aid, 0]) == jid
-        and int(model.actuator_dyntype[aid]) == int(mujoco.mjtDyn.mjDYN_NONE)
+        and int(model.actuator_dyntype[aid]) in dyntypes
         and int(model.actuator_gaintype[aid]) == int(mujoco.mjtGain.mjGAIN_FIXED)
         and int(model.actuator_biastype[aid]) == int(mujoco.mjtBias.mjBIAS_NONE)
     )

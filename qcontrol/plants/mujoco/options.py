@@ -48,6 +48,7 @@ class MujocoOptions:
     noise_seed: int | None = None
     sensor_delay: float = 0.0
     sensor_period: float = 0.0
+    activation_sensor: str | None = None  # order 3: the <actuatorfrc> sensor that reads x3
 
     @property
     def realism(self) -> tuple[str, ...]:
@@ -86,6 +87,10 @@ def _element_name(table: Table, key: str, default: Any, sizes: Any) -> str:
         raise table.error(key, f"expected a non-empty string, got {value!r}",
                           "give the name of the MJCF element")
     return value
+
+
+def _optional_name(table: Table, key: str, default: Any, sizes: Any) -> str | None:
+    return None if table.get(key, default) is None else _element_name(table, key, default, sizes)
 
 
 def _term_names(table: Table, key: str, default: Any, sizes: Any) -> tuple[str, ...]:
@@ -173,6 +178,7 @@ def _nonnegative(table: Table, key: str, default: Any, sizes: Any) -> float:
 
 
 _NAME = custom("name of an MJCF element", _element_name)
+_OPTIONAL_NAME = custom("name of an MJCF element", _optional_name)
 SECTION = Section(
     "plant.mujoco",
     (
@@ -186,8 +192,12 @@ SECTION = Section(
             example='"angle"'),
         Key("velocity_sensor", _NAME, meaning="<jointvel> sensor on the joint: the reading of x2",
             example='"angular_velocity"'),
-        Key("actuator", _NAME, meaning="<motor> on the joint; its command is I u (I from mj_fullM)",
+        Key("actuator", _NAME, meaning="<motor> on the joint; its command is I u (I from mj_fullM); for "
+            "plant order 3, a <general dyntype=\"filter\"> on it, whose activation is x3",
             example='"torque"'),
+        Key("activation_sensor", _OPTIONAL_NAME, None,
+            meaning="plant order 3 only: <actuatorfrc> sensor on the filter actuator, the reading of x3 "
+                    "(its force times gear / I)"),
         Key("native_terms", custom("list of term names (psi, phi1, ...)", _term_names), [],
             meaning="terms MuJoCo's own physics produces (damping, gravity); the others are added as a "
                     "passive force", example='["phi1", "phi3"]'),
@@ -210,7 +220,8 @@ SECTION = Section(
         Key("sensor_period", custom("number >= 0", _seconds), 0.0, "s",
             "sample-and-hold period of the readings"),
     ),
-    meaning="the MuJoCo model of the plant (order 2: one hinge or slide joint)",
+    meaning="the MuJoCo model of the plant (order 2: one hinge or slide joint; order 3: the same joint "
+            "driven through a first-order filter actuator, its activation x3)",
 )
 
 
@@ -218,10 +229,10 @@ def parse(table: Table, terms: PlantTerms, base_dir: pathlib.Path) -> MujocoOpti
     """Read and check ``[plant.mujoco]`` (every error one line naming the key); ``base_dir`` is
     the scenario file's folder, against which ``model`` is resolved."""
     table = Table(table.data, table.source, table.name, SECTION.names)
-    if terms.order != 2:
-        raise table.error_at(table.name, f"the MuJoCo backend models one joint, i.e. plant order 2, but "
-                             f"plant.order = {terms.order}", "remove [plant.mujoco] (the ode backend runs "
-                             "any order)")
+    if terms.order not in (2, 3):
+        raise table.error_at(table.name, f"the MuJoCo backend models one joint (plant order 2) or one joint "
+                             f"driven through a filter actuator (order 3), but plant.order = {terms.order}",
+                             "remove [plant.mujoco] (the ode backend runs any order)")
     v = read_keys(table, SECTION.keys, {"terms": terms.names})
     check_name(v["model"], f"{table.source}: {table.path('model')}")
     model = resolve_file(v["model"], base_dir)
@@ -237,5 +248,31 @@ def parse(table: Table, terms: PlantTerms, base_dir: pathlib.Path) -> MujocoOpti
     if any(s > 0 for s in v["sensor_noise"]) and v["noise_seed"] is None:
         raise table.error("noise_seed", "missing while sensor_noise is on",
                           "add an explicit integer seed, e.g. noise_seed = 1, so runs are reproducible")
+    _check_order(table, terms, v)
     return MujocoOptions(where=f"{table.source}: {table.name}", **(v | {"model": model}))
+
+
+def _check_order(table: Table, terms: PlantTerms, v: dict[str, Any]) -> None:
+    """Order 3 reads x3 through ``activation_sensor``, and MuJoCo's own physics makes every term
+    (its filter and its joint): no psi, no passive force, no sensor noise, delay or hold on x1, x2
+    alone. Order 2 has no activation."""
+    if terms.order == 2:
+        if v["activation_sensor"] is not None:
+            raise table.error("activation_sensor", "is for plant order 3 (x3 the actuator's activation), "
+                              "but plant.order = 2", "remove it, or model the actuator's filter: order = 3")
+        return
+    if v["activation_sensor"] is None:
+        raise table.error_at(table.name, "plant order 3 on MuJoCo reads x3 from the filter actuator, but "
+                             "activation_sensor is missing", "name an <actuatorfrc actuator=\"...\"/> "
+                             "sensor: activation_sensor = \"NAME\"")
+    added = [name for name in terms.names if name not in v["native_terms"]]
+    if added:
+        raise table.error("native_terms", f"plant order 3 on MuJoCo needs every term made by MuJoCo's own "
+                          f"physics, but it lacks {', '.join(added)}", "list every term (qcontrol model "
+                          "MODEL.xml prints the model's terms), or run the ode backend")
+    noisy = [k for k in ("sensor_noise", "sensor_delay", "sensor_period")
+             if (any(v[k]) if k == "sensor_noise" else v[k] > 0)]
+    if noisy:
+        raise table.error(noisy[0], "is not supported for plant order 3 on MuJoCo yet", "remove it")
+
 

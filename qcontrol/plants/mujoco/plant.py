@@ -47,8 +47,8 @@ from .callbacks import (
     passive_forces,
     python_callback_installed,
 )
-from .consistency import consistency_report
-from .mjcf import check_input_gain, compiled
+from .consistency import consistency_report, filter_consistency_report
+from .mjcf import CompiledModel, check_input_gain, compiled
 from .native import NativeForce, native_force
 from .native_step import MujocoNativeForm, warning_counters
 from .noise import SensorNoise
@@ -72,16 +72,18 @@ class MujocoPlant:
                  timestep: float | None = None, copies: Sequence[PlantTerms] | None = None,
                  noise_seeds: Sequence[int | None] | None = None) -> None:
         where = options.where
-        if terms.order != 2:
+        if terms.order != (2 if options.activation_sensor is None else 3):
             raise QcontrolInputError(
-                f"{where}: the MuJoCo backend models one joint, i.e. plant order 2, but the plant has "
-                f"order {terms.order}; use backend = \"ode\" for this scenario"
+                f"{where}: the MuJoCo backend models one joint (plant order 2), or one driven through a "
+                f"filter actuator read by activation_sensor (order 3), but the plant has order "
+                f"{terms.order}; "
+                "use backend = \"ode\" for this scenario"
             )
         if batch < 1:
             raise QcontrolInputError(f"{where}: batch must be >= 1, got {batch}")
         if timestep is not None and not (math.isfinite(timestep) and timestep > 0):
             raise QcontrolInputError(f"{where}: timestep must be a finite number > 0, got {timestep!r}")
-        self.n, self.batch, self.options = 2, int(batch), options
+        self.n, self.batch, self.options = terms.order, int(batch), options
         built = compiled(options, timestep)
         self.model, self._ids, self.inertia = built.model, built.ids, built.inertia
         self.timestep = float(self.model.opt.timestep)
@@ -108,6 +110,7 @@ class MujocoPlant:
         self._views = [(d.ctrl, d.sensordata, d.qpos, d.qvel) for d in self._datas]
         self._sadr = (int(self.model.sensor_adr[self._ids.position_sensor]),
                       int(self.model.sensor_adr[self._ids.velocity_sensor]))
+        self._activation = _Activation(built) if self.n == 3 else None
         self._dead = [False] * self.batch
         self._steppers: dict[float, list[CopyStepper]] = {}  # h -> one per copy
         seeds = list(noise_seeds) if noise_seeds is not None else [options.noise_seed] * self.batch
@@ -116,14 +119,15 @@ class MujocoPlant:
         self._noise = SensorNoise(options.sensor_noise, seeds)
         self._noisy = bool(self._noise.std.any())
         self._entered: list[Any] = []
-        eligible = threadable(self.model, self.batch, self._native, self._forces is not None)
+        eligible = self.n == 2 and threadable(self.model, self.batch, self._native, self._forces is not None)
         self._threaded = (ThreadedCopies(self.model, self._ids, self.batch, self._ctrl_per_u, self._native,
                                          self._userdata) if eligible and compiled_paths.requested() else None)
         self._threads = False  # whether this run steps the copies on the batch (set at __enter__)
         self.warnings: list[str] = []  # MuJoCo's warnings during the last run
         with kept_aside():  # the model check's warnings, outside any run
-            self.consistency_report = consistency_report(built, options, terms, native,
-                                                         None if self._forces is None else self._forces[0])
+            force = None if self._forces is None else self._forces[0]
+            self.consistency_report = (consistency_report(built, options, terms, native, force) if self.n == 2
+                                       else filter_consistency_report(built, options, terms))
 
     # ---- context manager: the process-global passive callback, and the run's warnings
     def __enter__(self) -> MujocoPlant:
@@ -166,8 +170,9 @@ class MujocoPlant:
 
     # ---- Plant protocol
     def reset(self, x0: np.ndarray) -> None:
-        """Put every copy at ``x0`` (shape ``(batch, 2)``); sensor histories are filled with it."""
-        x0 = np.broadcast_to(np.asarray(x0, dtype=float), (self.batch, 2))
+        """Put every copy at ``x0`` (shape ``(batch, n)``; for n = 3 the activation ``x3 / (gear /
+        I)``); sensor histories are filled with it."""
+        x0 = np.broadcast_to(np.asarray(x0, dtype=float), (self.batch, self.n))
         self._noise.reset()
         if self._threads:
             self._threaded.reset(x0)
@@ -179,6 +184,8 @@ class MujocoPlant:
                 self._native.fill(data, ids.qpos, ids.dof, self._userdata[b])
             data.qpos[ids.qpos] = x0[b, 0]
             data.qvel[ids.dof] = x0[b, 1]
+            if self._activation is not None:
+                data.act[ids.act] = x0[b, 2] / self._activation.per_act
             mujoco.mj_forward(model, data)
             for sid, value in ((ids.position_sensor, x0[b, 0]), (ids.velocity_sensor, x0[b, 1])):
                 nsample = int(model.sensor_history[sid, 0])
@@ -210,8 +217,9 @@ class MujocoPlant:
         return np.where(ctrl < low, low / self._ctrl_per_u, np.where(ctrl > high, high / self._ctrl_per_u, u))
 
     def state(self) -> np.ndarray:
-        """The true ``(qpos, qvel)`` of every copy (NaN for a copy MuJoCo had to reset)."""
-        return self._threaded.state() if self._threads else self._copies_read()[:, :2]
+        """The true ``(qpos, qvel)`` of every copy, and for n = 3 the scaled activation (NaN for a copy
+        MuJoCo had to reset)."""
+        return self._threaded.state() if self._threads else self._copies_read()[:, :self.n]
 
     def read_sensors(self) -> np.ndarray:
         """``sensordata`` of the position and velocity sensors (plus noise, if configured)."""
@@ -231,7 +239,7 @@ class MujocoPlant:
             x, reading, dead = self._threaded.state(), self._threaded.readings(), self._threaded.dead
         else:
             both = self._copies_read()
-            x, reading, dead = both[:, :2], both[:, 2:], None  # (a dead copy's row is NaN already)
+            x, reading, dead = both[:, :self.n], both[:, self.n:], None  # (a dead copy's row is NaN already)
         if self._noisy:
             reading += self.sensor_noise()
         if dead is not None:
@@ -239,13 +247,15 @@ class MujocoPlant:
         return x, reading
 
     def _copies_read(self) -> np.ndarray:
-        """``(qpos, qvel, position sensor, velocity sensor)`` of every copy, ``(batch, 4)``; NaN for
-        a copy MuJoCo had to reset."""
+        """``(qpos, qvel, position sensor, velocity sensor)`` of every copy, ``(batch, 4)``; for
+        n = 3 ``(qpos, qvel, x3, the three readings)``, ``(batch, 6)``; NaN for a copy MuJoCo had to
+        reset."""
         q, dof = self._ids.qpos, self._ids.dof
         p, v = self._sadr
         views, dead, read_copy = self._views, self._dead, native_step.read_copy
-        return np.array([read_copy(qpos, qvel, data, q, dof, p, v, dead[b], True)
+        rows = np.array([read_copy(qpos, qvel, data, q, dof, p, v, dead[b], True)
                          for b, (_, data, qpos, qvel) in enumerate(views)])
+        return rows if self._activation is None else self._activation.read(rows, self._datas, dead)
 
     def step(self, u: np.ndarray, h: float) -> None:
         """Hold ``u`` for ``h`` seconds: ``h / timestep`` calls of ``mj_step`` per copy.
@@ -278,12 +288,20 @@ class MujocoPlant:
         """The batch of one as source text for the engine's compiled loop (:mod:`.native_step`),
         where compiled code can give the Python loop's numbers: one copy, no sensor noise (drawn
         in Python), and the passive terms, if any, in the native callback MuJoCo calls itself."""
-        if not self._entered or self.batch != 1 or self._noisy or self._threads:
+        if not self._entered or self.batch != 1 or self._noisy or self._threads or self.n != 2:
             return None
         if python_callback_installed() or (self._forces is not None and self._native is None):
             return None
         substeps = whole_steps(h, self.timestep, f"{self.options.where}: step", "the model timestep")
         return MujocoNativeForm(self, substeps).stepper()
+
+
+class FilteredJointPlant(MujocoPlant):
+    """The plant of order 3 (a joint driven through a filter actuator), which takes no external
+    load: a load torque on the joint enters x2', not the last equation x3' where eq. (1)'s matched
+    load, and so the ODE twin's, enters; a ``[[disturbance]]`` is refused before a run starts."""
+
+    disturb = None  # type: ignore[assignment]  (not Disturbable)
 
 
 class CopyStepper:
@@ -295,13 +313,37 @@ class CopyStepper:
         self.model, self.data, self.ctrl = plant.model, plant._datas[b], plant._views[b][0]
         self.dead, self.warning = plant._dead, warning_counters(self.data)
         self.actuator, self.ctrl_per_u = plant._ids.actuator, plant._ctrl_per_u
+        self.activation = plant._activation is not None
 
     def step(self, u: float) -> None:
-        """:func:`~.native_step.step_copy`, the one definition the compiled loop compiles too."""
+        """:func:`~.native_step.step_copy`, the one definition the compiled loop compiles too; for
+        n = 3 the actuator's force and the acceleration-stage sensors (its actuatorfrc sensor) are
+        then brought to the new activation too (``mj_fwdActuation``, ``mj_sensorAcc``)."""
         b = self.b
         if not self.dead[b] and native_step.step_copy(self.model, self.data, self.ctrl, self.actuator,
                                                       self.ctrl_per_u, u, self.substeps, self.warning, True):
             self.dead[b] = True
+        elif self.activation:
+            mujoco.mj_fwdActuation(self.model, self.data)
+            mujoco.mj_sensorAcc(self.model, self.data)
+
+
+class _Activation:
+    """Order 3: x3 and its reading from a filter actuator's activation. MuJoCo integrates ``act``
+    with the joint (its RK4 too); x3 = (gear / I) act makes x2' = x3 + ..., and the actuatorfrc
+    sensor reads the actuator's force ``gain act``, so the reading of x3 is gear / I times it."""
+
+    def __init__(self, built: CompiledModel) -> None:
+        self.per_act, self.per_reading = built.x3_per_act, built.x3_per_reading
+        self.act = built.ids.act
+        self.sensor = int(built.model.sensor_adr[built.ids.activation_sensor])
+
+    def read(self, rows: np.ndarray, datas: Sequence[mujoco.MjData], dead: Sequence[bool]) -> np.ndarray:
+        """``(x1, x2, x3, m1, m2, m3)`` from ``read_copy``'s rows ``(x1, x2, m1, m2)``."""
+        third = np.array([[math.nan, math.nan] if dead[b] else
+                          [self.per_act * d.act[self.act], self.per_reading * d.sensordata[self.sensor]]
+                          for b, d in enumerate(datas)]).reshape(-1, 2)
+        return np.column_stack([rows[:, :2], third[:, 0], rows[:, 2:], third[:, 1]])
 
 
 def _copies(terms: PlantTerms, copies: Sequence[PlantTerms] | None, batch: int,
