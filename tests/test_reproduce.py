@@ -15,7 +15,7 @@ FIGURES = [
     "fig5_outputs.png", "fig6_tracking_errors.png", "fig7_eps_hat.png", "fig8_input.png",
     "fig_example1_mujoco_vs_ode.png", "fig_example2_mujoco_vs_ode.png", "table1.png",
     "study_kappa.png", "study_r_scale.png", "study_plant_variants.png", "study_robustness.png",
-    "study_margins.png", "study_region.png",
+    "study_margins.png", "study_region.png", "study_tradeoff.png",
 ]
 OMEGAS = ["0.100", "0.125", "0.150", "0.175", "0.200"]
 
@@ -30,7 +30,7 @@ def reproduction(tmp_path_factory):
 def test_every_file_is_written(reproduction):
     names = {p.name for p in reproduction.iterdir()}
     expected = set(FIGURES) | {"table1.md", "table1.json", "studies.json", "robustness.json", "REPORT.md",
-                               "example1.rrd", "example2.rrd", "region.json"}
+                               "example1.rrd", "example2.rrd", "region.json", "tradeoff.json"}
     assert expected <= names
     assert not [n for n in names if n.endswith((".part", ".tmp"))]
 
@@ -85,7 +85,7 @@ def test_table1_markdown_and_report(reproduction):
     needles = ("Lemma 2", "kappa - L", "scale of r", "MuJoCo vs ODE", "fig5_outputs.png",
                "## Robustness on realistic hardware", "study_robustness.png", "### Reading", "Saturation",
                "Velocity from the encoder", "Friction", "## The sampled loop: region of attraction",
-               "study_region.png", "The cost of safety")
+               "study_region.png", "The cost of safety", "## The trade-off", "study_tradeoff.png")
     for needle in needles:
         assert needle in report
 

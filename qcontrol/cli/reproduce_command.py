@@ -26,11 +26,13 @@ def add_reproduce_parser(sub: argparse._SubParsersAction) -> None:
         "twin (about 5 s with the figures and recordings); (2) the sensitivity studies on the ODE: "
         "kappa - L, the scale of r, the plant variants (21 runs, batched: about 3 s); (2b) the sampled "
         "loop's region of attraction: both examples at 1 and 2 kHz, the paper's law, its exact hold and "
-        "the comparison law on a 9 x 9 grid of initial states (batched ODE: about 10 s); (3) the robustness "
+        "the comparison law on a 9 x 9 grid of initial states (batched ODE: about 10 s); (2c) the trade-off: "
+        "the tuning-function law and the linear law (paper's gains; kp 400, kd 40) mapped beside them at "
+        "1 kHz, every law with Table 1's rates (about 4 s of CPU with its figure); (3) the robustness "
         "study: 248 MuJoCo runs of the realistic arm and cart (each imperfection alone, 20 noise seeds, "
         "margins beyond the hardware, disturbances: about 25 s over two worker processes, 50 s of CPU; "
-        "longer on a shared machine). --quick skips (2b) and (3) and runs 1 s horizons: about 12 s on a "
-        "shared 2-core VM, most of it writing the figures.",
+        "longer on a shared machine). --quick skips (2b), (2c) and (3) and runs 1 s horizons: about 12 s "
+        "on a shared 2-core VM, most of it writing the figures.",
     )
     rep.add_argument("--out", type=Path, default=Path("results"), metavar="DIR",
                      help="output folder (default: results)")
@@ -41,8 +43,9 @@ def add_reproduce_parser(sub: argparse._SubParsersAction) -> None:
                      "248 runs: for a quick look use --quick")
     rep.add_argument("--quick", action="store_true",
                      help="a first look in about 12 s: 1 s horizons (or --duration), no region "
-                     "study and no robustness study (no region.json, study_region.png, robustness.json, "
-                     "study_robustness.png, study_margins.png)")
+                     "study, trade-off study or robustness study (no region.json, study_region.png, "
+                     "tradeoff.json, study_tradeoff.png, robustness.json, study_robustness.png, "
+                     "study_margins.png)")
     rep.add_argument("--scenarios", type=Path, default=None, metavar="DIR",
                      help=f"folder holding {', '.join(SCENARIO_FILES)} (default: the shipped ones)")
     rep.add_argument("--workers", type=int, default=None, metavar="N",

@@ -7,10 +7,11 @@
   are registered with it, as users' laws are).
 * :mod:`.proposed`: law (44)-(45), :class:`PaperLaw`; :mod:`.comparison`: law (46) of reference
   [20], :class:`ComparisonLaw`: public classes to subclass.
+* :mod:`.linear`: the plain linear law u = alphabar_n, the yardstick of the trade-off study.
 * :mod:`.user`: the :class:`~.user.Law` protocol of a law written one copy at a time.
 """
 
-from . import comparison, proposed, tuning
+from . import comparison, linear, proposed, tuning
 from .backstepping import (
     Backstepping,
     ControlOutput,
@@ -30,12 +31,14 @@ from .law import (
     law_kind,
     seal_built_in_kinds,
 )
+from .linear import LinearLaw
 from .proposed import PaperLaw
 from .tuning import TuningLaw
 
 register_law("proposed", PaperLaw, keys=proposed.LAW_KEYS)
 register_law("comparison", ComparisonLaw, keys=comparison.LAW_KEYS)
 register_law("tuning", TuningLaw, keys=tuning.LAW_KEYS)
+register_law("linear", LinearLaw, keys=linear.LAW_KEYS)
 seal_built_in_kinds()
 
 
@@ -57,6 +60,7 @@ __all__ = [
     "LawContext",
     "LawKeys",
     "LawKind",
+    "LinearLaw",
     "PaperLaw",
     "TuningLaw",
     "backstepping_coefficients",

@@ -70,7 +70,7 @@ def _ylabel(label: str) -> str:
     return "\n".join([", ".join(row), axis]) if row else axis
 
 
-def _panel(ax, m: RegionMap, outcomes: Sequence[str], show_ylabel: bool, show_xlabel: bool,
+def region_panel(ax, m: RegionMap, outcomes: Sequence[str], show_ylabel: bool, show_xlabel: bool,
            columns: int = 1) -> None:
     cmap = ListedColormap([OUTCOME_COLORS[o] for o in outcomes])
     norm = BoundaryNorm(np.arange(len(outcomes) + 1) - 0.5, len(outcomes))
@@ -101,14 +101,19 @@ def fig_region(rows: Sequence[Sequence[RegionMap]], outcomes: Sequence[str], pat
     for i, maps in enumerate(rows):
         for j in range(cols):
             if j < len(maps):
-                _panel(axes[i, j], maps[j], outcomes, j == 0, i == len(rows) - 1, columns=cols)
+                region_panel(axes[i, j], maps[j], outcomes, j == 0, i == len(rows) - 1, columns=cols)
             else:
                 axes[i, j].set_visible(False)
-    box = rows[0][0].box
-    handles = [Patch(color=OUTCOME_COLORS[o], label=OUTCOME_LABELS[o]) for o in outcomes]
-    handles += [Line2D([], [], color="black", linestyle="--", label=f"box |x_i| <= {box:g}"),
-                Line2D([], [], color="black", marker="*", linestyle="none", label="the scenario's x(0)"),
-                Line2D([], [], color="black", linestyle=":", label="max K T = 1")]
+    handles = legend_handles(outcomes, rows[0][0].box)
     fig.legend(handles=handles, loc="outside lower center", ncols=len(handles), fontsize=7, frameon=False)
     fig.suptitle(title, fontsize=10)
     return save(fig, path)
+
+
+def legend_handles(outcomes: Sequence[str], box: float) -> list:
+    """The maps' legend: the outcomes' colours, the box, the scenario's x(0) and the line K T = 1."""
+    handles: list = [Patch(color=OUTCOME_COLORS[o], label=OUTCOME_LABELS[o]) for o in outcomes]
+    handles += [Line2D([], [], color="black", linestyle="--", label=f"box |x_i| <= {box:g}"),
+                Line2D([], [], color="black", marker="*", linestyle="none", label="the scenario's x(0)"),
+                Line2D([], [], color="black", linestyle=":", label="max K T = 1")]
+    return handles

@@ -11,6 +11,7 @@ and on local workers).
 from __future__ import annotations
 
 import math
+import re
 import time
 import tomllib
 from collections.abc import Hashable, Sequence
@@ -65,15 +66,19 @@ def _toml_value(text: str) -> str:
         return repr(text)
 
 
+SETTING_SEPARATOR = re.compile(r",(?![^\[]*\])")  # a comma outside a list's brackets
+
+
 def parse_law(text: str) -> LawSpec:
-    """``KIND`` or ``KIND:KEY=VALUE,KEY=VALUE`` -> a :class:`LawSpec` (the kind must be registered)."""
+    """``KIND`` or ``KIND:KEY=VALUE,KEY=VALUE`` -> a :class:`LawSpec` (the kind must be registered);
+    a value may be a list, its commas inside its brackets (``linear:c=[20.0, 20.0]``)."""
     kind, _, rest = text.partition(":")
     kind = KIND_ALIASES.get(kind.strip(), kind.strip())
     if kind not in LAW_KINDS:
         raise QcontrolInputError(f"--law {text!r}: unknown controller kind {kind!r}; use one of "
                                  f"{', '.join(LAW_KINDS)}, optionally with settings (proposed:hold=exact)")
     settings = []
-    for item in filter(None, (part.strip() for part in rest.split(","))):
+    for item in filter(None, (part.strip() for part in SETTING_SEPARATOR.split(rest))):
         key, sep, value = item.partition("=")
         if not sep or not key.strip() or not value.strip():
             raise QcontrolInputError(f"--law {text!r}: expected KIND:KEY=VALUE,... such as "

@@ -36,23 +36,41 @@ def region_study(scenarios: Path, duration: float | None, log: Callable[[str], N
     law's run from x(0). Returns what region.json holds (without provenance); the maps themselves
     are ``regions``."""
     laws = [parse_law(text) for text in law_texts]
-    grid = RegionGrid((0, 1), (-BOX, -BOX), (BOX, BOX), RESOLUTION)
+    grid = study_grid()
     rows, regions = [], []
     for name in EXAMPLES:
         path = scenarios / f"{name}.toml"
         for dt, grid_duration in RATES:
-            timing = [f"simulation.dt={dt!r}"]
-            short = min(grid_duration, duration) if duration is not None else grid_duration
-            region = measure_region(path, grid, laws, overrides=[*timing, f"simulation.duration={short!r}"])
+            region, measured = measure_at(path, grid, laws, dt, grid_duration, duration)
             regions.append(region)
-            horizon = [f"simulation.duration={duration!r}"] if duration is not None else []
-            from_x0 = sweep_summaries(path, [[*timing, *horizon, *law.overrides()] for law in laws], "ode")
-            rows += [_row(region, law, s, dt) for law, s in zip(laws, from_x0, strict=True)]
+            rows += measured
             log(f"study: region of {name} at T = {dt * 1e3:g} ms: {len(region.points)} starts and "
                 f"{len(laws)} runs from x(0) on the ODE")
     return {"examples": list(EXAMPLES), "laws": list(law_texts), "resolution": RESOLUTION, "box": BOX,
             "rates": [{"control_period": dt, "grid_duration": d} for dt, d in RATES], "rows": rows,
             "regions": regions}
+
+
+def study_grid(resolution: int = RESOLUTION) -> RegionGrid:
+    """The study's starts: ``resolution`` x ``resolution`` over x1, x2 in the box |x_i(0)| <= BOX."""
+    return RegionGrid((0, 1), (-BOX, -BOX), (BOX, BOX), resolution)
+
+
+def measure_at(path: Path, grid: RegionGrid, laws: Sequence[LawSpec], dt: float, grid_duration: float,
+               duration: float | None, overrides: Sequence[str] = (), unset: Sequence[str] = ()
+               ) -> tuple[Region, list[dict[str, Any]]]:
+    """One example at one control period ``dt`` (= the simulation step): the region of every law
+    over ``grid`` (runs of ``grid_duration``, or ``duration`` when shorter), batched on the ODE, and
+    a row per law with its run from the scenario's x(0) over ``duration`` (None: the scenario's own).
+    ``overrides`` and ``unset`` change the scenario for every run of these laws (before the timing)."""
+    timing = [*overrides, f"simulation.dt={dt!r}"]
+    short = min(grid_duration, duration) if duration is not None else grid_duration
+    region = measure_region(path, grid, laws, overrides=[*timing, f"simulation.duration={short!r}"],
+                            unset=unset)
+    horizon = [f"simulation.duration={duration!r}"] if duration is not None else []
+    from_x0 = sweep_summaries(path, [[*timing, *horizon, *law.overrides()] for law in laws], "ode",
+                              unset=unset)
+    return region, [_row(region, law, s, dt) for law, s in zip(laws, from_x0, strict=True)]
 
 
 def _row(region: Region, law: LawSpec, s: Summary, dt: float) -> dict[str, Any]:

@@ -9,6 +9,7 @@ from ..paper import METHOD_LABELS, OMEGA_KEYS, PAPER_HORIZON, PAPER_TABLE1, PAPE
 from ..summary import Summary
 from .region_study import region_section
 from .robustness_report import robustness_section
+from .tradeoff_study import TRADEOFF_HEADING, tradeoff_section
 
 __all__ = ["METHOD_LABELS", "OMEGA_KEYS", "PAPER_HORIZON", "PAPER_TABLE1", "PAPER_TABLE1_ROWS", "ReportFacts",
            "beyond_the_paper", "report_markdown", "table1", "table1_markdown"]
@@ -128,6 +129,7 @@ class ReportFacts:
     kappa_plus_L: float
     robustness: Mapping | None = None  # robustness.json, when the study ran
     region: Mapping | None = None  # the region study of the sampled loop, when it ran
+    tradeoff: Mapping | None = None  # the trade-off study (tracking against the region), when it ran
 
     @property
     def runs(self) -> int:
@@ -143,8 +145,11 @@ def report_markdown(f: ReportFacts) -> str:
     region = (region_section(f.region) if f.region is not None else
               ["## The sampled loop: region of attraction (ODE backend; beyond the paper)", "",
                "Not run here (`qcontrol reproduce --quick`): the full `qcontrol reproduce` runs it.", ""])
+    tradeoff = (tradeoff_section(f.tradeoff) if f.tradeoff is not None else
+                [TRADEOFF_HEADING, "", "Not run here (`qcontrol reproduce --quick`): the full "
+                 "`qcontrol reproduce` runs it.", ""])
     sections = (_header(f), _table1_section(f), _findings(f), _checks(f), _studies_section(f), region,
-                robustness, _figures(f))
+                tradeoff, robustness, _figures(f))
     return "\n".join(line for section in sections for line in section)
 
 

@@ -5,7 +5,8 @@ chosen backend, with the ideal ODE twin beside MuJoCo, then the sensitivity stud
 a constant scale of r, plant variants) on the ODE backend, then the robustness study on realistic
 hardware (:mod:`.robustness_study`, MuJoCo, in worker processes). Writes PNG figures,
 ``table1.md``, ``table1.json``, ``studies.json``, ``region.json`` (the sampled loop's region study,
-:mod:`.region_study`), ``robustness.json``, ``sensors.json`` (Example 2 with realistic sensors,
+:mod:`.region_study`), ``tradeoff.json`` (tracking against the region, law by law,
+:mod:`.tradeoff_study`), ``robustness.json``, ``sensors.json`` (Example 2 with realistic sensors,
 :mod:`.sensor_study`), ``REPORT.md`` and one rerun
 recording per example into the output folder, all put in place together at the end
 (:func:`qcontrol.outputs.staged`): an interrupted or failed reproduction leaves the folder's
@@ -53,6 +54,7 @@ from .report import (
 from .robustness_figures import fig_margins, fig_robustness
 from .robustness_study import EXAMPLES, LAWS, default_workers, robustness_study, study_law
 from .sensor_study import fig_sensors, sensor_markdown, sensor_record, sensor_study
+from .tradeoff_study import check_tradeoff, tradeoff_record, tradeoff_study, write_tradeoff_figure
 
 SCENARIO_DIR = shipped_dir("scenarios")
 KAPPA_MARGINS = (0.05, 0.1, 0.2, 0.3, 0.5, 0.75, 1.1, 1.5, 2.0)
@@ -170,7 +172,7 @@ def reproduce(
     _validate(rep)
     with output_dir(out) as o, staged():  # every file put in place at the end, together: never mixed
         table = _write_all(rep, o, command, workers, quick)
-    extra = "" if quick else "region.json, robustness.json, "
+    extra = "" if quick else "region.json, tradeoff.json, robustness.json, "
     study = "no region or robustness study (--quick)" if quick else "then the region and robustness studies"
     log(f"wrote {o}: REPORT.md, table1.md, table1.json, studies.json, {extra}figures, recordings "
         f"({len(rep.lemma2_ratios)} example and study runs, {study}; "
@@ -215,13 +217,14 @@ def _write_all(rep: Reproduction, o: Path, command: str, workers: int | None, qu
         examples = {name: rep.scenario(name) for name in ("example1", "example2")}
         write_json(o / "region.json",
                    region_record(region) | {"provenance": scenarios_provenance(examples, command)})
+    tradeoff = None if region is None else _tradeoff(o, rep, region, command)
     robustness = None if quick else _robustness(o, rep, workers)
     rep.log("study: Example 2 with realistic sensors (ODE)")
     sensors = sensor_study(rep.scenarios, rep.duration, rep.log)
     fig_sensors(sensors, o / "study_sensors.png")
     write_json(o / "sensors.json", sensor_record(sensors) | {"provenance": provenance})
-    write_text(o / "REPORT.md", _report(rep, table, studies, deviations, ex1, ex2, robustness, region)
-               + "\n".join(sensor_markdown(sensors)))
+    report = _report(rep, table, studies, deviations, ex1, ex2, robustness, region, tradeoff)
+    write_text(o / "REPORT.md", report + "\n".join(sensor_markdown(sensors)))
     return table
 
 
@@ -257,6 +260,16 @@ def _table1(o: Path, backend: str, ex2: Run, ex2_twin: Run | None, base: Run, ba
     return table
 
 
+def _tradeoff(o: Path, rep: Reproduction, region: dict, command: str) -> dict:
+    """The trade-off study on the region study's 1 kHz maps: tradeoff.json and its figure."""
+    study = tradeoff_study(rep.scenarios, rep.duration, rep.log, region)
+    write_tradeoff_figure(study, o / "study_tradeoff.png")
+    examples = {name: rep.scenario(name) for name in ("example1", "example2")}
+    provenance = scenarios_provenance(examples, command)
+    write_json(o / "tradeoff.json", tradeoff_record(study) | {"provenance": provenance})
+    return study
+
+
 def _robustness(o: Path, rep: Reproduction, workers: int | None) -> dict:
     """The robustness study on realistic hardware: robustness.json and its two figures."""
     robustness = robustness_study(rep.scenarios, rep.duration, workers or default_workers(), rep.log,
@@ -283,6 +296,7 @@ def _validate(rep: Reproduction) -> None:
     for kind in rep.laws:  # each law given with --law on every scenario it runs on
         for name in ("example1", "example2", *ROBUSTNESS_SCENARIOS):
             rep.scenario(name, study_law(kind)[1])
+    check_tradeoff(rep.scenarios)
 
 
 def study_kinds(kinds: Sequence[str]) -> tuple[str, ...]:
@@ -384,7 +398,7 @@ def _studies(rep: Reproduction) -> dict:
 
 
 def _report(rep: Reproduction, table: dict, studies: dict, deviations: dict, ex1: Run, ex2: Run,
-            robustness: dict | None, region: dict | None) -> str:
+            robustness: dict | None, region: dict | None, tradeoff: dict | None) -> str:
     """REPORT.md from the runs' facts (see :func:`qcontrol.report.report_markdown`)."""
     traj, c = ex2.traj, ex2.scenario.controller
     facts = ReportFacts(
@@ -393,5 +407,6 @@ def _report(rep: Reproduction, table: dict, studies: dict, deviations: dict, ex1
         table=table, studies=studies, deviations=deviations, example1=ex1.summary, example2=ex2.summary,
         z2_last_half=float(np.nanmax(np.abs(traj.z[traj.t >= traj.duration / 2, -1]))),
         kappa_plus_L=c.settings.kappa + lemma2_L(c.c, c.delta), robustness=robustness, region=region,
+        tradeoff=tradeoff,
     )
     return report_markdown(facts)
