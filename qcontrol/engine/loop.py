@@ -140,7 +140,10 @@ class ClosedLoop:
                 if resume is not None:
                     self.python_rows(resume)
         if resume is Redo:
-            return ClosedLoop(self.spec, compiled=False).run()
+            redone = ClosedLoop(self.spec, compiled=False)
+            runs = redone.run()
+            self.handover = redone.handover
+            return runs
         return self.record.results(time.perf_counter())
 
     def python_rows(self, resume: Resume) -> None:
