@@ -1,7 +1,8 @@
 """Every formula is written once and every faster form is derived from it: a formula changed in
 its one place (monkeypatched here) changes the result of every form that runs it, the Python loop
-of a single run (float form), a batch (array form) and the compiled loop (generated from the same
-code), and the compiled loop still gives the Python loop's numbers to the last bit."""
+of a single run (float form), a batch (array form), the compiled loop and the compiled batch
+(generated from the same code), and the compiled forms still give the Python loop's numbers to the
+last bit."""
 
 import math
 
@@ -12,7 +13,14 @@ from conftest import SCENARIOS
 
 import qcontrol.engine.compiled_loop as compiled_loop
 import qcontrol.plants.ode as ode
-from qcontrol.assembly import build_controller, build_plant, build_separation, run_spec, run_variants
+from qcontrol.assembly import (
+    assemble,
+    build_controller,
+    build_plant,
+    build_separation,
+    run_spec,
+    run_variants,
+)
 from qcontrol.controller.backstepping import Backstepping
 from qcontrol.controller.comparison import ComparisonLaw, RateAdvance
 from qcontrol.controller.proposed import DecayAdvance, PaperLaw
@@ -98,15 +106,26 @@ def _single(sc, backend: str):
     return loop, loop.run()[0]
 
 
-def _runs(monkeypatch, sc, backend: str) -> dict:
-    """The Python loop of a single run, a batch of two copies (copy 0) and the compiled loop."""
+# the changes also run through the compiled batch of ODE copies (each change is a new text for numba
+# to compile: the quantizer, the law and the plant's step, one each)
+COMPILED_BATCH = ("quantizer (3)", "law (44), paper hold", "RK4 of eq. (1)")
+
+
+def _runs(monkeypatch, sc, backend: str, compiled_batch: bool = False) -> dict:
+    """The Python loop of a single run, a batch of two copies (copy 0) in the array form, the
+    compiled loop and, with ``compiled_batch``, the compiled batch of two copies (copy 0)."""
     monkeypatch.setenv("QCONTROL_COMPILE", "0")
     python_loop, python = _single(sc, backend)
     batch = run_variants([sc, sc], backend)[0]
     monkeypatch.delenv("QCONTROL_COMPILE")
     compiled_run, compiled = _single(sc, backend)
     assert python_loop.handover == 0 and compiled_run.handover is None  # each form ran as meant
-    return {"python": python, "batch": batch, "compiled": compiled}
+    runs = {"python": python, "batch": batch, "compiled": compiled}
+    if compiled_batch:
+        loop = ClosedLoop(assemble([sc, sc], backend).spec)
+        runs["compiled batch"] = loop.run()[0]
+        assert loop.handover is None  # it ran compiled to the end
+    return runs
 
 
 def _bytes(record, name: str) -> bytes:
@@ -119,11 +138,13 @@ def test_a_formula_changed_in_its_one_place_changes_every_form(monkeypatch, chan
     monkeypatch.setattr(compiled_loop, "MIN_ROWS", 0)  # short runs compiled too
     monkeypatch.setattr(compiled_loop, "COLD_MIN_ROWS", 0)
     sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=0.3", *overrides])
-    before = _runs(monkeypatch, sc, backend)
+    batched = change in COMPILED_BATCH
+    before = _runs(monkeypatch, sc, backend, batched)
     monkeypatch.setattr(owner, name, replacement)
-    after = _runs(monkeypatch, sc, backend)
-    for form in ("python", "batch", "compiled"):
+    after = _runs(monkeypatch, sc, backend, batched)
+    forms = [form for form in after if form != "python"]
+    for form in ("python", *forms):
         assert _bytes(after[form], "u") != _bytes(before[form], "u"), form  # the change reached it
-    for form in ("batch", "compiled"):  # and each form still gives the Python loop's numbers
+    for form in forms:  # and each form still gives the Python loop's numbers
         for signal in ("x", "x_q", "u", "adaptive"):
             assert _bytes(after[form], signal) == _bytes(after["python"], signal), (form, signal)

@@ -7,7 +7,10 @@ formula makes is recorded, in the order the formula makes it, as one line of Pyt
 ``t7 = t3 * lp[12]``; every number that meets a symbol (a gain, a coefficient, the step ``h``)
 is put in the array ``lp`` (:meth:`Trace.constant`), so one generated text serves every value
 of the constants. Arithmetic between plain numbers (a law's constants, ``h / 6``) runs in
-Python as it does in the float form. The text is therefore the float form's computation, the
+Python as it does in the float form. For a batch of copies (:class:`TracedForm` with ``batch``
+> 1) a parameter given per copy is a ``(batch,)`` array: it takes a slot like a number, whose
+value differs per copy (:meth:`Trace.table`), so the one text serves every copy. The text is
+therefore the float form's computation, the
 same IEEE operations in the same order, which numba compiles (numpy's error model, no
 fast-math contraction) for the engine's compiled loop: the compiled form is *derived* from the
 one definition, never restated.
@@ -44,7 +47,7 @@ class Trace:
         """Constants go to the array named ``array``, locals are named ``{prefix}{i}``."""
         self.array, self.prefix = array, prefix
         self.lines: list[str] = []
-        self.constants: list[float] = []
+        self.constants: list[float | np.ndarray] = []  # a number, or a (batch,) column per copy
         self.refusal: str | None = None  # the statement where Python would raise; None: untraceable
         self._count = 0
 
@@ -52,11 +55,21 @@ class Trace:
         self._count += 1
         return f"{self.prefix}{prefix}{self._count}"
 
-    def constant(self, value: float) -> str:
-        """``value`` as a slot of the constants' array (a new slot each time: the text depends on
-        no value)."""
-        self.constants.append(float(value))
+    def constant(self, value: float | np.ndarray) -> str:
+        """``value`` (a number, or a ``(batch,)`` column of per-copy numbers) as a slot of the
+        constants' array (a new slot each time: the text depends on no value)."""
+        self.constants.append(value.astype(float) if isinstance(value, np.ndarray) else float(value))
         return f"{self.array}[{len(self.constants) - 1}]"
+
+    def table(self, batch: int | None = None) -> np.ndarray:
+        """The constants' array: ``(slots,)`` for one copy, ``(batch, slots)`` (row b copy b's)
+        for a batch."""
+        if batch is None:
+            return np.array(self.constants, dtype=float)
+        table = np.empty((batch, len(self.constants)))
+        for slot, value in enumerate(self.constants):
+            table[:, slot] = value
+        return table
 
     def taken(self) -> list[str]:
         """The lines recorded so far, handed over and forgotten."""
@@ -67,6 +80,8 @@ class Trace:
         """The source of a column: a symbol's name, or a number's slot of ``lp``."""
         if isinstance(value, Symbol):
             return value.text
+        if isinstance(value, np.ndarray) and value.ndim == 1 and value.dtype.kind == "f":
+            return self.constant(value)  # a per-copy parameter of a batch
         if isinstance(value, bool | np.bool_) or not isinstance(value, int | float | np.number):
             raise TypeError(f"a traced formula met {type(value).__name__} {value!r}, not a column")
         return self.constant(value)
@@ -126,6 +141,7 @@ class Symbol:
     arithmetic is recorded in the current :class:`Trace` (module docstring)."""
 
     __slots__ = ("text", "truth")
+    __array_ufunc__ = None  # an array meeting a symbol (a per-copy parameter) defers to the symbol
 
     def __init__(self, text: str, truth: bool | None = None) -> None:
         self.text, self.truth = text, truth
@@ -212,16 +228,22 @@ def _floor(x: Value) -> Value:
 
 class TracedForm:
     """The :class:`~qcontrol.columns.ColumnForm` whose columns are :class:`Symbol`\\ s; a
-    parameter is a plain number, as in the float form (a batch of one)."""
+    parameter is a plain number, as in the float form (a batch of one), or for a batch of
+    ``batch`` copies a ``(batch,)`` array where it differs per copy (a slot of its own per copy)."""
 
     expm1: Callable[[Value], Value] = staticmethod(_expm1)
     floor: Callable[[Value], Value] = staticmethod(_floor)
 
-    def column(self, values: Any) -> float:
+    def __init__(self, batch: int = 1) -> None:
+        self.batch = batch
+
+    def column(self, values: Any) -> float | np.ndarray:
         array = np.asarray(values, dtype=float)
-        if array.size != 1:
-            raise ValueError(f"{array.size} per-copy values for a batch of one")
-        return float(array.reshape(1)[0])
+        if array.size == 1:
+            return float(array.reshape(1)[0])
+        if array.shape != (self.batch,) or self.batch == 1:
+            raise ValueError(f"{array.size} per-copy values for a batch of {self.batch}")
+        return array.copy()
 
     def terms(self, expressions: Sequence[Expression]) -> TracedTerms:
         return TracedTerms(expressions)
@@ -239,7 +261,7 @@ class TracedForm:
         raise TypeError("the traced form's columns are symbols: they have no array")
 
     def __repr__(self) -> str:
-        return "TRACED"
+        return "TRACED" if self.batch == 1 else f"TracedForm(batch={self.batch})"
 
 
 TRACED = TracedForm()

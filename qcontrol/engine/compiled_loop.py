@@ -36,7 +36,7 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 
 from .. import compiled as compiled_paths
-from ..compiled.traced import TRACED, Symbol, Trace, recording
+from ..compiled.traced import TRACED, Symbol, Trace, TracedForm, recording
 from ..controller.backstepping import ControlOutput, output
 from ..controller.comparison import ComparisonLaw
 from ..controller.law import BatchLaw
@@ -98,19 +98,22 @@ class TracedParts(NamedTuple):
     control: list[str]
     advance: list[str]
     constants: np.ndarray
-    rate: float
+    rate: Any  # a number, or per copy a (batch,) array
 
 
-def traced_parts(quantizer: UniformQuantizer, law: BatchLaw, n: int, dt: float) -> TracedParts:
+def traced_parts(quantizer: UniformQuantizer, law: BatchLaw, n: int, dt: float,
+                 form: TracedForm = TRACED) -> TracedParts:
     """:meth:`UniformQuantizer.apply`, ``law.control`` and ``law.advancer_in`` run on the traced
-    form; raises TypeError where a formula cannot be traced (the run keeps the Python loop)."""
+    form (``form``: :data:`TRACED`, or ``TracedForm(batch)`` for a batch of copies, whose
+    constants then have a row per copy); raises TypeError where a formula cannot be traced (the
+    run keeps the Python loop)."""
     m, trace = law.state_size, Trace()
     with recording(trace):
         q = [quantizer.apply(Symbol(f"m{i}"), TRACED.floor) for i in range(1, n + 1)]
         q_text = [trace.text(qi) for qi in q]
         quantize = trace.taken()
         with trace.refusing(f"return {CONTROL_REFUSED}, k"):
-            reading = QuantizedReading(None, quantizer.max_error, columns=q, form=TRACED, batch=1)
+            reading = QuantizedReading(None, quantizer.max_error, columns=q, form=form, batch=1)
             yd = [Symbol(f"yd[r, {j}]") for j in range(n + 1)]
             state = tuple(Symbol(f"adaptive[{i}]") for i in range(m))
             t = trace.assign(f"k * {trace.constant(dt)}")
@@ -123,20 +126,25 @@ def traced_parts(quantizer: UniformQuantizer, law: BatchLaw, n: int, dt: float) 
             raise TypeError("a law output the compiled loop cannot hold")
         symbols = [Symbol(f"held[{i}]") for i in range(len(held))]
         kept = output((symbols[0], tuple(symbols[1 + m:]), tuple(symbols[1:1 + m]), out.rate))
-        advanced = law.advancer_in(TRACED, dt)(state, kept)  # (no refusal: it follows the step)
+        advanced = law.advancer_in(form, dt)(state, kept)  # (no refusal: it follows the step)
         texts = [trace.text(v) for v in advanced]
         trace.lines += [f"adaptive[{i}] = {text}" for i, text in enumerate(texts)]
         advance = trace.taken()
-    return TracedParts(quantize, q_text, control, advance, np.array(trace.constants), float(out.rate))
+    rate = out.rate if isinstance(out.rate, np.ndarray) else float(out.rate)
+    constants = trace.table(None if form.batch == 1 else form.batch)
+    return TracedParts(quantize, q_text, control, advance, constants, rate)
 
 
-def loop_source(parts: TracedParts, plant: NativeStepper, n: int, m: int) -> str:
-    """The module text of the loop function ``rows(...) -> (status, row)``."""
-    record = ([f"xb[j, 0, {i - 1}] = x{i}" for i in range(1, n + 1)]
-              + [f"mb[j, 0, {i - 1}] = m{i}" for i in range(1, n + 1)]
-              + [f"qb[j, 0, {i}] = {q}" for i, q in enumerate(parts.q)]
-              + ["ub[j, 0] = u"] + [f"ab[j, 0, {i}] = adaptive[{i}]" for i in range(m)])
-    body = [
+def loop_body(parts: TracedParts, plant: NativeStepper, n: int, m: int, copy: str = "0",
+              test: list[str] = ()) -> list[str]:
+    """The lines of the loop over rows ``[start, stop]`` of one copy (column ``copy`` of the
+    buffers), returning ``(status, row)``; ``test`` runs after the row is read (a batch's quick
+    divergence test)."""
+    record = ([f"xb[j, {copy}, {i - 1}] = x{i}" for i in range(1, n + 1)]
+              + [f"mb[j, {copy}, {i - 1}] = m{i}" for i in range(1, n + 1)]
+              + [f"qb[j, {copy}, {i}] = {q}" for i, q in enumerate(parts.q)]
+              + [f"ub[j, {copy}] = u"] + [f"ab[j, {copy}, {i}] = adaptive[{i}]" for i in range(m)])
+    return [
         *plant.setup,
         "u = held[0]",
         "if step_first:",
@@ -144,7 +152,7 @@ def loop_source(parts: TracedParts, plant: NativeStepper, n: int, m: int) -> str
         *_indented(plant.step + parts.advance, 1),
         "for k in range(start, stop + 1):",
         "    r = k - start",
-        *_indented(plant.observe + parts.quantize, 1),
+        *_indented(plant.observe + parts.quantize + list(test), 1),
         "    if k % hold == 0:",
         *_indented(parts.control, 2),
         "        u = held[0]",
@@ -155,16 +163,29 @@ def loop_source(parts: TracedParts, plant: NativeStepper, n: int, m: int) -> str
         *_indented(plant.step + parts.advance, 1),
         "return 0, stop",
     ]
+
+
+def module_source(plant: NativeStepper, functions: list[str]) -> str:
+    """A generated module: its imports, the plant's helpers, then ``functions``' lines."""
     return "\n".join([
         '"""qcontrol\'s compiled loop (generated): see KEY."""',  # (user text only as a repr literal)
         "import math", "", "import numba", "import numpy as np", "",
         f"KEY = {plant.key!r}", "",
         "from qcontrol.compiled.pointers import as_pointer, carray", "",
-        plant.helpers, "",
-        '@numba.njit(cache=True, error_model="numpy", nogil=True)',
+        plant.helpers, "", *functions, "",
+    ])
+
+
+JIT = '@numba.njit(cache=True, error_model="numpy", nogil=True)'
+
+
+def loop_source(parts: TracedParts, plant: NativeStepper, n: int, m: int) -> str:
+    """The module text of the loop function ``rows(...) -> (status, row)``."""
+    return module_source(plant, [
+        JIT,
         "def rows(start, stop, step_first, hold, base, yd, xb, mb, qb, ub, ab, adaptive, held, lp, pf, pi,"
         " xs):",
-        *_indented(body, 1), "",
+        *_indented(loop_body(parts, plant, n, m), 1),
     ])
 
 

@@ -49,6 +49,7 @@ from ..controller.law import AnyColumnForm, BatchLaw
 from ..expr import FLOAT_REFUSED, Expression, FloatCombination, FloatTerms
 from ..plants.base import ColumnIO, ColumnStepping, Plant
 from ..quantizer import QuantizedReading, Quantizer, UniformQuantizer
+from .compiled_batch import CompiledBatch, compiled_batch
 from .compiled_loop import CompiledLoop
 from .compiled_loop import compiled_loop as compiled_loop_of
 from .row_buffer import ArrayRows, RowBuffer
@@ -256,11 +257,12 @@ class FloatRows:
         return ((k + 1) // FLUSH_ROWS + 1) * FLUSH_ROWS - 1
 
 
-def compiled_loop(spec: RunSpec) -> CompiledLoop | None:
+def compiled_loop(spec: RunSpec) -> CompiledLoop | CompiledBatch | None:
     """The compiled form of a batch of one (:mod:`.compiled_loop`: numba, rows written into the
-    same buffer between the same rare rows), or None where the run keeps the Python loop: the
-    other place the form of a run is chosen."""
-    return compiled_loop_of(spec)
+    same buffer between the same rare rows) or of a batch of ODE copies (:mod:`.compiled_batch`),
+    or None where the run keeps the Python loop (the array form for a batch): the other place the
+    form of a run is chosen."""
+    return compiled_loop_of(spec) if spec.plant.batch == 1 else compiled_batch(spec)
 
 
 def rows_for(buffer: RowBuffer, batch: int, state_bound: float) -> FloatRows | ArrayRows:

@@ -25,6 +25,7 @@ from .. import compiled as compiled_paths
 from ..plants.base import Disturbable, Plant, actuator_of
 from ..quantizer import Quantizer
 from ..quantizers import SensorQuantizer
+from .compiled_batch import Redo
 from .compiled_loop import START, Resume, numba_pays
 from .divergence import Divergence
 from .fastpath import compiled_loop, rows_for
@@ -73,7 +74,8 @@ class Loads:
 class ClosedLoop:
     """The parts of one run (each with one job) and the loop that drives them (:meth:`run`)."""
 
-    def __init__(self, spec: RunSpec) -> None:
+    def __init__(self, spec: RunSpec, compiled: bool = True) -> None:
+        self.spec = spec
         plant, law, grid = spec.plant, spec.law, spec.grid
         n, batch = plant.n, plant.batch
         self.plant, self.law, self.grid, self.x0 = plant, law, grid, spec.x0
@@ -96,7 +98,7 @@ class ClosedLoop:
         self.loads = Loads(plant, spec.loads)
         self.input_quantizer = spec.input_quantizer
         # None: the Python loop (see .compiled_loop); an input quantizer keeps it too
-        self.compiled = compiled_loop(spec) if spec.input_quantizer is None else None
+        self.compiled = compiled_loop(spec) if spec.input_quantizer is None and compiled else None
         self.handover: int | None = None  # the row the Python loop took over from (None: none)
 
     def next_event(self, k: int) -> int:
@@ -128,11 +130,20 @@ class ClosedLoop:
         pays = numba_pays(self.grid.rows, plant.batch)
         with nullcontext() if pays else compiled_paths.not_needed(), plant, np.errstate(all="ignore"):
             plant.reset(np.broadcast_to(np.asarray(self.x0, dtype=float), (plant.batch, plant.n)))
-            resume = (START._replace(adaptive=adaptive) if self.compiled is None
-                      else self.compiled.run(self, plant, adaptive))
-            self.handover = None if resume is None else resume.row
-            if resume is not None:
-                self.python_rows(resume)
+            try:
+                resume = (START._replace(adaptive=adaptive) if self.compiled is None
+                          else self.compiled.run(self, plant, adaptive))
+            except Redo:  # a compiled batch's copy left a row it keeps undone: the array form, afresh
+                resume = Redo
+            if resume is not Redo:
+                self.handover = None if resume is None else resume.row
+                if resume is not None:
+                    self.python_rows(resume)
+        if resume is Redo:
+            redone = ClosedLoop(self.spec, compiled=False)
+            runs = redone.run()
+            self.handover = redone.handover
+            return runs
         return self.record.results(time.perf_counter())
 
     def python_rows(self, resume: Resume) -> None:

@@ -114,6 +114,9 @@ def compile_expression(source: object, variables: Sequence[str], where: str = "e
             f"got {type(source).__name__}"
         )
     text = str(source)
+    known = _COMPILED.get((text, variables))
+    if known is not None:  # (an Expression is immutable: one compiled text serves every variant)
+        return known
     if len(text) > MAX_SOURCE_LENGTH:
         raise QcontrolInputError(
             f"{where}: expression is {len(text)} characters long; the limit is {MAX_SOURCE_LENGTH}"
@@ -129,7 +132,15 @@ def compile_expression(source: object, variables: Sequence[str], where: str = "e
         raise QcontrolInputError(
             f"{where}: expression {show(text)} is too deeply nested; simplify it"
         ) from None
-    return Expression(text, variables, frozenset(validator.used), on_columns, tree)
+    compiled = Expression(text, variables, frozenset(validator.used), on_columns, tree)
+    if len(_COMPILED) >= COMPILED_KEPT:
+        _COMPILED.clear()
+    _COMPILED[(text, variables)] = compiled
+    return compiled
+
+
+COMPILED_KEPT = 4096  # expressions kept compiled (a sweep's variants repeat the same few texts)
+_COMPILED: dict[tuple[str, tuple[str, ...]], Expression] = {}
 
 
 def scalar_function(expression: Expression) -> ScalarFn:

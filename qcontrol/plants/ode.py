@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from ..columns import ARRAYS, Column, ColumnForm
-from ..compiled.traced import TRACED, Symbol, Trace, recording
+from ..compiled.traced import TRACED, Symbol, Trace, TracedForm, recording
 from ..expr import Expression
 from ..expr.rows import is_zero
 from .backends import Backend
@@ -161,12 +161,14 @@ class ChainPlant:
         self._x = form.columns(x)
         return ChainIO(self, h)
 
-    def native_stepper(self, h: float) -> NativeStepper | None:
-        """The batch of one as source text for the engine's compiled loop: the same RK4 on the
-        same terms (:class:`ChainNativeForm`); None for a batch, an input gain other than 1, terms
-        in t or regressors before the last equation (those run in Python)."""
-        native = self.batch == 1 and self.input_gain == 1.0 and not self.timed and not self._rows
-        return ChainNativeForm(self, h).stepper() if native else None
+    def native_stepper(self, h: float, form: TracedForm = TRACED) -> NativeStepper | None:
+        """One copy as source text for the engine's compiled loop: the same RK4 on the same terms
+        (:class:`ChainNativeForm`), a batch of one in :data:`TRACED`, a batch of copies in
+        ``TracedForm(batch)`` (per-copy theta in per-copy slots); None for an input gain other
+        than 1, terms in t or regressors before the last equation (those run in Python)."""
+        native = (self.batch == form.batch and self.input_gain == 1.0 and not self.timed
+                  and not self._rows)
+        return ChainNativeForm(self, h, form).stepper() if native else None
 
 
 class ChainNativeForm:
@@ -178,15 +180,17 @@ class ChainNativeForm:
     compiled text serves every theta; ``xs`` the state. :func:`_loaded` branches on the load, so
     it is recorded for a load and for none. Where ``math`` would refuse a term (the Python form
     then takes numpy's answer), the step returns True before writing the state, the loop returns
-    2, and the Python step runs."""
+    2, and the Python step runs. For a batch of copies (``form`` a ``TracedForm(batch)``) ``pf``
+    and ``xs`` have a row per copy (the generated loop hands each copy its own)."""
 
-    def __init__(self, plant: ChainPlant, h: float) -> None:
-        self.plant, self.h = plant, h
+    def __init__(self, plant: ChainPlant, h: float, form: TracedForm = TRACED) -> None:
+        self.plant, self.h, self.form = plant, h, form
         self.trace = Trace("pf", "p")
         self.load = self.trace.constant(plant._load)  # pf[0], kept up to date by sync_in
         self.helpers = self.step_function()
-        self.floats = np.array(self.trace.constants, dtype=float)
-        self.state = plant.state()[0].copy()
+        batched = form.batch != 1
+        self.floats = self.trace.table(form.batch if batched else None)
+        self.state = plant.state().copy() if batched else plant.state()[0].copy()
 
     def step_function(self) -> str:
         """``plant_step(u, xs, pf) -> refused``: one step of ``h`` with ``u`` and the load held, as
@@ -199,17 +203,17 @@ class ChainNativeForm:
                 lines += [header, *[f"    {line}" for line in trace.taken()], f"    uu = {held}"]
             with trace.refusing("return True"):
                 stepped = _rk4([Symbol(f"xs[{i}]") for i in range(n)], Symbol("uu"), self.h,
-                               self.plant._rate_in(TRACED))
+                               self.plant._rate_in(self.form))
                 texts = [trace.text(v) for v in stepped]  # written after every refusal
         lines += trace.taken() + [f"xs[{i}] = {text}" for i, text in enumerate(texts)] + ["return False"]
         return ('@numba.njit(cache=True, error_model="numpy", nogil=True)\ndef plant_step(u, xs, pf):\n'
                 + "".join(f"    {line}\n" for line in lines))
 
     def sync_in(self) -> None:
-        self.floats[0] = self.plant._load
+        self.floats[..., 0] = self.plant._load
 
     def sync_out(self) -> None:
-        self.plant._x = self.plant._form.columns(self.state[None, :])
+        self.plant._x = self.plant._form.columns(self.state.reshape(self.plant.batch, self.plant.n))
 
     def stepper(self) -> NativeStepper:
         n = self.plant.n

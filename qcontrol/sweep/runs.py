@@ -121,9 +121,29 @@ def run_variants_batched(scs: Sequence[Scenario], backend: str) -> list[Summary]
 
 
 def _run_chunk(scenario_path: str, override_sets: list[list[str]], backend: str,
-               unset: Sequence[str] = ()) -> list[Summary]:
-    """Worker entry point (picklable arguments only): load the variants and run them as a batch."""
-    return run_batch([load_scenario(scenario_path, o, unset) for o in override_sets], backend)
+               unset: Sequence[str] = (), variants: list[Scenario] | None = None) -> list[Summary]:
+    """Worker entry point (picklable arguments only): load the variants (in this process, the
+    ``variants`` the plan loaded, if given) and run them as a batch."""
+    if variants is None:
+        variants = [load_scenario(scenario_path, o, unset) for o in override_sets]
+    return run_batch(variants, backend)
+
+
+KEPT_VARIANTS = 5000  # a plan of at most this many variants keeps them for a sweep in this process
+
+
+class _Planned:
+    """The variants the last :func:`plan` loaded, for the sweep that follows in this process (so it
+    does not load each one again): kept for one plan of at most :data:`KEPT_VARIANTS`."""
+
+    key: tuple | None = None
+    variants: list[Scenario] = []
+
+    @classmethod
+    def take(cls, key: tuple) -> list[Scenario] | None:
+        variants = cls.variants if cls.key == key else None
+        cls.key, cls.variants = None, []
+        return variants
 
 
 def plan(scenario_path: str | Path, override_sets: Sequence[Sequence[str]], backend: str,
@@ -133,11 +153,25 @@ def plan(scenario_path: str | Path, override_sets: Sequence[Sequence[str]], back
     if backend not in BACKENDS:
         raise QcontrolInputError(f"--backend {backend!r}: use one of {', '.join(BACKENDS)}")
     groups: dict[tuple, list[int]] = {}
+    variants = []
+    _Planned.take(())
     for i, overrides in enumerate(override_sets):
         sc = load_scenario(scenario_path, list(overrides), unset)
         BACKENDS[backend].require(sc.backends.get(backend), sc.source)
         groups.setdefault(batch_structure(sc, backend), []).append(i)
-    return chunks_of(groups.values())
+        if len(override_sets) <= KEPT_VARIANTS:
+            variants.append(sc)
+    chunks = chunks_of(groups.values())
+    if variants:
+        _Planned.key = _plan_key(scenario_path, override_sets, backend, unset, chunks)
+        _Planned.variants = variants
+    return chunks
+
+
+def _plan_key(path: str | Path, override_sets: Sequence[Sequence[str]], backend: str, unset: Sequence[str],
+              chunks: list[list[int]]) -> tuple:
+    return (str(path), tuple(tuple(o) for o in override_sets), backend, tuple(unset),
+            tuple(tuple(ids) for ids in chunks))
 
 
 def sweep_summaries(
@@ -163,6 +197,7 @@ def sweep_summaries(
         raise QcontrolInputError(f"--workers {workers}: must be >= 1")
     path, sets, unset = str(scenario_path), [list(o) for o in override_sets], list(unset)
     chunks = chunks if chunks is not None else plan(path, sets, backend, unset)
+    loaded = _Planned.take(_plan_key(path, sets, backend, unset, chunks))  # (None: load in the chunks)
     results: list[Summary | None] = [None] * len(sets)
     done = 0
 
@@ -187,7 +222,7 @@ def sweep_summaries(
             _on_workers(worker_count(workers, len(cut)), cut, tasks, store)
         else:
             for ids, task in zip(*jobs(1), strict=True):
-                store(ids, _run_chunk(*task))
+                store(ids, _run_chunk(*task, None if loaded is None else [loaded[i] for i in ids]))
     except KeyboardInterrupt as stop:
         raise SweepInterrupted(results, isinstance(stop, Terminated)) from None
     return results  # type: ignore[return-value]

@@ -1,0 +1,210 @@
+"""The compiled batch: N copies of the ODE closed loop in one generated numba function, each copy
+with its own parameters, derived from the same single definitions as the compiled loop of one
+run (:mod:`.compiled_loop`).
+
+A sweep, a region map or a study runs a batch of copies that differ in their parameters (kappa,
+gamma, sigma, r_scale, theta) and share their structure. The array form runs them as ``(batch,)``
+numpy columns, a few dozen numpy calls a step; here the same formulas run once on
+``TracedForm(batch)`` (:mod:`qcontrol.compiled.traced`), in which a parameter given per copy
+takes a slot of the constants with a value per copy, so one text serves every copy: the
+quantizer's :meth:`~qcontrol.quantizer.UniformQuantizer.apply`, the law's ``control`` and advance
+(:func:`.compiled_loop.traced_parts`), and the ODE's RK4 (:class:`~qcontrol.plants.ode.ChainNativeForm`).
+The generated function loops over the copies and, for each, over the rows between two of the
+engine's scheduled rows: the single run's loop body (:func:`.compiled_loop.loop_body`) writing
+column ``b`` of the run's buffer. So every copy's numbers are its run alone, to the last bit, and
+the record (metrics, divergence, reductions) is the array form's, at the same rows.
+
+Divergence: the loop marks each row at which some copy's state or adaptive estimate fails the
+array form's quick test (non-finite, or ``|x_i|`` beyond the bound), and only those rows are
+tested (:class:`~.divergence.Divergence`), as in the array form. A copy keeps being computed after
+it stopped, as in the array form. Where a copy's float code cannot give numpy's answer (``math``
+refusing an evaluation), that copy stops being computed; the rows it leaves undone are marked,
+and when they are rows the copy keeps (it had not stopped before), the whole run is done again
+in the array form (:class:`Redo`).
+
+Functions: the array form evaluates a batch's expressions with numpy's vectorised functions, which
+for some (exp, expm1, tanh, log, pow with most exponents, ...) differ in the last bit from
+``math``'s that a run alone and this loop use. A batch whose code calls any function but
+:data:`SAME_IN_NUMPY` keeps the array form, so that its numbers stay what they were.
+
+Same fallback rules as the single compiled loop (:func:`compiled_batch`): the built-in laws only,
+the uniform quantizer only, no input quantizer, input gain b = 1, no terms in t, the sensors'
+velocity, runs of at least :data:`~.compiled_loop.MIN_ROWS` rows, no observer; the rest runs the
+array form. The text is cached on disk (:mod:`qcontrol.compiled.cache`).
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+import numpy as np
+
+from .. import compiled as compiled_paths
+from ..compiled.traced import TracedForm
+from ..controller.law import BatchLaw
+from ..plants.base import NativeStepper
+from ..plants.ode import ChainPlant
+from ..quantizer import UniformQuantizer
+from . import compiled_loop
+from .compiled_loop import (
+    COMPILED_LAWS,
+    CONTROL_REFUSED,
+    JIT,
+    START,
+    Resume,
+    Schedule,
+    TracedParts,
+    _indented,
+    loop_body,
+    module_source,
+    traced_parts,
+)
+from .spec import RunSpec
+
+# the functions whose numpy array form gives math's numbers (checked on the floats of a run)
+SAME_IN_NUMPY = frozenset({"math.sin", "math.cos", "math.sqrt", "math.fabs", "math.isfinite", "math.isinf",
+                           "math.nan", "np.floor"})
+_CALLS = re.compile(r"\b(?:math|np)\.\w+")
+
+
+def same_as_array_form(*texts: str) -> bool:
+    """Whether generated code calls only functions of :data:`SAME_IN_NUMPY`."""
+    return all(call in SAME_IN_NUMPY for text in texts for call in _CALLS.findall(text))
+
+
+class Redo(Exception):
+    """A copy's compiled code could not give a row it keeps: the run is done again in the array
+    form."""
+
+
+def batch_source(parts: TracedParts, plant: NativeStepper, n: int, m: int) -> str:
+    """The module text: ``copy_rows`` (one copy's rows, the single run's loop body on column b,
+    with the quick divergence test) and ``rows`` (every copy in turn)."""
+    finite = ([f"abs(x{i}) <= bound" for i in range(1, n + 1)]
+              + [f"math.isfinite(adaptive[{i}])" for i in range(m)])
+    test = [f"if not ({' and '.join(finite)}):", "    suspect[k - start] = True"]
+    body = loop_body(parts, plant, n, m, "b", test)
+    arguments = "start, stop, step_first, hold, base, bound, yd, xb, mb, qb, ub, ab"
+    return module_source(plant, [
+        JIT,
+        f"def copy_rows(b, {arguments}, adaptive, held, lp, pf, pi, xs, suspect):",
+        *_indented(body, 1),
+        "",
+        JIT,
+        f"def rows({arguments}, adaptives, helds, lps, pfs, pi, xss, suspect, status, at):",
+        "    for b in range(xss.shape[0]):",
+        "        if status[b] != 0:  # stopped computing: every row marked",
+        "            suspect[:] = True",
+        "            continue",
+        f"        s, k = copy_rows(b, {arguments}, adaptives[b], helds[b], lps[b], pfs[b], pi, xss[b],"
+        " suspect)",
+        "        if s != 0:",
+        "            status[b], at[b] = s, k",
+        "            suspect[max(k + 1 - start, 0):] = True",
+        "",
+    ])
+
+
+class CompiledBatch:
+    """The compiled form of a batch's law and quantizer; :meth:`run` adds the ODE's step."""
+
+    def __init__(self, parts: TracedParts, form: TracedForm, n: int, m: int) -> None:
+        self.parts, self.form, self.n, self.m = parts, form, n, m
+
+    def function(self, plant: NativeStepper):  # noqa: ANN201 (a numba dispatcher)
+        from ..compiled.cache import generated_module
+
+        return generated_module("batch", batch_source(self.parts, plant, self.n, self.m)).rows
+
+    def run(self, loop: Schedule, plant: Any, adaptive: tuple) -> Resume | None:
+        """The run from row 0 in compiled chunks, the engine's rare work between them; None when
+        the run is over, :data:`START` when the plant has no compiled form for it (the array
+        form runs it all); raises :class:`Redo` (see the module docstring)."""
+        stepper = plant.native_stepper(loop.grid.dt, self.form)
+        parts = self.parts
+        if stepper is None or not same_as_array_form(stepper.helpers, *parts.quantize, *parts.control,
+                                                     *parts.advance):
+            return START._replace(adaptive=adaptive)
+        try:
+            rows = self.function(stepper)
+        except Exception as exc:  # numba refusing a construct: the array form, said once
+            compiled_paths.fallback("the batch of copies", f"{type(exc).__name__}: {exc}")
+            return START._replace(adaptive=adaptive)
+        batch, record = plant.batch, loop.record
+        state = np.empty((batch, self.m))
+        for i, column in enumerate(adaptive):
+            state[:, i] = column
+        held = np.zeros((batch, 1 + self.m + self.n))
+        arrays = record.buffer.arrays
+        buffers = (arrays["x"], arrays["x_meas"], arrays["x_q"], arrays["u"], arrays["adaptive"])
+        status, at = np.zeros(batch, dtype=np.int64), np.zeros(batch, dtype=np.int64)
+        bound, lps = float(loop.rows.state_bound), np.ascontiguousarray(self.parts.constants)
+        start, step_first = 0, False
+        try:
+            while True:
+                stop = loop.next_event(start - 1)
+                yd = np.ascontiguousarray(loop.reference.block(start, stop + 1))
+                suspect = np.zeros(stop - start + 1, dtype=np.bool_)
+                stepper.sync_in()
+                rows(start, stop, step_first, loop.grid.hold, record.buffer.base, bound, yd, *buffers, state,
+                     held, lps, stepper.floats, stepper.ints, stepper.state, suspect, status, at)
+                self.test(loop, start, suspect)
+                self.check(loop.divergence.kept, status, at)
+                if loop.rare_work(stop):
+                    return None
+                start, step_first = stop + 1, True
+        finally:
+            stepper.sync_out()
+
+    @staticmethod
+    def test(loop: Schedule, start: int, suspect: np.ndarray) -> None:
+        """Test the marked rows for divergence, each run of consecutive rows at once (the same
+        as one by one: each row is tested after the one before it)."""
+        marked = np.flatnonzero(suspect)
+        if not len(marked):
+            return
+        breaks = np.flatnonzero(np.diff(marked) != 1)
+        for first, last in zip(np.r_[marked[0], marked[breaks + 1]], np.r_[marked[breaks], marked[-1]],
+                               strict=True):
+            loop.divergence.test(start + int(first), start + int(last) + 1, loop.record.buffer)
+
+    @staticmethod
+    def check(kept: np.ndarray, status: np.ndarray, at: np.ndarray) -> None:
+        """Raise :class:`Redo` if a copy stopped being computed before a row it keeps: its control
+        at row k (rows before k kept only) or its step from row k (rows up to k kept only)."""
+        for b in np.flatnonzero(status):
+            last = at[b] - 1 if status[b] == CONTROL_REFUSED else at[b]
+            if kept[b] - 1 > last:
+                raise Redo(f"copy {b} at row {at[b]}")
+
+
+def compilable_batch(law: BatchLaw, batch: int) -> bool:
+    """Whether a built-in law's own code may be traced for a batch of ``batch`` copies (as
+    :func:`.compiled_loop.compilable`, its parameters one per copy or shared)."""
+    for base in COMPILED_LAWS:
+        if isinstance(law, base):
+            return base.has_compiled_equivalent.fget(law) and law.copies in (None, batch)
+    return False
+
+
+def compiled_batch(spec: RunSpec) -> CompiledBatch | None:
+    """The compiled form of ``spec``'s batch of copies, or None where it keeps the array form (the
+    module docstring says when)."""
+    plant, batch = spec.plant, spec.plant.batch
+    if batch == 1 or not isinstance(plant, ChainPlant) or spec.velocity_source != "sensor":
+        return None
+    if spec.grid.rows < compiled_loop.MIN_ROWS or spec.observer is not None:
+        return None
+    if spec.input_quantizer is not None:
+        return None
+    if type(spec.quantizer) is not UniformQuantizer or not compiled_paths.enabled():
+        return None
+    if not compilable_batch(spec.law, batch):
+        return None
+    form = TracedForm(batch)
+    try:
+        parts = traced_parts(spec.quantizer, spec.law, plant.n, spec.grid.dt, form)
+    except (TypeError, ValueError):  # a formula that cannot be traced: the array form
+        return None
+    return CompiledBatch(parts, form, plant.n, spec.law.state_size)
