@@ -75,6 +75,7 @@ def measure(duration: float, batch_duration: float, copies: int, repeat: int) ->
 
 
 NAMES = {"rk4": "qcontrol.Law, RK4 of state_rate", "stepped": "qcontrol.Law, its own advance",
+         "floats": "qcontrol.Law, its own advance on floats",
          "columns": "BacksteppingLaw subclass, column form"}
 
 
