@@ -6,6 +6,9 @@ forms of a user law (docs/laws.md): the bench times them against the built-in ki
 * :class:`PaperLawRK4`: a ``qcontrol.Law``; eq. (45) as a rate, advanced by the engine's RK4;
 * :class:`PaperLawStepped`: a ``qcontrol.Law`` with its own ``advance``; eq. (45) solved exactly
   over each step with the sample held, ``eps <- target + (eps - target) exp(-gamma sigma h)``;
+* :class:`PaperLawFloats`: the stepped ``qcontrol.Law`` written for a single run's speed (what
+  docs/laws.md's speed section asks of a ``Law``): each call computes on Python floats, not numpy
+  on arrays of n numbers;
 * :class:`PaperLawColumns`: a ``qcontrol.BacksteppingLaw`` subclass in column form (floats for a
   single run, ``(batch,)`` arrays for a batch), registered with ``register_law`` as the others.
 
@@ -25,7 +28,8 @@ import numpy as np
 import qcontrol
 
 KEYS = ["kappa", "gamma", "sigma", "r"]
-KINDS = {"rk4": "paper-by-hand-rk4", "stepped": "paper-by-hand-stepped", "columns": "paper-by-hand-columns"}
+KINDS = {"rk4": "paper-by-hand-rk4", "stepped": "paper-by-hand-stepped", "floats": "paper-by-hand-floats",
+         "columns": "paper-by-hand-columns"}
 FORMS = tuple(KINDS)
 
 
@@ -67,6 +71,42 @@ class PaperLawStepped(PaperLawRK4):
         _, _, r, s = self.terms(x_q, yd)
         target = s * r / self.sigma
         return target + (state - target) * math.exp(-self.gamma * self.sigma * h)
+
+
+class PaperLawFloats:
+    """The same law, its state moved by the same exact solution, each call on Python floats: the
+    reading and the reference turned into floats once (``tolist()``), eqs. (31)-(34) by
+    ``BacksteppingLaw.recursion`` (which serves floats as it serves columns), r by ``on_floats``,
+    a numpy array made only for the state ``advance`` returns."""
+
+    def __init__(self, table: dict, n: int) -> None:
+        by_arrays = PaperLawRK4(table, n)  # the same settings, read and checked the same way
+        self.kappa, self.gamma, self.sigma = by_arrays.kappa, by_arrays.gamma, by_arrays.sigma
+        self.L, self.r, self.state_size = by_arrays.L, by_arrays.r, by_arrays.state_size
+        self.backstepping = qcontrol.BacksteppingLaw(by_arrays.c, table["delta"] / 2)
+
+    def initial_state(self) -> np.ndarray:
+        return np.zeros(self.state_size)
+
+    def terms(self, x_q: np.ndarray, yd: np.ndarray) -> tuple[list, list, list, float]:
+        """zbar, alphabar (eqs. (31)-(34)), r(x_q) and s = zbar_n^2 / kappa + L, as floats."""
+        q = x_q.tolist()
+        zbar, alphabar = self.backstepping.recursion(q, yd.tolist())
+        zn = zbar[-1]
+        return zbar, alphabar, [e.on_floats(q) for e in self.r], zn * zn / self.kappa + self.L
+
+    def control(self, t: float, x_q: np.ndarray, yd: np.ndarray, state: np.ndarray) -> float:
+        """Eq. (44)."""
+        zbar, alphabar, r, s = self.terms(x_q, yd)
+        robust = sum([e * ri for e, ri in zip(state.tolist(), r, strict=True)])  # eps_hat^T r(x_q)
+        return alphabar[-1] - zbar[-1] * s * robust / (self.kappa * (self.kappa - self.L))
+
+    def advance(self, t: float, x_q: np.ndarray, yd: np.ndarray, state: np.ndarray, h: float) -> np.ndarray:
+        """Eq. (45), exact with the sample held."""
+        _, _, r, s = self.terms(x_q, yd)
+        decay = math.exp(-self.gamma * self.sigma * h)
+        targets = [s * ri / self.sigma for ri in r]
+        return np.array([g + (e - g) * decay for e, g in zip(state.tolist(), targets, strict=True)])
 
 
 class PaperLawColumns(qcontrol.BacksteppingLaw):
@@ -115,6 +155,7 @@ def register() -> None:
     """Register the three forms under :data:`KINDS` (again after an edit: replace=True)."""
     qcontrol.register_law(KINDS["rk4"], PaperLawRK4, state_name="eps_hat", replace=True)
     qcontrol.register_law(KINDS["stepped"], PaperLawStepped, state_name="eps_hat", replace=True)
+    qcontrol.register_law(KINDS["floats"], PaperLawFloats, state_name="eps_hat", replace=True)
     qcontrol.register_law(KINDS["columns"], PaperLawColumns, keys=KEYS, replace=True)
 
 

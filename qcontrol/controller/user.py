@@ -29,12 +29,13 @@ import dataclasses
 import math
 from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass
+from functools import partial
 from types import MappingProxyType
 from typing import Any, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 
-from ..columns import ARRAYS, ColumnForm
+from ..columns import ARRAYS, Column, ColumnForm
 from ..errors import QcontrolInputError
 from ..quantizer import QuantizedReading
 from ..schema import Table
@@ -42,6 +43,8 @@ from .backstepping import Backstepping, Columns
 from .law import LawContext
 from .user_diagnostics import declared_diagnostics
 from .user_failure import describe, describe_call, returned
+
+FLOAT = np.dtype(float)
 
 
 @runtime_checkable
@@ -95,17 +98,36 @@ def advances_itself(law: object) -> bool:
 
 class _Sample(NamedTuple):
     """What one evaluation hands the engine: ``u``, and the sample the state's update holds.
-    ``u`` a column in the reading's form, ``x_q`` the reading's ``(batch, n)`` values."""
+    ``u`` a column in the reading's form, ``x_q`` the readings of the copies (a ``(n,)`` row
+    each: a ``(batch, n)`` array, or a list of one row for a single copy)."""
 
     u: np.ndarray | float
     t: float
-    x_q: np.ndarray
+    x_q: np.ndarray | list[np.ndarray]
     yd: np.ndarray  # (n + 1,)
+
+
+sample = partial(tuple.__new__, _Sample)  # _Sample((u, t, x_q, yd)) without NamedTuple's __new__ (hot loop)
+
+
+def fresh_rows(form: ColumnForm, columns: Sequence[Column], batch: int, size: int
+               ) -> list[np.ndarray]:
+    """``columns`` (``size`` of them, in ``form``) as a fresh ``(size,)`` array per copy, which a
+    law may be given as it is: for a single copy made from its columns (numbers, or one-element
+    columns) at once, for a batch copied from the form's ``(batch, size)`` array."""
+    if batch != 1:
+        return [row.copy() for row in form.array(columns, batch)]
+    row = np.array(columns, dtype=float)
+    return [row if row.ndim == 1 else row.reshape(size).copy()]
 
 
 class UserLaw(Backstepping):
     """A batch of user laws (one per copy) driven by the engine (:class:`~.law.BatchLaw`, in any
-    column form: :class:`~.law.AnyColumnForm`)."""
+    column form: :class:`~.law.AnyColumnForm`).
+
+    Each copy's law is called with fresh arrays at every call (it may change or keep them), in
+    copy order; what it returns is checked (:meth:`_number`, :meth:`_checked_array`: fully at a
+    method's first call, then only what a later call could get wrong)."""
 
     def __init__(self, laws: Sequence[Law], c: Sequence[float], max_error: float, state_name: str,
                  kind: str = "user law") -> None:
@@ -116,6 +138,7 @@ class UserLaw(Backstepping):
         if len(sizes) != 1:
             raise QcontrolInputError(f"the copies of a user law have different state sizes {sorted(sizes)}")
         self.state_size = sizes.pop()
+        self._shape = (self.state_size,)
         self.state_name = state_name
         self.copies = len(self.laws) if len(self.laws) > 1 else None
         self.stepped = all(advances_itself(law) for law in self.laws)
@@ -142,19 +165,21 @@ class UserLaw(Backstepping):
         if not isinstance(reading, QuantizedReading) or reading.max_error != self.max_error:
             self.check_reading(reading)
         yd_row = np.array(yd, dtype=float)
-        x_q, form = reading.values, reading.form
-        states = form.array(state, len(x_q))
-        laws, failures, u = self.copies_laws(len(x_q)), self.failures, []
-        for b in range(len(x_q)):
+        form, batch = reading.form, reading.batch
+        x_q = fresh_rows(form, reading.columns, 1, self.n) if batch == 1 else reading.values
+        states = fresh_rows(form, state, batch, self.state_size)
+        laws, failures, number, u = self.copies_laws(batch), self.failures, self._number, [0.0] * batch
+        for b in range(batch):
+            if failures and b in failures:
+                continue  # no input: the engine stopped the copy
+            law = laws[b]
             try:
-                u.append(0.0 if failures and b in failures else
-                         self._number(laws[b].control(t, x_q[b].copy(), yd_row.copy(), states[b].copy())))
+                u[b] = number(law.control(t, x_q[b].copy(), yd_row.copy(), states[b]))
             except QcontrolInputError:
                 raise
             except Exception as exc:  # the user's code failed: this copy stops here (see .user_failure)
-                failures[b] = (t, describe(self.kind, "control()", exc, t, laws[b].control), True)
-                u.append(0.0)  # no input: the engine stops the copy at this row
-        return _Sample(form.column(u), t, x_q, yd_row)
+                failures[b] = (t, describe(self.kind, "control()", exc, t, law.control), True)
+        return sample((form.column(u), t, x_q, yd_row))
 
     def copies_laws(self, batch: int) -> list[Law]:
         """Each copy's law: one per copy, or the one law for every copy."""
@@ -162,11 +187,22 @@ class UserLaw(Backstepping):
 
     def step_state(self, law: Law, sample: _Sample, x_q: np.ndarray, state: np.ndarray,
                    h: float, copy: int = 0) -> np.ndarray:
-        """One copy's state one step ``h`` on (NaN once its law failed: see :mod:`.user_failure`)."""
+        """One copy's state one step ``h`` on (NaN once its law failed: see :mod:`.user_failure`):
+        its own ``advance``, else one classical RK4 step of its ``state_rate``
+        (``s + h/6 (k1 + 2 (k2 + k3) + k4)``), with the sample held. ``state`` is a fresh array
+        (:func:`fresh_rows`), the law's to have."""
         if self.failures and copy in self.failures:
             return np.full(self.state_size, math.nan)
+        t, yd, checked = sample.t, sample.yd, self._checked_array
         try:
-            return self._step_state(law, sample, x_q, state, h)
+            if self.stepped:
+                return checked(law.advance(t, x_q.copy(), yd.copy(), state, h), "advance()")
+            rate, half = law.state_rate, 0.5 * h
+            k1 = checked(rate(t, x_q.copy(), yd.copy(), state.copy()), "state_rate()")
+            k2 = checked(rate(t, x_q.copy(), yd.copy(), state + half * k1), "state_rate()")
+            k3 = checked(rate(t, x_q.copy(), yd.copy(), state + half * k2), "state_rate()")
+            k4 = checked(rate(t, x_q.copy(), yd.copy(), state + h * k3), "state_rate()")
+            return state + h / 6.0 * (k1 + 2.0 * (k2 + k3) + k4)
         except QcontrolInputError:
             raise
         except Exception as exc:  # the user's code failed: this copy stops here (see .user_failure)
@@ -175,26 +211,14 @@ class UserLaw(Backstepping):
             self.failures[copy] = (sample.t, describe(self.kind, method, exc, sample.t, function), False)
             return np.full(self.state_size, math.nan)
 
-    def _step_state(self, law: Law, sample: _Sample, x_q: np.ndarray, state: np.ndarray,
-                    h: float) -> np.ndarray:
-        """One copy's state one step ``h`` on: its own ``advance``, else one classical RK4 step of
-        its ``state_rate`` (``s + h/6 (k1 + 2 (k2 + k3) + k4)``), with the sample held."""
-        t, yd = sample.t, sample.yd
-        if self.stepped:
-            return self._checked_array(law.advance(t, x_q.copy(), yd.copy(), state.copy(), h), "advance()")
-        rate, half = law.state_rate, 0.5 * h
-        k1 = self._checked_array(rate(t, x_q.copy(), yd.copy(), state.copy()), "state_rate()")
-        k2 = self._checked_array(rate(t, x_q.copy(), yd.copy(), state + half * k1), "state_rate()")
-        k3 = self._checked_array(rate(t, x_q.copy(), yd.copy(), state + half * k2), "state_rate()")
-        k4 = self._checked_array(rate(t, x_q.copy(), yd.copy(), state + h * k3), "state_rate()")
-        return state + h / 6.0 * (k1 + 2.0 * (k2 + k3) + k4)
-
     def _refuse(self, field: str, problem: str) -> QcontrolInputError:
         return QcontrolInputError(f"controller kind {self.kind!r}: {field} {problem}; fix the law")
 
     def _number(self, value: object) -> float:
         """``control()``'s u as a float, checked at every call: a real number (a numpy scalar or a
         0-d array too); at the first call also finite, and a refusal there is bad input."""
+        if type(value) is float and "control()" in self._checked:  # the common case, at once
+            return value
         if "control()" in self._checked:
             if isinstance(value, float):
                 return float(value)
@@ -215,6 +239,9 @@ class UserLaw(Backstepping):
         """An ``(m,)`` array of finite real numbers from ``initial_state()``, ``state_rate()`` or
         ``advance()``, checked at the method's first call (a refusal there is bad input); at later
         calls an array of m real numbers (else a failure of the law)."""
+        if type(value) is np.ndarray and value.dtype is FLOAT and value.shape == self._shape \
+                and field in self._checked:  # the common case, at once: the array as it is
+            return value
         if field in self._checked:
             if isinstance(value, np.ndarray) and value.dtype.kind in "iuf" and value.size == self.state_size \
                     and value.ndim <= 1:
@@ -255,13 +282,16 @@ class StateUpdate:
         self.law, self.form, self.h = law, form, h
 
     def advance(self, state: Columns, sample: _Sample) -> Columns:
-        law, h = self.law, self.h
-        if not law.state_size:
+        law, h, m = self.law, self.h, self.law.state_size
+        if not m:
             return state
-        s = self.form.array(state, len(sample.x_q))
-        laws = law.copies_laws(len(s))
-        s = np.array([law.step_state(laws[b], sample, sample.x_q[b], s[b], h, b) for b in range(len(s))])
-        return tuple(self.form.columns(s))
+        x_q = sample.x_q
+        batch = len(x_q)
+        s, laws, step = fresh_rows(self.form, state, batch, m), law.copies_laws(batch), law.step_state
+        if batch == 1:
+            return tuple(self.form.columns(step(laws[0], sample, x_q[0], s[0], h, 0).reshape(1, m)))
+        return tuple(self.form.columns(np.array([step(laws[b], sample, x_q[b], s[b], h, b)
+                                                 for b in range(batch)])))
 
 
 def _state_size(law: object) -> int:
