@@ -161,10 +161,11 @@ class ChainPlant:
         self._x = form.columns(x)
         return ChainIO(self, h)
 
-    def native_stepper(self, h: float) -> NativeStepper | None:
+    def native_stepper(self, h: float, readings: int = 0) -> NativeStepper | None:
         """The batch of one as source text for the engine's compiled loop: the same RK4 on the
         same terms (:class:`ChainNativeForm`); None for a batch, an input gain other than 1, terms
-        in t or regressors before the last equation (those run in Python)."""
+        in t or regressors before the last equation (those run in Python). (``readings``: unused,
+        the ODE reads its state as it is.)"""
         native = self.batch == 1 and self.input_gain == 1.0 and not self.timed and not self._rows
         return ChainNativeForm(self, h).stepper() if native else None
 
