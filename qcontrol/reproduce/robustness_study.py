@@ -31,10 +31,12 @@ import numpy as np
 
 from .. import compiled as compiled_paths
 from ..assembly import run_scenario, scene
+from ..engine import compiled_loop
 from ..metrics import finite_max_abs
 from ..scenario import Scenario, load_scenario
 from ..summary import Summary
 from ..sweep import run_batch
+from ..timegrid import TimeGrid
 from ..workers import worker_count, worker_pool
 
 SEEDS = tuple(range(1, 21))  # sensor-noise seeds of every row with noise on
@@ -87,11 +89,17 @@ class StudyJob:
 
 
 def _summaries(tasks: Sequence[StudyJob]) -> list[Summary]:
-    """Worker entry point: the summaries (metrics only) of runs, each run alone (a single MuJoCo
-    run takes the compiled loop, its sensor noise included; a process running many pays for
-    numba's start once)."""
+    """Worker entry point: the summaries (metrics only) of a job's runs (:func:`batches`): each run
+    alone where a single run takes the compiled loop (its sensor noise included; a process running
+    many pays for numba's start once), else stepped as one batch (short runs, or no compiled
+    paths). A run's numbers are its own either way."""
     _compiled_paths()
-    return [run_batch([load_scenario(t.path, list(t.overrides))], t.backend)[0] for t in tasks]
+    scenarios = [load_scenario(t.path, list(t.overrides)) for t in tasks]
+    backend, sim = tasks[0].backend, scenarios[0].simulation
+    if len(tasks) > 1 and not (compiled_paths.requested()
+                               and TimeGrid.of(sim.duration, sim.dt).rows >= compiled_loop.MIN_ROWS):
+        return run_batch(scenarios, backend)
+    return [run_batch([sc], backend)[0] for sc in scenarios]
 
 
 def _compiled_paths() -> None:
@@ -103,9 +111,8 @@ def _compiled_paths() -> None:
 
 def batches(tasks: Sequence[StudyJob]) -> list[list[int]]:
     """The tasks' indices in jobs for the workers: a row's sensor-noise seeds together (runs that
-    differ in the seed alone), every other run alone; the largest first, so that workers start on
-    the longest work. Each run of a job runs alone: a run's numbers are its own whatever its
-    job."""
+    differ in the seed alone, so they share :func:`~qcontrol.assembly.batch_structure`), every
+    other run alone; the largest first, so that workers start on the longest work."""
     groups: dict[tuple, list[int]] = {}
     for i, task in enumerate(tasks):
         rest = tuple(o for o in task.overrides if not o.startswith(SEED_OVERRIDE))
