@@ -2,8 +2,9 @@
 
 Runs Example 1 and Example 2 (proposed law and the comparison law of reference [20]) on the
 chosen backend, with the ideal ODE twin beside MuJoCo, then the sensitivity studies (kappa - L,
-a constant scale of r, plant variants) on the ODE backend, then the robustness study on realistic
-hardware (:mod:`.robustness_study`, MuJoCo, in worker processes). Writes PNG figures,
+a constant scale of r, plant variants) on the ODE backend, and the robustness study on realistic
+hardware (:mod:`.robustness_study`, MuJoCo, in worker processes, started first so that it runs
+while this process does the rest). Writes PNG figures,
 ``table1.md``, ``table1.json``, ``studies.json``, ``region.json`` (the sampled loop's region study,
 :mod:`.region_study`), ``robustness.json``, ``sensors.json`` (Example 2 with realistic sensors,
 :mod:`.sensor_study`), ``REPORT.md`` and one rerun
