@@ -66,10 +66,10 @@ def test_compiled_and_python_loops_agree_on_every_shipped_scenario(monkeypatch, 
     sc = _scenario(name)
     (loop, compiled), (python_loop, python) = _both(monkeypatch, sc, backend)
     assert python_loop.handover == 0  # QCONTROL_COMPILE=0: all of it in Python
-    noisy = backend == "mujoco" and any(sc.data["plant"]["mujoco"].get("sensor_noise", [0, 0]))
-    # noise is drawn in Python, terms in t are evaluated at each stage's time in Python: the Python loop
-    # a law without a compiled form (the tuning-function law) runs in Python
-    python_only = noisy or sc.terms.timed or not compiled_loop.compilable(build_controller(sc))
+    # terms in t are evaluated at each stage's time in Python: the Python loop; a law without a
+    # compiled form (the tuning-function law) runs in Python; sensor noise (the realistic
+    # scenarios) is compiled: drawn ahead, the same values
+    python_only = sc.terms.timed or not compiled_loop.compilable(build_controller(sc))
     assert loop.handover == (0 if python_only else None)
     _assert_identical(compiled, python)
 

@@ -375,6 +375,26 @@ def test_sensor_noise_is_seeded_and_sized() -> None:
     np.testing.assert_allclose(runs[0].std(axis=0), [0.001, 0.01], rtol=0.2)
 
 
+def test_noise_drawn_ahead_is_the_noise_read_one_by_one() -> None:
+    """What the compiled loop adds (the run's noise drawn ahead, passed over where the Python loop
+    takes over) is what the Python form reads, reading by reading, across the draw-ahead blocks;
+    each copy's column is its seed's normal values times the deviations, in order."""
+    from qcontrol.plants.mujoco.noise import BLOCK, SensorNoise
+
+    std, seeds, count = [0.001, 0.01], [5, 9, 5], 2 * BLOCK + 500
+    one = SensorNoise(std, seeds)
+    each = np.array([one.draw() for _ in range(count)])
+    other = SensorNoise(std, seeds)
+    ahead = other.ahead(BLOCK + 900)
+    other.skip(BLOCK + 700)
+    rest = np.array([other.draw() for _ in range(count - BLOCK - 700)])
+    assert ahead.tobytes() == each[:BLOCK + 900].tobytes()
+    assert rest.tobytes() == each[BLOCK + 700:].tobytes()
+    for copy, seed in enumerate(seeds):
+        normals = np.random.default_rng(seed).normal(0.0, 1.0, size=(count, 2))
+        assert (normals * std).tobytes() == each[:, copy].tobytes()
+
+
 def test_build_model_applies_parameters_through_mjspec() -> None:
     model = build_model(options(RIGID))
     assert model.body_mass[1] == 1.0 and model.dof_damping[0] == 12.25

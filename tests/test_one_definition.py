@@ -26,6 +26,7 @@ from qcontrol.controller.comparison import ComparisonLaw, RateAdvance
 from qcontrol.controller.proposed import DecayAdvance, PaperLaw
 from qcontrol.engine import ClosedLoop
 from qcontrol.plants.mujoco import native_step
+from qcontrol.plants.mujoco.noise import SensorNoise
 from qcontrol.quantizer import UniformQuantizer
 from qcontrol.scenario import load_scenario
 
@@ -97,6 +98,9 @@ CHANGES = {
     "RK4 of eq. (1)": (ode, "_rk4", lambda x, u, h, g, *rest: RK4(x, u, 0.5 * h, g, *rest), [], "ode"),  # h/2
     "MuJoCo step": (native_step, "step_copy", half_torque_step, [], "mujoco"),
     "MuJoCo observe": (native_step, "read_copy", offset_reading, [], "mujoco"),
+    "MuJoCo sensor noise": (SensorNoise, "ahead", _wrapped(SensorNoise, "ahead", lambda noise: 3.0 * noise),
+                            ["plant.mujoco.sensor_noise=[0.001, 0.05]", "plant.mujoco.noise_seed=7"],
+                            "mujoco"),
 }
 
 

@@ -185,7 +185,7 @@ def test_the_region_study_compares_the_three_laws_at_two_rates(reproduction):
 
 
 def test_the_robustness_study_batches_each_rows_seeds(monkeypatch, tmp_path):
-    """Each row's sensor-noise seeds share everything else: one batch per row (8 of the study's
+    """Each row's sensor-noise seeds share everything else: one job per row (8 of the study's
     rows), every other run alone."""
     from pathlib import Path
 
@@ -193,8 +193,9 @@ def test_the_robustness_study_batches_each_rows_seeds(monkeypatch, tmp_path):
 
     planned = {}
 
-    def capture(tasks, full, workers):
+    def capture(tasks, full, pool):
         planned["batches"] = study.batches(tasks)
+        planned["seeds"] = [{t.overrides[-1] for t in (tasks[i] for i in b)} for b in planned["batches"][:8]]
         raise KeyboardInterrupt
 
     monkeypatch.setattr(study, "_execute", capture)
@@ -203,4 +204,5 @@ def test_the_robustness_study_batches_each_rows_seeds(monkeypatch, tmp_path):
         study.robustness_study(scenarios, 0.5, 1, log=lambda _: None)
     sizes = sorted((len(b) for b in planned["batches"]), reverse=True)
     assert sizes[:8] == [len(study.SEEDS)] * 8 and set(sizes[8:]) == {1}
+    assert all(seeds == {f"plant.mujoco.noise_seed={s}" for s in study.SEEDS} for seeds in planned["seeds"])
     assert sorted(i for b in planned["batches"] for i in b) == list(range(sum(sizes)))

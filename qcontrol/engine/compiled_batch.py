@@ -121,7 +121,7 @@ class CompiledBatch:
         """The run from row 0 in compiled chunks, the engine's rare work between them; None when
         the run is over, :data:`START` when the plant has no compiled form for it (the array
         form runs it all); raises :class:`Redo` (see the module docstring)."""
-        stepper = plant.native_stepper(loop.grid.dt, self.form)
+        stepper = plant.native_stepper(loop.grid.dt, form=self.form)
         parts = self.parts
         if stepper is None or not same_as_array_form(stepper.helpers, *parts.quantize, *parts.control,
                                                      *parts.advance):

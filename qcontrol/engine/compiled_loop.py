@@ -18,7 +18,7 @@ loop's to the last bit. Between calls the engine does its rare work
 Where the compiled code cannot give the Python loop's numbers (``math`` refusing an evaluation
 the Python form answers with numpy), it stops before the row (or the step) and the Python loop
 runs on from there (:class:`Resume`). Everything else runs in Python from the start: user laws
-and subclasses that change a built-in law, sensor noise, velocity differencing, other
+and subclasses that change a built-in law, velocity differencing, other
 quantizers, batches, runs shorter than :data:`MIN_ROWS` rows, single runs of fewer than
 :data:`COLD_MIN_ROWS` in a process that has not started numba (:func:`numba_pays`), and every
 run when ``QCONTROL_COMPILE=0`` or numba is missing.
@@ -210,7 +210,8 @@ class CompiledLoop:
         """The run from row 0 in compiled chunks, the engine's rare work between them; None when
         the run is over, else where the Python loop takes over (all of the run when the plant has
         no compiled form for it)."""
-        stepper = plant.native_stepper(loop.grid.dt) if isinstance(plant, NativeStepping) else None
+        stepping = isinstance(plant, NativeStepping)
+        stepper = plant.native_stepper(loop.grid.dt, loop.grid.rows) if stepping else None
         if stepper is None:
             return START._replace(adaptive=adaptive)
         try:

@@ -250,7 +250,8 @@ class NativeStepper:
 class NativeStepping(Protocol):
     """A plant whose batch of one can run inside the engine's compiled loop."""
 
-    def native_stepper(self, h: float) -> NativeStepper | None:
+    def native_stepper(self, h: float, readings: int = 0) -> NativeStepper | None:
         """The one copy's :class:`NativeStepper` for steps of ``h`` (inside the ``with`` block,
         after :meth:`Plant.reset`), or None where this run cannot be compiled (then the Python
-        loop runs); it must give, bit for bit, the numbers of the Python loop."""
+        loop runs); it must give, bit for bit, the numbers of the Python loop. ``readings``: how
+        many readings the run takes at most (its rows; what a plant drawing noise ahead needs)."""

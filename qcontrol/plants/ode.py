@@ -161,11 +161,13 @@ class ChainPlant:
         self._x = form.columns(x)
         return ChainIO(self, h)
 
-    def native_stepper(self, h: float, form: TracedForm = TRACED) -> NativeStepper | None:
+    def native_stepper(self, h: float, readings: int = 0,
+                       form: TracedForm = TRACED) -> NativeStepper | None:
         """One copy as source text for the engine's compiled loop: the same RK4 on the same terms
         (:class:`ChainNativeForm`), a batch of one in :data:`TRACED`, a batch of copies in
         ``TracedForm(batch)`` (per-copy theta in per-copy slots); None for an input gain other
-        than 1, terms in t or regressors before the last equation (those run in Python)."""
+        than 1, terms in t or regressors before the last equation (those run in Python).
+        (``readings``: unused, the ODE reads its state as it is.)"""
         native = (self.batch == form.batch and self.input_gain == 1.0 and not self.timed
                   and not self._rows)
         return ChainNativeForm(self, h, form).stepper() if native else None

@@ -2,8 +2,9 @@
 
 Runs Example 1 and Example 2 (proposed law and the comparison law of reference [20]) on the
 chosen backend, with the ideal ODE twin beside MuJoCo, then the sensitivity studies (kappa - L,
-a constant scale of r, plant variants) on the ODE backend, then the robustness study on realistic
-hardware (:mod:`.robustness_study`, MuJoCo, in worker processes). Writes PNG figures,
+a constant scale of r, plant variants) on the ODE backend, and the robustness study on realistic
+hardware (:mod:`.robustness_study`, MuJoCo, in worker processes, started first so that it runs
+while this process does the rest). Writes PNG figures,
 ``table1.md``, ``table1.json``, ``studies.json``, ``region.json`` (the sampled loop's region study,
 :mod:`.region_study`), ``tradeoff.json`` (tracking against the region, law by law,
 :mod:`.tradeoff_study`), ``robustness.json``, ``sensors.json`` (Example 2 with realistic sensors,
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping, Sequence
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -52,7 +54,8 @@ from .report import (
     table1_markdown,
 )
 from .robustness_figures import fig_margins, fig_robustness
-from .robustness_study import EXAMPLES, LAWS, default_workers, robustness_study, study_law
+from .robustness_study import EXAMPLES, LAWS, default_workers, study_law
+from .robustness_study import started as robustness_started
 from .sensor_study import fig_sensors, sensor_markdown, sensor_record, sensor_study
 from .tradeoff_study import check_tradeoff, tradeoff_record, tradeoff_study, write_tradeoff_figure
 
@@ -183,7 +186,18 @@ def reproduce(
 
 
 def _write_all(rep: Reproduction, o: Path, command: str, workers: int | None, quick: bool) -> dict:
-    """The runs and their files, in order; Table 1 as written to table1.json."""
+    """The runs and their files, in order; Table 1 as written to table1.json. The robustness
+    study starts first, on its workers, and runs while this process does the rest."""
+    laws = (*LAWS, *map(study_law, rep.laws))
+    hardware = (nullcontext(None) if quick else
+                robustness_started(rep.scenarios, rep.duration, workers or default_workers(), rep.log, laws))
+    with hardware as robustness:
+        return _write_runs(rep, o, command, robustness)
+
+
+def _write_runs(rep: Reproduction, o: Path, command: str, robustness: Callable[[], dict] | None) -> dict:
+    """:func:`_write_all` with the robustness study started (``robustness`` waits for it; None:
+    no robustness study)."""
     backend = rep.backend
     rep.log(f"Example 1 on {backend}")
     ex1, ex1_twin = rep.twins("example 1", rep.scenario("example1"))
@@ -211,6 +225,7 @@ def _write_all(rep: Reproduction, o: Path, command: str, workers: int | None, qu
     studied = {name: rep.scenario(name) for name in ("example2", "example2-rigid")}
     provenance = scenarios_provenance(studied, command)
     write_json(o / "studies.json", _studies_json(studies) | {"provenance": provenance})
+    quick = robustness is None
     region = None if quick else region_study(rep.scenarios, rep.duration, rep.log, (*REGION_LAWS, *rep.laws))
     if region is not None:
         write_region_study(region, o / "study_region.png")
@@ -218,12 +233,12 @@ def _write_all(rep: Reproduction, o: Path, command: str, workers: int | None, qu
         write_json(o / "region.json",
                    region_record(region) | {"provenance": scenarios_provenance(examples, command)})
     tradeoff = None if region is None else _tradeoff(o, rep, region, command)
-    robustness = None if quick else _robustness(o, rep, workers)
     rep.log("study: Example 2 with realistic sensors (ODE)")
     sensors = sensor_study(rep.scenarios, rep.duration, rep.log)
     fig_sensors(sensors, o / "study_sensors.png")
     write_json(o / "sensors.json", sensor_record(sensors) | {"provenance": provenance})
-    report = _report(rep, table, studies, deviations, ex1, ex2, robustness, region, tradeoff)
+    hardware = None if robustness is None else _robustness(o, rep, robustness)
+    report = _report(rep, table, studies, deviations, ex1, ex2, hardware, region, tradeoff)
     write_text(o / "REPORT.md", report + "\n".join(sensor_markdown(sensors)))
     return table
 
@@ -270,10 +285,11 @@ def _tradeoff(o: Path, rep: Reproduction, region: dict, command: str) -> dict:
     return study
 
 
-def _robustness(o: Path, rep: Reproduction, workers: int | None) -> dict:
-    """The robustness study on realistic hardware: robustness.json and its two figures."""
-    robustness = robustness_study(rep.scenarios, rep.duration, workers or default_workers(), rep.log,
-                                  (*LAWS, *map(study_law, rep.laws)))
+def _robustness(o: Path, rep: Reproduction, result: Callable[[], dict]) -> dict:
+    """The robustness study on realistic hardware (``result`` waits for the started study):
+    robustness.json and its two figures."""
+    robustness = result()
+    rep.log(f"study: robustness done ({time.perf_counter() - rep.started:.1f} s elapsed)")
     hardware = {name: rep.scenario(name) for name in ROBUSTNESS_SCENARIOS}
     provenance = scenarios_provenance(hardware, rep.command)
     write_json(o / "robustness.json", robustness | {"provenance": provenance})

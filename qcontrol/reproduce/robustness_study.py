@@ -21,21 +21,26 @@ processes; the numbers do not depend on how many.
 from __future__ import annotations
 
 import statistics
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
+from multiprocessing.pool import Pool
 from pathlib import Path
 
 import numpy as np
 
-from ..assembly import batch_structure, run_scenario, scene
+from .. import compiled as compiled_paths
+from ..assembly import run_scenario, scene
+from ..engine import compiled_loop
 from ..metrics import finite_max_abs
 from ..scenario import Scenario, load_scenario
 from ..summary import Summary
 from ..sweep import run_batch
-from ..sweep.runs import chunks_of
+from ..timegrid import TimeGrid
 from ..workers import worker_count, worker_pool
 
 SEEDS = tuple(range(1, 21))  # sensor-noise seeds of every row with noise on
+SEED_OVERRIDE = "plant.mujoco.noise_seed="
 StudyLaw = tuple[str, tuple[str, ...]]  # a law of the study: its name and the overrides that select it
 LAWS: tuple[StudyLaw, ...] = (("proposed", ()), ("comparison", ("controller.kind=comparison",)))
 EXAMPLES = (("example2", "example2-arm"), ("example1", "example1-cart"))  # (ideal, realistic)
@@ -84,20 +89,35 @@ class StudyJob:
 
 
 def _summaries(tasks: Sequence[StudyJob]) -> list[Summary]:
-    """Worker entry point: the summaries of runs that share a batch (metrics only), stepped as one."""
-    return run_batch([load_scenario(t.path, list(t.overrides)) for t in tasks], tasks[0].backend)
+    """Worker entry point: the summaries (metrics only) of a job's runs (:func:`batches`): each run
+    alone where a single run takes the compiled loop (its sensor noise included; a process running
+    many pays for numba's start once), else stepped as one batch (short runs, or no compiled
+    paths). A run's numbers are its own either way."""
+    _compiled_paths()
+    scenarios = [load_scenario(t.path, list(t.overrides)) for t in tasks]
+    backend, sim = tasks[0].backend, scenarios[0].simulation
+    if len(tasks) > 1 and not (compiled_paths.requested()
+                               and TimeGrid.of(sim.duration, sim.dt).rows >= compiled_loop.MIN_ROWS):
+        return run_batch(scenarios, backend)
+    return [run_batch([sc], backend)[0] for sc in scenarios]
+
+
+def _compiled_paths() -> None:
+    """Start numba in this process, if compiled paths are asked for (a study's many runs pay
+    for its start; :func:`~qcontrol.engine.compiled_loop.numba_pays`)."""
+    if compiled_paths.requested():
+        compiled_paths.enabled()
 
 
 def batches(tasks: Sequence[StudyJob]) -> list[list[int]]:
-    """The tasks' indices chunked as a sweep chunks its runs (:func:`~qcontrol.sweep.runs.chunks_of`):
-    runs whose scenarios share :func:`~qcontrol.assembly.batch_structure` on their backend (e.g. a
-    row's sensor-noise seeds) form one batch; the largest come first, so that workers start on the
-    longest work. A run's numbers are its own whatever its batch."""
+    """The tasks' indices in jobs for the workers: a row's sensor-noise seeds together (runs that
+    differ in the seed alone, so they share :func:`~qcontrol.assembly.batch_structure`), every
+    other run alone; the largest first, so that workers start on the longest work."""
     groups: dict[tuple, list[int]] = {}
     for i, task in enumerate(tasks):
-        sc = load_scenario(task.path, list(task.overrides))
-        groups.setdefault((task.backend, batch_structure(sc, task.backend)), []).append(i)
-    return sorted(chunks_of(groups.values()), key=len, reverse=True)
+        rest = tuple(o for o in task.overrides if not o.startswith(SEED_OVERRIDE))
+        groups.setdefault((task.backend, task.path, rest), []).append(i)
+    return sorted(groups.values(), key=len, reverse=True)
 
 
 @dataclass(frozen=True)
@@ -111,6 +131,7 @@ class Errors:
 
 def _errors(task: StudyJob) -> Errors:
     """Worker entry point: the tracking error of one run (full record)."""
+    _compiled_paths()
     run = run_scenario(load_scenario(task.path, list(task.overrides)), task.backend)
     return Errors(run.t, run.z[:, 0].copy(), bool(run.diverged))
 
@@ -175,7 +196,7 @@ def _seeded(overrides: Sequence[str], noisy: bool) -> list[tuple[str, ...]]:
     """The override sets of a row: one per seed when sensor noise is on, else the row itself."""
     if not noisy:
         return [tuple(overrides)]
-    return [(*overrides, f"plant.mujoco.noise_seed={s}") for s in SEEDS]
+    return [(*overrides, f"{SEED_OVERRIDE}{s}") for s in SEEDS]
 
 
 def _physics_free(overrides: Sequence[str]) -> tuple[str, ...]:
@@ -202,10 +223,51 @@ def study_law(kind: str) -> StudyLaw:
     return kind, (f"controller.kind={kind!r}",)
 
 
+@dataclass
+class Study:
+    """The study's plan: its rows, margins and disturbance cases, and the runs they read
+    (``plan``: summaries; ``full``: the disturbance cases' full runs)."""
+
+    rows: list[dict]
+    margins: list[dict]
+    disturbances: list[dict]
+    plan: Plan
+    full: Plan
+
+
 def robustness_study(scenarios: Path, duration: float | None, workers: int,
                      log: Callable[[str], None] = print, laws: Sequence[StudyLaw] = LAWS) -> dict:
     """Run the whole study for each of ``laws`` (default: the paper's law and the comparison law);
     the object written to ``robustness.json``."""
+    with started(scenarios, duration, workers, log, laws) as result:
+        return result()
+
+
+@contextmanager
+def started(scenarios: Path, duration: float | None, workers: int, log: Callable[[str], None] = print,
+            laws: Sequence[StudyLaw] = LAWS) -> Iterator[Callable[[], dict]]:
+    """The study started on ``workers`` worker processes (more than one: they run while the
+    caller does other work); yields the function that waits for it and returns the object of
+    :func:`robustness_study`. The workers end with the block."""
+    study = _plan(scenarios, duration, laws)
+    workers = worker_count(workers, len(study.plan.tasks))
+    log(f"study: robustness: {len(study.plan.tasks)} runs, {len(study.disturbances)} disturbance cases, "
+        f"on {workers} worker(s)")
+    _compiled_paths()  # (before the workers fork: they start with numba loaded)
+    pool = worker_pool(workers) if workers > 1 else None
+    try:
+        results = _execute(study.plan.tasks, study.full.tasks, pool)
+        yield lambda: _assembled(study, *results())
+        if pool is not None:
+            pool.close()
+    finally:
+        if pool is not None:
+            pool.terminate()
+            pool.join()
+
+
+def _plan(scenarios: Path, duration: float | None, laws: Sequence[StudyLaw]) -> Study:
+    """Every row, margin and disturbance case of the study, and the runs they read (each once)."""
     extra = (f"simulation.duration={duration!r}",) if duration is not None else ()
     plan = Plan([], {})
     rows, margins, disturbances = [], [], []
@@ -234,19 +296,22 @@ def robustness_study(scenarios: Path, duration: float | None, workers: int,
                                                                  "mujoco"))]})
         if ideal == "example2":
             disturbances += _disturbance_cases(ideal_path, real_path, real.simulation.duration, extra, laws)
-    workers = worker_count(workers, len(plan.tasks))
-    log(f"study: robustness: {len(plan.tasks)} runs, {len(disturbances)} disturbance cases, "
-        f"on {workers} worker(s)")
-    runs = Plan([], {})
+    full = Plan([], {})
     for case in disturbances:
-        case["runs"] = (runs.add(case.pop("task")), runs.add(case.pop("quiet")))
-    summaries, errors = _execute(plan.tasks, runs.tasks, workers)
+        case["runs"] = (full.add(case.pop("task")), full.add(case.pop("quiet")))
+    return Study(rows, margins, disturbances, plan, full)
+
+
+def _assembled(study: Study, summaries: list[Summary], errors: list[Errors]) -> dict:
+    """The study's object from its runs' summaries and full runs."""
+    rows, margins, disturbances, plan, full = (study.rows, study.margins, study.disturbances, study.plan,
+                                               study.full)
     for row in rows + margins:
         for backend in ("mujoco", "ode"):
             if backend in row:
                 row[backend] = aggregate([summaries[plan.index[task]] for task in row[backend]])
     for case in disturbances:
-        disturbed, quiet = (errors[runs.index[task]] for task in case.pop("runs"))
+        disturbed, quiet = (errors[full.index[task]] for task in case.pop("runs"))
         case["result"] = recovery(disturbed, quiet, case["start"], case.pop("delta"))
     return {"seeds": list(SEEDS), "recovery_band": RECOVERY_BAND, "rows": rows, "margins": margins,
             "disturbances": disturbances}
@@ -272,29 +337,33 @@ def _disturbance_cases(ideal_path: str, real_path: str, duration: float, extra: 
     return cases
 
 
-def _execute(tasks: list[StudyJob], full: list[StudyJob], workers: int) -> tuple[list[Summary], list[Errors]]:
-    """Every task's summary and every full run's tracking error, in order: the summaries batched
-    (:func:`batches`), the full runs one by one."""
+def _execute(tasks: list[StudyJob], full: list[StudyJob],
+             pool: Pool | None) -> Callable[[], tuple[list[Summary], list[Errors]]]:
+    """Every task's summary and every full run's tracking error, in order, as the function that
+    waits for them: the summaries in :func:`batches`, the full runs one by one; on ``pool``'s
+    workers (started here, running while the caller goes on), else in this process when called."""
     chunks = batches(tasks)
     jobs = [[tasks[i] for i in ids] for ids in chunks]
-    summaries: list[Summary] = [None] * len(tasks)  # type: ignore[list-item]
-    if workers <= 1:
-        done, errors = [_summaries(job) for job in jobs], [_errors(t) for t in full]
+    if pool is None:
+        def done() -> tuple[list[list[Summary]], list[Errors]]:
+            return [_summaries(job) for job in jobs], [_errors(t) for t in full]
     else:
-        pool = worker_pool(workers)  # workers die with this process (qcontrol.workers)
-        try:
-            batched = [pool.apply_async(_summaries, (job,)) for job in jobs if len(job) > 1]
-            pending = [pool.apply_async(_errors, (t,)) for t in full]
-            single = [pool.apply_async(_summaries, (job,)) for job in jobs if len(job) == 1]
-            done, errors = [r.get() for r in batched + single], [e.get() for e in pending]
-            pool.close()
-        finally:
-            pool.terminate()
-            pool.join()
-    for ids, results in zip(chunks, done, strict=True):
-        for i, s in zip(ids, results, strict=True):
-            summaries[i] = s
-    return summaries, errors
+        batched = [pool.apply_async(_summaries, (job,)) for job in jobs if len(job) > 1]
+        pending = [pool.apply_async(_errors, (t,)) for t in full]
+        single = [pool.apply_async(_summaries, (job,)) for job in jobs if len(job) == 1]
+
+        def done() -> tuple[list[list[Summary]], list[Errors]]:
+            return [r.get() for r in batched + single], [e.get() for e in pending]
+
+    def results() -> tuple[list[Summary], list[Errors]]:
+        summaries: list[Summary] = [None] * len(tasks)  # type: ignore[list-item]
+        ran, errors = done()
+        for ids, job in zip(chunks, ran, strict=True):
+            for i, s in zip(ids, job, strict=True):
+                summaries[i] = s
+        return summaries, errors
+
+    return results
 
 
 def default_workers() -> int:

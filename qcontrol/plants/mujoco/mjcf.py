@@ -119,7 +119,8 @@ def check_input_gain(built: CompiledModel, terms: PlantTerms, where: str) -> Non
 
 def compiled(options: MujocoOptions, timestep: float | None = None) -> CompiledModel:
     """The model of ``options`` with ``timestep`` (the scenario's dt; it sizes the sensor history
-    buffers), compiled once per options, step and MJCF file content. Compile errors and missing or
+    buffers), compiled once per options, step and MJCF file content (the noise seed aside: the
+    plant draws the noise, the model is the same for every seed). Compile errors and missing or
     unsuitable elements raise :class:`QcontrolInputError`. Users of the result must not modify
     the model (it is shared)."""
     kind = path_kind(options.model)
@@ -131,7 +132,7 @@ def compiled(options: MujocoOptions, timestep: float | None = None) -> CompiledM
     except OSError as exc:
         raise _fail(options)("model", f"cannot read {options.model.name} ({exc.strerror})",
                              "give a readable MJCF file") from None
-    return _compiled(options, timestep, hashlib.sha256(content).hexdigest())
+    return _compiled(replace(options, noise_seed=None), timestep, hashlib.sha256(content).hexdigest())
 
 
 def build_model(options: MujocoOptions, timestep: float | None = None) -> mujoco.MjModel:

@@ -13,7 +13,10 @@ Sensors that copy the state (a joint position and velocity sensor without histor
 the shipped models') read ``qpos``/``qvel`` themselves, so the compiled loop skips the two
 sensor calls (``sensed=False``) and brings ``sensordata`` up to date once per call instead. The
 passive terms run as the native callback, which MuJoCo calls itself; a run with the Python
-callback, or with sensor noise, is not compiled.
+callback is not compiled. Sensor noise is drawn before the run, by the plant's own streams
+(:meth:`.noise.SensorNoise.ahead`: the same values in the same order), and each reading adds its
+row, the same float addition the Python form makes; the count of readings taken goes back to the
+streams after each call, so the Python loop, where it takes over, reads on from there.
 """
 
 from __future__ import annotations
@@ -32,7 +35,9 @@ import numpy as np
 from ..base import NativeStepper
 from .threaded import UNSTABLE_WARNINGS
 
-DEAD = 13  # pi: model, data, ctrl, sensordata, qpos, qvel, warning, actuator, p, v, qadr, dof, substeps, dead
+# pi: model, data, ctrl, sensordata, qpos, qvel, warning, actuator, p, v, qadr, dof, substeps, dead, read
+DEAD = 13
+READ = 14  # readings taken (pf holds I / gain, then the run's noise: two values per reading)
 WARNINGS = int(mujoco.mjtWarning.mjNWARNING)
 UNSTABLE = tuple(2 * w + 1 for w in UNSTABLE_WARNINGS)  # "unstable" counters in (lastinfo, number) pairs
 mj_step, mj_sensorPos, mj_sensorVel = mujoco.mj_step, mujoco.mj_sensorPos, mujoco.mj_sensorVel  # noqa: N816
@@ -109,9 +114,13 @@ SETUP = [
 ]
 
 
-def observe_lines(sensed: bool) -> list[str]:
-    return ["x1, x2, m1, m2 = read_copy(qpos, qvel, sensordata, pi[10], pi[11], pi[8], pi[9],"
+def observe_lines(sensed: bool, noisy: bool) -> list[str]:
+    read = ["x1, x2, m1, m2 = read_copy(qpos, qvel, sensordata, pi[10], pi[11], pi[8], pi[9],"
             f" pi[{DEAD}] != 0, {sensed})"]
+    if not noisy:
+        return read
+    noise = [f"m{i} = m{i} + pf[{i} + 2 * pi[{READ}]]" for i in (1, 2)]  # the Python reading += noise
+    return read + noise + [f"pi[{READ}] += 1"]
 
 
 def step_lines(sensed: bool) -> list[str]:
@@ -148,17 +157,19 @@ def load_mujoco_library() -> str:
 
 class MujocoNativeForm:
     """The numbers the generated lines read for copy 0 of ``plant``: addresses, indices, the
-    substeps per step, ``I / gain``, and the dead flag (read from and written back to the plant)."""
+    substeps per step, ``I / gain``, the dead flag (read from and written back to the plant) and,
+    with sensor noise, the noise of the run's ``readings`` readings and how many were taken."""
 
-    def __init__(self, plant, substeps: int) -> None:  # noqa: ANN001 (a MujocoPlant: no import cycle)
-        self.plant = plant
+    def __init__(self, plant, substeps: int, readings: int) -> None:  # noqa: ANN001 (a MujocoPlant)
+        self.plant, self.noisy, self.taken = plant, plant._noisy, 0
         data, ids = plant._datas[0], plant._ids
         p, v = plant._sadr
         self.ints = np.array([plant.model._address, data._address, data.ctrl.ctypes.data,
                               data.sensordata.ctypes.data, data.qpos.ctypes.data, data.qvel.ctypes.data,
                               data.warning.lastinfo.ctypes.data, ids.actuator, p, v, ids.qpos, ids.dof,
-                              substeps, int(plant._dead[0])], dtype=np.int64)
-        self.floats = np.array([plant._ctrl_per_u], dtype=float)
+                              substeps, int(plant._dead[0]), 0], dtype=np.int64)
+        noise = plant._noise.ahead(readings)[:, 0, :].ravel() if self.noisy else np.zeros(0)
+        self.floats = np.concatenate([[plant._ctrl_per_u], noise])
         self.plain = plain_sensors(plant)
 
     def sync_in(self) -> None:
@@ -167,12 +178,17 @@ class MujocoNativeForm:
     def sync_out(self) -> None:
         plant = self.plant
         plant._dead[0] = bool(self.ints[DEAD])
+        if self.noisy:  # the readings the compiled loop took, taken from the streams
+            plant._noise.skip(int(self.ints[READ]) - self.taken)
+            self.taken = int(self.ints[READ])
         if self.plain and not plant._dead[0]:  # sensordata as the Python step leaves it
             mujoco.mj_sensorPos(plant.model, plant._datas[0])
             mujoco.mj_sensorVel(plant.model, plant._datas[0])
 
     def stepper(self) -> NativeStepper:
-        key = f"mujoco {load_mujoco_library()} {mujoco.__version__} plain sensors={self.plain}"
+        key = (f"mujoco {load_mujoco_library()} {mujoco.__version__} plain sensors={self.plain} "
+               f"noise={self.noisy}")
         sensed = not self.plain
-        return NativeStepper(key, helpers(), SETUP, observe_lines(sensed), step_lines(sensed), self.floats,
+        return NativeStepper(key, helpers(), SETUP, observe_lines(sensed, self.noisy), step_lines(sensed),
+                             self.floats,
                              self.ints, np.zeros(0), self.sync_in, self.sync_out)

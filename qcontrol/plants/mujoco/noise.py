@@ -8,7 +8,9 @@ stream's draws.
 
 Draws are made ahead in blocks of :data:`BLOCK` readings: a Generator's normal values are
 consumed in order, so ``normal(size=(BLOCK, 2))`` holds the values of ``BLOCK`` successive
-``normal(size=2)`` draws (drawing ahead changes none of them).
+``normal(size=2)`` draws (drawing ahead changes none of them). So a run's whole noise can be
+drawn before it starts (:meth:`SensorNoise.ahead`, what the compiled loop adds to the readings)
+and its readings still get the very values, in the same order.
 """
 
 from __future__ import annotations
@@ -37,11 +39,23 @@ class SensorNoise:
         self._row = 0
 
     def draw(self) -> np.ndarray:
-        """The noise of one reading of every copy: standard normals times the deviations."""
-        if self._row == len(self._block):
-            ahead = [stream.normal(0.0, 1.0, size=(BLOCK, 2)) for stream in self._streams]
-            self._block = np.stack([ahead[k] for k in self._copy_stream], axis=1)
-            self._row = 0
-        row = self._block[self._row]
+        """The noise of one reading of every copy, ``(batch, 2)``."""
+        row = self.ahead(1)[0]
         self._row += 1
-        return row * self.std
+        return row
+
+    def ahead(self, count: int) -> np.ndarray:
+        """The noise of the next ``count`` readings of every copy, ``(count, batch, 2)``: standard
+        normals times the deviations, without taking them (:meth:`draw` still gives them, in
+        order; :meth:`skip` passes over them). The compiled loop reads a run's noise from here."""
+        while len(self._block) - self._row < count:
+            ahead = [stream.normal(0.0, 1.0, size=(BLOCK, 2)) for stream in self._streams]
+            block = np.stack([ahead[k] for k in self._copy_stream], axis=1)
+            self._block = np.concatenate([self._block[self._row:], block])
+            self._row = 0
+        return self._block[self._row:self._row + count] * self.std
+
+    def skip(self, count: int) -> None:
+        """Pass over the next ``count`` readings (read elsewhere from :meth:`ahead`)."""
+        self.ahead(count)
+        self._row += count

@@ -226,9 +226,9 @@ class MujocoPlant:
         return self.observe()[1]
 
     def sensor_noise(self) -> np.ndarray:
-        """The noise of one reading of every copy, ``(batch, 2)``: the one place it is drawn (one
-        draw per reading from each copy's seeded stream, whichever form reads the sensors; see
-        :mod:`.noise`)."""
+        """The noise of one reading of every copy, ``(batch, 2)``: one draw per reading from each
+        copy's seeded stream (:mod:`.noise`, the one place it is drawn, whichever form reads the
+        sensors)."""
         return self._noise.draw()
 
     def observe(self) -> tuple[np.ndarray, np.ndarray]:
@@ -284,16 +284,18 @@ class MujocoPlant:
         steppers = self._steppers[h] = [CopyStepper(self, b, substeps) for b in range(self.batch)]
         return steppers
 
-    def native_stepper(self, h: float) -> NativeStepper | None:
+    def native_stepper(self, h: float, readings: int = 0) -> NativeStepper | None:
         """The batch of one as source text for the engine's compiled loop (:mod:`.native_step`),
-        where compiled code can give the Python loop's numbers: one copy, no sensor noise (drawn
-        in Python), and the passive terms, if any, in the native callback MuJoCo calls itself."""
-        if not self._entered or self.batch != 1 or self._noisy or self._threads or self.n != 2:
+        where compiled code can give the Python loop's numbers: one copy of order 2, and the passive
+        terms, if any, in the native callback MuJoCo calls itself; with sensor noise, its
+        ``readings`` readings' noise drawn ahead (None without that count)."""
+        if (not self._entered or self.batch != 1 or self._threads or self.n != 2
+                or (self._noisy and readings <= 0)):
             return None
         if python_callback_installed() or (self._forces is not None and self._native is None):
             return None
         substeps = whole_steps(h, self.timestep, f"{self.options.where}: step", "the model timestep")
-        return MujocoNativeForm(self, substeps).stepper()
+        return MujocoNativeForm(self, substeps, readings).stepper()
 
 
 class FilteredJointPlant(MujocoPlant):
