@@ -10,6 +10,7 @@ import dataclasses
 import inspect
 import subprocess
 import sys
+from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -62,6 +63,13 @@ LAYERS = [
 ]
 
 
+@cache
+def _nodes(path: Path) -> tuple[ast.AST, ...]:
+    """Every node of the module at ``path`` (``ast.walk``'s order), parsed once for all the tests
+    that read the package's source (the trees are not changed)."""
+    return tuple(ast.walk(ast.parse(path.read_text())))
+
+
 def _layer(module: str) -> int:
     top = module.split(".")[0]
     return next(i for i, layer in enumerate(LAYERS) if top in layer)
@@ -71,7 +79,7 @@ def _imports(path: Path) -> set[str]:
     """The qcontrol modules ``path`` imports (relative imports resolved to their top-level name)."""
     package = path.relative_to(PACKAGE).parts[:-1]
     found = set()
-    for node in ast.walk(ast.parse(path.read_text())):
+    for node in _nodes(path):
         if isinstance(node, ast.ImportFrom) and node.level:
             base = list(package[: len(package) - node.level + 1])
             target = [*base, *(node.module.split(".") if node.module else [])]
@@ -109,7 +117,7 @@ def _import_graph() -> dict[str, set[str]]:
     for name, path in modules.items():
         package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
         found = set()
-        for node in ast.walk(ast.parse(path.read_text())):
+        for node in _nodes(path):
             if isinstance(node, ast.ImportFrom):
                 base = package[: len(package) - node.level + 1] if node.level else []
                 target = ".".join([*base, *(node.module.split(".") if node.module else [])])
@@ -177,7 +185,7 @@ def test_no_nested_functions_in_the_hot_packages() -> None:
     nested = []
     for package in HOT_PACKAGES:
         for path in sorted((PACKAGE / package).rglob("*.py")):
-            for node in ast.walk(ast.parse(path.read_text())):
+            for node in _nodes(path):
                 if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
                     nested += [f"{path.relative_to(ROOT)}:{inner.lineno}" for inner in ast.walk(node)
                                if inner is not node and isinstance(inner, (ast.FunctionDef, ast.Lambda))]
@@ -188,7 +196,7 @@ def test_no_lambdas_at_all_in_the_hot_packages() -> None:
     """Not even at module or class level: a getter or a default is a named function or class."""
     found = [f"{path.relative_to(ROOT)}:{node.lineno}" for package in HOT_PACKAGES
              for path in sorted((PACKAGE / package).rglob("*.py"))
-             for node in ast.walk(ast.parse(path.read_text())) if isinstance(node, ast.Lambda)]
+             for node in _nodes(path) if isinstance(node, ast.Lambda)]
     assert not found, found
 
 
@@ -254,9 +262,9 @@ FLOAT_FORM_HOMES = {"engine/fastpath.py"}  # and the expression compiler, expr/
 PER_COPY_FLOATS = {"plants/mujoco/callbacks.py": {"FloatCombination"}}
 
 
-def _names(tree: ast.AST) -> set[str]:
+def _names(path: Path) -> set[str]:
     names = set()
-    for node in ast.walk(tree):
+    for node in _nodes(path):
         if isinstance(node, ast.Name):
             names.add(node.id)
         elif isinstance(node, ast.Attribute):
@@ -272,7 +280,7 @@ def test_the_float_form_is_known_in_one_module_besides_the_expression_compiler()
     knowing = {}
     for path in PACKAGE.rglob("*.py"):
         name = str(path.relative_to(PACKAGE))
-        used = _names(ast.parse(path.read_text())) & FLOAT_FORM_NAMES
+        used = _names(path) & FLOAT_FORM_NAMES
         if used and not name.startswith("expr/") and name not in FLOAT_FORM_HOMES:
             knowing[name] = used
     assert knowing == PER_COPY_FLOATS
@@ -282,7 +290,7 @@ def test_no_attribute_probing_in_the_package() -> None:
     offenders = [
         f"{path.relative_to(ROOT)}:{node.lineno}"
         for path in PACKAGE.rglob("*.py")
-        for node in ast.walk(ast.parse(path.read_text()))
+        for node in _nodes(path)
         if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "hasattr"
     ]
     assert not offenders, offenders

@@ -336,7 +336,7 @@ def test_reproduce_with_a_law_refused_at_its_first_call_creates_nothing(tmp_path
                       "qcontrol.register_law('first-refused', lambda table, n: First(), replace=True)\n")
     out = tmp_path / "results" / "deep"
     assert main(["reproduce", "--law-module", str(module), "--law", "first-refused", "--quick", "--duration",
-                 "0.2", "--out", str(out), "-q"]) == 2
+                 "0.2", "--backend", "ode", "--out", str(out), "-q"]) == 2
     _one_line(capsys, "control() must return a real number u, got str 'oops'")
     assert not (tmp_path / "results").exists()
 

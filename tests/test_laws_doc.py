@@ -1,10 +1,13 @@
 """Every code block of docs/laws.md runs: the Python blocks in order in one fresh interpreter, in a
-folder holding the scenarios and models, then every ``qcontrol`` command of its shell blocks there."""
+folder holding the scenarios and models, then every ``qcontrol`` command of its shell blocks there,
+each in a process of its own: a fork of one interpreter that has imported the command line and run
+nothing (what a fresh ``qcontrol`` is once imported, without importing it ten times), so a command
+sees nothing another one registered or loaded."""
 
 from __future__ import annotations
 
+import json
 import re
-import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -15,6 +18,20 @@ DOC = (ROOT / "docs" / "laws.md").read_text()
 PYTHON_BLOCKS = re.findall(r"```python\n(.*?)```", DOC, re.S)
 COMMANDS = [line.strip() for block in re.findall(r"```bash\n(.*?)```", DOC, re.S)
             for line in block.splitlines() if line.strip().startswith("qcontrol ")]
+# Runs each command of argv[1] (a JSON list) in a fork of itself and prints one JSON line per
+# command: the command and its exit status; a command's own output goes to stderr.
+FORKING_RUNNER = """
+import json, os, shlex, sys
+from qcontrol.cli import main
+for command in json.loads(sys.argv[1]):
+    sys.stdout.flush()
+    pid = os.fork()
+    if pid == 0:
+        os.dup2(2, 1)
+        sys.exit(main(shlex.split(command)[1:]))
+    status = os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1])
+    print(json.dumps([command, status]), flush=True)
+"""
 
 
 def test_the_laws_tutorial_runs(tmp_path: Path) -> None:
@@ -29,10 +46,10 @@ def test_the_laws_tutorial_runs(tmp_path: Path) -> None:
                   if line.startswith("max_abs_integral")]
     assert largest[0] == largest[1] and float(largest[0]) > 0  # the summary's max is the array's
     assert (tmp_path / "integral.png").stat().st_size > 10_000
-    for command in COMMANDS:
-        ran = subprocess.run([sys.executable, "-m", "qcontrol.cli", *shlex.split(command)[1:]], cwd=tmp_path,
-                             capture_output=True, text=True, timeout=600)
-        assert ran.returncode == 0, f"{command}: {ran.stderr}"
+    ran = subprocess.run([sys.executable, "-c", FORKING_RUNNER, json.dumps(COMMANDS)], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=600)
+    statuses = [json.loads(line) for line in ran.stdout.splitlines()]
+    assert ran.returncode == 0 and statuses == [[command, 0] for command in COMMANDS], ran.stderr
     sweep = (tmp_path / "sweep-laws" / "sweep.csv").read_text()
     assert "integral-bs" in sweep and "comparison" in sweep
     assert (tmp_path / "region-laws" / "region.csv").is_file()

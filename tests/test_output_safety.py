@@ -411,13 +411,15 @@ def test_workers_die_with_their_parent(tmp_path, sig):
 def test_reproduces_workers_die_with_it(tmp_path):
     """``qcontrol reproduce`` itself, killed with SIGTERM and with SIGKILL while its robustness study
     runs on two workers: no worker is left 2 s later. The two reproductions run at once (each
-    reaches its workers after its examples and studies, about 10 s on an idle machine). Its 1 s
-    runs are short, so this pins the contract for the command; that a worker busy with a long run
-    dies at once is shown by the sweep's test above (600 s runs)."""
+    reaches its workers after its examples and studies; the examples on the ODE only, as the
+    workers are the study's whatever the examples' backend). Its 0.5 s runs are short (the study's
+    248 of them still keep both workers busy for a while), so this pins the contract for the
+    command; that a worker busy with a long run dies at once is shown by the sweep's test above
+    (600 s runs)."""
     procs = {}
     for sig in (signal.SIGTERM, signal.SIGKILL):
-        argv = [sys.executable, "-m", "qcontrol.cli", "reproduce", "--duration", "1", "--workers", "2", "-q",
-                "--out", str(tmp_path / sig.name)]
+        argv = [sys.executable, "-m", "qcontrol.cli", "reproduce", "--duration", "0.5", "--workers", "2",
+                "-q", "--backend", "ode", "--out", str(tmp_path / sig.name)]
         procs[sig] = subprocess.Popen(argv, cwd=tmp_path, stdout=subprocess.DEVNULL,
                                       stderr=subprocess.DEVNULL, env={**os.environ, "HOME": str(tmp_path)})
     try:

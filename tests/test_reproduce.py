@@ -158,7 +158,7 @@ def test_robustness_json_holds_every_row(reproduction):
 
 def test_quick_reproduce_skips_the_robustness_study(tmp_path, capsys):
     out = tmp_path / "quick"
-    assert main(["reproduce", "--quick", "--duration", "0.3", "--out", str(out)]) == 0
+    assert main(["reproduce", "--quick", "--backend", "ode", "--duration", "0.3", "--out", str(out)]) == 0
     assert "no region or robustness study (--quick)" in capsys.readouterr().out
     assert (out / "table1.json").is_file() and (out / "REPORT.md").is_file()
     assert not (out / "robustness.json").exists() and not (out / "study_margins.png").exists()

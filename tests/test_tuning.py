@@ -156,8 +156,10 @@ def test_lyapunov_identity_without_quantization(n: int) -> None:
     assert fine < 5e-6 * max(1.0, scale), (n, fine, scale)
     # what is left is the integration's and the differences' error, O(h^2): a wrong term would not shrink
     assert fine < 0.3 * coarse or fine < 1e-9 * max(1.0, scale), (n, coarse, fine)
-    _, _, late = _closed_loop_identity(n, h=1e-3, duration=4.0)
-    assert late < 0.05  # z1 -> 0
+    # z1 -> 0: a claim about the loop, not the integration, so a 4 ms RK4 step (z1 the same as at
+    # 1 ms to 1e-9 here) at a quarter of the cost
+    _, _, late = _closed_loop_identity(n, h=4e-3, duration=4.0)
+    assert late < 0.05
 
 
 def test_kkk_tracks_with_and_without_quantization() -> None:

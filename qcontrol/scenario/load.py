@@ -6,7 +6,7 @@ settings. Every key is declared once (:mod:`.keys`, and the kinds' own modules);
 reported as one line naming the file (or the override, when the value came from one), the key,
 what is wrong and the fix. Unknown keys, and keys that do not apply to the chosen kind, are errors.
 ``--unset key`` removals, then ``--set key=value`` overrides, are applied to the file's data before
-validation (docs/scenarios.md).
+validation (:mod:`.overrides`; docs/scenarios.md); the ``[plant]`` table is read by :mod:`.plant_table`.
 """
 
 from __future__ import annotations
@@ -25,22 +25,20 @@ import numpy as np
 from ..controller.law import KIND_ALIASES, LawContext, check_plant_class, law_kind
 from ..disturbance import Disturbance, parse_disturbances
 from ..engine import MetricSettings
-from ..errors import KeyNotForKind, OverrideError, QcontrolInputError, brief, shown
-from ..expr import Expression, compile_expression
+from ..errors import KeyNotForKind, OverrideError, QcontrolInputError, shown
+from ..expr import Expression
 from ..outputs import check_name, path_kind
-from ..plants.backends import BACKENDS, PlantContext
-from ..plants.base import TIME, PlantTerms, timed
+from ..plants.base import PlantTerms, timed
 from ..quantizers import QuantizerSpec, channel_bounds, quantizer_step, read_quantizers
 from ..reference import REFERENCE_KINDS
 from ..resources import scenario_path, shipped_scenarios
-from ..schema import Section, Table, kind_table, read_keys, show_key
+from ..schema import Section, Table, kind_table, read_keys
 from ..timegrid import TimeGrid
 from .definition import ControllerConfig, ReferenceConfig, SimulationConfig
 from .from_model import from_model, provisional
 from .keys import (
     MAX_STEPS,
     METRICS,
-    PLANT,
     TOP,
     controller_section,
     reference_section,
@@ -49,8 +47,17 @@ from .keys import (
     simulation_section,
 )
 from .limits import check_limits
-
-Overrides = Sequence[str] | Mapping[str, Any]  # "key=value" strings (the value read as TOML), or a dict
+from .overrides import (
+    Overrides,
+    apply_override,
+    as_given,
+    check_overrides,
+    command_line_fix,
+    from_override,
+    remove_key,
+    set_key,
+)
+from .plant_table import backend_sections, plant_section, plant_terms
 
 
 @dataclass(frozen=True)
@@ -91,7 +98,7 @@ class Scenario:
         immutable: this one is unchanged."""
         check_overrides(overrides, "with_overrides")
         return parse_scenario(self.text, source=self.source, base_dir=self.base_dir,
-                              overrides=(*self.overrides, *_as_given(overrides)), default_name=self.name,
+                              overrides=(*self.overrides, *as_given(overrides)), default_name=self.name,
                               unset=self.unset)
 
     @cached_property
@@ -123,14 +130,6 @@ class Scenario:
     def uncertain_terms(self) -> int:
         """Entries of eps, eqs. (37)-(43) (:attr:`LawContext.uncertain_terms`)."""
         return self.law_context.uncertain_terms
-
-
-def check_overrides(overrides: object, function: str) -> None:
-    """Overrides as :func:`load_scenario` takes them, else one line naming ``function``."""
-    strings = isinstance(overrides, list | tuple) and all(isinstance(o, str) for o in overrides)
-    if not strings and not (isinstance(overrides, Mapping) and all(isinstance(k, str) for k in overrides)):
-        raise QcontrolInputError(f"{function}: overrides must be a dict {{\"key\": value}} or a list of "
-                                 f"\"key=value\" strings, got {overrides!r}")
 
 
 def read_only(value: Any) -> Any:
@@ -202,7 +201,7 @@ def parse_scenario(
     check_limits(data, source)
     for key in unset:
         remove_key(data, key, source)
-    given = _as_given(overrides)
+    given = as_given(overrides)
     file_data = copy.deepcopy(data) if given else data  # what the file holds, to tell its keys apart
     for item in given:  # strings and (key, value) pairs: the latter come from dicts
         if isinstance(item, str):
@@ -213,11 +212,11 @@ def parse_scenario(
         _current_kind_names(data, source)
         scenario = _build(data, source, base_dir or Path("."), text, given, default_name)
     except KeyNotForKind as exc:
-        raise _command_line_fix(exc, given) from None
+        raise command_line_fix(exc, given) from None
     except OverrideError:
         raise
     except QcontrolInputError as exc:
-        raise _from_override(exc, source, given, file_data) from None
+        raise from_override(exc, source, given, file_data) from None
     return replace(scenario, unset=tuple(unset)) if unset else scenario
 
 
@@ -238,145 +237,6 @@ def _current_kind_names(data: dict, source: str) -> None:
             controller[new] = controller.pop(old)
 
 
-def _command_line_fix(exc: KeyNotForKind, given: Sequence[str | tuple[str, Any]]) -> QcontrolInputError:
-    """A key the chosen kind does not take, with the fix on the command line when the overrides
-    chose the kind (the key is then the file's: ``--unset`` it) or set the key (named as the
-    override: leave it out)."""
-    keys = [(item.partition("=")[0] if isinstance(item, str) else item[0]).strip() for item in given]
-    table = exc.key.rsplit(".", 1)[0]
-    if exc.key in keys:
-        item = given[len(keys) - 1 - keys[::-1].index(exc.key)]
-        detail = str(exc).split(f": {exc.key}: ", 1)[-1]
-        return OverrideError(override_label(item), f"{detail}; or leave out --set {exc.key}=...", item)
-    if f"{table}.kind" in keys:
-        return QcontrolInputError(f"{exc}; or, as the kind came from --set, remove the file's key: "
-                                  f"--unset {exc.key}")
-    return QcontrolInputError(str(exc))
-
-
-def _from_override(exc: QcontrolInputError, source: str, given: Sequence[str | tuple[str, Any]],
-                   file_data: dict) -> QcontrolInputError:
-    """A problem the validator found at a key (``SOURCE: key: problem; fix``), named as the override
-    that gave the key its value when one did (the last one, as it wins): the key itself or a table
-    above it was set, or the key is a table the override made (it is not in the file)."""
-    prefix = f"{source}: "
-    message = str(exc)
-    if not given or not message.startswith(prefix):
-        return exc
-    rest = message[len(prefix):]
-    at = rest.split(": ", 1)[0]
-    for item in reversed(given):
-        key = (item.partition("=")[0] if isinstance(item, str) else item[0]).strip()
-        if at == key:
-            return OverrideError(override_label(item), rest[len(at) + 2:], item)
-        inside = at.startswith((f"{key}.", f"{key}["))
-        made = key.startswith(f"{at}.") and not _has_key(file_data, at)
-        if inside or made:
-            return OverrideError(override_label(item), rest, item)
-    return exc
-
-
-def _has_key(data: dict, dotted: str) -> bool:
-    node: Any = data
-    for part in dotted.split("."):
-        if not isinstance(node, dict) or part not in node:
-            return False
-        node = node[part]
-    return True
-
-
-def override_label(item: str | tuple[str, Any]) -> str:
-    """How a message names one override: ``--set key=value`` for a string (as on the command
-    line), ``override key=value`` for an entry of a dict (the API); a long value is cut short."""
-    if isinstance(item, str):
-        key, sep, raw = item.partition("=")
-        return f"--set {shown(key.strip())}{sep}{brief(raw.strip())}"
-    return f"override {shown(item[0])}={brief(repr(item[1]))}"
-
-
-def _as_given(overrides: Overrides) -> tuple[str | tuple[str, Any], ...]:
-    """The overrides as entries: ``"key=value"`` strings, or ``(key, value)`` pairs from a dict
-    (entries already in that form pass through)."""
-    if isinstance(overrides, Mapping):
-        return tuple((str(key), value) for key, value in overrides.items())
-    if isinstance(overrides, str):
-        raise QcontrolInputError(f"overrides {overrides!r}: give a list of \"key=value\" strings or a dict; "
-                                 f"e.g. [{overrides!r}]")
-    return tuple(item if isinstance(item, str) else (str(item[0]), item[1]) for item in overrides)
-
-
-def remove_key(data: dict, key: str, source: str) -> None:
-    """Remove one ``--unset`` key (a dotted path) from the file's data; a key that is not there is
-    one line naming where it would be and what is there instead."""
-    parts = key.strip().split(".")
-    if not key.strip() or any(not p for p in parts):
-        raise QcontrolInputError(f"--unset {key!r}: not a key path; write e.g. --unset reference.amplitude")
-    node, where = data, "the top level"
-    for depth, part in enumerate(parts[:-1]):
-        child = node.get(part)
-        if not isinstance(child, dict):
-            path = ".".join(parts[: depth + 1])
-            problem = (f"{path} is a value, not a table" if part in node
-                       else f"{source} has no table [{path}]")
-            raise QcontrolInputError(f"--unset {key}: {problem}; " + _present(node, where))
-        node, where = child, f"[{'.'.join(parts[: depth + 1])}]"
-    last = parts[-1]
-    if last not in node:
-        raise QcontrolInputError(f"--unset {key}: {source} has no key {last} in {where}; "
-                                 + _moved(node, parts) + _present(node, where))
-    del node[last]
-
-
-def _moved(node: dict, parts: Sequence[str]) -> str:
-    """A hint when the key sits in a sub-table of the table named (e.g. a kind's settings)."""
-    holders = [name for name, value in node.items() if isinstance(value, dict) and parts[-1] in value]
-    if not holders:
-        return ""
-    inner = ".".join([*parts[:-1], holders[0], parts[-1]])
-    return f"it is in a sub-table: --unset {inner}; "
-
-
-def _present(node: dict, where: str) -> str:
-    names = ", ".join(show_key(k) for k in node) or "none"
-    return f"the keys in {where} are {names}"
-
-
-def apply_override(data: dict, item: str) -> None:
-    """Apply one ``key.path=value`` override; the value is read as TOML, else as a string."""
-    key, sep, raw = item.partition("=")
-    key = key.strip()
-    if not sep or not key:
-        raise OverrideError(override_label(item), "expected KEY=VALUE; write e.g. "
-                            "--set controller.kappa_margin=0.1", item)
-    raw = raw.strip()
-    try:
-        value = tomllib.loads(f"v = {raw}")["v"]
-    except (tomllib.TOMLDecodeError, RecursionError, ValueError):
-        value = raw
-    set_key(data, key, value, item)
-
-
-def set_key(data: dict, key: str, value: Any, item: str | tuple[str, Any]) -> None:
-    """Set the dotted ``key`` of the scenario's data to ``value`` (tables made as needed); ``item``
-    is the override as given, which a problem names."""
-    parts = key.split(".")
-    if not key or any(not p for p in parts):
-        raise OverrideError(override_label(item), f"key {shown(key)} has an empty part; write e.g. "
-                            "--set controller.kappa_margin=0.1", item)
-    node = data
-    for part in parts[:-1]:
-        child = node.setdefault(part, {})
-        if not isinstance(child, dict):
-            raise OverrideError(override_label(item), f"{part!r} is a value, not a table; set "
-                                f"{'.'.join(parts[:-1])} directly", item)
-        node = child
-    try:
-        check_limits(value, "", key)
-    except QcontrolInputError as exc:
-        raise OverrideError(override_label(item), str(exc).removeprefix(f"{key}: "), item) from None
-    node[parts[-1]] = value
-
-
 def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[str | tuple[str, Any], ...],
            default_name: str) -> Scenario:
     root = Table(data, source, "", TOP)
@@ -385,10 +245,10 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
             raise QcontrolInputError(f"{source}: [{key}]: missing table; add a [{key}] section")
     about = scenario_section(default_name)
     meta = read_keys(Table(data.get("scenario", {}), source, "scenario", about.names), about.keys, {})
-    plant = _plant_table(root)
-    terms, x0 = _plant(plant)
+    plant = plant_section(root)
+    terms, x0 = plant_terms(plant)
     simulation = _simulation(root.table("simulation", default={}))
-    backends = _backends(plant, provisional(terms), base_dir, simulation)
+    backends = backend_sections(plant, provisional(terms), base_dir, simulation)
     terms = from_model(plant, terms, backends, simulation.dt)  # the coefficients left to the model
     quantizer, input_quantizer = (read_quantizers(root.table("quantizer"), terms.order) if "quantizer" in data
                                   else (None, None))
@@ -408,78 +268,6 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
     )
     _check_terms_at_x0(scenario)
     return scenario
-
-
-def _plant_table(root: Table) -> Table:
-    """``[plant]``: the keys of eq. (1) and one sub-table per backend; a backend's key written
-    directly in [plant] is refused with the sub-table it belongs in."""
-    plant = root.table("plant")
-    for key in plant.data:
-        owners = [name for name, backend in BACKENDS.items()
-                  if backend.section is not None and key in backend.section.names]
-        if key not in PLANT.names and key not in BACKENDS and owners:
-            raise plant.error(key, f"does not apply to [plant] (it is a setting of backend {owners[0]!r})",
-                              f"write it in [plant.{owners[0]}]")
-    return Table(plant.data, plant.source, plant.name, (*PLANT.names, *BACKENDS))
-
-
-def _plant(plant: Table) -> tuple[PlantTerms, tuple[float, ...]]:
-    """The terms of eq. (1), compiled, and the initial state."""
-    order = plant.integer("order", minimum=2)
-    given = plant.get("phi", [])
-    table_rows = isinstance(given, list) and any(isinstance(row, list) for row in given)
-    rows_text = _regressor_rows(plant, order) if table_rows else ()
-    last = Table(dict(plant.data, phi=list(rows_text[-1])), plant.source, plant.name) if table_rows else plant
-    phi_text = last.strings("phi", [])
-    v = read_keys(last, PLANT.keys, {"n": order, "l": len(phi_text)})
-    x_names = [f"x{i + 1}" for i in range(order)]
-    where = f"{plant.source}: {plant.name}"
-    psi = None if v["psi"] is None else _plant_term(v["psi"], x_names, f"{where}.psi")
-    if not table_rows:
-        phi = tuple(_plant_term(p, x_names, f"{where}.phi[{i}]") for i, p in enumerate(v["phi"]))
-        return PlantTerms(order, psi, phi, v["theta"], v["input_gain"]), v["x0"]
-    earlier = tuple(tuple(_regressor(plant, text, x_names, r, j) for j, text in enumerate(row))
-                    for r, row in enumerate(rows_text[:-1]))
-    last_row = tuple(_plant_term(p, x_names, f"{where}.phi[{order - 1}][{j}]")
-                     for j, p in enumerate(v["phi"]))
-    return PlantTerms(order, psi, last_row, v["theta"], v["input_gain"], rows=earlier), v["x0"]
-
-
-def _plant_term(text: str, x_names: list[str], where: str) -> Expression:
-    """A term of eq. (1) over ``x1..xn``, or over ``x1..xn, t`` when it uses time t."""
-    term = compile_expression(text, [*x_names, TIME], where)
-    return term if TIME in term.used else compile_expression(text, x_names, where)
-
-
-def _regressor_rows(plant: Table, order: int) -> tuple[tuple[str, ...], ...]:
-    """``plant.phi`` given as n rows (row i: the regressors of equation i, every row of the same
-    length l, "0" where absent), as text."""
-    given = plant.get("phi")
-    if len(given) != order or not all(isinstance(row, list) for row in given):
-        raise plant.error("phi", f"has {len(given)} entries, not {order} rows (one list per equation)",
-                          f"give {order} lists of the same length, \"0\" where a term is absent, or one "
-                          "flat list for the last equation")
-    rows = tuple(Table({"row": row}, plant.source, plant.path(f"phi[{r}]")).strings("row")
-                 for r, row in enumerate(given))
-    for r, row in enumerate(rows):
-        if len(row) != len(rows[-1]):
-            raise plant.error(f"phi[{r}]", f"has {len(row)} regressors but the last row has {len(rows[-1])}",
-                              "give every row the same length l, \"0\" where a term is absent")
-    return rows
-
-
-def _regressor(plant: Table, text: str, x_names: list[str], r: int, j: int) -> Expression:
-    """Regressor j of row r (0-based) before the last, compiled; it reads x1 .. x_{r+1} only
-    (lower-triangular: phi_i depends on the first i states)."""
-    where = f"{plant.source}: {plant.path(f'phi[{r}][{j}]')}"
-    allowed = x_names[: r + 1]
-    expression = compile_expression(text, [*x_names, TIME], where)
-    later = sorted(set(expression.used) - set(allowed), key=[*x_names, TIME].index)
-    if later:
-        raise QcontrolInputError(
-            f"{where}: {text!r} reads {later[0]}, which row {r + 1} may not read; row {r + 1} (the "
-            f"regressors of x{r + 1}') may read {', '.join(allowed)} only (a strict-feedback plant)")
-    return compile_expression(text, x_names, where)
 
 
 def _chosen(table: Table, section: Section, sizes: dict[str, int] | None = None
@@ -529,31 +317,6 @@ def _metrics(table: Table) -> MetricSettings:
     if len(set(v["omega"])) != len(v["omega"]):
         raise table.error("omega", f"repeats a threshold in {list(v['omega'])}", "list each omega once")
     return MetricSettings(tuple(v["omega"]), v["samples"])
-
-
-def _backends(plant: Table, terms: PlantTerms, base_dir: Path, simulation: SimulationConfig) -> dict[str,
-                                                                                                     Any]:
-    """Each backend's ``[plant.<name>]`` section, parsed by the backend (the sections written in
-    the file first, then those left out whose keys all default, parsed from their defaults); the
-    chosen backend must have the section it needs."""
-    ctx = PlantContext(terms, base_dir, simulation.dt)
-    parsed = {}
-    for name, backend in BACKENDS.items():
-        if name in plant.data and backend.parse is not None:
-            parsed[name] = backend.parse(plant.table(name), ctx)
-        elif name in plant.data:
-            raise plant.error(name, f"backend {name!r} takes no settings", f"remove [plant.{name}]")
-    for name, backend in BACKENDS.items():
-        if name not in parsed and backend.section is not None and backend.section.optional and backend.parse:
-            parsed[name] = backend.parse(plant.table(name, default={}), ctx)
-    chosen = BACKENDS[simulation.backend]
-    if chosen.section is not None and simulation.backend not in parsed:
-        raise QcontrolInputError(
-            f"{plant.source}: simulation.backend: is {simulation.backend!r} but the plant has no "
-            f"[plant.{simulation.backend}] table; add [plant.{simulation.backend}] "
-            f"({chosen.section.meaning}), or use backend = \"ode\""
-        )
-    return parsed
 
 
 def _check_terms_at_x0(sc: Scenario) -> None:
