@@ -257,8 +257,9 @@ def assemble(variants: Scenario | Sequence[Scenario], backend: str | None = None
     """Put a run together once: the backend (``backend``, default the scenario's; refused in one
     line if unknown or its section is missing), the plant (``plant``, or one with a copy per
     variant), the law, the quantizer of eq. (3), the reference, the grid, the loads and the
-    separation (37)-(43), checked along every copy as along a run alone. Variants must share :func:`batch_structure`. A scenario
-    with ``[[disturbance]]`` on a plant that takes no external load is refused in one line."""
+    separation (37)-(43), checked along every copy as along a run alone. Variants must share
+    :func:`batch_structure`. A scenario with ``[[disturbance]]`` on a plant that takes no external
+    load is refused in one line."""
     variants = [variants] if isinstance(variants, Scenario) else list(variants)
     first = variants[0]
     name = runnable_backend(first, backend)
