@@ -80,7 +80,7 @@ def test_mujoco_observe_reads_its_state_and_sensors_in_one_pass(batch: int) -> N
             assert not np.array_equal(reading, x)  # the noise is there
             for plant in (one, other):
                 plant.step(np.full(batch, 0.3), 1e-3)
-        if one._threads:  # a batch read in compiled code marks its own dead
+        if one._threads:  # the threaded batch reads its copies in compiled code, marks its own dead
             return
         one._dead[0] = other._dead[0] = True  # a copy MuJoCo reported unstable reads NaN
         x, reading = one.observe()

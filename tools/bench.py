@@ -10,7 +10,7 @@
   closed loop: the controller is evaluated inside the right-hand side from the quantized state and
   eps_hat is part of the ODE state; and the ratio to a compiled (numba) bare RK4 loop of the same
   right-hand side.
-* 1000 Example 2 runs batched on MuJoCo (copies stepped in compiled code), per copy and step against bare
+* 1000 Example 2 runs batched on MuJoCo (``mujoco.batch``), per copy and step against bare
   ``mj_step``; ``--reproduce``: the wall time of ``qcontrol reproduce``.
 * Batched ODE runs of Example 2 (per-copy kappa, ``record="metrics"``): N = 1, 10, 100, 1000,
   the cost per copy and step against one step of the compiled bare RK4 of the right-hand side
@@ -276,7 +276,7 @@ def mujoco_batch(duration: float, size: int, repeat: int) -> dict:
     bare = best_of(repeat, _mj_step_loop(build_plant(sc, "mujoco"), 10_000, installed=False)) / 10_000
     per_copy_step = wall / (size * steps)
     return {"size": size, "duration_s": duration, "wall_s": wall, "us_per_copy_step": per_copy_step * 1e6,
-            "ratio_to_bare_mj_step": per_copy_step / bare, "compiled_copies": plant._compiled is not None}
+            "ratio_to_bare_mj_step": per_copy_step / bare, "on_mujoco_batch": plant._threaded is not None}
 
 
 def cpu_seconds() -> float:
@@ -442,7 +442,7 @@ def report(result: dict, args: argparse.Namespace) -> None:
     print(f"{'MuJoCo batch of ' + str(mb['size']) + ' (per copy-step) / bare mj_step':52s} "
           f"{mb['ratio_to_bare_mj_step']:10.2f}           "
           f"({mb['wall_s']:.2f} s for {mb['duration_s']:g} s runs; "
-          f"stepped in compiled code: {mb['compiled_copies']})")
+          f"mujoco.batch: {mb['on_mujoco_batch']})")
     rec = details["recording"]
     print(f"{'recording cost per simulated second [ms]':52s} {rec['ms_per_simulated_s']:10.2f}  <= 5    "
           f"({rec['recording_s']:.4f} s of recording on a {rec['run_s']:.3f} s run, "

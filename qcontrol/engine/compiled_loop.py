@@ -234,7 +234,7 @@ def compilable(law: BatchLaw) -> bool:
 
 def numba_pays(rows: int, batch: int) -> bool:
     """Whether a run may use numba at all (the compiled loop, MuJoCo's native callback): a batch
-    (sweeps, studies: long, and MuJoCo's compiled copies need the native callback), a run in a process
+    (sweeps, studies: long, and ``mujoco.batch`` needs the native callback), a run in a process
     that has started numba already, or a single run of at least :data:`COLD_MIN_ROWS` rows, which
     pays for numba's start. A shorter single run in a fresh process (a 10 s run from the command
     line) is faster in Python, cold cache or warm (docs/architecture.md, 'The compiled loop')."""

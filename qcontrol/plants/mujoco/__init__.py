@@ -4,8 +4,8 @@ Split by job: :mod:`.options` (the ``[plant.mujoco]`` keys; no mujoco import), :
 (the MJCF through MjSpec: overrides, realism options, compiled once), :mod:`.callbacks` (the
 process-global passive callback and warning handler), :mod:`.native` (the passive terms as a
 compiled C callback), :mod:`.noise` (the sensor noise), :mod:`.plant` (the runtime plant),
-:mod:`.native_step` (one copy's observe and step, run in Python, compiled for the compiled loop
-and looped over a batch's copies), :mod:`.consistency` (MuJoCo's acceleration against eq. (1)).
+:mod:`.native_step` (one copy's observe and step for the compiled loop), :mod:`.threaded` (a batch
+stepped by ``mujoco.batch``), :mod:`.consistency` (MuJoCo's acceleration against eq. (1)).
 """
 
 from __future__ import annotations

@@ -175,7 +175,7 @@ def _registered(model: mujoco.MjModel, datas: Sequence[mujoco.MjData], qadr: int
 
 
 def python_callback_installed() -> bool:
-    """Whether ``mjcb_passive`` is a Python function now (which compiled stepping must not call)."""
+    """Whether ``mjcb_passive`` is a Python function now (which ``mujoco.batch`` refuses)."""
     installed = mujoco.get_mjcb_passive()
     return installed is not None and not isinstance(installed, ctypes._CFuncPtr)
 

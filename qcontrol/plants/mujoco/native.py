@@ -6,7 +6,7 @@ and computing the same numbers: ``qfrc_passive[dof] += sum_i (I c_i) term_i(qpos
 qvel[dof])``, summed in order from 0.0. Where Python's ``math`` refuses a term, the Python force
 takes numpy's answer; the compiled code, with numpy's error model, computes that very IEEE value
 (NaN, Inf) without raising.
-MuJoCo calls it without the Python interpreter (RK4: four times per step; a batch's copies:
+MuJoCo calls it without the Python interpreter (RK4: four times per step; ``mujoco.batch``:
 from its C threads).
 
 The numbers that differ between plants sharing the terms live in ``mjData.userdata`` (every

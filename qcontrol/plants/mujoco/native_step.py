@@ -1,6 +1,5 @@
 """One MuJoCo copy's observe and step, written once: the Python stepper runs these functions,
-the engine's compiled loop compiles the very same functions (their source) with numba, and so
-does a batch of copies (:class:`CompiledCopies`: one compiled call steps, or reads, every copy).
+the engine's compiled loop compiles the very same functions (their source) with numba.
 
 :func:`read_copy` and :func:`step_copy` are written in the subset of Python numba compiles. In
 Python they call MuJoCo's bindings (``mujoco.mj_step`` on ``MjModel``/``MjData``); in the
@@ -14,8 +13,7 @@ Sensors that copy the state (a joint position and velocity sensor without histor
 the shipped models') read ``qpos``/``qvel`` themselves, so the compiled loop skips the two
 sensor calls (``sensed=False``) and brings ``sensordata`` up to date once per call instead. The
 passive terms run as the native callback, which MuJoCo calls itself; a run with the Python
-callback, or with sensor noise, is not compiled (a batch with sensor noise is: the plant adds
-the noise to the readings in Python, as on every path).
+callback, or with sensor noise, is not compiled.
 """
 
 from __future__ import annotations
@@ -32,13 +30,10 @@ import mujoco
 import numpy as np
 
 from ..base import NativeStepper
+from .threaded import UNSTABLE_WARNINGS
 
 DEAD = 13  # pi: model, data, ctrl, sensordata, qpos, qvel, warning, actuator, p, v, qadr, dof, substeps, dead
 WARNINGS = int(mujoco.mjtWarning.mjNWARNING)
-# warnings MuJoCo gives when it resets a copy ("... The simulation is unstable.")
-_W = mujoco.mjtWarning
-UNSTABLE_WARNINGS = [int(w) for w in (_W.mjWARN_BADQPOS, _W.mjWARN_BADQVEL, _W.mjWARN_BADQACC,
-                                      _W.mjWARN_BADCTRL)]
 UNSTABLE = tuple(2 * w + 1 for w in UNSTABLE_WARNINGS)  # "unstable" counters in (lastinfo, number) pairs
 mj_step, mj_sensorPos, mj_sensorVel = mujoco.mj_step, mujoco.mj_sensorPos, mujoco.mj_sensorVel  # noqa: N816
 
@@ -126,7 +121,8 @@ def step_lines(sensed: bool) -> list[str]:
 
 def plain_sensors(plant) -> bool:  # noqa: ANN001 (a MujocoPlant)
     """Whether the two sensors are a joint position and velocity sensor that copy ``qpos`` and
-    ``qvel`` as they are (no history, no cutoff): the readings are then the state itself."""
+    ``qvel`` as they are (no history, no cutoff): the readings are then the state itself (as on
+    ``mujoco.batch``, :mod:`.threaded`)."""
     model, ids = plant.model, plant._ids
     p, v = ids.position_sensor, ids.velocity_sensor
     return (not model.nhistory and not model.sensor_cutoff[[p, v]].any()
@@ -150,23 +146,18 @@ def load_mujoco_library() -> str:
     return os.path.basename(found[0])
 
 
-def copy_ints(plant, b: int, substeps: int) -> list[int]:  # noqa: ANN001 (a MujocoPlant)
-    """What the generated lines read of copy ``b`` (``pi``): the addresses of its model, data and
-    arrays, the indices, the substeps per step, and its dead flag (at :data:`DEAD`)."""
-    data, ids = plant._datas[b], plant._ids
-    p, v = plant._sadr
-    return [plant.model._address, data._address, data.ctrl.ctypes.data, data.sensordata.ctypes.data,
-            data.qpos.ctypes.data, data.qvel.ctypes.data, data.warning.lastinfo.ctypes.data, ids.actuator,
-            p, v, ids.qpos, ids.dof, substeps, int(plant._dead[b])]
-
-
 class MujocoNativeForm:
     """The numbers the generated lines read for copy 0 of ``plant``: addresses, indices, the
     substeps per step, ``I / gain``, and the dead flag (read from and written back to the plant)."""
 
     def __init__(self, plant, substeps: int) -> None:  # noqa: ANN001 (a MujocoPlant: no import cycle)
         self.plant = plant
-        self.ints = np.array(copy_ints(plant, 0, substeps), dtype=np.int64)
+        data, ids = plant._datas[0], plant._ids
+        p, v = plant._sadr
+        self.ints = np.array([plant.model._address, data._address, data.ctrl.ctypes.data,
+                              data.sensordata.ctypes.data, data.qpos.ctypes.data, data.qvel.ctypes.data,
+                              data.warning.lastinfo.ctypes.data, ids.actuator, p, v, ids.qpos, ids.dof,
+                              substeps, int(plant._dead[0])], dtype=np.int64)
         self.floats = np.array([plant._ctrl_per_u], dtype=float)
         self.plain = plain_sensors(plant)
 
@@ -185,59 +176,3 @@ class MujocoNativeForm:
         sensed = not self.plain
         return NativeStepper(key, helpers(), SETUP, observe_lines(sensed), step_lines(sensed), self.floats,
                              self.ints, np.zeros(0), self.sync_in, self.sync_out)
-
-
-def copies_source(sensed: bool) -> str:
-    """The module text of :class:`CompiledCopies`: :func:`helpers` and two loops over the copies'
-    rows of ``pis`` (one :func:`copy_ints` row each) that run, for each copy, the very lines the
-    compiled loop runs for its one copy (:data:`SETUP`, :func:`step_lines`, :func:`observe_lines`)."""
-    def loop(name: str, arguments: str, lines: list[str]) -> str:
-        body = "".join(f"        {line}\n" for line in ["pi = pis[b]", *SETUP, *lines])
-        return ('@numba.njit(cache=True, error_model="numpy", nogil=True)\n'
-                f"def {name}(pis, {arguments}):\n    for b in range(pis.shape[0]):\n{body}")
-
-    read = [*observe_lines(sensed), "out[b, 0], out[b, 1], out[b, 2], out[b, 3] = x1, x2, m1, m2"]
-    return "\n".join([
-        '"""qcontrol\'s MuJoCo copies stepped and read in compiled code (generated)."""',
-        "import math", "", "import numba", "import numpy as np", "",
-        "from qcontrol.compiled.pointers import as_pointer, carray", "", helpers(), "",
-        loop("step_copies", "pf, us", ["u = us[b]", *step_lines(sensed)]), "",
-        loop("read_copies", "out", read), ""])
-
-
-class CompiledCopies:
-    """A batch of a :class:`~.plant.MujocoPlant`'s copies (one ``MjData`` each) stepped by one
-    compiled call over the copies, which runs :func:`step_copy` for each (``mj_step`` by symbol,
-    the native passive callback called by MuJoCo itself), and read by one that runs
-    :func:`read_copy`: the numbers of the copies stepped one by one in Python, without Python per
-    copy. A copy MuJoCo found unstable is marked dead in its row and no longer stepped."""
-
-    def __init__(self, plant) -> None:  # noqa: ANN001 (a MujocoPlant: no import cycle)
-        from ...compiled.cache import generated_module
-
-        load_mujoco_library()
-        sensed = not plain_sensors(plant)
-        module = generated_module("mujoco_copies", copies_source(sensed))
-        self.step_copies, self.read_copies = module.step_copies, module.read_copies
-        self.pis = np.array([copy_ints(plant, b, 1) for b in range(plant.batch)], dtype=np.int64)
-        self.pf = np.array([plant._ctrl_per_u], dtype=float)
-        self.out = np.empty((plant.batch, 4))
-
-    def reset(self) -> None:
-        """Every copy alive again (the plant has put each ``MjData`` at its x(0))."""
-        self.pis[:, DEAD] = 0
-
-    @property
-    def dead(self) -> np.ndarray:
-        return self.pis[:, DEAD] != 0
-
-    def read(self) -> np.ndarray:
-        """``(qpos, qvel, position sensor, velocity sensor)`` of every copy, ``(batch, 4)``, NaN
-        for a dead copy (a new array)."""
-        self.read_copies(self.pis, self.out)
-        return self.out.copy()
-
-    def step(self, u: np.ndarray, substeps: int) -> None:
-        """Every live copy through ``substeps`` calls of ``mj_step`` with its ``u`` held."""
-        self.pis[:, DEAD - 1] = substeps
-        self.step_copies(self.pis, self.pf, u)

@@ -50,9 +50,10 @@ from .callbacks import (
 from .consistency import consistency_report
 from .mjcf import check_input_gain, compiled
 from .native import NativeForce, native_force
-from .native_step import CompiledCopies, MujocoNativeForm, warning_counters
+from .native_step import MujocoNativeForm, warning_counters
 from .noise import SensorNoise
 from .options import MujocoOptions
+from .threaded import ThreadedCopies, threadable
 
 
 class MujocoPlant:
@@ -98,7 +99,7 @@ class MujocoPlant:
                         for t in copies]
         self._forces = _forces(applied, coefficients, self.inertia) if applied else None
         self._applied, self._built_native = tuple(applied), None  # (native_for_run)
-        # a batch decides its stepping here (compiled code needs the native callback); a single
+        # a batch decides its stepping here (mujoco.batch needs the native callback); a single
         # copy at each run, where the engine says whether compiled code pays (__enter__)
         self._native = self.native_for_run() if self.batch > 1 else None
         # each copy's products I c_i, the numbers the Python force uses (theta per copy)
@@ -115,9 +116,10 @@ class MujocoPlant:
         self._noise = SensorNoise(options.sensor_noise, seeds)
         self._noisy = bool(self._noise.std.any())
         self._entered: list[Any] = []
-        # a batch of copies stepped and read in compiled code (made at the first run that may)
-        self._compiled: CompiledCopies | None = None
-        self._threads = False  # whether this run steps the copies in compiled code (set at __enter__)
+        eligible = threadable(self.model, self.batch, self._native, self._forces is not None)
+        self._threaded = (ThreadedCopies(self.model, self._ids, self.batch, self._ctrl_per_u, self._native,
+                                         self._userdata) if eligible and compiled_paths.requested() else None)
+        self._threads = False  # whether this run steps the copies on the batch (set at __enter__)
         self.warnings: list[str] = []  # MuJoCo's warnings during the last run
         with kept_aside():  # the model check's warnings, outside any run
             self.consistency_report = consistency_report(built, options, terms, native,
@@ -139,17 +141,8 @@ class MujocoPlant:
                          collect_warnings(self.warnings)]
         for manager in self._entered:
             manager.__enter__()
-        self._threads = self._compiled_copies() is not None and not python_callback_installed()
+        self._threads = self._threaded is not None and not python_callback_installed()
         return self
-
-    def _compiled_copies(self) -> CompiledCopies | None:
-        """The batch's copies in compiled code (:class:`~.native_step.CompiledCopies`), made once,
-        where it can run: more than one copy, compiled paths on, and the passive terms, if any, in
-        the native callback (compiled code must not call Python for them)."""
-        if self._compiled is None and self.batch > 1 and (self._native is not None or self._forces is None):
-            if compiled_paths.enabled():
-                self._compiled = CompiledCopies(self)
-        return self._compiled
 
     def __exit__(self, *exc: object) -> None:
         self.close()
@@ -177,7 +170,8 @@ class MujocoPlant:
         x0 = np.broadcast_to(np.asarray(x0, dtype=float), (self.batch, 2))
         self._noise.reset()
         if self._threads:
-            self._compiled.reset()
+            self._threaded.reset(x0)
+            return
         model, ids = self.model, self._ids
         for b, data in enumerate(self._datas):
             mujoco.mj_resetData(model, data)
@@ -198,6 +192,9 @@ class MujocoPlant:
         """The external load d (u's units) as the generalized force ``I d`` in ``qfrc_applied``
         (``I`` the nominal inertia, as for u), held until changed; ``mj_resetData`` clears it."""
         force = self.inertia * float(d)
+        if self._threads:
+            self._threaded.disturb(force)
+            return
         for data in self._datas:
             data.qfrc_applied[self._ids.dof] = force
 
@@ -214,7 +211,7 @@ class MujocoPlant:
 
     def state(self) -> np.ndarray:
         """The true ``(qpos, qvel)`` of every copy (NaN for a copy MuJoCo had to reset)."""
-        return self._copies_read()[:, :2]
+        return self._threaded.state() if self._threads else self._copies_read()[:, :2]
 
     def read_sensors(self) -> np.ndarray:
         """``sensordata`` of the position and velocity sensors (plus noise, if configured)."""
@@ -228,19 +225,22 @@ class MujocoPlant:
 
     def observe(self) -> tuple[np.ndarray, np.ndarray]:
         """The true state and the sensors' reading (plus noise, if configured) of every copy, NaN
-        for a copy MuJoCo had to reset: one pass over the copies (two views of one array)."""
-        both = self._copies_read()
-        x, reading = both[:, :2], both[:, 2:]  # (a dead copy's row is NaN already)
+        for a copy MuJoCo had to reset: without threads, one pass over the copies (two views of
+        one array)."""
+        if self._threads:
+            x, reading, dead = self._threaded.state(), self._threaded.readings(), self._threaded.dead
+        else:
+            both = self._copies_read()
+            x, reading, dead = both[:, :2], both[:, 2:], None  # (a dead copy's row is NaN already)
         if self._noisy:
             reading += self.sensor_noise()
+        if dead is not None:
+            reading[dead] = np.nan
         return x, reading
 
     def _copies_read(self) -> np.ndarray:
         """``(qpos, qvel, position sensor, velocity sensor)`` of every copy, ``(batch, 4)``; NaN for
-        a copy MuJoCo had to reset: :func:`~.native_step.read_copy` for each, in Python or in
-        compiled code."""
-        if self._threads:
-            return self._compiled.read()
+        a copy MuJoCo had to reset."""
         q, dof = self._ids.qpos, self._ids.dof
         p, v = self._sadr
         views, dead, read_copy = self._views, self._dead, native_step.read_copy
@@ -256,11 +256,11 @@ class MujocoPlant:
         """
         if not self._entered and self._forces is not None:
             raise RuntimeError("use MujocoPlant in a 'with' block: its passive callback is installed there")
-        steppers = self._steppers.get(h) or self._make_steppers(h)
         if self._threads:
-            values = np.ascontiguousarray(np.broadcast_to(np.asarray(u, dtype=float).ravel(), (self.batch,)))
-            self._compiled.step(values, steppers[0].substeps)
+            substeps = whole_steps(h, self.timestep, f"{self.options.where}: step", "the model timestep")
+            self._threaded.step(np.broadcast_to(np.asarray(u, dtype=float).ravel(), (self.batch,)), substeps)
             return
+        steppers = self._steppers.get(h) or self._make_steppers(h)
         values = (u if isinstance(u, np.ndarray) else np.asarray(u, dtype=float)).ravel().tolist()
         if len(values) != self.batch:
             values = values * self.batch if len(values) == 1 else list(np.broadcast_to(values, (self.batch,)))

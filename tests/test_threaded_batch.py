@@ -1,5 +1,4 @@
-"""Batches stepped in compiled code (one call over the copies) give the numbers of the copies
-stepped one by one in Python, blow-ups and MuJoCo's warnings included."""
+"""Batches on ``mujoco.batch`` give the numbers of one MjData per copy, blow-ups included."""
 
 from __future__ import annotations
 
@@ -24,29 +23,29 @@ def variants(path: pathlib.Path, extra: list[str], x0s: tuple[str, ...] = ("[0.3
 
 
 def compare_batches(scs: list, monkeypatch: pytest.MonkeyPatch) -> tuple[list, list]:
-    compiled_plant = build_plant(scs[0], "mujoco", batch=len(scs))
-    stepped = run_variants(scs, "mujoco", plant=compiled_plant)
+    threaded_plant = build_plant(scs[0], "mujoco", batch=len(scs))
+    threaded = run_variants(scs, "mujoco", plant=threaded_plant)
     with monkeypatch.context() as patch:
         patch.setenv(ENVIRONMENT_SWITCH, "0")
         per_copy_plant = build_plant(scs[0], "mujoco", batch=len(scs))
-        assert per_copy_plant._compiled_copies() is None
+        assert per_copy_plant._threaded is None
         per_copy = run_variants(scs, "mujoco", plant=per_copy_plant)
-    for a, b in zip(stepped, per_copy, strict=True):
+    for a, b in zip(threaded, per_copy, strict=True):
         assert a.diverged == b.diverged and a.steps == b.steps
         for name in ("x", "x_meas", "u", "adaptive"):
             assert getattr(a, name).tobytes() == getattr(b, name).tobytes(), name
-    assert compiled_plant.warnings == per_copy_plant.warnings
-    return compiled_plant, stepped
+    assert threaded_plant.warnings == per_copy_plant.warnings
+    return threaded_plant, threaded
 
 
 @pytest.mark.parametrize("path", SCENARIOS, ids=lambda p: p.stem)
-def test_compiled_batch_equals_the_copies_stepped_in_python(path: pathlib.Path,
+def test_threaded_batch_equals_one_mjdata_per_copy(path: pathlib.Path,
                                                    monkeypatch: pytest.MonkeyPatch) -> None:
     scs = variants(path, [])
     plant, _ = compare_batches(scs, monkeypatch)
-    # terms in t keep the copies in Python (the Python callback evaluates them at data.time);
-    # sensor delays and cutoffs do not (the compiled step calls the sensors as the Python step does)
-    assert (plant._compiled is not None) == (not scs[0].terms.timed)
+    plain_sensors = not plant.model.nhistory and not plant.model.sensor_cutoff.any()
+    # sensor delays keep one MjData per copy; so do terms in t (evaluated at data.time in Python)
+    assert (plant._threaded is not None) == (plain_sensors and not scs[0].terms.timed)
 
 
 def test_a_copy_mujoco_resets_stops_as_on_the_per_copy_path(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -56,7 +55,7 @@ def test_a_copy_mujoco_resets_stops_as_on_the_per_copy_path(monkeypatch: pytest.
     unstable = ['plant.psi="exp(x2)**2"', "simulation.state_bound=1e30"]
     x0s = ("[0.3, 0.3]", "[-0.5, 0.2]", "[0.8, 30.0]", "[0.0, 0.0]")
     plant, runs = compare_batches(variants(path, unstable, x0s, duration=0.1), monkeypatch)
-    assert plant._compiled is not None
+    assert plant._threaded is not None
     assert [r.diverged for r in runs] == [False, False, True, False]
     plant, runs = compare_batches(variants(path, unstable, x0s, duration=0.3), monkeypatch)
     assert all(r.diverged for r in runs) and len({r.steps for r in runs}) == 4
@@ -79,11 +78,11 @@ THETA_AND_SEEDS = [("[-1.0, -3.5, -34.3]", 1), ("[-1.0, 3.5, -34.3]", 2), ("[-1.
                    ("[-1.0, 0.0, -34.3]", 1)]
 
 
-@pytest.mark.parametrize("name, on_batch", [("example2", True), ("example2-arm", True)])
+@pytest.mark.parametrize("name, on_batch", [("example2", True), ("example2-arm", False)])
 def test_theta_and_noise_seed_per_copy_equal_single_runs(name: str, on_batch: bool) -> None:
     """Example 2's theta2 (the passive callback's term) and the noise seed differ per copy: one
-    batch, stepped in compiled code (the arm's sensor delay too), gives each variant the numbers of
-    its run alone."""
+    batch, on mujoco.batch (no sensor history) or one MjData per copy (the arm's delay), gives
+    each variant the numbers of its run alone."""
     path = ROOT / "scenarios" / f"{name}.toml"
     noise = ["plant.mujoco.sensor_noise=[0.001, 0.05]"]
     scs = [load_scenario(path, ["simulation.duration=0.4", "disturbance=[]", f"plant.theta={theta}",
@@ -91,7 +90,7 @@ def test_theta_and_noise_seed_per_copy_equal_single_runs(name: str, on_batch: bo
            for theta, seed in THETA_AND_SEEDS]
     assert len({batch_structure(sc, "mujoco") for sc in scs}) == 1  # one batch
     plant = assert_batch_equals_single_runs(scs)
-    assert (plant._compiled is not None) == on_batch
+    assert (plant._threaded is not None) == on_batch
     # the copies really differ: theta2's sign changes the path, and so does the seed's noise
     assert len({r.x_meas.tobytes() for r in run_variants(scs, "mujoco", plant=plant)}) == len(scs)
 
