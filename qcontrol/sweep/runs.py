@@ -19,8 +19,8 @@ backends: a batch of 2 costs 2.3-2.8x its two runs, 4 about 1.2x, 8 about 0.6-0.
 
 Determinism. A copy's numbers do not depend on the batch it is stepped in (its size or its
 neighbours), so the in-process path, local worker processes and a Dask cluster give identical
-numbers however they chunk (only ``wall_time_s`` differs). Even cuts never leave a batched group's
-run alone in a chunk, so every run of a batched group has the same summary keys.
+numbers however they chunk (only ``wall_time_s`` differs), and a copy's summary is its run
+alone's, key for key (the separation (37)-(43) is checked along every copy).
 
 MuJoCo. Chunks run as MuJoCo plant batches, spread over worker processes: on ``mujoco.batch``
 (the copies stepped in C, the unmodelled term in the native passive callback) where the plant
