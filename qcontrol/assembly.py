@@ -256,18 +256,18 @@ def assemble(variants: Scenario | Sequence[Scenario], backend: str | None = None
              plant: Plant | None = None) -> Assembly:
     """Put a run together once: the backend (``backend``, default the scenario's; refused in one
     line if unknown or its section is missing), the plant (``plant``, or one with a copy per
-    variant), the law, the quantizer of eq. (3), the reference, the grid, the loads and, for a
-    single run, the separation (37)-(43). Variants must share :func:`batch_structure`. A scenario
-    with ``[[disturbance]]`` on a plant that takes no external load is refused in one line."""
+    variant), the law, the quantizer of eq. (3), the reference, the grid, the loads and the
+    separation (37)-(43), checked along every copy as along a run alone. Variants must share
+    :func:`batch_structure`. A scenario with ``[[disturbance]]`` on a plant that takes no external
+    load is refused in one line."""
     variants = [variants] if isinstance(variants, Scenario) else list(variants)
     first = variants[0]
     name = runnable_backend(first, backend)
     plant = plant if plant is not None else _plants(variants, name)
+    # variants of one batch share their terms' expressions and r (their batch structure), so the
+    # separation of the first is every copy's: a copy's summary is its run alone's, key for key
     separation = build_separation(first)
-    # the separation (37)-(43) is checked along single runs (a sweep's batch skips it: it would
-    # cost about a quarter of the plant's own evaluations)
-    spec = run_spec(first, plant, build_law(variants, separation), [v.x0 for v in variants],
-                    separation if len(variants) == 1 else None)
+    spec = run_spec(first, plant, build_law(variants, separation), [v.x0 for v in variants], separation)
     if spec.loads and not isinstance(plant, Disturbable):
         raise QcontrolInputError(f"{first.source}: [[disturbance]]: backend {name!r} takes no external load "
                                  "(its plant is not Disturbable); remove the [[disturbance]] tables or "

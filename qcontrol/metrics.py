@@ -108,7 +108,7 @@ def bound_constants(names: tuple[str, ...], largest: np.ndarray, smallest_r: np.
     largest ``|term| / r(x_q)`` seen (None where it was infinite or undefined: the term is not
     bounded by its r on the run), and ``warnings`` says so in words. Both None/empty
     (``bound_constants`` absent from ``summary.json``) when the separation was not checked (a law
-    without r, or a sweep's batch). Where a bounding function went below 1 at some row
+    without r, or terms in t). Where a bounding function went below 1 at some row
     (``smallest_r``: each r_i's smallest value), ``r_below_one`` maps its term to that value and a
     warning says so; the key is there only then."""
     if not names:

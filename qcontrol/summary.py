@@ -24,7 +24,7 @@ class Summary:
     ``velocity_source``, and on a plant outside the chain of eq. (1)), the bounds ``L_z`` and
     ``L = L_zn``. The separation (37)-(43):
     ``bound_constants`` (term -> largest ``|term| / r(x_q)``, None where unbounded; None, and absent
-    from ``summary.json``, when not checked: a law without bounding functions, a sweep's batch) and
+    from ``summary.json``, when not checked: a law without bounding functions, terms in t) and
     ``warnings``; ``r_below_one`` (term -> smallest ``r_i(x_q)``), present only when a bounding
     function went below 1 during the run. ``law_diagnostics``: the law's own diagnostics as it
     declared them (``max_gain_period`` for the paper's law: the largest K T over the control

@@ -248,3 +248,18 @@ def test_a_region_map_is_the_same_on_one_and_two_workers():
                            workers=w).points for w in (1, 2)]
     assert len(maps[0]) == 25 and {p.outcome for p in maps[0]} >= {"bounded", "diverged"}
     assert [repr(p) for p in maps[1]] == [repr(p) for p in maps[0]]
+
+
+@pytest.mark.parametrize("backend", ["ode", "mujoco"])
+def test_a_batched_copy_has_its_single_runs_summary_key_for_key(backend):
+    """The separation (37)-(43) is checked along every copy of a batch as along the run alone:
+    ``bound_constants`` and every other key (wall time aside) equal, the diverging start's too."""
+    from qcontrol.scenario import load_scenario
+
+    sets = [["simulation.duration=0.3", f"controller.kappa_margin={k}", f"plant.x0=[{x}, 0.0]"]
+            for k, x in ((0.1, 0.3), (1.1, -0.5), (0.6, 12.0), (0.8, 1.0), (1.1, 2.0))]
+    scs = [load_scenario(EXAMPLE2, s) for s in sets]
+    batched = _comparable(sweep.run_batch(scs, backend))
+    alone = [_comparable(sweep.run_batch([sc], backend))[0] for sc in scs]
+    assert all(s["bound_constants"] for s in alone)
+    assert batched == alone

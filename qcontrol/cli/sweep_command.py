@@ -28,7 +28,7 @@ from ..provenance import command_line
 from ..scenario import Scenario, load_scenario
 from ..scenario.resolve import scenario_provenance
 from ..sweep.grid import check_size, grid_points, parse_grid
-from ..sweep.runs import DASK_CONNECT_TIMEOUT, SweepInterrupted, plan, sweep_summaries
+from ..sweep.runs import DASK_CONNECT_TIMEOUT, SweepInterrupted, planned, sweep_summaries
 from ..sweep.table import csv_text, metric_columns, sweep_record, sweep_rows
 from .arguments import EXIT_OK, add_scenario_options, backend_names, options_named
 from .printing import law_failed
@@ -97,7 +97,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     keys = list(points[0]) if points else []
     sets = [list(args.overrides) + [f"{k}={v}" for k, v in p.items()] for p in points]
     with options_named({f"{k}={v}": f"--grid {k}={v}" for k, values in grid for v in values}):
-        chunks = plan(base.source, sets, backend, args.unset)
+        chunks, variants = planned(base.source, sets, backend, args.unset)
     if backend != "ode" and not args.quiet:
         print(f"sweep on {backend}: one process per chunk of runs; --backend ode steps the runs together "
               "as arrays and is much faster")
@@ -105,7 +105,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     try:
         summaries = sweep_summaries(base.source, sets, backend, args.workers, args.scheduler,
                                     ProgressLine("sweep", not args.quiet, "runs"), chunks,
-                                    args.unset)
+                                    args.unset, variants)
         interrupted: KeyboardInterrupt | None = None
     except SweepInterrupted as stop:
         summaries, interrupted = stop.summaries, Terminated() if stop.terminated else KeyboardInterrupt()

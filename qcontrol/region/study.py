@@ -1,9 +1,11 @@
 """The region of attraction of a law, measured: closed-loop runs from every point of a 2-D grid of
 initial states, each classified as bounded, diverged (and when) or Lemma 2 violated.
 
-The runs are a sweep over ``plant.x0`` (one override set per point and law), so they are batched
-on the ODE, or run on MuJoCo, on local workers or on a Dask scheduler exactly as
-:func:`qcontrol.sweep.sweep_summaries` runs them: the same numbers whatever the executor. Any
+The runs are a sweep over ``plant.x0`` (one override set per point and law), batched and run in
+this process, on local workers or on a Dask scheduler by :func:`qcontrol.sweep.sweep_summaries`:
+the same numbers whatever the executor. The scenario is loaded once per law and each start is a
+copy of it with its x(0) (:func:`region_variants`); local workers receive those copies as forks
+of this process, a Dask cluster's workers load each start from the file. Any
 registered controller kind can be measured (a law registered from Python runs in this process
 and on local workers).
 """
@@ -29,7 +31,7 @@ from ..metrics import LEMMA2_TOLERANCE
 from ..scenario import Scenario, load_scenario
 from ..summary import Summary
 from ..sweep.grid import MAX_RUNS
-from ..sweep.runs import CHUNK, RunsDone, plan, run_batch, sweep_summaries
+from ..sweep.runs import RunsDone, chunks_of, sweep_summaries
 
 if TYPE_CHECKING:
     from ..plots.region import RegionMap
@@ -319,32 +321,25 @@ def region_sets(grid: RegionGrid, laws: Sequence[LawSpec], x0: Sequence[float], 
     return runs, [[*overrides, *law.overrides(), _x0_text(x)] for law, x in runs]
 
 
-def _in_process(path: str, runs: Sequence[tuple[LawSpec, tuple[float, ...]]], overrides: Sequence[str],
-                unset: Sequence[str], backend: str, progress: RunsDone | None) -> list[Summary]:
-    """The summaries :func:`~qcontrol.sweep.sweep_summaries` gives for :func:`region_sets`, from
-    the very same batches (grouped by batch structure, cut into chunks of ``CHUNK`` in input
-    order), but with the scenario loaded once per law: a start differs from it only in x(0). (A
-    start's file read and checked again costs about as much as its 1 kHz, 2 s ODE run in a batch.)"""
+def region_variants(path: str, runs: Sequence[tuple[LawSpec, tuple[float, ...]]], overrides: Sequence[str],
+                    unset: Sequence[str], backend: str) -> tuple[list[Scenario], list[list[int]]]:
+    """Every run's scenario, and the groups (indices, in input order) that share a batch structure:
+    the scenario loaded (and checked) once per law, each start a copy of it with its x(0) (a start
+    differs from it only there; a start's file read and checked again costs about as much as its
+    1 kHz, 2 s ODE run in a batch), exactly what loading each override set of :func:`region_sets`
+    would give."""
     loaded: dict[str, Scenario] = {}
-    groups: dict[Hashable, list[tuple[int, Scenario]]] = {}
+    groups: dict[Hashable, list[int]] = {}
+    variants = []
     for i, (law, x) in enumerate(runs):
         if law.label not in loaded:
             loaded[law.label] = load_scenario(path, [*overrides, *law.overrides()], list(unset))
             runnable_backend(loaded[law.label], backend)
         sc = loaded[law.label]
         variant = replace(sc, x0=tuple(x), overrides=(*sc.overrides, _x0_text(x)))
-        groups.setdefault(batch_structure(variant, backend), []).append((i, variant))
-    results: list[Summary | None] = [None] * len(runs)
-    done = 0
-    for members in groups.values():
-        for k in range(0, len(members), CHUNK):
-            chunk = members[k : k + CHUNK]
-            for (i, _), s in zip(chunk, run_batch([v for _, v in chunk], backend), strict=True):
-                results[i] = s
-            done += len(chunk)
-            if progress is not None:
-                progress(done, len(runs))
-    return results  # type: ignore[return-value]
+        groups.setdefault(batch_structure(variant, backend), []).append(i)
+        variants.append(variant)
+    return variants, list(groups.values())
 
 
 def measure_region(scenario: str | Path, grid: RegionGrid, laws: Sequence[LawSpec], backend: str = "ode",
@@ -368,13 +363,9 @@ def measure_region(scenario: str | Path, grid: RegionGrid, laws: Sequence[LawSpe
     check_region_size(grid, len(laws))
     runs, sets = region_sets(grid, laws, base.x0, overrides)
     started = time.perf_counter()
-    if workers == 1 and scheduler is None:
-        for law in laws:  # every law's settings checked before any run
-            runnable_backend(load_scenario(base.source, [*overrides, *law.overrides()], list(unset)), backend)
-        summaries = _in_process(base.source, runs, overrides, unset, backend, progress)
-    else:
-        chunks = plan(base.source, sets, backend, unset)
-        summaries = sweep_summaries(base.source, sets, backend, workers, scheduler, progress, chunks, unset)
+    variants, groups = region_variants(base.source, runs, overrides, unset, backend)  # (every law checked)
+    summaries = sweep_summaries(base.source, sets, backend, workers, scheduler, progress, chunks_of(groups),
+                                unset, variants)
     points = [RegionPoint(law.label, x, classify(s), s.diverged_time, s.lemma2_max_ratio,
                           s.law_diagnostics.get("max_gain_period"), s.max_abs_u, s.law_failure)
               for (law, x), s in zip(runs, summaries, strict=True)]

@@ -19,8 +19,8 @@ backends: a batch of 2 costs 2.3-2.8x its two runs, 4 about 1.2x, 8 about 0.6-0.
 
 Determinism. A copy's numbers do not depend on the batch it is stepped in (its size or its
 neighbours), so the in-process path, local worker processes and a Dask cluster give identical
-numbers however they chunk (only ``wall_time_s`` differs). Even cuts never leave a batched group's
-run alone in a chunk, so every run of a batched group has the same summary keys.
+numbers however they chunk (only ``wall_time_s`` differs), and a copy's summary is its run
+alone's, key for key (the separation (37)-(43) is checked along every copy).
 
 MuJoCo. Chunks run as MuJoCo plant batches, spread over worker processes: on ``mujoco.batch``
 (the copies stepped in C, the unmodelled term in the native passive callback) where the plant
@@ -30,6 +30,12 @@ parallelism.
 
 Laws registered from Python (:func:`qcontrol.register_law`) run in this process and on local
 workers (which start as copies of this process); a Dask cluster's workers do not know them.
+
+Loading. :func:`planned` loads (and so checks) every variant once, before any run. In this process
+and on local workers those very scenarios run: a local worker is a fork of this process made
+after they were loaded, so it finds them in its memory (:data:`_LOADED`) and receives only its
+chunk's indices; nothing is loaded again or pickled. A Dask cluster's workers load their chunk's
+variants from the file and the override sets.
 """
 
 from __future__ import annotations
@@ -37,7 +43,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
-from itertools import pairwise
+from itertools import count, pairwise
 from pathlib import Path
 from typing import Any
 
@@ -53,7 +59,11 @@ CHUNK = 250  # runs per batch at most (fewer when there are more workers than ch
 MIN_BATCH = 5  # smaller groups run run by run; chunks cut for workers stay at least this long
 DASK_CONNECT_TIMEOUT = 10.0  # seconds to reach a --scheduler and complete Dask's handshake
 RunsDone = Callable[[int, int], None]  # (runs done, runs in total)
-ChunkJob = tuple[str, list[list[str]], str, list[str]]  # (path, override sets of a chunk, backend, unset)
+# (path, override sets of a chunk, backend, unset, and where this process or a fork of it holds
+# the loaded variants: their key in _LOADED and the chunk's indices; None, None on a cluster)
+ChunkJob = tuple[str, list[list[str]], str, list[str], int | None, list[int] | None]
+_LOADED: dict[int, Sequence[Scenario]] = {}  # a sweep's loaded variants, by key, while it runs
+_KEYS = count()
 
 
 class SweepInterrupted(KeyboardInterrupt):
@@ -121,57 +131,39 @@ def run_variants_batched(scs: Sequence[Scenario], backend: str) -> list[Summary]
 
 
 def _run_chunk(scenario_path: str, override_sets: list[list[str]], backend: str,
-               unset: Sequence[str] = (), variants: list[Scenario] | None = None) -> list[Summary]:
-    """Worker entry point (picklable arguments only): load the variants (in this process, the
-    ``variants`` the plan loaded, if given) and run them as a batch."""
-    if variants is None:
-        variants = [load_scenario(scenario_path, o, unset) for o in override_sets]
-    return run_batch(variants, backend)
+               unset: Sequence[str] = (), key: int | None = None, ids: list[int] | None = None
+               ) -> list[Summary]:
+    """Worker entry point (picklable arguments only): the chunk's variants as this process (or
+    the process it was forked from) loaded them (``key``, ``ids``), else loaded from the file,
+    run as a batch."""
+    loaded = _LOADED.get(key) if key is not None else None
+    if loaded is not None and ids is not None:
+        return run_batch([loaded[i] for i in ids], backend)
+    return run_batch([load_scenario(scenario_path, o, unset) for o in override_sets], backend)
 
 
-KEPT_VARIANTS = 5000  # a plan of at most this many variants keeps them for a sweep in this process
-
-
-class _Planned:
-    """The variants the last :func:`plan` loaded, for the sweep that follows in this process (so it
-    does not load each one again): kept for one plan of at most :data:`KEPT_VARIANTS`."""
-
-    key: tuple | None = None
-    variants: list[Scenario] = []
-
-    @classmethod
-    def take(cls, key: tuple) -> list[Scenario] | None:
-        variants = cls.variants if cls.key == key else None
-        cls.key, cls.variants = None, []
-        return variants
+def planned(scenario_path: str | Path, override_sets: Sequence[Sequence[str]], backend: str,
+            unset: Sequence[str] = ()) -> tuple[list[list[int]], list[Scenario]]:
+    """Load (and so validate) every variant; the chunks of indices, each one batch (:func:`plan`),
+    and the variants, which :func:`sweep_summaries` runs without loading them again. ``unset``
+    keys are removed from the file of every variant before its overrides."""
+    if backend not in BACKENDS:
+        raise QcontrolInputError(f"--backend {backend!r}: use one of {', '.join(BACKENDS)}")
+    groups: dict[tuple, list[int]] = {}
+    variants = []
+    for i, overrides in enumerate(override_sets):
+        sc = load_scenario(scenario_path, list(overrides), unset)
+        BACKENDS[backend].require(sc.backends.get(backend), sc.source)
+        groups.setdefault(batch_structure(sc, backend), []).append(i)
+        variants.append(sc)
+    return chunks_of(groups.values()), variants
 
 
 def plan(scenario_path: str | Path, override_sets: Sequence[Sequence[str]], backend: str,
          unset: Sequence[str] = ()) -> list[list[int]]:
     """Load (and so validate) every variant; return chunks of indices, each one batch. ``unset``
     keys are removed from the file of every variant before its overrides."""
-    if backend not in BACKENDS:
-        raise QcontrolInputError(f"--backend {backend!r}: use one of {', '.join(BACKENDS)}")
-    groups: dict[tuple, list[int]] = {}
-    variants = []
-    _Planned.take(())
-    for i, overrides in enumerate(override_sets):
-        sc = load_scenario(scenario_path, list(overrides), unset)
-        BACKENDS[backend].require(sc.backends.get(backend), sc.source)
-        groups.setdefault(batch_structure(sc, backend), []).append(i)
-        if len(override_sets) <= KEPT_VARIANTS:
-            variants.append(sc)
-    chunks = chunks_of(groups.values())
-    if variants:
-        _Planned.key = _plan_key(scenario_path, override_sets, backend, unset, chunks)
-        _Planned.variants = variants
-    return chunks
-
-
-def _plan_key(path: str | Path, override_sets: Sequence[Sequence[str]], backend: str, unset: Sequence[str],
-              chunks: list[list[int]]) -> tuple:
-    return (str(path), tuple(tuple(o) for o in override_sets), backend, tuple(unset),
-            tuple(tuple(ids) for ids in chunks))
+    return planned(scenario_path, override_sets, backend, unset)[0]
 
 
 def sweep_summaries(
@@ -183,6 +175,7 @@ def sweep_summaries(
     progress: RunsDone | None = None,
     chunks: list[list[int]] | None = None,
     unset: Sequence[str] = (),
+    variants: Sequence[Scenario] | None = None,
 ) -> list[Summary]:
     """One :class:`~qcontrol.summary.Summary` per override set, in input order.
 
@@ -190,14 +183,29 @@ def sweep_summaries(
     local processes, ``scheduler`` (a Dask ``distributed`` address) over a cluster, the chunks cut
     so that each worker gets one. The numbers are identical on every executor; ``wall_time_s`` is the batch's
     wall time divided by its size. Bad input raises :class:`QcontrolInputError` before any run
-    (``chunks``: the :func:`plan` already made). Ctrl-C raises :class:`SweepInterrupted` with the
-    finished runs. ``unset`` keys are removed from the file of every variant before its overrides.
+    (``chunks``, ``variants``: the :func:`planned` already made; the variants, one per override
+    set, are run as they are in this process and on local workers). Ctrl-C raises
+    :class:`SweepInterrupted` with the finished runs. ``unset`` keys are removed from the file of
+    every variant before its overrides.
     """
     if workers < 1:
         raise QcontrolInputError(f"--workers {workers}: must be >= 1")
     path, sets, unset = str(scenario_path), [list(o) for o in override_sets], list(unset)
-    chunks = chunks if chunks is not None else plan(path, sets, backend, unset)
-    loaded = _Planned.take(_plan_key(path, sets, backend, unset, chunks))  # (None: load in the chunks)
+    if chunks is None:
+        chunks, variants = planned(path, sets, backend, unset)
+    key = None if variants is None else next(_KEYS)
+    if key is not None:
+        _LOADED[key] = variants
+    try:
+        return _summaries(path, sets, backend, unset, chunks, key, workers, scheduler, progress)
+    finally:
+        _LOADED.pop(key, None)
+
+
+def _summaries(path: str, sets: list[list[str]], backend: str, unset: list[str], chunks: list[list[int]],
+               key: int | None, workers: int, scheduler: str | None, progress: RunsDone | None
+               ) -> list[Summary]:
+    """:func:`sweep_summaries` once the variants are planned (and, with ``key``, loaded)."""
     results: list[Summary | None] = [None] * len(sets)
     done = 0
 
@@ -209,20 +217,22 @@ def sweep_summaries(
         if progress is not None:
             progress(done, len(sets))
 
-    def jobs(parts: int) -> tuple[list[list[int]], list[ChunkJob]]:
-        """The chunks cut again for ``parts`` workers (the numbers stay: see the module docstring)."""
+    def jobs(parts: int, here: int | None = key) -> tuple[list[list[int]], list[ChunkJob]]:
+        """The chunks cut again for ``parts`` workers (the numbers stay: see the module docstring),
+        each with its variants held under ``here`` (None: loaded where the chunk runs)."""
         cut = for_workers(chunks, parts)
-        return cut, [(path, [sets[i] for i in ids], backend, unset) for ids in cut]
+        return cut, [(path, [sets[i] for i in ids], backend, unset, here, None if here is None else ids)
+                     for ids in cut]
 
     try:
         if scheduler is not None:
-            _on_dask(scheduler, jobs, store)
+            _on_dask(scheduler, lambda parts: jobs(parts, None), store)
         elif workers > 1 and len(sets) > 1:
             cut, tasks = jobs(worker_count(workers, len(sets)))
             _on_workers(worker_count(workers, len(cut)), cut, tasks, store)
         else:
             for ids, task in zip(*jobs(1), strict=True):
-                store(ids, _run_chunk(*task, None if loaded is None else [loaded[i] for i in ids]))
+                store(ids, _run_chunk(*task))
     except KeyboardInterrupt as stop:
         raise SweepInterrupted(results, isinstance(stop, Terminated)) from None
     return results  # type: ignore[return-value]

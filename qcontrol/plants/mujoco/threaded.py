@@ -31,6 +31,9 @@ _W = mujoco.mjtWarning
 UNSTABLE_WARNINGS = [int(w) for w in (_W.mjWARN_BADQPOS, _W.mjWARN_BADQVEL, _W.mjWARN_BADQACC,
                                       _W.mjWARN_BADCTRL)]
 _STAGE_NONE = int(mujoco.mjtStage.mjSTAGE_NONE)
+# (consecutive in mjtWarning: their counters are one slice of the batch's warning array, a view)
+_UNSTABLE = slice(min(UNSTABLE_WARNINGS), max(UNSTABLE_WARNINGS) + 1)
+assert UNSTABLE_WARNINGS == list(range(_UNSTABLE.start, _UNSTABLE.stop))
 
 
 def threadable(model: mujoco.MjModel, batch: int, native: NativeForce | None, has_force: bool) -> bool:
@@ -54,6 +57,8 @@ class ThreadedCopies:
         # every field is bound before the first call (an output bound later reads zero until the next)
         self.qpos, self.qvel, self.ctrl = sim.bind("qpos"), sim.bind("qvel"), sim.bind("ctrl")
         self.qfrc_applied, self.user = sim.bind("qfrc_applied"), sim.bind("userdata")
+        self.counts = sim.warning[:, _UNSTABLE, 1]  # each copy's "unstable" counters (a view)
+        self.seen = 0  # how many were nonzero when last looked at (a dead copy's stay as they were)
         self.dead = np.zeros(batch, dtype=bool)
         self.running: np.ndarray | None = None  # ids of the running copies, None for all
 
@@ -68,25 +73,33 @@ class ThreadedCopies:
         sim.forward()
         self.dead[:] = False
         self.running = None
+        self.seen = np.count_nonzero(self.counts)
 
     def disturb(self, force: float) -> None:
         self.qfrc_applied[:, self.ids.dof] = force
 
     def state(self) -> np.ndarray:
-        out = np.column_stack([self.qpos[:, self.ids.qpos], self.qvel[:, self.ids.dof]])
-        out[self.dead] = np.nan
+        out = self.readings()
+        if self.running is not None:  # (some copy is dead)
+            out[self.dead] = np.nan
         return out
 
     def readings(self) -> np.ndarray:
         """The joint sensors' readings: ``mj_sensorPos``/``mj_sensorVel`` copy qpos and qvel."""
-        return np.column_stack([self.qpos[:, self.ids.qpos], self.qvel[:, self.ids.dof]])
+        out = np.empty((len(self.dead), 2))
+        out[:, 0] = self.qpos[:, self.ids.qpos]
+        out[:, 1] = self.qvel[:, self.ids.dof]
+        return out
 
     def step(self, u: np.ndarray, substeps: int) -> None:
         """Every running copy through ``substeps`` calls of ``mj_step`` with ``u`` held."""
         self.ctrl[:, self.ids.actuator] = self.ctrl_per_u * u
         self.sim.step(self.running, nstep=substeps, stage=_STAGE_NONE)
-        counts = self.sim.warning[:, UNSTABLE_WARNINGS, 1]
-        reset = counts.any(axis=1) & ~self.dead
+        seen = np.count_nonzero(self.counts)  # (a running copy's are all 0: a change is a warning)
+        if seen == self.seen:
+            return
+        self.seen = seen
+        reset = self.counts.any(axis=1) & ~self.dead
         if reset.any():  # a copy MuJoCo reset: it stops here (its state reads NaN)
             self.dead |= reset
             self.running = np.flatnonzero(~self.dead).astype(np.int32)
