@@ -96,8 +96,16 @@ def fig_region(rows: Sequence[Sequence[RegionMap]], outcomes: Sequence[str], pat
     """A row of maps per measured region, a map per law: each start's outcome, the dotted line
     K T = 1 of the largest gain-period product where a law declares it, the box (dashed) and the
     scenario's x(0) (star)."""
-    cols = max(len(r) for r in rows)
-    fig, axes = new_figure(len(rows), cols)
+    fig, axes = new_figure(len(rows), max(len(r) for r in rows))
+    draw_maps(fig, axes, rows, outcomes)
+    fig.suptitle(title, fontsize=10)
+    return save(fig, path)
+
+
+def draw_maps(parent, axes: np.ndarray, rows: Sequence[Sequence[RegionMap]], outcomes: Sequence[str]) -> None:
+    """A map per panel of ``axes`` (a row of panels per entry of ``rows``, the panels a row does not
+    need hidden) and the outcomes' legend below them on ``parent`` (a figure or a subfigure)."""
+    cols = axes.shape[1]
     for i, maps in enumerate(rows):
         for j in range(cols):
             if j < len(maps):
@@ -105,9 +113,7 @@ def fig_region(rows: Sequence[Sequence[RegionMap]], outcomes: Sequence[str], pat
             else:
                 axes[i, j].set_visible(False)
     handles = legend_handles(outcomes, rows[0][0].box)
-    fig.legend(handles=handles, loc="outside lower center", ncols=len(handles), fontsize=7, frameon=False)
-    fig.suptitle(title, fontsize=10)
-    return save(fig, path)
+    parent.legend(handles=handles, loc="outside lower center", ncols=len(handles), fontsize=7, frameon=False)
 
 
 def legend_handles(outcomes: Sequence[str], box: float) -> list:

@@ -14,7 +14,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from .common import FIG_DPI, FIG_HEIGHT_PX, FIG_WIDTH_PX, save
-from .region import RegionMap, legend_handles, region_panel
+from .region import RegionMap, draw_maps
 
 MARKERS = ("o", "s", "^", "D")  # one per example in the trade-off plane
 # a colour and a line style per law (Okabe-Ito; none the maps' "diverged" colour; a law that gives
@@ -32,16 +32,7 @@ def fig_tradeoff(maps: Sequence[Sequence[RegionMap]], rows: Sequence[Mapping[str
     fig = Figure(figsize=(FIG_WIDTH_PX / FIG_DPI, FIG_HEIGHT_PX / FIG_DPI), dpi=FIG_DPI, layout="constrained")
     FigureCanvasAgg(fig)
     top, bottom = fig.subfigures(2, 1, height_ratios=(1.9, 1.3))
-    cols = max(len(m) for m in maps)
-    axes = top.subplots(len(maps), cols, squeeze=False)
-    for i, example_maps in enumerate(maps):
-        for j in range(cols):
-            if j < len(example_maps):
-                region_panel(axes[i, j], example_maps[j], outcomes, j == 0, i == len(maps) - 1, columns=cols)
-            else:
-                axes[i, j].set_visible(False)
-    handles = legend_handles(outcomes, maps[0][0].box)
-    top.legend(handles=handles, loc="outside lower center", ncols=len(handles), fontsize=7, frameon=False)
+    draw_maps(top, top.subplots(len(maps), max(len(m) for m in maps), squeeze=False), maps, outcomes)
     examples = list(dict.fromkeys(r["example"] for r in rows))
     names = list(dict.fromkeys(r["name"] for r in rows))
     style = {name: (LAW_COLORS[i % len(LAW_COLORS)], LAW_LINES[i % len(LAW_LINES)])
