@@ -357,7 +357,8 @@ def video(result: Result, path: str | Path, *, fps: float = 30.0, camera: str | 
     request = check_video(asm, path, fps, camera, size)
     drawn = asm.scene
     return write_video(request, result.trajectory, drawn.model, drawn.joint, str(result.scenario.source),
-                       None if twin is None else twin.trajectory, progress)
+                       None if twin is None else twin.trajectory, progress, order=asm.scenario.order,
+                       input_gain=asm.scenario.terms.b)
 
 
 def _log_camera_view(rec: Any, asm: Assembly, traj: Trajectory, twin: Trajectory | None = None) -> None:
@@ -367,7 +368,8 @@ def _log_camera_view(rec: Any, asm: Assembly, traj: Trajectory, twin: Trajectory
     drawn, source = asm.scene, asm.scenario.source
     if drawn is None:
         raise QcontrolInputError(f"--camera-view: {source} has no MuJoCo model to render")
-    name, times, jpegs = camera_view_frames(traj, drawn.model, drawn.joint, str(source), twin=twin)
+    name, times, jpegs = camera_view_frames(traj, drawn.model, drawn.joint, str(source), twin=twin,
+                                            order=asm.scenario.order, input_gain=asm.scenario.terms.b)
     rec.log_camera_frames(name, times, jpegs)
 
 

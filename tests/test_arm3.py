@@ -115,3 +115,19 @@ def test_a_load_on_the_order_3_arm_is_refused_before_the_run() -> None:
         {"kind": "step", "start": 0.05, "value": 2.0}]})
     with pytest.raises(qcontrol.QcontrolInputError, match=r"\[\[disturbance\]\]: backend 'mujoco' takes no "):
         qcontrol.run(sc, backend="mujoco")
+
+
+def test_u_is_drawn_in_its_own_unit() -> None:
+    """u is x1's n-th derivative only where the input gain is 1 (eq. (1)): the figures and the
+    video overlay label it so there, and without a unit where u is the filter actuator's input."""
+    from qcontrol.plots.run_figures import scenario_units
+    from qcontrol.render.frames import overlay_input_unit
+
+    arm3 = qcontrol.load_scenario(SCENARIOS / "arm3.toml")
+    example2 = qcontrol.load_scenario(SCENARIOS / "example2.toml")
+    chain3 = qcontrol.load_scenario(SCENARIOS / "chain3.toml")
+    assert arm3.terms.b != 1.0 and scenario_units(arm3).u == ""
+    assert overlay_input_unit("rad", arm3.order, arm3.terms.b) == ""
+    assert scenario_units(example2).u == "rad/s$^2$"
+    assert overlay_input_unit("rad", example2.order, example2.terms.b) == "rad/s^2"
+    assert scenario_units(chain3).u == "x$_1$ unit/s$^3$"

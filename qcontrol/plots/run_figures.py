@@ -268,12 +268,17 @@ GENERIC_UNITS = Units(y="", u="")
 
 
 def scenario_units(sc: Scenario) -> Units:
-    """The units of a scenario's axes: its MuJoCo joint's (a hinge: rad, and u in rad/s^2; a slide:
-    m, and u in N/kg), else those of the plant's own x1 (u: x1's n-th derivative, eq. (1))."""
+    """The units of a scenario's axes: its MuJoCo joint's (a hinge: rad, and u in rad/s^n; a slide:
+    m, and u in N/kg at n = 2), else those of the plant's own x1 (u: x1's n-th derivative, eq.
+    (1)). With an input gain b other than 1, u is the actuator's own input (x1's n-th derivative
+    is b u): drawn without a unit."""
     drawn = scene(sc)
-    if drawn is None:
-        return Units(y="x$_1$ unit", u=f"x$_1$ unit/s$^{sc.order}$")
-    return EXAMPLE2_UNITS if drawn.hinge else EXAMPLE1_UNITS
+    position = "x$_1$ unit" if drawn is None else "rad" if drawn.hinge else "m"
+    if sc.terms.b != 1.0:
+        return Units(y=position, u="")
+    if drawn is not None and sc.order == 2:
+        return EXAMPLE2_UNITS if drawn.hinge else EXAMPLE1_UNITS
+    return Units(y=position, u=f"{position}/s$^{sc.order}$")
 
 
 def fig_run(traj: Trajectory, path: str | os.PathLike, title: str, units: Units = GENERIC_UNITS,

@@ -22,8 +22,6 @@ from .context import open_context
 
 TARGET_RGBA = (0.9, 0.15, 0.15, 0.35)  # where the tip would be at y_d
 READING_RGBA = (1.0, 0.85, 0.1, 1.0)  # where the tip would be at q(x1)
-# the overlay's units of x1 and u (eq. (1)'s input: x1's second derivative) on a hinge and a slide
-OVERLAY_UNITS = {"hinge": ("rad", "rad/s^2"), "slide": ("m", "m/s^2")}
 TWIN_RGBA = (0.35, 0.6, 1.0, 0.35)  # the ODE twin's bodies
 MAX_GEOMS = 500
 
@@ -60,6 +58,13 @@ def camera_id(model: mujoco.MjModel, name: str | None, source: str) -> int:
     return cid
 
 
+def overlay_input_unit(position: str, order: int, input_gain: float) -> str:
+    """The overlay's unit of u: x1's n-th derivative where the input gain is 1 (eq. (1); on MuJoCo
+    an unstated gain is the inertia's own scaling); with another gain b, u is the actuator's own
+    input (x1's n-th derivative is b u), shown without a unit."""
+    return f"{position}/s^{order}" if input_gain == 1.0 else ""
+
+
 class FrameRenderer:
     """Renders ``width`` x ``height`` RGB frames of ``model`` with ``joint`` at given positions,
     from camera ``camera`` (an id, :func:`camera_id`; :data:`DEFAULT_CAMERA` frames the body over
@@ -67,8 +72,10 @@ class FrameRenderer:
     context)."""
 
     def __init__(self, model: mujoco.MjModel, joint: str, camera: int, width: int, height: int,
-                 twin_label: str = "ODE", positions: np.ndarray | None = None) -> None:
+                 twin_label: str = "ODE", positions: np.ndarray | None = None, order: int = 2,
+                 input_gain: float = 1.0) -> None:
         self.model, self.width, self.height, self.twin_label = model, width, height, twin_label
+        self.order, self.input_gain = order, input_gain  # what the overlay's unit of u is (below)
         self.scene_geometry = Scene(model, joint)
         self.adr = self.scene_geometry.qpos_adr
         self.marker_radius = min(1.3 * self.scene_geometry.tip_radius, 0.06)
@@ -167,7 +174,8 @@ class FrameRenderer:
         self.scene.nlight += 1
 
     def _overlay(self, instant: Instant) -> None:
-        position, input_unit = OVERLAY_UNITS["hinge" if self.scene_geometry.hinge else "slide"]
+        position = "rad" if self.scene_geometry.hinge else "m"
+        input_unit = overlay_input_unit(position, self.order, self.input_gain)
         labels = "t\nq(x1)\nu"
         values = f"{instant.t:6.2f} s\n{instant.q1:+.3f} {position}\n{instant.u:+.2f} {input_unit}"
         font, grid = mujoco.mjtFont.mjFONT_NORMAL, mujoco.mjtGridPos

@@ -210,9 +210,11 @@ JPEG_QUALITY = 80  # about 10 kB a frame: a 10 s recording's camera view is abou
 
 
 def camera_view_frames(traj: Trajectory, model: object, joint: str, source: str, camera: str | None = None,
-                       twin: Trajectory | None = None) -> tuple[str, np.ndarray, list[bytes]]:
+                       twin: Trajectory | None = None, order: int = 2,
+                       input_gain: float = 1.0) -> tuple[str, np.ndarray, list[bytes]]:
     """MuJoCo's rendered frames of ``traj`` for a recording: the camera's name, the frames'
-    simulated times and the JPEG files' bytes (``CAMERA_VIEW_FPS``, ``CAMERA_VIEW_SIZE``)."""
+    simulated times and the JPEG files' bytes (``CAMERA_VIEW_FPS``, ``CAMERA_VIEW_SIZE``);
+    ``order`` and ``input_gain``: the plant's, for the overlay's unit of u."""
     import io
 
     import mujoco
@@ -224,7 +226,7 @@ def camera_view_frames(traj: Trajectory, model: object, joint: str, source: str,
     instants = _instants(traj, CAMERA_VIEW_FPS, twin)
     jpegs = []
     with FrameRenderer(model, joint, cid, *CAMERA_VIEW_SIZE,  # type: ignore[arg-type]
-                       positions=_positions(instants)) as renderer:
+                       positions=_positions(instants), order=order, input_gain=input_gain) as renderer:
         for instant in instants:
             buffer = io.BytesIO()
             Image.fromarray(renderer.render(instant)).save(buffer, format="JPEG", quality=JPEG_QUALITY)
@@ -234,15 +236,17 @@ def camera_view_frames(traj: Trajectory, model: object, joint: str, source: str,
 
 def write_video(request: VideoRequest, traj: Trajectory, model: object, joint: str, source: str,
                 twin: Trajectory | None = None,
-                progress: Callable[[int, int], None] | None = None) -> Path:
+                progress: Callable[[int, int], None] | None = None, order: int = 2,
+                input_gain: float = 1.0) -> Path:
     """Render ``traj`` (posing ``joint`` of ``model``) and, with ``twin``, its ODE twin as a ghost,
-    to ``request.path``; ``progress(done, total)`` after each frame. Returns the path."""
+    to ``request.path``; ``progress(done, total)`` after each frame; ``order`` and ``input_gain``:
+    the plant's, for the overlay's unit of u. Returns the path."""
     cid = camera_id(model, request.camera, source)  # type: ignore[arg-type]
     instants = _instants(traj, request.fps, twin)
     width, height = request.frame_size
     folder = request.path.parent if str(request.path.parent) else Path(".")
     renderer = FrameRenderer(model, joint, cid, width, height,  # type: ignore[arg-type]
-                             positions=_positions(instants))
+                             positions=_positions(instants), order=order, input_gain=input_gain)
     with output_dir(folder, "--video"), atomic_path(request.path) as tmp, renderer:
         encoder = _Encoder(tmp, request.path, (width, height), request.fps)
         try:
