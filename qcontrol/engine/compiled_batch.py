@@ -42,13 +42,11 @@ import numpy as np
 
 from .. import compiled as compiled_paths
 from ..compiled.traced import TracedForm
-from ..controller.law import BatchLaw
 from ..plants.base import NativeStepper
 from ..plants.ode import ChainPlant
 from ..quantizer import UniformQuantizer
 from . import compiled_loop
 from .compiled_loop import (
-    COMPILED_LAWS,
     CONTROL_REFUSED,
     JIT,
     START,
@@ -56,6 +54,7 @@ from .compiled_loop import (
     Schedule,
     TracedParts,
     _indented,
+    compilable,
     loop_body,
     module_source,
     traced_parts,
@@ -179,15 +178,6 @@ class CompiledBatch:
                 raise Redo(f"copy {b} at row {at[b]}")
 
 
-def compilable_batch(law: BatchLaw, batch: int) -> bool:
-    """Whether a built-in law's own code may be traced for a batch of ``batch`` copies (as
-    :func:`.compiled_loop.compilable`, its parameters one per copy or shared)."""
-    for base in COMPILED_LAWS:
-        if isinstance(law, base):
-            return base.has_compiled_equivalent.fget(law) and law.copies in (None, batch)
-    return False
-
-
 def compiled_batch(spec: RunSpec) -> CompiledBatch | None:
     """The compiled form of ``spec``'s batch of copies, or None where it keeps the array form (the
     module docstring says when)."""
@@ -200,7 +190,7 @@ def compiled_batch(spec: RunSpec) -> CompiledBatch | None:
         return None
     if type(spec.quantizer) is not UniformQuantizer or not compiled_paths.enabled():
         return None
-    if not compilable_batch(spec.law, batch):
+    if not compilable(spec.law, batch):
         return None
     form = TracedForm(batch)
     try:

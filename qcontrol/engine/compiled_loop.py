@@ -242,15 +242,16 @@ class CompiledLoop:
 COMPILED_LAWS = (PaperLaw, ComparisonLaw)  # the laws whose objects say when their code is their class's
 
 
-def compilable(law: BatchLaw) -> bool:
-    """Whether the law's own code may be traced for the compiled loop: an object of a built-in
-    law class whose ``has_compiled_equivalent`` (the built-in class's definition: a subclass's own
-    property is itself a change) says it runs its class's code, with the parameters of one copy.
+def compilable(law: BatchLaw, copies: int = 1) -> bool:
+    """Whether the law's own code may be traced for the compiled loop of ``copies`` copies (1: a
+    run; more: :mod:`.compiled_batch`): an object of a built-in law class whose
+    ``has_compiled_equivalent`` (the built-in class's definition: a subclass's own property is
+    itself a change) says it runs its class's code, with its parameters shared or one per copy.
     Anything else (a user law, a subclass with code of its own that may keep state or draw
     numbers) keeps the Python loop."""
     for base in COMPILED_LAWS:
         if isinstance(law, base):
-            return base.has_compiled_equivalent.fget(law) and law.copies in (None, 1)
+            return base.has_compiled_equivalent.fget(law) and law.copies in (None, copies)
     return False
 
 
