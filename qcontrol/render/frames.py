@@ -75,8 +75,9 @@ class FrameRenderer:
                  twin_label: str = "ODE", positions: np.ndarray | None = None, order: int = 2,
                  input_gain: float = 1.0) -> None:
         self.model, self.width, self.height, self.twin_label = model, width, height, twin_label
-        self.order, self.input_gain = order, input_gain  # what the overlay's unit of u is (below)
         self.scene_geometry = Scene(model, joint)
+        self.position_unit = "rad" if self.scene_geometry.hinge else "m"  # the overlay's units
+        self.input_unit = overlay_input_unit(self.position_unit, order, input_gain)
         self.adr = self.scene_geometry.qpos_adr
         self.marker_radius = min(1.3 * self.scene_geometry.tip_radius, 0.06)
         # the offscreen buffer must hold the frame: a visual setting only, never read by the physics
@@ -174,10 +175,9 @@ class FrameRenderer:
         self.scene.nlight += 1
 
     def _overlay(self, instant: Instant) -> None:
-        position = "rad" if self.scene_geometry.hinge else "m"
-        input_unit = overlay_input_unit(position, self.order, self.input_gain)
         labels = "t\nq(x1)\nu"
-        values = f"{instant.t:6.2f} s\n{instant.q1:+.3f} {position}\n{instant.u:+.2f} {input_unit}"
+        values = (f"{instant.t:6.2f} s\n{instant.q1:+.3f} {self.position_unit}\n"
+                  f"{instant.u:+.2f} {self.input_unit}")
         font, grid = mujoco.mjtFont.mjFONT_NORMAL, mujoco.mjtGridPos
         mujoco.mjr_overlay(font, grid.mjGRID_TOPLEFT, self.rect, labels, values, self.mjr)
         legend = "red: y_d  yellow: q(x1)"
