@@ -23,7 +23,7 @@ from __future__ import annotations
 import statistics
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from multiprocessing.pool import Pool
 from pathlib import Path
 
@@ -32,7 +32,7 @@ import numpy as np
 from .. import compiled as compiled_paths
 from ..assembly import run_scenario, scene
 from ..engine import compiled_loop
-from ..metrics import finite_max_abs
+from ..metrics import finite_max_abs, run_summary
 from ..scenario import Scenario, load_scenario
 from ..summary import Summary
 from ..sweep import run_batch
@@ -129,11 +129,14 @@ class Errors:
     diverged: bool
 
 
-def _errors(task: StudyJob) -> Errors:
-    """Worker entry point: the tracking error of one run (full record)."""
+def _errors(task: StudyJob, summarized: bool = False) -> tuple[Errors, Summary | None]:
+    """Worker entry point: the tracking error of one run (full record) and, ``summarized``, its
+    summary (a row reads the same run: the full record's summary is the metrics record's)."""
     _compiled_paths()
-    run = run_scenario(load_scenario(task.path, list(task.overrides)), task.backend)
-    return Errors(run.t, run.z[:, 0].copy(), bool(run.diverged))
+    sc = load_scenario(task.path, list(task.overrides))
+    run = run_scenario(sc, task.backend)
+    return (Errors(run.t, run.z[:, 0].copy(), bool(run.diverged)),
+            run_summary(run, sc.name, task.backend) if summarized else None)
 
 
 def recovery(disturbed: Errors, quiet: Errors, start: float, delta: float) -> dict:
@@ -206,12 +209,17 @@ def _physics_free(overrides: Sequence[str]) -> tuple[str, ...]:
 
 @dataclass
 class Plan:
-    """Every task of the study, each run once, and how the rows find their summaries."""
+    """Every task of the study, each run once, and how the rows find their summaries.
+    ``no_ops``: per scenario file, the overrides that change nothing of it (left out of a task,
+    so that the same run asked for twice is one task)."""
 
     tasks: list[StudyJob]
     index: dict[StudyJob, int]
+    no_ops: dict[str, frozenset[str]] = field(default_factory=dict)
 
     def add(self, task: StudyJob) -> StudyJob:
+        kept = self.no_ops.get(task.path, frozenset())
+        task = StudyJob(task.path, tuple(o for o in task.overrides if o not in kept), task.backend)
         if task not in self.index:
             self.index[task] = len(self.tasks)
             self.tasks.append(task)
@@ -269,7 +277,9 @@ def started(scenarios: Path, duration: float | None, workers: int, log: Callable
 def _plan(scenarios: Path, duration: float | None, laws: Sequence[StudyLaw]) -> Study:
     """Every row, margin and disturbance case of the study, and the runs they read (each once)."""
     extra = (f"simulation.duration={duration!r}",) if duration is not None else ()
-    plan = Plan([], {})
+    no_ops = {str(scenarios / f"{name}.toml"): _no_ops(load_scenario(scenarios / f"{name}.toml", list(extra)))
+              for pair in EXAMPLES for name in pair}
+    plan = Plan([], {}, no_ops)
     rows, margins, disturbances = [], [], []
     for ideal, realistic in EXAMPLES:
         ideal_path, real_path = str(scenarios / f"{ideal}.toml"), str(scenarios / f"{realistic}.toml")
@@ -296,10 +306,19 @@ def _plan(scenarios: Path, duration: float | None, laws: Sequence[StudyLaw]) -> 
                                                                  "mujoco"))]})
         if ideal == "example2":
             disturbances += _disturbance_cases(ideal_path, real_path, real.simulation.duration, extra, laws)
-    full = Plan([], {})
+    full = Plan([], {}, no_ops)
     for case in disturbances:
         case["runs"] = (full.add(case.pop("task")), full.add(case.pop("quiet")))
     return Study(rows, margins, disturbances, plan, full)
+
+
+def _no_ops(sc: Scenario) -> frozenset[str]:
+    """The study's overrides that change nothing of ``sc``: ``disturbance=[]`` where it has no
+    ``[[disturbance]]``, its own sensor-noise seed (a row's first seed, the quiet run of a
+    disturbance case: the same run as a row's)."""
+    mujoco = sc.backends.get("mujoco")
+    return frozenset([*([] if sc.disturbances else ["disturbance=[]"]),
+                      *([] if mujoco is None else [f"{SEED_OVERRIDE}{mujoco.noise_seed}"])])
 
 
 def _assembled(study: Study, summaries: list[Summary], errors: list[Errors]) -> dict:
@@ -340,28 +359,36 @@ def _disturbance_cases(ideal_path: str, real_path: str, duration: float, extra: 
 def _execute(tasks: list[StudyJob], full: list[StudyJob],
              pool: Pool | None) -> Callable[[], tuple[list[Summary], list[Errors]]]:
     """Every task's summary and every full run's tracking error, in order, as the function that
-    waits for them: the summaries in :func:`batches`, the full runs one by one; on ``pool``'s
-    workers (started here, running while the caller goes on), else in this process when called."""
-    chunks = batches(tasks)
+    waits for them: the summaries in :func:`batches`, the full runs one by one (a task that is
+    also a full run takes its summary from it); on ``pool``'s workers (started here, running
+    while the caller goes on), else in this process when called."""
+    in_full = {task: i for i, task in enumerate(full)}
+    own = [i for i, task in enumerate(tasks) if task not in in_full]
+    chunks = [[own[j] for j in ids] for ids in batches([tasks[i] for i in own])]
     jobs = [[tasks[i] for i in ids] for ids in chunks]
+    summarized = {in_full[task] for task in tasks if task in in_full}
+    fulls = [(task, i in summarized) for i, task in enumerate(full)]
     if pool is None:
-        def done() -> tuple[list[list[Summary]], list[Errors]]:
-            return [_summaries(job) for job in jobs], [_errors(t) for t in full]
+        def done() -> tuple[list[list[Summary]], list[tuple[Errors, Summary | None]]]:
+            return [_summaries(job) for job in jobs], [_errors(*f) for f in fulls]
     else:
         batched = [pool.apply_async(_summaries, (job,)) for job in jobs if len(job) > 1]
-        pending = [pool.apply_async(_errors, (t,)) for t in full]
+        pending = [pool.apply_async(_errors, f) for f in fulls]
         single = [pool.apply_async(_summaries, (job,)) for job in jobs if len(job) == 1]
 
-        def done() -> tuple[list[list[Summary]], list[Errors]]:
+        def done() -> tuple[list[list[Summary]], list[tuple[Errors, Summary | None]]]:
             return [r.get() for r in batched + single], [e.get() for e in pending]
 
     def results() -> tuple[list[Summary], list[Errors]]:
         summaries: list[Summary] = [None] * len(tasks)  # type: ignore[list-item]
-        ran, errors = done()
+        ran, runs = done()
         for ids, job in zip(chunks, ran, strict=True):
             for i, s in zip(ids, job, strict=True):
                 summaries[i] = s
-        return summaries, errors
+        for i, task in enumerate(tasks):
+            if task in in_full:
+                summaries[i] = runs[in_full[task]][1]
+        return summaries, [errors for errors, _ in runs]
 
     return results
 
