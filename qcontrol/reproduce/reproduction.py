@@ -54,9 +54,9 @@ from .report import (
     table1_markdown,
 )
 from .robustness_figures import fig_margins, fig_robustness
-from .robustness_study import EXAMPLES, LAWS, default_workers, study_law
+from .robustness_study import EXAMPLES, LAWS, Running, default_workers, study_law
 from .robustness_study import started as robustness_started
-from .sensor_study import fig_sensors, sensor_markdown, sensor_record, sensor_study
+from .sensor_study import fig_sensors, log_rows, sensor_markdown, sensor_record, sensor_runs, sensor_study
 from .tradeoff_study import check_tradeoff, tradeoff_record, tradeoff_study, write_tradeoff_figure
 
 SCENARIO_DIR = shipped_dir("scenarios")
@@ -187,17 +187,21 @@ def reproduce(
 
 def _write_all(rep: Reproduction, o: Path, command: str, workers: int | None, quick: bool) -> dict:
     """The runs and their files, in order; Table 1 as written to table1.json. The robustness
-    study starts first, on its workers, and runs while this process does the rest."""
+    study starts first, on its workers, and runs while this process does the rest; the sensor
+    study's runs go to the same workers, first."""
     laws = (*LAWS, *map(study_law, rep.laws))
+    sensors = [(sensor_runs, (rep.scenarios, rep.duration))]
     hardware = (nullcontext(None) if quick else
-                robustness_started(rep.scenarios, rep.duration, workers or default_workers(), rep.log, laws))
-    with hardware as robustness:
-        return _write_runs(rep, o, command, robustness)
+                robustness_started(rep.scenarios, rep.duration, workers or default_workers(), rep.log, laws,
+                                   sensors))
+    with hardware as running:
+        return _write_runs(rep, o, command, running)
 
 
-def _write_runs(rep: Reproduction, o: Path, command: str, robustness: Callable[[], dict] | None) -> dict:
-    """:func:`_write_all` with the robustness study started (``robustness`` waits for it; None:
-    no robustness study)."""
+def _write_runs(rep: Reproduction, o: Path, command: str, running: Running | None) -> dict:
+    """:func:`_write_all` with the robustness study started (``running``; None: no robustness
+    study, and the sensor study runs here)."""
+    robustness = None if running is None else running.result
     backend = rep.backend
     rep.log(f"Example 1 on {backend}")
     ex1, ex1_twin = rep.twins("example 1", rep.scenario("example1"))
@@ -234,7 +238,11 @@ def _write_runs(rep: Reproduction, o: Path, command: str, robustness: Callable[[
                    region_record(region) | {"provenance": scenarios_provenance(examples, command)})
     tradeoff = None if region is None else _tradeoff(o, rep, region, command)
     rep.log("study: Example 2 with realistic sensors (ODE)")
-    sensors = sensor_study(rep.scenarios, rep.duration, rep.log)
+    if running is None:
+        sensors = sensor_study(rep.scenarios, rep.duration, rep.log)
+    else:
+        sensors = running.side[0]()
+        log_rows(sensors, rep.log)
     fig_sensors(sensors, o / "study_sensors.png")
     write_json(o / "sensors.json", sensor_record(sensors) | {"provenance": provenance})
     hardware = None if robustness is None else _robustness(o, rep, robustness)

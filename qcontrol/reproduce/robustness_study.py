@@ -24,8 +24,10 @@ import statistics
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from functools import partial
 from multiprocessing.pool import Pool
 from pathlib import Path
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -247,16 +249,26 @@ def robustness_study(scenarios: Path, duration: float | None, workers: int,
                      log: Callable[[str], None] = print, laws: Sequence[StudyLaw] = LAWS) -> dict:
     """Run the whole study for each of ``laws`` (default: the paper's law and the comparison law);
     the object written to ``robustness.json``."""
-    with started(scenarios, duration, workers, log, laws) as result:
-        return result()
+    with started(scenarios, duration, workers, log, laws) as running:
+        return running.result()
+
+
+class Running(NamedTuple):
+    """A started study: ``result()`` waits for it and returns the object of
+    :func:`robustness_study`; ``side[i]()`` waits for the i-th side job and returns its value."""
+
+    result: Callable[[], dict]
+    side: list[Callable[[], Any]]
 
 
 @contextmanager
 def started(scenarios: Path, duration: float | None, workers: int, log: Callable[[str], None] = print,
-            laws: Sequence[StudyLaw] = LAWS) -> Iterator[Callable[[], dict]]:
+            laws: Sequence[StudyLaw] = LAWS, side: Sequence[tuple[Callable, tuple]] = ()
+            ) -> Iterator[Running]:
     """The study started on ``workers`` worker processes (more than one: they run while the
-    caller does other work); yields the function that waits for it and returns the object of
-    :func:`robustness_study`. The workers end with the block."""
+    caller does other work); yields its :class:`Running`. ``side``: other independent jobs
+    ``(function, arguments)`` of the caller's (picklable), given to the workers first (in this
+    process, when asked for, without workers). The workers end with the block."""
     study = _plan(scenarios, duration, laws)
     workers = worker_count(workers, len(study.plan.tasks))
     log(f"study: robustness: {len(study.plan.tasks)} runs, {len(study.disturbances)} disturbance cases, "
@@ -264,8 +276,10 @@ def started(scenarios: Path, duration: float | None, workers: int, log: Callable
     _compiled_paths()  # (before the workers fork: they start with numba loaded)
     pool = worker_pool(workers) if workers > 1 else None
     try:
+        waits = [partial(function, *arguments) if pool is None else pool.apply_async(function, arguments).get
+                 for function, arguments in side]
         results = _execute(study.plan.tasks, study.full.tasks, pool)
-        yield lambda: _assembled(study, *results())
+        yield Running(lambda: _assembled(study, *results()), waits)
         if pool is not None:
             pool.close()
     finally:
