@@ -215,3 +215,33 @@ def test_the_robustness_study_batches_each_rows_seeds(monkeypatch, tmp_path):
     quiet = [t for t in planned["shared"] if "disturbance=[]" in t.overrides]  # the realistic arm's
     assert len(planned["shared"]) == 8 and len(quiet) == 4 and {t.backend for t in quiet} == {"mujoco", "ode"}
     assert sorted(i for b in planned["batches"] for i in b) == list(range(sum(sizes)))
+
+
+def test_figures_drawn_apart_are_the_figures_drawn_here(tmp_path):
+    """A forked worker draws the very bytes this process draws, its files are staged with the
+    others, and its failure reaches the caller."""
+    from qcontrol.outputs import staged
+    from qcontrol.plots.common import new_figure, save
+    from qcontrol.reproduce.drawing import Apart
+
+    def figures(folder):
+        fig, axes = new_figure()
+        axes[0, 0].plot([0.0, 1.0, 2.0], [1.0, -0.5, 2.0], label="a line")
+        axes[0, 0].legend()
+        save(fig, folder / "f.png")
+
+    def broken(folder):
+        raise ValueError("no figure")
+
+    here, there = tmp_path / "here", tmp_path / "there"
+    here.mkdir()
+    there.mkdir()
+    Apart(here, forked=False).draw(figures)
+    with staged(), Apart(there, forked=True) as apart:
+        apart.draw(figures)
+        apart.wait()
+        assert not (there / "f.png").exists()  # staged: in place with the set, at its end
+    assert (there / "f.png").read_bytes() == (here / "f.png").read_bytes()
+    with pytest.raises(ValueError, match="no figure"), Apart(there, forked=True) as apart:
+        apart.draw(broken)
+        apart.wait()

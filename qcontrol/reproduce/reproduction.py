@@ -23,6 +23,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from contextlib import nullcontext
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +43,7 @@ from ..scenario import Scenario, load_scenario
 from ..scenario.resolve import scenario_provenance, scenarios_provenance
 from ..summary import Summary
 from ..sweep import sweep_summaries
+from .drawing import Apart
 from .region_study import LAWS as REGION_LAWS
 from .region_study import region_record, region_study, write_region_study
 from .report import (
@@ -194,31 +196,34 @@ def _write_all(rep: Reproduction, o: Path, command: str, workers: int | None, qu
     hardware = (nullcontext(None) if quick else
                 robustness_started(rep.scenarios, rep.duration, workers or default_workers(), rep.log, laws,
                                    sensors))
-    with hardware as running:
-        return _write_runs(rep, o, command, running)
+    forked = (workers or default_workers()) > 1  # (figures drawn apart too, by forked workers)
+    with hardware as running, Apart(o, forked) as apart:
+        table = _write_runs(rep, o, command, running, apart)
+        apart.wait()
+        return table
 
 
-def _write_runs(rep: Reproduction, o: Path, command: str, running: Running | None) -> dict:
+def _write_runs(rep: Reproduction, o: Path, command: str, running: Running | None, apart: Apart) -> dict:
     """:func:`_write_all` with the robustness study started (``running``; None: no robustness
-    study, and the sensor study runs here)."""
+    study, and the sensor study runs here); the examples' and the studies' figures drawn by
+    ``apart``."""
     robustness = None if running is None else running.result
     backend = rep.backend
     rep.log(f"Example 1 on {backend}")
     ex1, ex1_twin = rep.twins("example 1", rep.scenario("example1"))
-    _example1_figures(o, ex1, ex1_twin)
     _record(o / "example1.rrd", ex1, {"ode": ex1_twin}, command)
 
     rep.log(f"Example 2 on {backend}: proposed and comparison law [20]")
     ex2, ex2_twin = rep.twins("example 2 proposed", rep.scenario("example2"))
     base, base_twin = rep.twins("example 2 comparison", rep.scenario("example2", COMPARISON))
-    _example2_figures(o, ex2, ex2_twin, base)
+    apart.draw(partial(_example_figures, ex1=(ex1, ex1_twin), ex2=(ex2, ex2_twin, base)))
     _record(o / "example2.rrd", ex2, {"ode": ex2_twin, "comparison": base}, command)
     others = {kind: rep.twins(f"example 2 {kind}", rep.scenario("example2", study_law(kind)[1]))
               for kind in rep.laws}
 
     table = _table1(o, backend, ex2, ex2_twin, base, base_twin, command, others, rep.duration)
 
-    studies = _studies(rep)
+    studies = _studies(rep, apart)
     deviations = {
         name: backend_deviation(a.traj, b.traj)
         for name, a, b in (("example1", ex1, ex1_twin), ("example2", ex2, ex2_twin),
@@ -341,6 +346,12 @@ def study_kinds(kinds: Sequence[str]) -> tuple[str, ...]:
     return tuple(kinds)
 
 
+def _example_figures(o: Path, ex1: tuple[Run, Run | None], ex2: tuple[Run, Run | None, Run]) -> None:
+    """Figures 1-8 and the backends' overlays into ``o``."""
+    _example1_figures(o, *ex1)
+    _example2_figures(o, *ex2)
+
+
 def _example1_figures(o: Path, run: Run, twin: Run | None) -> None:
     u = plots.EXAMPLE1_UNITS
     t = plots.PAPER_TITLES
@@ -388,37 +399,42 @@ def _studies_json(studies: dict) -> dict:
             for name, study in studies.items()}
 
 
-def _studies(rep: Reproduction) -> dict:
-    """Sensitivity studies next to the canonical result (never replacing it), ODE backend."""
-    o = rep.out
+def _studies(rep: Reproduction, apart: Apart) -> dict:
+    """Sensitivity studies next to the canonical result (never replacing it), ODE backend; their
+    figures drawn by ``apart``."""
     kappa = rep.study("kappa - L", "example2", [[f"controller.kappa_margin={m!r}"] for m in KAPPA_MARGINS])
-    plots.fig_sensitivity(
-        KAPPA_MARGINS, _rates(kappa), r"$\kappa - L$", o / "study_kappa.png",
-        "Study: Example 2 error rate vs kappa - L (proposed law, ODE)",
-        paper_rates=PAPER_TABLE1["proposed"], markers={"paper: 1.1": 1.1, "0.1": 0.1}, xscale="log",
-    )
     scale = rep.study("r scale", "example2", [[f"controller.r_scale={s!r}"] for s in R_SCALES])
-    plots.fig_sensitivity(
-        R_SCALES, _rates(scale), "constant scale s of r (r -> s r)", o / "study_r_scale.png",
-        "Study: Example 2 error rate vs a constant scale of r (kappa = 1.1 + L, ODE)",
-        paper_rates=PAPER_TABLE1["proposed"], xscale="log",
-    )
     variants: dict[str, list] = {"labels": [], "summaries": []}  # labels, and one Summary each
     for label, name, overrides in PLANT_VARIANTS:
         for method, extra in (("proposed", ()), ("comparison law (46)", COMPARISON)):
             variants["labels"].append(f"{label}\n{method}")
             variants["summaries"].append(rep.study(f"{label} {method}", name, [[*overrides, *extra]])[0])
-    plots.fig_sensitivity(
-        variants["labels"], _rates(variants["summaries"]), "plant reading and method",
-        o / "study_plant_variants.png", "Study: Example 2 plant readings (ODE)",
-        paper_rates=PAPER_TABLE1["proposed"],
-    )
+    apart.draw(partial(_study_figures, kappa=kappa, scale=scale, variants=variants))
     return {
         "kappa_margin": {"values": list(KAPPA_MARGINS), "summaries": kappa},
         "r_scale": {"values": list(R_SCALES), "summaries": scale},
         "plant_variants": {"values": [v.replace("\n", " ") for v in variants["labels"]],
                            "summaries": variants["summaries"]},
     }
+
+
+def _study_figures(o: Path, kappa: list[Summary], scale: list[Summary], variants: dict[str, list]) -> None:
+    """The sensitivity studies' figures into ``o``."""
+    plots.fig_sensitivity(
+        KAPPA_MARGINS, _rates(kappa), r"$\kappa - L$", o / "study_kappa.png",
+        "Study: Example 2 error rate vs kappa - L (proposed law, ODE)",
+        paper_rates=PAPER_TABLE1["proposed"], markers={"paper: 1.1": 1.1, "0.1": 0.1}, xscale="log",
+    )
+    plots.fig_sensitivity(
+        R_SCALES, _rates(scale), "constant scale s of r (r -> s r)", o / "study_r_scale.png",
+        "Study: Example 2 error rate vs a constant scale of r (kappa = 1.1 + L, ODE)",
+        paper_rates=PAPER_TABLE1["proposed"], xscale="log",
+    )
+    plots.fig_sensitivity(
+        variants["labels"], _rates(variants["summaries"]), "plant reading and method",
+        o / "study_plant_variants.png", "Study: Example 2 plant readings (ODE)",
+        paper_rates=PAPER_TABLE1["proposed"],
+    )
 
 
 def _report(rep: Reproduction, table: dict, studies: dict, deviations: dict, ex1: Run, ex2: Run,
