@@ -4,7 +4,8 @@ Runs Example 1 and Example 2 (proposed law and the comparison law of reference [
 chosen backend, with the ideal ODE twin beside MuJoCo, then the sensitivity studies (kappa - L,
 a constant scale of r, plant variants) on the ODE backend, and the robustness study on realistic
 hardware (:mod:`.robustness_study`, MuJoCo, in worker processes, started first so that it runs
-while this process does the rest). Writes PNG figures,
+while this process does the rest; the sensor study's runs go to the same workers, and the
+examples' and studies' figures are drawn by forked workers, :mod:`.drawing`). Writes PNG figures,
 ``table1.md``, ``table1.json``, ``studies.json``, ``region.json`` (the sampled loop's region study,
 :mod:`.region_study`), ``tradeoff.json`` (tracking against the region, law by law,
 :mod:`.tradeoff_study`), ``robustness.json``, ``sensors.json`` (Example 2 with realistic sensors,
