@@ -20,13 +20,16 @@ def plant_section(root: Table) -> Table:
     """``[plant]``: the keys of eq. (1) and one sub-table per backend; a backend's key written
     directly in [plant] is refused with the sub-table it belongs in."""
     plant = root.table("plant")
+    names = PLANT.names
     for key in plant.data:
+        if key in names or key in BACKENDS:
+            continue
         owners = [name for name, backend in BACKENDS.items()
                   if backend.section is not None and key in backend.section.names]
-        if key not in PLANT.names and key not in BACKENDS and owners:
+        if owners:
             raise plant.error(key, f"does not apply to [plant] (it is a setting of backend {owners[0]!r})",
                               f"write it in [plant.{owners[0]}]")
-    return Table(plant.data, plant.source, plant.name, (*PLANT.names, *BACKENDS))
+    return Table(plant.data, plant.source, plant.name, (*names, *BACKENDS))
 
 
 def plant_terms(plant: Table) -> tuple[PlantTerms, tuple[float, ...]]:
