@@ -63,11 +63,11 @@ def exact(value: Any) -> Hashable:
     their entries in order, each scalar with its type, a float by its bits (``float.hex``)."""
     kind = type(value)
     if kind is dict:  # (the usual types first: this runs over every table of every variant)
-        return (dict, tuple([(k, exact(v)) for k, v in value.items()]))
+        return (dict, tuple([(k, _entry(v)) for k, v in value.items()]))
     if kind is float:
         return (float, float.hex(value))
     if kind is str or kind is int or kind is bool or kind is list or kind is tuple or value is None:
-        return (kind, tuple([exact(v) for v in value])) if kind is list or kind is tuple else (kind, value)
+        return (kind, tuple([_entry(v) for v in value])) if kind is list or kind is tuple else (kind, value)
     if isinstance(value, Mapping):
         return (dict, tuple([(k, exact(v)) for k, v in value.items()]))
     if isinstance(value, list | tuple):
@@ -77,6 +77,12 @@ def exact(value: Any) -> Hashable:
     if isinstance(value, _AS_THEY_ARE) and kind.__hash__ is not None:
         return (kind, value)
     raise _NoKey
+
+
+def _entry(value: Any) -> Hashable:
+    """:func:`exact` of an entry; a table's or a list's made once per object while :func:`sharing`
+    is on (an override copies the tables along its key, the others stay the file's)."""
+    return per_object(exact, value) if type(value) is dict or type(value) is list else exact(value)
 
 
 def kept(key: Hashable, compute: Callable[[], T]) -> T:

@@ -73,12 +73,13 @@ def test_variants_loaded_together_are_each_the_scenario_loaded_alone() -> None:
 
 
 def test_a_bad_variant_is_refused_with_the_line_it_gets_alone(tmp_path: Path) -> None:
-    sets = [["controller.kappa_margin=0.5"], ["controller.kappa_margin=-1"], ["controller.kappa_margin=0.6"]]
-    with pytest.raises(QcontrolInputError) as alone:
-        load_scenario(EXAMPLE2, sets[1])
-    with pytest.raises(QcontrolInputError) as together:
-        load_variants(EXAMPLE2, sets)
-    assert str(together.value) == str(alone.value)
+    for bad in (["controller.kappa_margin=-1"], ["plant.x0=[0.1]"], ["plant.x0=[0.1, true]"]):
+        sets = [["plant.x0=[0.2, 0.3]"], ["controller.kappa_margin=0.5"], bad, ["controller.kappa_margin=0.6"]]
+        with pytest.raises(QcontrolInputError) as alone:
+            load_scenario(EXAMPLE2, bad)
+        with pytest.raises(QcontrolInputError) as together:
+            load_variants(EXAMPLE2, sets)
+        assert str(together.value) == str(alone.value)
     # a start where a term of the plant is not finite is refused, though its other stages are shared
     path = tmp_path / "singular.toml"
     path.write_text(EXAMPLE2.read_text().replace('phi = ["x2",', 'psi = "1/x1"\nphi = ["x2",').replace(

@@ -58,7 +58,7 @@ from .overrides import (
     remove_key,
     set_key,
 )
-from .plant_table import backend_sections, plant_section, plant_terms
+from .plant_table import backend_sections, initial_state, plant_section, plant_terms
 
 
 @dataclass(frozen=True)
@@ -287,7 +287,8 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
     stages = Stages(data, source, base_dir)
     meta = stages.run("scenario", ("scenario",), _meta, root, default_name, also=(default_name,))
     plant = plant_section(root)
-    terms, x0 = stages.run("plant", ("plant",), plant_terms, plant)
+    terms, _ = stages.run("plant", (WITHOUT_X0,), plant_terms, plant)
+    x0 = initial_state(plant, terms.order)  # (the stage's is the first variant's with these terms)
     simulation = stages.run("simulation", ("simulation",), _simulation, root)
     backends, terms, written = stages.run("backends", (WITHOUT_X0, "simulation"), _backends, plant, terms,
                                           base_dir, simulation)
@@ -385,12 +386,13 @@ def _check_terms_at_x0(sc: Scenario) -> None:
     """The plant's terms must be finite at the initial state."""
     rows = [(f"plant.phi[{r}][{j}]", e) for r, row in enumerate(sc.rows_expr) for j, e in enumerate(row)]
     last = "plant.phi[{i}]" if not rows else f"plant.phi[{len(sc.rows_expr)}][{{i}}]"
+    at = np.asarray([list(sc.x0)], dtype=float), np.asarray([[*sc.x0, 0.0]], dtype=float)  # (t = 0)
     for label, expr in [("plant.psi", sc.psi_expr)] + rows + [(last.format(i=i), e) for i,
                                                               e in enumerate(sc.phi_expr)]:
         if expr is None:
             continue
         with np.errstate(all="ignore"):
-            value = expr(np.asarray([[*sc.x0, 0.0] if timed(expr) else list(sc.x0)]))
+            value = expr(at[timed(expr)])
         if not np.all(np.isfinite(value)):
             raise QcontrolInputError(
                 f"{sc.source}: {label}: {expr.source!r} is not finite at x0 = {list(sc.x0)}; "

@@ -142,12 +142,17 @@ _DECIMAL = re.compile(r"[+-]?(?:0|[1-9][0-9]*)(\.[0-9]+)?([eE][+-]?[0-9]+)?")
 
 
 def override_value(raw: str) -> Any:
-    """The value of ``key=raw`` read as TOML (a decimal number directly, as TOML reads it:
-    ``float`` of its text, or ``int``), else the text itself as a string."""
-    decimal = _DECIMAL.fullmatch(raw)
-    if decimal is not None:
+    """The value of ``key=raw`` read as TOML, else the text itself as a string. A decimal number,
+    or an array of them on one line (``[0.1, -2]``, as ``plant.x0``), is read directly, as TOML
+    reads it: ``float`` of its text, or ``int``."""
+    numbers = raw[1:-1].split(",") if raw.startswith("[") and raw.endswith("]") else [raw]
+    if len(numbers) > 1 and not numbers[-1].strip(" \t"):  # an array's trailing comma
+        numbers.pop()
+    matched = [_DECIMAL.fullmatch(text.strip(" \t")) for text in numbers]
+    if all(matched):
         try:
-            return float(raw) if decimal.group(1) or decimal.group(2) else int(raw)
+            values = [float(m[0]) if m[1] or m[2] else int(m[0]) for m in matched]
+            return values if raw.startswith("[") else values[0]
         except ValueError:  # an integer of more digits than Python converts: as TOML fails on it
             pass
     try:

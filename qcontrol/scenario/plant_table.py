@@ -54,6 +54,14 @@ def plant_terms(plant: Table) -> tuple[PlantTerms, tuple[float, ...]]:
     return PlantTerms(order, psi, last_row, v["theta"], v["input_gain"], rows=earlier), v["x0"]
 
 
+def initial_state(plant: Table, order: int) -> tuple[float, ...]:
+    """``plant.x0``, read as :func:`plant_terms` reads it (which checks the keys before it)."""
+    return _X0.type.read(plant, _X0.name, _X0.default, {"n": order})
+
+
+_X0 = next(key for key in PLANT.keys if key.name == "x0")
+
+
 def _plant_term(text: str, x_names: list[str], where: str) -> Expression:
     """A term of eq. (1) over ``x1..xn``, or over ``x1..xn, t`` when it uses time t."""
     term = compile_expression(text, [*x_names, TIME], where)
