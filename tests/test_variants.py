@@ -74,7 +74,7 @@ def test_variants_loaded_together_are_each_the_scenario_loaded_alone() -> None:
 
 def test_a_bad_variant_is_refused_with_the_line_it_gets_alone(tmp_path: Path) -> None:
     for bad in (["controller.kappa_margin=-1"], ["plant.x0=[0.1]"], ["plant.x0=[0.1, true]"]):
-        sets = [["plant.x0=[0.2, 0.3]"], ["controller.kappa_margin=0.5"], bad, ["controller.kappa_margin=0.6"]]
+        sets = [["plant.x0=[0.2, 0.3]"], ["controller.kappa_margin=0.5"], bad, ["plant.x0=[0.5, 0.0]"]]
         with pytest.raises(QcontrolInputError) as alone:
             load_scenario(EXAMPLE2, bad)
         with pytest.raises(QcontrolInputError) as together:
