@@ -80,9 +80,24 @@ def exact(value: Any) -> Hashable:
 
 
 def _entry(value: Any) -> Hashable:
-    """:func:`exact` of an entry; a table's or a list's made once per object while :func:`sharing`
-    is on (an override copies the tables along its key, the others stay the file's)."""
-    return per_object(exact, value) if type(value) is dict or type(value) is list else exact(value)
+    """:func:`exact` of an entry; while :func:`sharing` is on, a table's or a list's is its number
+    (:func:`numbered`, made once per object: an override copies the tables along its key, the
+    others stay the file's), so that a key holds no deep copy of what it names."""
+    if (type(value) is dict or type(value) is list) and _KEPT.get() is not None:
+        return (numbered, per_object(numbered, value))
+    return exact(value)
+
+
+def numbered(value: Any) -> int:
+    """While :func:`sharing` is on: a number for ``value``'s :func:`exact` value, the same for
+    every equal value."""
+    numbers = _KEPT.get().setdefault(_NUMBERS, {})
+    return numbers.setdefault(exact(value), len(numbers))
+
+
+def _without_x0(plant: Any) -> int:
+    """:func:`numbered` of ``[plant]`` without its ``x0``."""
+    return numbered({k: v for k, v in plant.items() if k != "x0"} if isinstance(plant, dict) else plant)
 
 
 def kept(key: Hashable, compute: Callable[[], T]) -> T:
@@ -131,28 +146,20 @@ class Stages:
     def __init__(self, data: dict, *fixed: Any) -> None:
         self.data = data
         self.kept = _KEPT.get()
-        self.exact: dict[str, Hashable] = {}
         self.keys: dict[str, int] = {}
         try:
-            self.fixed = self._number(exact(fixed)) if self.kept is not None else None
+            self.fixed = numbered(fixed) if self.kept is not None else None
         except _NoKey:
             self.kept = None
 
-    def _number(self, value: Hashable) -> int:
-        numbers = self.kept.setdefault(_NUMBERS, {})
-        return numbers.setdefault(value, len(numbers))
-
     def key(self, name: str) -> int:
         """The number of a top-level table's exact value (:data:`WITHOUT_X0`: ``[plant]`` but its
-        ``x0``)."""
+        ``x0``), made once per table object."""
         if name not in self.keys:
             if name == WITHOUT_X0:
-                self.key("plant")
-                plant = self.exact["plant"]
-                value = (dict, tuple([i for i in plant[1] if i[0] != "x0"])) if plant[0] is dict else plant
+                self.keys[name] = per_object(_without_x0, self.data.get("plant"))
             else:
-                value = self.exact[name] = per_object(exact, self.data.get(name))
-            self.keys[name] = self._number(value)
+                self.keys[name] = per_object(numbered, self.data.get(name))
         return self.keys[name]
 
     def changed(self, name: str) -> None:
