@@ -10,8 +10,8 @@ is kept under the exact value of the tables it reads, types and the bits of ever
 (``1`` and ``1.0``, ``0.0`` and ``-0.0`` differ): a variant whose tables equal an earlier variant's
 takes that result instead of computing it again. A sweep over ``controller.kappa_margin`` so
 checks the plant, its model and the simulation settings once and only the controller for each
-variant; a region map's starts differ in ``plant.x0``, which the backends and the controller do
-not read.
+variant; variants that differ in ``plant.x0`` share the plant's terms, its backends and the
+controller, which do not read it.
 
 Nothing else changes: every stage runs in its order, a stage whose tables are new runs as it
 always does, and a stage that fails raises its one line and keeps nothing. So a variant is exactly
@@ -34,8 +34,8 @@ T = TypeVar("T")
 _KEPT: ContextVar[dict | None] = ContextVar("qcontrol_shared_stages", default=None)
 # values a key holds as they are: immutable, and equal only when they are the same value
 _AS_THEY_ARE = (str, int, type(None), datetime.date, datetime.time, PurePath)
-# [plant] but its x0: all that the backends' sections and the law read of it (x0 is read by the
-# plant's terms stage, for the initial state, and by the check of the terms there)
+# [plant] but its x0: all that the plant's terms, the backends' sections and the law read of it
+# (x0 is read for each variant, and the check of the terms at x0 reads the whole table)
 WITHOUT_X0 = "plant without x0"
 _NUMBERS = object()  # where the kept results' dict numbers the exact values met (see Stages)
 
