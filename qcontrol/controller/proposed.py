@@ -11,7 +11,7 @@ import math
 from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field, replace
 from functools import reduce
-from operator import add, mul
+from operator import add, attrgetter, mul
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -21,6 +21,7 @@ from ..errors import QcontrolInputError
 from ..expr import Expression, compile_expression
 from ..quantizer import QuantizedReading
 from ..schema import OPTIONAL, Key, KindKeys, Table, expressions, number, read_keys, string
+from ..sharing import kept_for
 from .backstepping import (
     Advance,
     BacksteppingLaw,
@@ -333,7 +334,7 @@ def parse(table: Table, ctx: LawContext) -> ProposedSettings:
     q_names = [f"q{i + 1}" for i in range(ctx.order)]
     r_expr = tuple(compile_expression(e, q_names, f"{table.source}: {table.path(f'r[{i}]')}")
                    for i, e in enumerate(r))
-    _check_bounding_functions(table, r_expr, ctx)
+    kept_for("bounding functions", (r, ctx.order, ctx.delta), _check_bounding_functions, table, r_expr, ctx)
     return ProposedSettings(kappa, v["kappa_margin"], v["gamma"], v["sigma"], r, v["r_scale"], r_expr,
                             v["hold"])
 
@@ -345,7 +346,8 @@ def _kappa(table: Table, ctx: LawContext, kappa: float | None, margin: float | N
                           "give either kappa or kappa_margin (kappa = L + kappa_margin), not both")
     if kappa is None and margin is None:
         raise table.error("kappa_margin", "missing", "give kappa_margin (kappa = L + margin) or kappa")
-    L, n = ctx.L, ctx.order  # Lemma 2 with the quantizer's bound per channel
+    # Lemma 2 with the quantizer's bound per channel
+    L, n = kept_for("L", (ctx.c, ctx.max_error), attrgetter("L"), ctx), ctx.order
     if not math.isfinite(L):
         raise table.error_at("controller.delta", f"with c = {list(ctx.c)} gives L = L_z{n} = {L:g}, not a "
                              "finite number", "use a smaller quantizer step delta or smaller gains c")

@@ -51,7 +51,8 @@ from ..assembly import batch_structure, run_variants
 from ..errors import QcontrolInputError, Terminated, shown
 from ..metrics import run_summary
 from ..plants import BACKENDS
-from ..scenario import Scenario, load_scenario
+from ..scenario import Scenario
+from ..scenario.load import load_variants
 from ..summary import Summary
 from ..workers import worker_count, worker_pool
 
@@ -139,7 +140,7 @@ def _run_chunk(scenario_path: str, override_sets: list[list[str]], backend: str,
     loaded = _LOADED.get(key) if key is not None else None
     if loaded is not None and ids is not None:
         return run_batch([loaded[i] for i in ids], backend)
-    return run_batch([load_scenario(scenario_path, o, unset) for o in override_sets], backend)
+    return run_batch(load_variants(scenario_path, override_sets, unset), backend)
 
 
 def planned(scenario_path: str | Path, override_sets: Sequence[Sequence[str]], backend: str,
@@ -150,12 +151,13 @@ def planned(scenario_path: str | Path, override_sets: Sequence[Sequence[str]], b
     if backend not in BACKENDS:
         raise QcontrolInputError(f"--backend {backend!r}: use one of {', '.join(BACKENDS)}")
     groups: dict[tuple, list[int]] = {}
-    variants = []
-    for i, overrides in enumerate(override_sets):
-        sc = load_scenario(scenario_path, list(overrides), unset)
+    index = count()
+
+    def check(sc: Scenario) -> None:  # each variant as it loads: a bad one is refused before the next
         BACKENDS[backend].require(sc.backends.get(backend), sc.source)
-        groups.setdefault(batch_structure(sc, backend), []).append(i)
-        variants.append(sc)
+        groups.setdefault(batch_structure(sc, backend), []).append(next(index))
+
+    variants = load_variants(scenario_path, [list(overrides) for overrides in override_sets], unset, check)
     return chunks_of(groups.values()), variants
 
 
