@@ -42,8 +42,7 @@ import numpy as np
 
 from .. import compiled as compiled_paths
 from ..compiled.traced import TracedForm
-from ..plants.base import NativeStepper
-from ..plants.ode import ChainPlant
+from ..plants.base import NativeStepper, NativeStepping
 from ..quantizer import UniformQuantizer
 from . import compiled_loop
 from .compiled_loop import (
@@ -182,7 +181,7 @@ def compiled_batch(spec: RunSpec) -> CompiledBatch | None:
     """The compiled form of ``spec``'s batch of copies, or None where it keeps the array form (the
     module docstring says when)."""
     plant, batch = spec.plant, spec.plant.batch
-    if batch == 1 or not isinstance(plant, ChainPlant) or spec.velocity_source != "sensor":
+    if batch == 1 or not isinstance(plant, NativeStepping) or spec.velocity_source != "sensor":
         return None
     if spec.grid.rows < compiled_loop.MIN_ROWS or spec.observer is not None:
         return None
