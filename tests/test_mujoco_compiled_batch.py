@@ -61,7 +61,8 @@ def test_every_mujoco_copy_equals_the_array_form_and_its_run_alone(monkeypatch) 
         loop, compiled = _run(scs, record, monkeypatch)
         assert isinstance(loop.compiled, CompiledBatch) and loop.handover is None  # compiled to the end
         assert loop.plant._threaded is not None and not loop.plant._threads  # moved off mujoco.batch
-        _, array = _run(scs, record, monkeypatch, compiled=False)
+        array_loop, array = _run(scs, record, monkeypatch, compiled=False)
+        assert loop.plant.warnings == array_loop.plant.warnings and loop.plant.warnings  # MuJoCo's messages
         for a, b in zip(compiled, array, strict=True):
             _same(a, b)
             if record == "metrics":
