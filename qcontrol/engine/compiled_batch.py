@@ -12,7 +12,9 @@ quantizer's :meth:`~qcontrol.quantizer.UniformQuantizer.apply`, the law's ``cont
 The generated function loops over the copies and, for each, over the rows between two of the
 engine's scheduled rows: the single run's loop body (:func:`.compiled_loop.loop_body`) writing
 column ``b`` of the run's buffer. So every copy's numbers are its run alone, to the last bit, and
-the record (metrics, divergence, reductions) is the array form's, at the same rows.
+the record (metrics, divergence, reductions) is the array form's, at the same rows. A batch of
+MuJoCo copies runs the same way, each copy's own ``MjData`` stepped by the plant's copy step
+(:class:`~qcontrol.plants.mujoco.native_step.MujocoNativeForm`, a row of pointers per copy).
 
 Divergence: the loop marks each row at which some copy's state or adaptive estimate fails the
 array form's quick test (non-finite, or ``|x_i|`` beyond the bound), and only those rows are
@@ -42,8 +44,7 @@ import numpy as np
 
 from .. import compiled as compiled_paths
 from ..compiled.traced import TracedForm
-from ..plants.base import NativeStepper
-from ..plants.ode import ChainPlant
+from ..plants.base import NativeStepper, NativeStepping
 from ..quantizer import UniformQuantizer
 from . import compiled_loop
 from .compiled_loop import (
@@ -182,7 +183,7 @@ def compiled_batch(spec: RunSpec) -> CompiledBatch | None:
     """The compiled form of ``spec``'s batch of copies, or None where it keeps the array form (the
     module docstring says when)."""
     plant, batch = spec.plant, spec.plant.batch
-    if batch == 1 or not isinstance(plant, ChainPlant) or spec.velocity_source != "sensor":
+    if batch == 1 or not isinstance(plant, NativeStepping) or spec.velocity_source != "sensor":
         return None
     if spec.grid.rows < compiled_loop.MIN_ROWS or spec.observer is not None:
         return None

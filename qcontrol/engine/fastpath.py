@@ -259,7 +259,7 @@ class FloatRows:
 
 def compiled_loop(spec: RunSpec) -> CompiledLoop | CompiledBatch | None:
     """The compiled form of a batch of one (:mod:`.compiled_loop`: numba, rows written into the
-    same buffer between the same rare rows) or of a batch of ODE copies (:mod:`.compiled_batch`),
+    same buffer between the same rare rows) or of a batch of copies (:mod:`.compiled_batch`),
     or None where the run keeps the Python loop (the array form for a batch): the other place the
     form of a run is chosen."""
     return compiled_loop_of(spec) if spec.plant.batch == 1 else compiled_batch(spec)

@@ -22,9 +22,11 @@ neighbours), so the in-process path, local worker processes and a Dask cluster g
 numbers however they chunk (only ``wall_time_s`` differs), and a copy's summary is its run
 alone's, key for key (the separation (37)-(43) is checked along every copy).
 
-MuJoCo. Chunks run as MuJoCo plant batches, spread over worker processes: on ``mujoco.batch``
-(the copies stepped in C, the unmodelled term in the native passive callback) where the plant
-allows it, else one ``MjData`` per copy; the numbers are the same either way
+MuJoCo. Chunks run as MuJoCo plant batches, spread over worker processes: on the compiled batch
+(each copy's ``MjData`` stepped from compiled code, a thousand rows of one copy at a time:
+:mod:`qcontrol.engine.compiled_batch`) where the law and the plant allow it, else on
+``mujoco.batch`` (the copies stepped in C, the unmodelled term in the native passive callback),
+else one ``MjData`` per copy; the numbers are the same either way
 (:mod:`qcontrol.plants.mujoco.threaded`). One batch runs on one thread: the workers are the
 parallelism.
 
