@@ -37,7 +37,7 @@ from .signals import SignalContext, derive, needed
 def helpers() -> str:
     """The error rate's row fold and its formula, as the generated module compiles them: their
     own source (so the generated text, and its cache key, change with them)."""
-    return "\n\n".join('@numba.njit(cache=True, error_model="numpy", nogil=True)\n'
+    return "\n\n".join('@numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")\n'
                        + inspect.getsource(f) for f in (error_rate.interpolated, error_rate.follow_row))
 
 
