@@ -191,8 +191,9 @@ class PaperLaw(BacksteppingLaw):
     def _gain_period(self, q: Columns, yd: Columns, eps_hat: Columns, form: ColumnForm = ARRAYS
                      ) -> np.ndarray:
         """The diagnostic ``gain_period``: ``K T`` (in ``form``: see :meth:`robust_gain`)."""
-        gain = self.robust_gain(q, yd, eps_hat, form)
-        return (np.asarray(gain) if form is ARRAYS else gain) * self.period
+        if form is ARRAYS:  # (a subclass may define robust_gain without the form)
+            return np.asarray(self.robust_gain(q, yd, eps_hat)) * self.period
+        return self.robust_gain(q, yd, eps_hat, form) * self.period
 
     def held_factor(self, gain_period: Column) -> Column:
         """What the held robust term does to ``zbar_n`` over one period, ``1 - K_T T``: ``1 - K T``
