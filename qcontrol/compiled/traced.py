@@ -182,6 +182,32 @@ class Symbol:
         return f"Symbol({self.text!r})"
 
 
+class Row(tuple):
+    """One row of one copy of a recorded signal, ``(..., width)`` in the array form, as symbols:
+    indexed on its last axis as the array form's blocks are (``row[..., 0]`` a symbol,
+    ``row[..., :1]`` a row), with elementwise arithmetic, so that a derivation written on blocks
+    (``x[..., :1] - yd[..., :1]``) runs on it and is recorded."""
+
+    def __getitem__(self, index: Any) -> Any:
+        if isinstance(index, tuple) and len(index) == 2 and index[0] is Ellipsis:
+            index = index[1]
+        picked = tuple.__getitem__(self, index)
+        return Row(picked) if isinstance(index, slice) else picked
+
+    def _each(self, other: Any, operation: Callable[[Value, Value], Value]) -> Row:
+        others = other if isinstance(other, Row) else (other,) * len(self)
+        return Row(operation(a, b) for a, b in zip(self, others, strict=True))
+
+    def __add__(self, other: Any) -> Row:
+        return self._each(other, lambda a, b: a + b)
+
+    def __sub__(self, other: Any) -> Row:
+        return self._each(other, lambda a, b: a - b)
+
+    def __mul__(self, other: Any) -> Row:
+        return self._each(other, lambda a, b: a * b)
+
+
 class TracedTerms:
     """Expressions evaluated on symbols: their trees as source (:func:`float_source`), refusing
     where the float form's ``math`` would refuse (the float form then takes numpy's answer)."""

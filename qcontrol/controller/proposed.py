@@ -176,11 +176,12 @@ class PaperLaw(BacksteppingLaw):
     def constants(self) -> dict[str, Any]:
         return {"kappa": self.kappa, "gamma": self.gamma, "sigma": self.sigma, "r_scale": self.r_scale}
 
-    def robust_gain(self, q: Columns, yd: Sequence[Column], eps_hat: Columns) -> Column:
+    def robust_gain(self, q: Columns, yd: Sequence[Column], eps_hat: Columns, form: ColumnForm = ARRAYS
+                    ) -> Column:
         """``K = s eps_hat^T r(x_q) / (kappa (kappa - L))`` of law (44) over columns of any shape
         (``(rows, batch)`` when evaluated on a record; per-copy constants broadcast on the last
-        axis)."""
-        law = self.constants_in(ARRAYS)
+        axis), or over the columns of ``form`` (one row of each copy, in the compiled batch)."""
+        law = self.constants_in(form)
         zn = self.recursion(q, yd)[0][-1]
         r = law.terms(q)
         if law.r_scale is not None:
@@ -188,9 +189,12 @@ class PaperLaw(BacksteppingLaw):
         s = zn * zn / law.kappa + self.L
         return s * reduce(add, map(mul, eps_hat, r)) * law.gain
 
-    def _gain_period(self, q: Columns, yd: Columns, eps_hat: Columns) -> np.ndarray:
-        """The diagnostic ``gain_period``: ``K T``."""
-        return np.asarray(self.robust_gain(q, yd, eps_hat)) * self.period
+    def _gain_period(self, q: Columns, yd: Columns, eps_hat: Columns, form: ColumnForm = ARRAYS
+                     ) -> np.ndarray:
+        """The diagnostic ``gain_period``: ``K T`` (in ``form``: see :meth:`robust_gain`)."""
+        if form is ARRAYS:  # (a subclass may define robust_gain without the form)
+            return np.asarray(self.robust_gain(q, yd, eps_hat)) * self.period
+        return self.robust_gain(q, yd, eps_hat, form) * self.period
 
     def held_factor(self, gain_period: Column) -> Column:
         """What the held robust term does to ``zbar_n`` over one period, ``1 - K_T T``: ``1 - K T``

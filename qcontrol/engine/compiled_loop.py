@@ -136,10 +136,10 @@ def traced_parts(quantizer: UniformQuantizer, law: BatchLaw, n: int, dt: float,
 
 
 def loop_body(parts: TracedParts, plant: NativeStepper, n: int, m: int, copy: str = "0",
-              test: list[str] = ()) -> list[str]:
+              test: list[str] = (), fold: list[str] = ()) -> list[str]:
     """The lines of the loop over rows ``[start, stop]`` of one copy (column ``copy`` of the
     buffers), returning ``(status, row)``; ``test`` runs after the row is read (a batch's quick
-    divergence test)."""
+    divergence test), ``fold`` after it is written (a batch's reductions)."""
     record = ([f"xb[j, {copy}, {i - 1}] = x{i}" for i in range(1, n + 1)]
               + [f"mb[j, {copy}, {i - 1}] = m{i}" for i in range(1, n + 1)]
               + [f"qb[j, {copy}, {i}] = {q}" for i, q in enumerate(parts.q)]
@@ -158,6 +158,7 @@ def loop_body(parts: TracedParts, plant: NativeStepper, n: int, m: int, copy: st
         "        u = held[0]",
         "    j = k - base",
         *_indented(record, 1),
+        *_indented(list(fold), 1),
         "    if k == stop:",
         "        return 0, k",
         *_indented(plant.step + parts.advance, 1),

@@ -163,6 +163,7 @@ class MetricsRecord(_Record):
         self.reductions = [fold(self.batch, self.widths[fold.signal], self.grid.duration, self.metrics)
                            for fold in REDUCTIONS]
         self.derived = needed(tuple(name for fold in REDUCTIONS for name in fold.needs()))
+        self.folds: Any = None  # a compiled batch's folds of these reductions (engine/compiled_folds.py)
 
     def next_event(self, k: int) -> int:
         return chunk_end(self.buffer.base, self.chunk, self.grid.rows)
@@ -180,14 +181,21 @@ class MetricsRecord(_Record):
     def _reduce(self, base: int, stop: int) -> None:
         """Fold rows ``[base, stop)`` into the reductions, a cache-sized block at a time."""
         diverged = self.divergence.kept < self.grid.rows
+        reductions, derived = self.reductions, self.derived
+        if self.folds is not None:  # those the compiled batch folded are merged, unless a copy stopped
+            reductions = self.folds.merge(base, stop, self.divergence.kept, diverged)
+            if reductions is not self.reductions:
+                derived = needed(tuple(name for fold in reductions for name in fold.needs()))
         rows = max(1, REDUCE_ELEMENTS // self.batch)
         for first in range(base, stop, rows):
             last = min(stop, first + rows)
             chunk = Chunk(first, self.grid.instants(first, last), self.divergence.kept, diverged,
                           self.grid.hold)
-            block = self.signals(first, last, self.derived)
-            for fold in self.reductions:
+            block = self.signals(first, last, derived)
+            for fold in reductions:
                 fold.add(chunk, fold.values(block))
+        if self.folds is not None:
+            self.folds.reset()
 
     def results(self, now: float) -> list[RunMetrics]:
         return [
