@@ -43,10 +43,15 @@ INTEGRAL_LAW_METHODS = """
 
 # The files that take longest, heaviest first. With `--dist loadfile` a file runs whole on one
 # worker, so a long file handed out last leaves the other worker idle at the end; the rest keep
-# their order. (xdist's own reordering, by number of tests, is off: pyproject.toml's addopts.)
+# their order. xdist's own reordering (files with the most tests first) is turned off for that.
 HEAVY_FIRST = ("test_recipes.py", "test_laws_doc.py", "test_output_safety.py", "test_compiled_loop.py",
                "test_reproduce.py", "test_readme.py", "test_one_definition.py", "test_sweep.py",
                "test_reproduce_laws.py", "test_plots.py", "test_tuning.py", "test_reliability.py")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    if hasattr(config.option, "loadscopereorder"):  # pytest-xdist's --no-loadscope-reorder
+        config.option.loadscopereorder = False
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
