@@ -1,8 +1,9 @@
 """Every code block of docs/laws.md runs: the Python blocks in order in one fresh interpreter, in a
 folder holding the scenarios and models, then every ``qcontrol`` command of its shell blocks there,
-each in a process of its own: a fork of one interpreter that has imported the command line and run
-nothing (what a fresh ``qcontrol`` is once imported, without importing it ten times), so a command
-sees nothing another one registered or loaded."""
+each in a process of its own: a fork of one interpreter that has imported the command line and the
+plotting library its figures are drawn with, and run nothing (what a fresh ``qcontrol`` is once
+imported, without importing it ten times), so a command sees nothing another one registered or
+loaded. (Not numba: a process that has started it compiles shorter runs.)"""
 
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ COMMANDS = [line.strip() for block in re.findall(r"```bash\n(.*?)```", DOC, re.S
 # command: the command and its exit status; a command's own output goes to stderr.
 FORKING_RUNNER = """
 import json, os, shlex, sys
+import matplotlib.backends.backend_agg, matplotlib.figure
 from qcontrol.cli import main
 for command in json.loads(sys.argv[1]):
     sys.stdout.flush()
