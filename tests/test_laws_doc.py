@@ -57,6 +57,9 @@ def test_the_laws_tutorial_runs(tmp_path: Path) -> None:
     assert (tmp_path / "region-laws" / "region.csv").is_file()
     table1 = (tmp_path / "reproduce-laws" / "table1.json").read_text()
     assert '"beyond_the_paper"' in table1 and '"integral-bs"' in table1
+    # --quick without --duration: 1 s horizons, for the law as for the paper's two methods
+    assert json.loads(table1)["provenance"]["overrides"]["integral-bs"] == [
+        "controller.kind='integral-bs'", "simulation.duration=1.0"]
     assert "paper-integral [" in done.stdout
     compared = (tmp_path / "laws-cmp" / "laws.json").read_text()
     assert all(kind in compared for kind in ("proposed", "comparison", "paper-integral"))
