@@ -144,6 +144,9 @@ class UserLaw(Backstepping):
         self.stepped = all(advances_itself(law) for law in self.laws)
         self.diagnostics = declared_diagnostics(self.laws, kind)  # a law's own, if it declares them
         self.failures: dict[int, tuple[float, str, bool]] = {}  # copy -> (t, the line, in control())
+        # "compiled" once the engine has traced and checked the law's code for its compiled loop,
+        # else why it runs in Python (None: not asked yet): see qcontrol.engine.compiled_user
+        self.compiled_form: str | None = None
 
     def initial_state(self, batch: int) -> np.ndarray:
         try:

@@ -42,6 +42,7 @@ import numpy as np
 
 from .. import compiled as compiled_paths
 from ..compiled.traced import TracedForm
+from ..controller.user import UserLaw
 from ..plants.base import NativeStepper
 from ..plants.ode import ChainPlant
 from ..quantizer import UniformQuantizer
@@ -110,6 +111,7 @@ class CompiledBatch:
 
     def __init__(self, parts: TracedParts, form: TracedForm, n: int, m: int) -> None:
         self.parts, self.form, self.n, self.m = parts, form, n, m
+        self.held_width = 1 + m + n  # u, the targets, zbar (a user law's: u and its sample)
 
     def function(self, plant: NativeStepper):  # noqa: ANN201 (a numba dispatcher)
         from ..compiled.cache import generated_module
@@ -134,7 +136,7 @@ class CompiledBatch:
         state = np.empty((batch, self.m))
         for i, column in enumerate(adaptive):
             state[:, i] = column
-        held = np.zeros((batch, 1 + self.m + self.n))
+        held = np.zeros((batch, self.held_width))
         arrays = record.buffer.arrays
         buffers = (arrays["x"], arrays["x_meas"], arrays["x_q"], arrays["u"], arrays["adaptive"])
         status, at = np.zeros(batch, dtype=np.int64), np.zeros(batch, dtype=np.int64)
@@ -190,6 +192,9 @@ def compiled_batch(spec: RunSpec) -> CompiledBatch | None:
         return None
     if type(spec.quantizer) is not UniformQuantizer or not compiled_paths.enabled():
         return None
+    if isinstance(spec.law, UserLaw):  # its own code traced and checked, or the array form
+        from .compiled_user import compiled_user
+        return compiled_user(spec.quantizer, spec.law, plant.n, spec.grid.dt, batch)
     if not compilable(spec.law, batch):
         return None
     form = TracedForm(batch)

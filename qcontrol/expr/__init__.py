@@ -79,6 +79,11 @@ class Expression:
             return np.full(values.shape[:-1], float(result))
         return np.asarray(result, dtype=float)
 
+    def __deepcopy__(self, memo: dict) -> Expression:
+        """Itself: an expression does not change, and its tree's operations are compared by
+        identity (a copy of a law holding one computes what the law computes)."""
+        return self
+
     def on_columns(self, columns: Sequence[np.ndarray]) -> np.ndarray | float:
         """Evaluate on ``columns[i]`` = values of ``variables[i]`` (no reshaping; a constant
         expression returns a float). The fast path for hot loops."""
@@ -95,6 +100,12 @@ class Expression:
         except FLOAT_REFUSED:
             with np.errstate(all="ignore"):
                 return float(self._fn(values))
+        except TypeError:  # a traced value (a user law traced for the compiled loop): its source
+            from ..compiled.traced import Symbol, evaluate
+
+            if any(isinstance(v, Symbol) for v in values):
+                return evaluate(self, values)
+            raise
 
     @cached_property
     def _scalar_fn(self) -> ScalarFn:
