@@ -222,6 +222,25 @@ def _bits(a: float, b: float) -> bool:
     return (math.isnan(a) and math.isnan(b)) or (a == b and math.copysign(1, a) == math.copysign(1, b))
 
 
+class QuietMath:
+    """``math`` as compiled code has it: where Python's raises (a domain error, an overflow),
+    numpy's value (NaN, Inf) instead, which the traced lines then test and refuse."""
+
+    def __getattr__(self, name: str) -> Any:
+        function = getattr(math, name)
+        if not callable(function):
+            return function
+        fallback = getattr(np, {"pow": "power"}.get(name, name))
+
+        def quiet(*args: float) -> Any:
+            try:
+                return function(*args)
+            except (ValueError, OverflowError):
+                with np.errstate(all="ignore"):
+                    return float(fallback(*args))
+        return quiet
+
+
 _CHECKERS: dict[str, dict[str, Any]] = {}  # check functions by their source (copies share them)
 
 
@@ -236,7 +255,7 @@ def check_functions(trace: CopyTrace, n: int) -> dict[str, Any]:
     if source not in _CHECKERS:
         if len(_CHECKERS) > 64:
             _CHECKERS.clear()
-        names = {"math": math, "np": np}
+        names = {"math": QuietMath(), "np": np}
         exec(compile(source, "<traced law>", "exec"), names)  # noqa: S102 (text made by the tracer alone)
         _CHECKERS[source] = names
     return _CHECKERS[source]
@@ -296,8 +315,11 @@ def trace_one(law: Any, user: UserLaw, dt: float, slots: Sequence[float], first:
             one = trace_copy(traced, n, m, dt, slots)
             if first:
                 before = copy.deepcopy(traced)
-                if trace_copy(traced, n, m, dt, slots) != one or not _same(vars(before), vars(traced)):
+                again = trace_copy(traced, n, m, dt, slots)
+                if not _same(vars(before), vars(traced)):
                     return "it changes its own attributes (a state kept outside its declared state)"
+                if again != one:
+                    return "it computes differently at each call (random numbers, a clock, a global?)"
             why = checked(one, law, user, dt, CHECKS if first else 3)  # the law itself, keeping no state
     except Exception as exc:  # any failure of the user's code on symbols: the Python loop
         return why_not(exc)
@@ -355,9 +377,9 @@ def user_parts(quantizer: UniformQuantizer, law: UserLaw, n: int, dt: float,
 class CompiledUserLoop(CompiledLoop):
     """A single run of a traced user law: the built-in's compiled loop with the sample held."""
 
-    def __init__(self, parts: TracedParts, n: int, m: int) -> None:
-        super().__init__(parts, n, m)
-        self.held_width = Held(n).width
+    def __init__(self, parts: TracedParts, law: UserLaw, n: int) -> None:
+        super().__init__(parts, n, law.state_size)
+        self.law, self.held_width = law, Held(n).width
 
     def held_output(self, held: np.ndarray) -> Any:
         """``held`` (u, x_q, yd, t) as the sample the Python loop continues with."""
@@ -366,7 +388,12 @@ class CompiledUserLoop(CompiledLoop):
         return sample((values[0], values[2 * n + 2], [x_q], yd))
 
     def run(self, loop: Any, plant: Any, adaptive: tuple) -> Any:
-        return super().run(FirstChecked(loop, self.m), plant, adaptive)
+        first = FirstChecked(loop, self.m)
+        resume = super().run(first, plant, adaptive)
+        if resume is not None and resume.row > 0:  # the Python loop goes on: the law's first calls were
+            first.check(resume.row - 1)  # compiled, and are checked as its Python would check them
+            self.law._checked.update(first.done)
+        return resume
 
 
 class CompiledUserBatch(CompiledBatch):
@@ -383,23 +410,29 @@ class CompiledUserBatch(CompiledBatch):
 class FirstChecked:
     """The engine's loop as the compiled run sees it, checking at its first rare rows (before any
     rare work) that every copy's first input and first state update are finite; else
-    :class:`Redo`: the Python loop, which checks them at a law's first call, runs the run again."""
+    :class:`Redo`: the Python loop, which checks them at a law's first call, runs the run again.
+    :attr:`done` names the methods whose first output was checked so."""
 
     def __init__(self, loop: Any, m: int) -> None:
-        self.loop, self.state, self.checked = loop, m > 0, False
+        self.loop, self.m, self.done = loop, m, set()
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.loop, name)
 
-    def rare_work(self, k: int) -> bool:
+    def check(self, last: int) -> None:
+        """Check what rows ``0 .. last`` hold of the first outputs (u at row 0, the state at row 1)."""
         buffer = self.loop.record.buffer
-        if not self.checked and buffer.base == 0:
-            first = [buffer.arrays["u"][0]]
-            if self.state and k >= 1:
-                first.append(buffer.arrays["adaptive"][1])
-            if not all(np.all(np.isfinite(a)) for a in first):
-                raise Redo("a user law's first output is not finite")
-            self.checked = k >= 1 or not self.state
+        if buffer.base != 0 or len(self.done) == 3:
+            return
+        first = {"control()": buffer.arrays["u"][0]} if last >= 0 else {}
+        if last >= 1 or not self.m:
+            first |= {"advance()": buffer.arrays["adaptive"][min(1, last)], "state_rate()": None}
+        if not all(np.all(np.isfinite(a)) for a in first.values() if a is not None):
+            raise Redo("a user law's first output is not finite")
+        self.done |= set(first)
+
+    def rare_work(self, k: int) -> bool:
+        self.check(k)
         return self.loop.rare_work(k)
 
 
@@ -411,5 +444,5 @@ def compiled_user(quantizer: UniformQuantizer, law: UserLaw, n: int, dt: float, 
     if parts is None:
         return None
     if batch == 1:
-        return CompiledUserLoop(parts, n, law.state_size)
+        return CompiledUserLoop(parts, law, n)
     return CompiledUserBatch(parts, form, n, law.state_size)
