@@ -42,7 +42,8 @@ class RootIntegral:
     def control(self, t, x_q, yd, state):
         q = x_q.tolist()
         _, alphabar = self.recursion(q, yd.tolist())
-        return alphabar[-1] - self.k_i * state[0] - 0.01 * self.root.on_floats([q[0] + self.offset]) + 0.001 * t
+        root = self.root.on_floats([q[0] + self.offset])
+        return alphabar[-1] - self.k_i * state[0] - 0.01 * root + 0.001 * t
 
     def state_rate(self, t, x_q, yd, state):
         return np.array([x_q[0] - yd[0]])
@@ -53,10 +54,12 @@ def registered() -> None:
     qcontrol.register_law("root-integral", RootIntegral, state_name="integral", replace=True)
 
 
-def _loop(offsets: list[float], duration: float, monkeypatch: pytest.MonkeyPatch, compiled: bool) -> ClosedLoop:
-    """The closed loop of Example 2 (ODE) with the law, one copy per offset, from spread starts."""
+def _loop(offsets: list[float], duration: float, monkeypatch: pytest.MonkeyPatch,
+          compiled: bool) -> ClosedLoop:
+    """The closed loop of Example 1 (ODE) with the law, one copy per offset, from spread starts."""
     monkeypatch.setenv("QCONTROL_COMPILE", "1" if compiled else "0")
-    base = qcontrol.load_scenario("example1", {"controller.kind": "root-integral", "simulation.duration": duration})
+    base = qcontrol.load_scenario("example1", {"controller.kind": "root-integral",
+                                               "simulation.duration": duration})
     scs = [base.with_overrides({"controller.offset": o, "plant.x0": [0.3 - 0.1 * i, 0.2]})
            for i, o in enumerate(offsets)]
     sc, batch = scs[0], len(scs)
@@ -87,7 +90,7 @@ def test_a_single_run_compiles_and_hands_over_to_python_where_an_expression_refu
     loop = _loop([0.25], 5.0, monkeypatch, compiled=True)
     assert isinstance(loop.compiled, CompiledUserLoop) and loop.law.compiled_form == "compiled"
     records = loop.run()
-    # y_d = sin(1.5 t) takes q1 below -0.25 after t = 2 s: the compiled loop hands over there
+    # y_d takes q1 below -0.25 after t = 2 s: the compiled loop hands over to Python there
     assert 2000 < loop.handover < 4000 and records[0].diverged
     python = _loop([0.25], 5.0, monkeypatch, compiled=False)
     assert python.compiled is None

@@ -237,6 +237,10 @@ class TracedForm:
     def __init__(self, batch: int = 1) -> None:
         self.batch = batch
 
+    def __deepcopy__(self, memo: dict) -> TracedForm:
+        """Itself (a form holds no state; a law's copy keyed by it finds it)."""
+        return self
+
     def column(self, values: Any) -> float | np.ndarray:
         array = np.asarray(values, dtype=float)
         if array.size == 1:

@@ -281,8 +281,9 @@ def compiled_loop(spec: RunSpec) -> CompiledLoop | None:
     if isinstance(spec.law, UserLaw):  # its own code traced and checked, or the Python loop
         from .compiled_user import compiled_user
         return compiled_user(spec.quantizer, spec.law, spec.plant.n, spec.grid.dt, 1)
-    if not compilable(spec.law):
-        return None
+    if not compilable(spec.law):  # a column-form law of the user's: traced and checked, or Python
+        from .compiled_user import compiled_column_law
+        return compiled_column_law(spec.quantizer, spec.law, spec.plant.n, spec.grid.dt)
     try:
         parts = traced_parts(spec.quantizer, spec.law, spec.plant.n, spec.grid.dt)
     except TypeError:  # a formula that cannot be traced: the Python loop

@@ -44,10 +44,12 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ..compiled.traced import TRACED, Symbol, Trace, TracedForm, recording
+from ..controller.law import AnyColumnForm
 from ..controller.user import UserLaw, advances_itself, sample
-from ..quantizer import UniformQuantizer
+from ..quantizer import QuantizedReading, UniformQuantizer
 from .compiled_batch import CompiledBatch, Redo
-from .compiled_loop import CONTROL_REFUSED, CompiledLoop, TracedParts
+from .compiled_loop import CONTROL_REFUSED, CompiledLoop, TracedParts, traced_parts
+from .fastpath import FLOATS
 
 COMPILED = "compiled"  # UserLaw.compiled_form of a law that has a compiled form
 CHECKS = 8  # samples at which the traced lines must equal the law's Python, bit for bit
@@ -372,6 +374,73 @@ def user_parts(quantizer: UniformQuantizer, law: UserLaw, n: int, dt: float,
         rows = [tr.constants for tr in traces] * (form.batch if len(traces) == 1 else 1)
         constants = np.array(rows, dtype=float).reshape(form.batch, len(first.constants))
     return TracedParts(quantize, q_text, start + first.control, first.advance, constants, 0.0)
+
+
+def column_checked(parts: TracedParts, law: Any, n: int, dt: float) -> str | None:
+    """Why the traced lines of a column-form law do not give its own float form's results (u and
+    the state one step on, bit for bit) at :data:`CHECKS` samples; None: they do."""
+    if not all(q.isidentifier() for q in parts.q):
+        return "its reading is not traced as values"
+    m = law.state_size
+    source = "\n".join(["def control(q, yd, adaptive, k, lp, held):", "    r = 0",
+                        *[f"    {name} = q[{i}]" for i, name in enumerate(parts.q)],
+                        *[f"    {line}" for line in parts.control], "    return 0, 0", "",
+                        "def advance(adaptive, lp, held):", *[f"    {line}" for line in parts.advance],
+                        "    return None"])
+    functions: dict[str, Any] = {"math": QuietMath(), "np": np}
+    exec(compile(source, "<traced law>", "exec"), functions)  # noqa: S102 (text made by the tracer alone)
+    advancer = law.advancer_in(FLOATS, dt)
+    state0 = np.asarray(law.initial_state(1), dtype=float).reshape(m)
+    compared = 0
+    for t, x_q, yd, state in _check_points(n, m, state0, seed=n * 1000 + m):
+        k = round(t / dt)
+        held, adaptive = np.zeros(1 + m + n), state.copy()
+        status, _ = functions["control"](x_q.tolist(), yd.reshape(1, -1), adaptive, k, parts.constants, held)
+        if status:
+            continue
+        reading = QuantizedReading(None, law.max_error, columns=tuple(x_q.tolist()), form=FLOATS, batch=1)
+        out = law.control(reading, yd.tolist(), tuple(state.tolist()), k * dt)
+        stepped = [float(v) for v in advancer(tuple(state.tolist()), out)]
+        functions["advance"](adaptive, parts.constants, held)
+        if not _bits(float(out.u), held[0]) or not all(_bits(a, b) for a, b in zip(stepped, adaptive.tolist(),
+                                                                                    strict=True)):
+            return f"its traced lines differ from its float form at x_q = {x_q.tolist()}"
+        compared += 1
+    return None if compared >= CHECKS // 2 else "too few samples where it gives a number to check it"
+
+
+def column_parts(quantizer: UniformQuantizer, law: Any, n: int, dt: float) -> TracedParts | str:
+    """A column-form law that is not a built-in class (a subclass of ``qcontrol.BacksteppingLaw``
+    or of a built-in law with code of its own): the compiled loop's parts from its own formulas
+    traced as the built-in laws' are (:func:`~.compiled_loop.traced_parts`), on a copy of it,
+    twice (it must stay as the first trace left it and record the same lines), then checked
+    against its float form; or why not."""
+    try:
+        with quietly():
+            traced = copy.deepcopy(law)
+            parts = traced_parts(quantizer, traced, n, dt)
+            before = copy.deepcopy(traced)
+            again = traced_parts(quantizer, traced, n, dt)
+            if not _same(vars(before), vars(traced)):
+                return "it changes its own attributes (a state kept outside its declared state)"
+            lines = (parts.quantize, parts.control, parts.advance, parts.constants.tobytes())
+            if (again.quantize, again.control, again.advance, again.constants.tobytes()) != lines:
+                return "it computes differently at each call (random numbers, a clock, a global?)"
+            why = column_checked(parts, law, n, dt)
+    except Exception as exc:  # any failure of the law's code on symbols: the Python loop
+        return why_not(exc)
+    return parts if why is None else why
+
+
+def compiled_column_law(quantizer: UniformQuantizer, law: Any, n: int, dt: float) -> CompiledLoop | None:
+    """The compiled loop of a single run of a column-form law of the user's (a class defined
+    outside the package, written over columns: :class:`~qcontrol.controller.law.AnyColumnForm`),
+    or None (the Python loop)."""
+    if type(law).__module__.partition(".")[0] == "qcontrol" or not isinstance(law, AnyColumnForm) \
+            or law.copies not in (None, 1):
+        return None
+    parts = column_parts(quantizer, law, n, dt)
+    return None if isinstance(parts, str) else CompiledLoop(parts, n, law.state_size)
 
 
 class CompiledUserLoop(CompiledLoop):
