@@ -84,7 +84,7 @@ def user_compiled_form(law: Any, scenario: Scenario) -> str | None:
     """For a law of the ``qcontrol.Law`` protocol: "compiled" when its code has a compiled form
     (traced and checked: docs/laws.md, 'Speed'), else why it runs in Python; None for other laws."""
     from .controller.user import UserLaw
-    from .engine.compiled_user import explain
+    from .engine.user_trace import explain
 
     if not isinstance(law, UserLaw):
         return None

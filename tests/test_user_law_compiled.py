@@ -7,16 +7,20 @@ itself or rounds differently keeps the Python loop and says why, and tracing it 
 from __future__ import annotations
 
 import dataclasses
+import sys
 
 import numpy as np
 import pytest
+from conftest import ROOT
 
 import qcontrol
 from qcontrol.assembly import build_law, build_plant, build_quantizer, build_reference
 from qcontrol.controller.user import UserLaw
 from qcontrol.engine import RunSpec
-from qcontrol.engine.compiled_user import CompiledUserBatch, CompiledUserLoop, explain
+from qcontrol.engine.compiled_loop import TracedParts
+from qcontrol.engine.compiled_user import CompiledUserBatch, CompiledUserLoop, column_parts
 from qcontrol.engine.loop import ClosedLoop
+from qcontrol.engine.user_trace import explain
 from qcontrol.timegrid import TimeGrid
 
 pytest.importorskip("numba")  # the compiled form is numba's; a run alone pays for it once numba is loaded
@@ -161,3 +165,30 @@ def test_check_says_whether_a_user_law_has_a_compiled_form() -> None:
     report = qcontrol.check(sc, "ode")
     assert report.compiled_form == "compiled" and "the law's compiled form: compiled" in report.line()
     assert qcontrol.check(qcontrol.load_scenario("example2"), "ode").compiled_form is None
+
+
+def test_a_column_form_law_is_traced_and_checked_against_its_float_form() -> None:
+    """A BacksteppingLaw subclass of the user's: its formulas traced as the built-in laws' are,
+    the lines checked against its float form; one that keeps a count of its calls is refused."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import laws_by_hand
+
+    laws_by_hand.register()
+    base = qcontrol.load_scenario("example2", {})
+    sc = base.with_overrides(laws_by_hand.overrides(base, "columns"))
+    law = build_law([sc])
+    parts = column_parts(build_quantizer(sc), law, 2, 1e-3)
+    assert isinstance(parts, TracedParts) and any("held[0]" in line for line in parts.control)
+
+    class CountingColumns(laws_by_hand.PaperLawColumns):
+        def control(self, reading, yd, state, t=0.0):
+            self.calls = getattr(self, "calls", 0) + 1
+            return super().control(reading, yd, state, t)
+
+    qcontrol.register_law("counting-columns", CountingColumns, keys=laws_by_hand.KEYS, replace=True)
+    kind = laws_by_hand.KINDS["columns"]
+    chosen = {key.replace(kind, "counting-columns"): value
+              for key, value in laws_by_hand.overrides(base, "columns").items()}
+    counting = build_law([base.with_overrides(chosen | {"controller.kind": "counting-columns"})])
+    assert "changes its own attributes" in column_parts(build_quantizer(sc), counting, 2, 1e-3)
+    assert not hasattr(counting, "calls")  # traced on copies of it

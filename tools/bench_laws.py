@@ -30,7 +30,7 @@ from bench_timing import best_of_both, python_loop  # noqa: E402
 from qcontrol.assembly import build_law, build_plant, build_quantizer, build_reference  # noqa: E402
 from qcontrol.controller.user import UserLaw  # noqa: E402
 from qcontrol.engine import RunSpec, simulate  # noqa: E402
-from qcontrol.engine.compiled_user import explain  # noqa: E402
+from qcontrol.engine.user_trace import explain  # noqa: E402
 from qcontrol.scenario import Scenario, load_scenario  # noqa: E402
 from qcontrol.timegrid import TimeGrid
 

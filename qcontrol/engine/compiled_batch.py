@@ -42,7 +42,6 @@ import numpy as np
 
 from .. import compiled as compiled_paths
 from ..compiled.traced import TracedForm
-from ..controller.user import UserLaw
 from ..plants.base import NativeStepper
 from ..plants.ode import ChainPlant
 from ..quantizer import UniformQuantizer
@@ -186,17 +185,12 @@ def compiled_batch(spec: RunSpec) -> CompiledBatch | None:
     plant, batch = spec.plant, spec.plant.batch
     if batch == 1 or not isinstance(plant, ChainPlant) or spec.velocity_source != "sensor":
         return None
-    # a user law's Python costs a call per copy: the batch pays for numba from MIN_ROWS copy-rows
-    user = isinstance(spec.law, UserLaw)
-    if spec.grid.rows * (batch if user else 1) < compiled_loop.MIN_ROWS or spec.observer is not None:
+    if spec.grid.rows < compiled_loop.MIN_ROWS or spec.observer is not None:
         return None
     if spec.input_quantizer is not None:
         return None
     if type(spec.quantizer) is not UniformQuantizer or not compiled_paths.enabled():
         return None
-    if user:  # its own code traced and checked, or the array form
-        from .compiled_user import compiled_user
-        return compiled_user(spec.quantizer, spec.law, plant.n, spec.grid.dt, batch)
     if not compilable(spec.law, batch):
         return None
     form = TracedForm(batch)

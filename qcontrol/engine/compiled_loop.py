@@ -41,7 +41,6 @@ from ..controller.backstepping import ControlOutput, output
 from ..controller.comparison import ComparisonLaw
 from ..controller.law import BatchLaw
 from ..controller.proposed import PaperLaw
-from ..controller.user import UserLaw
 from ..plants.base import NativeStepper, NativeStepping, Plant
 from ..quantizer import QuantizedReading, UniformQuantizer
 from .reference_rows import ReferenceRows
@@ -278,12 +277,8 @@ def compiled_loop(spec: RunSpec) -> CompiledLoop | None:
         return None
     if not compiled_paths.enabled():
         return None
-    if isinstance(spec.law, UserLaw):  # its own code traced and checked, or the Python loop
-        from .compiled_user import compiled_user
-        return compiled_user(spec.quantizer, spec.law, spec.plant.n, spec.grid.dt, 1)
-    if not compilable(spec.law):  # a column-form law of the user's: traced and checked, or Python
-        from .compiled_user import compiled_column_law
-        return compiled_column_law(spec.quantizer, spec.law, spec.plant.n, spec.grid.dt)
+    if not compilable(spec.law):
+        return None
     try:
         parts = traced_parts(spec.quantizer, spec.law, spec.plant.n, spec.grid.dt)
     except TypeError:  # a formula that cannot be traced: the Python loop

@@ -19,6 +19,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -61,6 +62,14 @@ __all__ = [
 ]
 
 
+@runtime_checkable
+class SelfRecording(Protocol):
+    """A value that records what is computed from it (the compiled loop's traced columns,
+    :mod:`qcontrol.compiled.traced`): an expression evaluated on it is recorded by it."""
+
+    def evaluated(self, expression: Expression, columns: Sequence[Any]) -> Any: ...
+
+
 @dataclass(frozen=True)
 class Expression:
     """A compiled expression: call it with an array ``values[..., len(variables)]``."""
@@ -100,11 +109,10 @@ class Expression:
         except FLOAT_REFUSED:
             with np.errstate(all="ignore"):
                 return float(self._fn(values))
-        except TypeError:  # a traced value (a user law traced for the compiled loop): its source
-            from ..compiled.traced import Symbol, evaluate
-
-            if any(isinstance(v, Symbol) for v in values):
-                return evaluate(self, values)
+        except TypeError:  # a traced value (a user's law traced for the compiled loop) records itself
+            for value in values:
+                if isinstance(value, SelfRecording):
+                    return value.evaluated(self, values)
             raise
 
     @cached_property
