@@ -36,6 +36,7 @@ from .user_trace import (
     Held,
     QuietMath,
     check_points,
+    python_calls,
     quietly,
     same_bits,
     trace_law,
@@ -58,6 +59,8 @@ def user_parts(quantizer: UniformQuantizer, law: UserLaw, n: int, dt: float,
     if traces is None:
         return None
     first = traces[0]
+    if form.batch == 1:  # the Python loop's calls too, where it runs (a short run, a hand-over)
+        law.fast = python_calls(first, n, law.state_size)
     start = [*[f"sq{i} = {q}" for i, q in enumerate(q_text)], f"st = k * {dt!r}"]
     if form.batch == 1:
         constants = np.array(first.constants, dtype=float)
@@ -203,6 +206,8 @@ def compiled_user(spec: RunSpec) -> CompiledLoop | CompiledUserLoop | CompiledUs
             or type(spec.quantizer) is not UniformQuantizer or spec.input_quantizer is not None:
         return None
     if batch == 1 and (rows < MIN_ROWS or not numba_pays(rows, 1)):
+        if user and compiled_paths.requested():  # the Python loop, with the law's traced calls
+            user_parts(spec.quantizer, law, plant.n, spec.grid.dt)
         return None
     if batch != 1 and (rows * batch < MIN_ROWS or not isinstance(plant, ChainPlant)
                        or spec.observer is not None):

@@ -37,13 +37,14 @@ import copy
 import io
 import math
 import random
+import re
 from collections.abc import Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
 
 from ..compiled.traced import Symbol, Trace, recording
-from ..controller.user import UserLaw, advances_itself, sample
+from ..controller.user import FastCalls, UserLaw, advances_itself, sample
 from .compiled_loop import CONTROL_REFUSED
 
 COMPILED = "compiled"  # UserLaw.compiled_form of a law that has a compiled form
@@ -354,3 +355,45 @@ def explain(law: UserLaw, n: int, dt: float) -> str | None:
     if law.compiled_form is None:
         law.compiled_form = trace_law(law, n, dt)[1] or COMPILED
     return None if law.compiled_form == COMPILED else law.compiled_form
+
+
+_RENAMED = ((re.compile(r"yd\[r, (\d+)\]"), r"y\1"), (re.compile(r"adaptive\[(\d+)\]"), r"a\1"),
+            (re.compile(r"held\[(\d+)\]"), r"h\1"))
+_SLOT = re.compile(r"lp\[(\d+)\]")
+
+
+def _renamed(line: str, constants: Literals) -> str:
+    """A traced line of the loop as a line of :func:`python_calls`' functions."""
+    for pattern, name in _RENAMED:
+        line = pattern.sub(name, line)
+    return "    " + _SLOT.sub(constants, line).replace(f"return {CONTROL_REFUSED}, k", "return None")
+
+
+def python_calls(trace: CopyTrace, n: int, m: int) -> FastCalls:
+    """One copy's traced lines as two plain Python functions on floats, the law's calls on the
+    Python loop (:attr:`UserLaw.fast`): ``control(q.., yd.., state.., t) -> u`` and
+    ``advance(q.., yd.., t, state..) -> state``, None where the compiled loop would hand over.
+    The same lines the check ran, with the arrays' entries as locals and the constants as
+    literals: the same operations on the same numbers."""
+    constants = Literals(trace.constants)
+    q, y, a = [f"sq{i}" for i in range(n)], [f"y{j}" for j in range(n + 1)], [f"a{i}" for i in range(m)]
+    sample = [f"h{1 + i}" for i in range(n)] + [f"h{1 + n + j}" for j in range(n + 1)] + [f"h{2 * n + 2}"]
+    source = "\n".join([f"def control({', '.join([*q, *y, *a, 'st'])}, lp=lp):",
+                        *[_renamed(line, constants) for line in trace.control], "    return h0", "",
+                        f"def advance({', '.join([*sample, *a])}, lp=lp):",
+                        *[_renamed(line, constants) for line in trace.advance],
+                        f"    return ({''.join(v + ', ' for v in a)})"])
+    names = {"math": math, "np": np, "lp": tuple(trace.constants)}
+    exec(compile(source, "<traced law>", "exec"), names)  # noqa: S102 (text made by the tracer alone)
+    return FastCalls(names["control"], names["advance"])
+
+
+class Literals:
+    """``lp[i]`` as the literal of its number where Python reads one back exactly, else as it is."""
+
+    def __init__(self, constants: Sequence[float]) -> None:
+        self.constants = constants
+
+    def __call__(self, match: re.Match) -> str:
+        value = float(self.constants[int(match[1])])
+        return f"({value!r})" if math.isfinite(value) else match[0]
