@@ -101,6 +101,17 @@ def test_a_single_run_compiles_and_hands_over_to_python_where_an_expression_refu
     _same_records(records, python.run())
 
 
+def test_a_short_run_steps_on_the_traced_calls_and_equals_its_python(monkeypatch) -> None:
+    """Below the compiled loop's length the Python loop calls the law's traced lines as plain Python
+    (its own code at its first calls, and where an expression refuses: the test above)."""
+    loop = _loop([0.25], 3.0, monkeypatch, compiled=True)
+    assert loop.compiled is None and loop.law.fast is not None
+    records = loop.run()
+    python = _loop([0.25], 3.0, monkeypatch, compiled=False)
+    assert python.law.fast is None
+    _same_records(records, python.run())
+
+
 def test_a_batch_compiles_with_a_parameter_per_copy_and_equals_its_python_copy_by_copy(monkeypatch) -> None:
     offsets = [2.0, 3.0, 4.5]
     loop = _loop(offsets, 2.0, monkeypatch, compiled=True)  # 3 x 2001 rows: enough for a batch
