@@ -204,6 +204,8 @@ def compiled_user(spec: RunSpec) -> CompiledLoop | CompiledUserLoop | CompiledUs
     from as many copy-rows."""
     law, plant, rows = spec.law, spec.plant, spec.grid.rows
     batch, user = plant.batch, isinstance(spec.law, UserLaw)
+    if user:
+        law.fast = None  # traced afresh for this run's step (a law object may serve several runs)
     if not (user or (own_column_law(law) and batch == 1)) or spec.velocity_source != "sensor" \
             or type(spec.quantizer) is not UniformQuantizer or spec.input_quantizer is not None:
         return None

@@ -383,9 +383,18 @@ def python_calls(trace: CopyTrace, n: int, m: int) -> FastCalls:
                         f"def advance({', '.join([*sample, *a])}, lp=lp):",
                         *[_renamed(line, constants) for line in trace.advance],
                         f"    return ({''.join(v + ', ' for v in a)})"])
-    names = {"math": math, "np": np, "lp": tuple(trace.constants)}
-    exec(compile(source, "<traced law>", "exec"), names)  # noqa: S102 (text made by the tracer alone)
-    return FastCalls(names["control"], names["advance"])
+    # the same law again: the same text (its constants written in it, the others in the key)
+    key = source + repr([c for c in trace.constants if not math.isfinite(c)])
+    if key not in _CALLS:
+        if len(_CALLS) > 64:
+            _CALLS.clear()
+        names = {"math": math, "np": np, "lp": tuple(trace.constants)}
+        exec(compile(source, "<traced law>", "exec"), names)  # noqa: S102 (text made by the tracer alone)
+        _CALLS[key] = FastCalls(names["control"], names["advance"])
+    return _CALLS[key]
+
+
+_CALLS: dict[str, FastCalls] = {}  # the functions of python_calls by their text
 
 
 class Literals:
