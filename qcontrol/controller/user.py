@@ -37,7 +37,6 @@ import numpy as np
 
 from ..columns import ARRAYS, Column, ColumnForm
 from ..errors import QcontrolInputError
-from ..expr import FLOAT_REFUSED
 from ..quantizer import QuantizedReading
 from ..schema import Table
 from .backstepping import Backstepping, Columns
@@ -131,6 +130,7 @@ class _FastSample(NamedTuple):
 
 
 fast_sample = partial(tuple.__new__, _FastSample)
+HANDED_OVER = (ArithmeticError, ValueError)  # what math and float arithmetic raise: the law's own call
 
 
 def fresh_rows(form: ColumnForm, columns: Sequence[Column], batch: int, size: int
@@ -222,7 +222,7 @@ class UserLaw(Backstepping):
         """u by the traced calls (:class:`FastCalls`), or None: the law's own ``control`` then."""
         try:
             u = self.fast.control(*q, *yd, *state, t)  # type: ignore[union-attr]
-        except FLOAT_REFUSED:
+        except HANDED_OVER:
             return None
         return None if u is None else float(u)
 
@@ -333,7 +333,7 @@ class StateUpdate:
         if type(sample) is _FastSample:  # a single copy on its traced calls
             try:
                 new = law.fast.advance(*sample.q, *sample.yd, sample.t, *state)  # type: ignore[union-attr]
-            except FLOAT_REFUSED:
+            except HANDED_OVER:
                 new = None
             if new is not None:
                 return tuple([float(v) for v in new])
