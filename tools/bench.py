@@ -414,6 +414,7 @@ def measure(args: argparse.Namespace) -> dict:
     result["recording_s"] = details["recording"]["recording_s"]
     details["user_laws"] = bench_laws.measure(duration, duration / 5, 10 if args.quick else 50, repeat)
     result["user_law_ratio"] = {"single": details["user_laws"]["single_ratio"],
+                                "single_fresh_process": details["user_laws"]["single_fresh_ratio"],
                                 "batch": details["user_laws"]["batch_ratio"]}
     result["peak_memory_mb"] = peak_memory_mb(duration)
     result["peak_memory_note"] = f"Example 2, ODE, full record, {duration:g} s at dt = 1e-4 (tracemalloc)"

@@ -173,6 +173,11 @@ class Symbol:
     def __neg__(self) -> Symbol:
         return current().assign(f"-{self.text}")
 
+    def evaluated(self, expression: Expression, columns: Sequence[Value]) -> Symbol:
+        """``expression`` on traced ``columns`` (this one among them), recorded: how an expression's
+        ``on_floats`` meets a symbol (:func:`evaluate`)."""
+        return evaluate(expression, columns)
+
     def __bool__(self) -> bool:
         if self.truth is None:
             raise TypeError("a traced formula branches on a column's value: it keeps the Python loop")
@@ -262,6 +267,10 @@ class TracedForm:
 
     def __init__(self, batch: int = 1) -> None:
         self.batch = batch
+
+    def __deepcopy__(self, memo: dict) -> TracedForm:
+        """Itself (a form holds no state; a law's copy keyed by it finds it)."""
+        return self
 
     def column(self, values: Any) -> float | np.ndarray:
         array = np.asarray(values, dtype=float)

@@ -122,6 +122,7 @@ class CompiledBatch:
 
     def __init__(self, parts: TracedParts, form: TracedForm, n: int, m: int, law: Any = None) -> None:
         self.parts, self.form, self.n, self.m, self.law = parts, form, n, m, law
+        self.held_width = 1 + m + n  # u, the targets, zbar (a user law's: u and its sample)
 
     def function(self, plant: NativeStepper, folds: Folds | None = None):  # noqa: ANN201 (a numba dispatcher)
         from ..compiled.cache import generated_module
@@ -156,7 +157,7 @@ class CompiledBatch:
         state = np.empty((batch, self.m))
         for i, column in enumerate(adaptive):
             state[:, i] = column
-        held = np.zeros((batch, 1 + self.m + self.n))
+        held = np.zeros((batch, self.held_width))
         arrays = record.buffer.arrays
         buffers = (arrays["x"], arrays["x_meas"], arrays["x_q"], arrays["u"], arrays["adaptive"])
         status, at = np.zeros(batch, dtype=np.int64), np.zeros(batch, dtype=np.int64)

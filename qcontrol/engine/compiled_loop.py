@@ -195,6 +195,7 @@ class CompiledLoop:
 
     def __init__(self, parts: TracedParts, n: int, m: int) -> None:
         self.parts, self.n, self.m = parts, n, m
+        self.held_width = 1 + m + n  # u, the targets, zbar (a user law's: u and its sample)
 
     def function(self, plant: NativeStepper):  # noqa: ANN201 (a numba dispatcher)
         """The generated loop for this law and plant, compiled or loaded from the disk cache."""
@@ -220,7 +221,7 @@ class CompiledLoop:
         except Exception as exc:  # numba refusing a construct: the Python loop, said once
             compiled_paths.fallback("the closed loop", f"{type(exc).__name__}: {exc}")
             return START._replace(adaptive=adaptive)
-        state, held = np.array(adaptive, dtype=float), np.zeros(1 + self.m + self.n)
+        state, held = np.array(adaptive, dtype=float), np.zeros(self.held_width)
         arrays, hold = loop.record.buffer.arrays, loop.grid.hold
         buffers = (arrays["x"], arrays["x_meas"], arrays["x_q"], arrays["u"], arrays["adaptive"])
         start, step_first = 0, False

@@ -226,10 +226,7 @@ class FloatRows:
 
     def law(self, law: BatchLaw, h: float) -> tuple[Callable[..., Any], Advance]:
         """``(control, advance)`` of one copy on floats: the law in :data:`FLOATS`, or its array form."""
-        if isinstance(law, AnyColumnForm):
-            return law.control, law.advancer_in(FLOATS, h)
-        adapter = ArrayLawAsFloats(law, h)
-        return adapter.control, adapter.advance
+        return single_copy(law, h)
 
     def keep(self, k: int, x: list[float], meas: list[float], reading: QuantizedReading, u: float,
              adaptive: tuple) -> None:
@@ -255,6 +252,20 @@ class FloatRows:
     def next_event(self, k: int) -> int:
         """The next row at which the pending rows must be flushed."""
         return ((k + 1) // FLUSH_ROWS + 1) * FLUSH_ROWS - 1
+
+
+def single_copy(law: BatchLaw, h: float) -> tuple[Callable[..., Any], Advance]:
+    """``(control, advance)`` of a single run's law in the form it steps in (:meth:`FloatRows.law`;
+    also what a user's law traced for the compiled loop is checked against)."""
+    if isinstance(law, AnyColumnForm):
+        return law.control, law.advancer_in(FLOATS, h)
+    adapter = ArrayLawAsFloats(law, h)
+    return adapter.control, adapter.advance
+
+
+def single_copy_quantizer(quantizer: Quantizer) -> Quantize:
+    """A single run's ``quantize(readings) -> QuantizedReading``, in the form it steps in."""
+    return FloatQuantize(quantizer).quantize
 
 
 def compiled_loop(spec: RunSpec) -> CompiledLoop | CompiledBatch | None:
