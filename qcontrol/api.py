@@ -43,6 +43,7 @@ from .outputs import check_figure_file, check_output_file, clean, prepare_output
 from .plants import SceneSource
 from .scenario import Scenario, parse_scenario
 from .scenario.resolve import scenario_provenance
+from .sharing import sharing
 from .summary import Summary
 from .sweep.grid import MAX_RUNS
 from .sweep.runs import run_variants_batched
@@ -296,7 +297,8 @@ def sweep(scenario: Scenario, grid: Mapping[str, Sequence[Any]], *, backend: str
                                  "split it into several sweeps")
     backend = runnable_backend(scenario, backend)
     points = [dict(zip(grid, combo, strict=True)) for combo in itertools.product(*grid.values())]
-    variants = [scenario.with_overrides(point) for point in points]
+    with sharing():  # (what the variants share is checked once)
+        variants = [scenario.with_overrides(point) for point in points]
     return sweep_rows(points, run_variants_batched(variants, backend))
 
 

@@ -53,12 +53,14 @@ class CheckReport:
     dt: float
     law: str
     backends: dict[str, dict[str, Any]]
+    compiled_form: str | None = None  # a user law's: "compiled", or why it runs in Python
 
     def line(self) -> str:
         """The line ``qcontrol check`` prints."""
         notes = "; ".join(_plant_note(name, report) for name, report in self.backends.items())
+        law = "" if self.compiled_form is None else f"; the law's compiled form: {self.compiled_form}"
         return (f"ok: {self.source} ({self.scenario}): keys, expressions and the {self.law} law's constants "
-                f"valid; {self.steps} steps of {self.dt:g} s on {self.backend}; {notes}")
+                f"valid; {self.steps} steps of {self.dt:g} s on {self.backend}; {notes}{law}")
 
 
 def check(scenario: Scenario, backend: str | None = None) -> CheckReport:
@@ -75,7 +77,18 @@ def check(scenario: Scenario, backend: str | None = None) -> CheckReport:
     reports = {run.backend: dict(run.report.consistency_report or {}) for run in runs}
     steps = round(scenario.simulation.duration / scenario.simulation.dt)
     return CheckReport(scenario.name, str(scenario.source), chosen.backend, steps, scenario.simulation.dt,
-                       scenario.controller.kind, reports)
+                       scenario.controller.kind, reports, user_compiled_form(chosen.law, scenario))
+
+
+def user_compiled_form(law: Any, scenario: Scenario) -> str | None:
+    """For a law of the ``qcontrol.Law`` protocol: "compiled" when its code has a compiled form
+    (traced and checked: docs/laws.md, 'Speed'), else why it runs in Python; None for other laws."""
+    from .controller.user import UserLaw
+    from .engine.user_trace import explain
+
+    if not isinstance(law, UserLaw):
+        return None
+    return explain(law, law.n, scenario.simulation.dt) or "compiled"
 
 
 def _plant_note(backend: str, report: Mapping[str, Any]) -> str:

@@ -31,6 +31,33 @@ def omega_key(omega: float) -> str:
     return fixed if float(fixed) == omega else repr(float(omega))
 
 
+def interpolated(ta, za, tc, zc, x):  # noqa: ANN001, ANN201 (floats or arrays; also compiled)
+    """``np.interp``'s formula: the value at ``x`` on the line through ``(ta, za)`` and ``(tc, zc)``."""
+    slope = (zc - za) / (tc - ta)
+    return slope * (x - ta) + za
+
+
+def follow_row(t, z, instants, values, b, done, last):  # noqa: ANN001, ANN201 (numba's subset of Python)
+    """The next row ``(t, |z_1|)`` of run ``b``, rows given one at a time in time order: the
+    compiled batch's form of :meth:`ErrorRateStream.add`, the same numbers (every instant up to
+    ``t`` takes its value on the same pair of rows, by :func:`interpolated`). ``done[b]``: the
+    run's instants with their value; ``last[b]``: its last finite row's ``(t, |z_1|)`` so far
+    (NaN: none). A non-finite ``z`` is skipped, as there."""
+    if not (z - z == 0.0):
+        return
+    ta, za = last[b, 0], last[b, 1]
+    i = done[b]
+    while i < instants.shape[0] and instants[i] <= t:
+        x = instants[i]
+        if not (ta == ta) or t <= x:  # no row before (np.interp's left), or the row is at x
+            values[i, b] = z
+        else:
+            values[i, b] = interpolated(ta, za, t, z, x)
+        i += 1
+    done[b] = i
+    last[b, 0], last[b, 1] = t, z
+
+
 class ErrorRateStream:
     """Accumulates ``|z_1|`` at the sample instants from rows given in time order, for ``batch``
     runs at once (column ``b`` of every array is run ``b``)."""
@@ -78,9 +105,8 @@ class ErrorRateStream:
             a, c = np.minimum(a, len(z) - 1), np.minimum(c, len(z) - 1)  # (none: not filled below)
             ta, za, tc, zc = time_of(a), z[a, runs], time_of(c), z[c, runs]
             with np.errstate(all="ignore"):  # the slope of a degenerate pair is not used
-                slope = (zc - za) / (tc - ta)
-                # np.interp's formula; a row at x (or, before the first row, the first) gives its value
-                value = np.where(ta >= x, za, slope * (x - ta) + za)
+                # a row at x (or, before the first row, the first) gives its value
+                value = np.where(ta >= x, za, interpolated(ta, za, tc, zc, x))
             index = np.arange(first, first + len(x))[:, None]
             fill = (index >= self.done) & (index < stop)
             self.values[first : first + len(x)] = np.where(fill, value, self.values[first : first + len(x)])

@@ -17,6 +17,8 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 _PR_SET_PDEATHSIG = 1
 WATCH_PERIOD = 0.5  # s between a worker's checks that its parent is alive
@@ -53,4 +55,34 @@ def worker_pool(workers: int) -> multiprocessing.pool.Pool:
     ``terminate()`` on every exit path (a ``finally``), so an error, Ctrl-C or SIGTERM stops the
     workers at once."""
     context = multiprocessing.get_context("fork")
-    return context.Pool(workers, initializer=_worker_start, initargs=(os.getpid(),))
+    with _signals_after_forking():
+        return context.Pool(workers, initializer=_worker_start, initargs=(os.getpid(),))
+
+
+@contextmanager
+def _signals_after_forking() -> Iterator[None]:
+    """Ctrl-C or SIGTERM arriving while the pool forks its workers is acted on once they are
+    forked. Python runs a signal's handler at the next line of Python, which may be one of the
+    hooks run around a fork (logging's lock), and it ignores an exception raised there: the
+    command's "stop now" would be printed as "Exception ignored" and lost, and the command would
+    run on. A child forked meanwhile ends on the signal as it would without a handler."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    parent, caught = os.getpid(), []
+
+    def hold(signum: int, frame: object) -> None:
+        if os.getpid() != parent:  # a worker, before its start: the signal's default action
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
+        caught.append(signum)
+
+    previous = {signum: signal.signal(signum, hold) for signum in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        for signum in caught:
+            signal.raise_signal(signum)

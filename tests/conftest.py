@@ -2,6 +2,10 @@
 import EX2``, and as fixtures), and nothing may write under the real HOME (the rerun SDK keeps
 analytics there)."""
 
+import contextlib
+import fcntl
+import io
+import json
 import os
 import subprocess
 import tempfile
@@ -35,6 +39,66 @@ INTEGRAL_LAW_METHODS = """
     def state_rate(self, t, x_q, yd, state):
         return np.array([x_q[0] - yd[0]])
 """
+
+
+# The files that take longest, heaviest first. With `--dist loadfile` a file runs whole on one
+# worker, so a long file handed out last leaves the other worker idle at the end; the rest keep
+# their order. xdist's own reordering (files with the most tests first) is turned off for that.
+HEAVY_FIRST = ("test_recipes.py", "test_laws_doc.py", "test_output_safety.py", "test_compiled_loop.py",
+               "test_reproduce.py", "test_readme.py", "test_one_definition.py", "test_sweep.py",
+               "test_reproduce_laws.py", "test_plots.py", "test_tuning.py", "test_reliability.py")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    if hasattr(config.option, "loadscopereorder"):  # pytest-xdist's --no-loadscope-reorder
+        config.option.loadscopereorder = False
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    rank = {name: i for i, name in enumerate(HEAVY_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
+
+
+def _once_per_session(tmp_path_factory: pytest.TempPathFactory, name: str, make) -> Path:
+    """The folder ``make(folder)`` fills, made once per test session: under pytest-xdist the first
+    worker to ask makes it (the others wait on a lock, then read it). ``make`` leaves a file
+    ``done`` last, so a folder without it (its maker failed) is made again."""
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # the session's folder, shared by its workers
+    folder = root / f"shared-{name}"
+    with open(root / f"shared-{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (folder / "done").is_file():
+            if folder.exists():
+                import shutil
+
+                shutil.rmtree(folder)
+            folder.mkdir()
+            make(folder)
+            (folder / "done").write_text("")
+    return folder
+
+
+QUICK_REPRODUCE = ["reproduce", "--quick", "--backend", "ode", "--duration", "0.3"]
+
+
+def _quick_reproduction(folder: Path) -> None:
+    from qcontrol.cli import main
+
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        status = main([*QUICK_REPRODUCE, "--out", str(folder / "out")])
+    (folder / "run.json").write_text(json.dumps({"status": status, "stdout": printed.getvalue()}))
+
+
+@pytest.fixture(scope="session")
+def quick_reproduction(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, int, str]:
+    """``qcontrol QUICK_REPRODUCE --out FOLDER``, run once for the session (the test files that
+    read a quick reproduction share it): the folder, the exit status and what it printed."""
+    folder = _once_per_session(tmp_path_factory, "quick-reproduce", _quick_reproduction)
+    run = json.loads((folder / "run.json").read_text())
+    return folder / "out", run["status"], run["stdout"]
 
 
 @pytest.fixture

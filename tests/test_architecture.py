@@ -43,7 +43,8 @@ from qcontrol.scenario import load_scenario
 
 # Each layer may import only from the layers before it (docs/architecture.md, "Modules").
 LAYERS = [
-    {"_version", "errors", "schema", "timegrid", "expr", "progress", "outputs", "error_rate", "resources",
+    {"_version", "errors", "schema", "sharing", "timegrid", "expr", "progress", "outputs", "error_rate",
+     "resources",
      "provenance", "compiled", "workers"},
     {"columns"},
     {"quantizer", "quantizers", "reference", "disturbance"},

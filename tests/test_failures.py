@@ -81,6 +81,44 @@ def test_a_region_terminated_exits_143(tmp_path):
     assert not out.exists()
 
 
+_SIGNAL_WHILE_FORKING = """
+import os, signal, sys
+from qcontrol.workers import worker_pool
+
+class Stop(Exception):
+    pass
+
+def stop(signum, frame):
+    raise Stop
+
+signal.signal(signal.SIGTERM, stop)
+sent = []
+
+def kill_once():  # the signal lands inside a hook run around the fork
+    if not sent:
+        sent.append(1)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+os.register_at_fork(before=kill_once)
+try:
+    pool = worker_pool(2)
+except Stop:
+    print("stopped")
+    sys.exit(0)
+pool.terminate()
+print("ran on")
+"""
+
+
+def test_a_signal_while_the_pool_forks_is_not_lost():
+    """SIGTERM arriving inside the hooks Python runs around a worker's fork (where an exception a
+    handler raises is ignored) still stops the command once the pool is made."""
+    done = subprocess.run([sys.executable, "-c", _SIGNAL_WHILE_FORKING], capture_output=True, text=True,
+                          timeout=60, cwd=ROOT)
+    assert done.stdout.split() == ["stopped"], done.stdout + done.stderr
+    assert "Exception ignored" not in done.stderr
+
+
 def _has_children(pid: int) -> bool:
     try:
         return bool(Path(f"/proc/{pid}/task/{pid}/children").read_text().split())

@@ -1,8 +1,9 @@
 """Every code block of docs/laws.md runs: the Python blocks in order in one fresh interpreter, in a
 folder holding the scenarios and models, then every ``qcontrol`` command of its shell blocks there,
-each in a process of its own: a fork of one interpreter that has imported the command line and run
-nothing (what a fresh ``qcontrol`` is once imported, without importing it ten times), so a command
-sees nothing another one registered or loaded."""
+each in a process of its own: a fork of one interpreter that has imported the command line and the
+plotting library its figures are drawn with, and run nothing (what a fresh ``qcontrol`` is once
+imported, without importing it ten times), so a command sees nothing another one registered or
+loaded. (Not numba: a process that has started it compiles shorter runs.)"""
 
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ COMMANDS = [line.strip() for block in re.findall(r"```bash\n(.*?)```", DOC, re.S
 # command: the command and its exit status; a command's own output goes to stderr.
 FORKING_RUNNER = """
 import json, os, shlex, sys
+import matplotlib.backends.backend_agg, matplotlib.figure
 from qcontrol.cli import main
 for command in json.loads(sys.argv[1]):
     sys.stdout.flush()
@@ -55,6 +57,9 @@ def test_the_laws_tutorial_runs(tmp_path: Path) -> None:
     assert (tmp_path / "region-laws" / "region.csv").is_file()
     table1 = (tmp_path / "reproduce-laws" / "table1.json").read_text()
     assert '"beyond_the_paper"' in table1 and '"integral-bs"' in table1
+    # --quick without --duration: 1 s horizons, for the law as for the paper's two methods
+    assert json.loads(table1)["provenance"]["overrides"]["integral-bs"] == [
+        "controller.kind='integral-bs'", "simulation.duration=1.0"]
     assert "paper-integral [" in done.stdout
     compared = (tmp_path / "laws-cmp" / "laws.json").read_text()
     assert all(kind in compared for kind in ("proposed", "comparison", "paper-integral"))

@@ -61,10 +61,68 @@ def place(text: str, root: Path) -> bool:
     return True
 
 
-def run(command: list[str], root: Path, env: dict) -> str:
-    done = subprocess.run(command, cwd=root, env=env, capture_output=True, text=True, timeout=TIMEOUT)
-    assert done.returncode == 0, f"{shlex.join(command)}: {done.returncode}\n{done.stdout}\n{done.stderr}"
-    return done.stdout
+# Runs the commands of argv[1] (a JSON list of argv lists; ["python", "-c", text] for a script)
+# each as the process it names would: `qcontrol ...` through the console script's entry point,
+# `python FILE`, `python -m MODULE` and `python -c TEXT` as the interpreter runs them, anything
+# else (git) as a subprocess. A command runs in a fork of this interpreter, which has imported
+# the package (the copy's, as the recipe left it) and run nothing: what a fresh process is once it
+# has imported the package, without starting a dozen interpreters. Prints one JSON line per
+# command: its exit status, stdout and stderr.
+RUNNER = """
+import json, os, runpy, subprocess, sys, tempfile
+import qcontrol, qcontrol._entry, qcontrol.cli
+
+
+def child(argv):
+    if argv[0] == "qcontrol":
+        sys.argv = argv
+        sys.exit(qcontrol._entry.main())
+    if argv[1] == "-c":
+        sys.argv, sys.path[0] = ["-c", *argv[3:]], ""
+        exec(compile(argv[2], "<string>", "exec"), {"__name__": "__main__", "__builtins__": __builtins__})
+    elif argv[1] == "-m":
+        sys.argv, sys.path[0] = argv[2:], os.getcwd()
+        runpy.run_module(argv[2], run_name="__main__", alter_sys=True)
+    else:
+        sys.argv, sys.path[0] = argv[1:], os.path.dirname(os.path.abspath(argv[1]))
+        runpy.run_path(argv[1], run_name="__main__")
+    sys.exit(0)
+
+
+folder = tempfile.mkdtemp()
+for argv in json.loads(sys.argv[1]):
+    if argv[0] not in ("python", "qcontrol"):
+        done = subprocess.run(argv, capture_output=True, text=True)
+        print(json.dumps([done.returncode, done.stdout, done.stderr]), flush=True)
+        continue
+    out, err = os.path.join(folder, "out"), os.path.join(folder, "err")
+    sys.stdout.flush()
+    pid = os.fork()
+    if pid == 0:
+        os.dup2(os.open(out, os.O_WRONLY | os.O_CREAT | os.O_TRUNC), 1)
+        os.dup2(os.open(err, os.O_WRONLY | os.O_CREAT | os.O_TRUNC), 2)
+        child(argv)
+    status = os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1])
+    print(json.dumps([status, open(out).read(), open(err).read()]), flush=True)
+"""
+
+
+def run_all(commands: list[list[str]], root: Path, env: dict) -> list[tuple[int, str, str]]:
+    """Each command's exit status, stdout and stderr, run in the copy by :data:`RUNNER`."""
+    done = subprocess.run([sys.executable, "-c", RUNNER, json.dumps(commands)], cwd=root, env=env,
+                          capture_output=True, text=True, timeout=TIMEOUT)
+    results = [tuple(json.loads(line)) for line in done.stdout.splitlines()]
+    assert done.returncode == 0 and len(results) == len(commands), done.stderr
+    return results
+
+
+def run(commands: list[list[str]], root: Path, env: dict) -> list[str]:
+    """Each command's stdout; every command must exit 0."""
+    outputs = []
+    for command, (status, out, err) in zip(commands, run_all(commands, root, env), strict=True):
+        assert status == 0, f"{shlex.join(command)}: {status}\n{out}\n{err}"
+        outputs.append(out)
+    return outputs
 
 
 def perform(name: str, root: Path) -> dict[str, str]:
@@ -78,24 +136,39 @@ def perform(name: str, root: Path) -> dict[str, str]:
     env = dict(os.environ, PYTHONPATH=str(root), HOME=str(root / "home"),
                PATH=os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")]))
     env.pop("PYTEST_XDIST_WORKER", None)
-    run(["git", "init", "-q"], root, env)  # the tests list the repository's files with git
-    outputs = {}
+    subprocess.run(["git", "init", "-q"], cwd=root, env=env, check=True)  # the tests list the files with git
+    outputs, names, commands = {}, [], []  # the commands since the last block placed, in order
+
+    def run_pending() -> None:
+        if not commands:
+            return
+        for key, out in zip(names, run(commands, root, env), strict=True):
+            if key is not None:
+                outputs[key] = out
+        names.clear()
+        commands.clear()
+
     for language, text in recipe_blocks(name):
         if place(text, root):
+            run_pending()  # what ran before a block is placed ran without it
             continue
-        run(["git", "add", "-A"], root, env)
+        names.append(None)
+        commands.append(["git", "add", "-A"])
         if language == "bash":
             for line in filter(None, text.splitlines()):
-                outputs[line] = run(shlex.split(line), root, env)
+                names.append(line)
+                commands.append(shlex.split(line))
         elif language == "python":
-            outputs["python"] = run([sys.executable, "-c", text], root, env)
+            names.append("python")
+            commands.append(["python", "-c", text])
+    run_pending()
     return outputs
 
 
 def in_copy(root: Path, script: str) -> dict:
     """What ``script`` (run in the copy, with its package) prints as JSON."""
     env = dict(os.environ, PYTHONPATH=str(root), HOME=str(root / "home"))
-    return json.loads(run([sys.executable, "-c", script], root, env))
+    return json.loads(run([["python", "-c", script]], root, env)[0])
 
 
 def test_every_recipe_names_where_each_block_goes() -> None:
@@ -183,9 +256,9 @@ def test_recipe_a_command(tmp_path) -> None:
     steps = next(out for line, out in outputs.items() if line.startswith("qcontrol steps"))
     assert steps == "example2: 250 steps\n"
     env = dict(os.environ, PYTHONPATH=str(tmp_path), HOME=str(tmp_path / "home"))
-    bad = subprocess.run([sys.executable, "-m", "qcontrol", "steps", "example2", "--set", "controller.c=1"],
-                         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=TIMEOUT)
-    assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "controller" in bad.stderr
+    refused = ["python", "-m", "qcontrol", "steps", "example2", "--set", "controller.c=1"]
+    [(status, _, err)] = run_all([refused], tmp_path, env)
+    assert status == 2 and err.count("\n") == 1 and "controller" in err
 
 
 def test_the_concepts_are_listed_once_at_most_twenty_and_all_exist() -> None:

@@ -5,6 +5,7 @@ import struct
 
 import numpy as np
 import pytest
+from conftest import QUICK_REPRODUCE
 
 from qcontrol.cli import main
 from qcontrol.paper import PAPER_TABLE1
@@ -156,10 +157,12 @@ def test_robustness_json_holds_every_row(reproduction):
     assert {m["example"] for m in study["margins"]} == {"example1", "example2"}
 
 
-def test_quick_reproduce_skips_the_robustness_study(tmp_path, capsys):
-    out = tmp_path / "quick"
-    assert main(["reproduce", "--quick", "--backend", "ode", "--duration", "0.3", "--out", str(out)]) == 0
-    assert "no region or robustness study (--quick)" in capsys.readouterr().out
+def test_quick_reproduce_skips_the_robustness_study(quick_reproduction):
+    """``reproduce --quick --backend ode --duration 0.3`` (the session's shared run, conftest.py)."""
+    out, status, printed = quick_reproduction
+    assert QUICK_REPRODUCE == ["reproduce", "--quick", "--backend", "ode", "--duration", "0.3"]
+    assert status == 0
+    assert "no region or robustness study (--quick)" in printed
     assert (out / "table1.json").is_file() and (out / "REPORT.md").is_file()
     assert not (out / "robustness.json").exists() and not (out / "study_margins.png").exists()
     report = (out / "REPORT.md").read_text()

@@ -8,7 +8,7 @@ import math
 from pathlib import Path
 
 import pytest
-from conftest import INTEGRAL_LAW_METHODS
+from conftest import INTEGRAL_LAW_METHODS, QUICK_REPRODUCE
 
 import qcontrol
 from qcontrol.cli import main
@@ -59,23 +59,26 @@ def _finite_rates(rates: dict) -> bool:
     return list(rates) == OMEGAS and all(math.isfinite(v) and 0.0 <= v <= 1.0 for v in rates.values())
 
 
-def test_quick_reproduce_adds_the_law_to_table1_and_leaves_the_rest(tmp_path, law_file, capsys) -> None:
-    plain, more = tmp_path / "plain", tmp_path / "more"
-    assert main(["reproduce", "--quick", "--backend", "ode", "-q", "--out", str(plain)]) == 0
-    assert main(["reproduce", "--quick", "--backend", "ode", "-q", "--law-module", str(law_file),
-                 "--law", KIND, "--out", str(more)]) == 0
+def test_quick_reproduce_adds_the_law_to_table1_and_leaves_the_rest(tmp_path, law_file,
+                                                                   quick_reproduction) -> None:
+    """The same quick reproduction (0.3 s ODE runs) with and without the law: the one without is
+    the session's shared run (conftest.py)."""
+    (plain, status, _), more = quick_reproduction, tmp_path / "more"
+    assert status == 0 and QUICK_REPRODUCE[:2] == ["reproduce", "--quick"]
+    with_law = ["-q", "--law-module", str(law_file), "--law", KIND, "--out", str(more)]
+    assert main([*QUICK_REPRODUCE, *with_law]) == 0
     table, base = _json(more / "table1.json"), _json(plain / "table1.json")
     extra = table.pop("beyond_the_paper")
     assert "Not from the paper" in extra["note"] and list(extra["ours"]) == ["ode"]
     rates = extra["ours"]["ode"][KIND]
     assert _finite_rates(rates)
     # the same law's run through the API, independently: the same numbers
-    sc = qcontrol.load_scenario("example2", {"controller.kind": KIND, "simulation.duration": 1.0})
+    sc = qcontrol.load_scenario("example2", {"controller.kind": KIND, "simulation.duration": 0.3})
     assert rates == qcontrol.run(sc, backend="ode").summary["error_rate"]
     assert rates != table["ours"]["ode"]["proposed"]
     provenance, base_provenance = table.pop("provenance"), base.pop("provenance")
     assert table == base  # the paper's two methods, their differences and notes: as without --law
-    assert provenance["overrides"][KIND] == [f"controller.kind='{KIND}'", "simulation.duration=1.0"]
+    assert provenance["overrides"][KIND] == [f"controller.kind='{KIND}'", "simulation.duration=0.3"]
     for key in ("scenario_file", "scenario_sha256", "overrides", "resolved_scenario"):
         assert {k: v for k, v in provenance[key].items() if k != KIND} == base_provenance[key]
     assert _json(more / "studies.json")["kappa_margin"] == _json(plain / "studies.json")["kappa_margin"]

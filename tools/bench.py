@@ -22,7 +22,8 @@
 * ``--sweeps``: 200- and 1000-run ``sweep_summaries`` of 10 s Example 2 runs on ``--workers``:
   on MuJoCo the wall time against the runs' bare C ``mj_step`` steps on one core (targets on 2
   workers: <= 0.65 and <= 0.6), on the ODE against the runs' compiled bare RK4 on one core (target
-  for 1000 runs <= 4); wall and CPU time (this process and its workers) per simulated second (slow).
+  for 1000 runs <= 4); the same for ``qcontrol region`` (121 bounded starts of Example 2, both
+  backends); wall and CPU time (this process and its workers) per simulated second (slow).
 
 Timings are best-of-N (the machine may be shared); ``--quick`` shortens every horizon.
 """
@@ -352,7 +353,29 @@ def sweep_limits(duration: float, workers: int, mj_step_s: float) -> dict:
             "wall_ms_per_simulated_s": wall / (runs * duration) * 1e3,
             "cpu_ms_per_simulated_s": cpu / (runs * duration) * 1e3,
             "target": targets[f"{backend}_{runs}"]}
+    out.update(region_limits(path, duration, workers, steps, limit))
     return {"duration_s": duration, "workers": workers, "load": os.getloadavg()[0], "runs": out}
+
+
+def region_limits(path: Path, duration: float, workers: int, steps: int, limit: dict) -> dict:
+    """``qcontrol region`` of Example 2 (the paper's law, 11 x 11 starts in |x_i| <= 1.5, all of
+    them bounded) on ``workers`` local workers, against its runs' bare steps on one core."""
+    from qcontrol.region import RegionGrid, measure_region, parse_law
+
+    grid, out = RegionGrid((0, 1), (-1.5, -1.5), (1.5, 1.5), 11), {}
+    for backend in ("mujoco", "ode"):
+        started, used = time.perf_counter(), cpu_seconds()
+        region = measure_region(path, grid, [parse_law("proposed")], backend,
+                                overrides=[f"simulation.duration={duration!r}"], workers=workers)
+        wall, cpu = time.perf_counter() - started, cpu_seconds() - used
+        runs = len(region.points)
+        out[f"{backend}_region_{runs}"] = {
+            "wall_s": wall, "cpu_s": cpu, "ratio_to_bare_one_core": wall / (runs * steps * limit[backend]),
+            "wall_ms_per_simulated_s": wall / (runs * duration) * 1e3,
+            "cpu_ms_per_simulated_s": cpu / (runs * duration) * 1e3,
+            "target": "<= 0.65" if backend == "mujoco" else "",
+            "diverged": sum(p.outcome != "bounded" for p in region.points)}
+    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -391,6 +414,7 @@ def measure(args: argparse.Namespace) -> dict:
     result["recording_s"] = details["recording"]["recording_s"]
     details["user_laws"] = bench_laws.measure(duration, duration / 5, 10 if args.quick else 50, repeat)
     result["user_law_ratio"] = {"single": details["user_laws"]["single_ratio"],
+                                "single_fresh_process": details["user_laws"]["single_fresh_ratio"],
                                 "batch": details["user_laws"]["batch_ratio"]}
     result["peak_memory_mb"] = peak_memory_mb(duration)
     result["peak_memory_note"] = f"Example 2, ODE, full record, {duration:g} s at dt = 1e-4 (tracemalloc)"
@@ -453,9 +477,10 @@ def report(result: dict, args: argparse.Namespace) -> None:
     if "sweeps" in result:
         sweeps = result["sweeps"]
         for label, r in sweeps["runs"].items():
-            backend, runs = label.split("_")
+            backend, *region, runs = label.split("_")
             limit = "bare C mj_step" if backend == "mujoco" else "bare RK4"
-            print(f"{runs + '-run ' + backend + ' sweep, wall / ' + limit + ' on one core':52s} "
+            what = f"{runs}-run {backend} {'region' if region else 'sweep'}"
+            print(f"{what + ', wall / ' + limit + ' on one core':52s} "
                   f"{r['ratio_to_bare_one_core']:10.2f}  {r['target']:7s} ({r['wall_s']:.1f} s wall, "
                   f"CPU {r['cpu_s']:.1f} s; per simulated s {r['wall_ms_per_simulated_s']:.2f} ms wall, "
                   f"{r['cpu_ms_per_simulated_s']:.2f} ms CPU; {sweeps['workers']} workers, "

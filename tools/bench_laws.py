@@ -4,18 +4,25 @@ Example 2 on the ODE backend (the plant costs the same for every law, so the rat
 
     python tools/bench_laws.py [--quick] [--repeat N]
 
-* single run (10 s, 10,000 steps): every law on the engine's Python loop (QCONTROL_COMPILE=0),
-  and the built-in law as it runs by default (compiled where numba is there and it pays);
-* batch (``--batch`` copies from different initial states, 2 s, metrics record): one simulate
-  call per law; a ``qcontrol.Law`` (``state_rate`` or ``advance``) is called copy by copy, a column-form class
-  once per step for the whole batch; the built-in law also as its batch runs by default.
+Each law as it runs by default, the figure user law / built-in (target 2x), in three settings:
 
-The target: a user law within 2x of the built-in law, single run and batch. Timings are best of N.
+* a session (numba started, as in a notebook, a sweep or the bench): a single run (10 s,
+  10,000 steps) and a batch (``--batch`` copies from different initial states, 2 s, metrics
+  record; one simulate call per law) run compiled where the law has a compiled form (the
+  built-in law; a law whose code the engine traced and checked, docs/laws.md 'Speed') and it
+  pays (a batch of the built-in law below 5000 rows runs its array form), else on the Python loop;
+* a fresh process (``qcontrol run`` of 10 s from the command line): everything on the Python
+  loop, a traced law through its traced calls;
+* ``QCONTROL_COMPILE=0``: every law's own Python (what a law without a compiled form pays).
+
+Timings are best of N (wall; CPU beside it for the session's figures).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import subprocess
 import sys
 from pathlib import Path
 
@@ -23,10 +30,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import laws_by_hand  # noqa: E402
-from bench_timing import best_of, python_loop  # noqa: E402
+from bench_timing import best_of_both, python_loop  # noqa: E402
 
 from qcontrol.assembly import build_law, build_plant, build_quantizer, build_reference  # noqa: E402
+from qcontrol.controller.user import UserLaw  # noqa: E402
 from qcontrol.engine import RunSpec, simulate  # noqa: E402
+from qcontrol.engine.compiled_user import column_parts  # noqa: E402
+from qcontrol.engine.user_trace import explain  # noqa: E402
 from qcontrol.scenario import Scenario, load_scenario  # noqa: E402
 from qcontrol.timegrid import TimeGrid
 
@@ -55,48 +65,87 @@ def run_batch(scs: list[Scenario]) -> None:
                      record="metrics" if len(scs) > 1 else "full"))
 
 
+def compiled_form(sc: Scenario) -> str:
+    """Whether the form's law has a compiled form ("compiled", or why not)."""
+    law = build_law([sc])
+    if isinstance(law, UserLaw):
+        return explain(law, law.n, sc.simulation.dt) or "compiled"
+    parts = column_parts(build_quantizer(sc), law, law.n, sc.simulation.dt)
+    return "compiled (single runs; a batch runs its array form)" if not isinstance(parts, str) else parts
+
+
+def timed(made: dict[str, list[Scenario]], repeat: int, warm: bool = True
+          ) -> tuple[dict[str, float], dict[str, float]]:
+    """Best wall and best CPU time of each entry's run (``warm``: a first run outside the timing,
+    for numba's start, a compiled form's tracing and the compiled-code cache)."""
+    wall, cpu = {}, {}
+    for name, scs in made.items():
+        if warm:
+            run_batch(scs)
+        wall[name], cpu[name] = best_of_both(repeat, lambda scs=scs: run_batch(scs))
+    return wall, cpu
+
+
+FRESH = """
+import json, sys, time
+sys.path.insert(0, {tools!r})
+import bench_laws, laws_by_hand
+laws_by_hand.register()
+made, best = bench_laws.scenarios({duration!r}, 1), {{}}
+for name, scs in made.items():
+    times = []
+    for _ in range({repeat!r}):
+        start = time.perf_counter()
+        bench_laws.run_batch(scs)
+        times.append(time.perf_counter() - start)
+    best[name] = min(times)
+print(json.dumps(best))
+"""
+
+
+def fresh_process(duration: float, repeat: int) -> dict[str, float]:
+    """Best wall time of each law's single run in a process that has not started numba."""
+    script = FRESH.format(tools=str(Path(__file__).resolve().parent), duration=duration, repeat=repeat)
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def measure(duration: float, batch_duration: float, copies: int, repeat: int) -> dict:
     laws_by_hand.register()
+    result: dict = {"single_fresh_s": fresh_process(duration, repeat)}
+    import numba  # noqa: F401  (a session: numba started, as the bench's other figures have it)
+
     single, batched = scenarios(duration, 1), scenarios(batch_duration, copies)
-    result: dict = {"single_s": {}, "batch_s": {}}
-    run_batch(single["built-in"])  # numba's start and the compiled loop's cache, outside the timing
-    result["builtin_default_s"] = best_of(repeat, lambda: run_batch(single["built-in"]))
+    result["compiled_form"] = {f: compiled_form(single[f][0]) for f in FORMS}
+    result["single_s"], result["single_cpu_s"] = timed(single, repeat)
+    result["batch_s"], result["batch_cpu_s"] = timed(batched, max(1, repeat - 1))
     with python_loop():
-        for name, scs in single.items():
-            result["single_s"][name] = best_of(repeat, lambda scs=scs: run_batch(scs))
-        for name, scs in batched.items():
-            result["batch_s"][name] = best_of(max(1, repeat - 1), lambda scs=scs: run_batch(scs))
-    result["single_ratio"] = {f: result["single_s"][f] / result["single_s"]["built-in"] for f in FORMS}
-    default = result["builtin_default_s"]
-    result["single_ratio_to_default"] = {f: result["single_s"][f] / default for f in FORMS}
-    result["batch_ratio"] = {f: result["batch_s"][f] / result["batch_s"]["built-in"] for f in FORMS}
-    run_batch(batched["built-in"])  # a compiled batch's start, outside the timing
-    batch_default = best_of(max(1, repeat - 1), lambda: run_batch(batched["built-in"]))
-    result["builtin_batch_default_s"] = batch_default
-    result["batch_ratio_to_default"] = {f: result["batch_s"][f] / batch_default for f in FORMS}
+        result["single_python_s"] = timed(single, repeat, warm=False)[0]
+        result["batch_python_s"] = timed(batched, max(1, repeat - 1), warm=False)[0]
+    for run in ("single", "batch", "single_fresh", "single_python", "batch_python"):
+        times = result[f"{run}_s"]
+        result[f"{run}_ratio"] = {f: times[f] / times["built-in"] for f in FORMS}
     result.update(duration_s=duration, batch_duration_s=batch_duration, copies=copies, repeat=repeat)
     return result
 
 
-NAMES = {"rk4": "qcontrol.Law, RK4 of state_rate", "stepped": "qcontrol.Law, its own advance",
-         "floats": "qcontrol.Law, its own advance on floats",
+NAMES = {"rk4": "Law, state_rate, numpy", "stepped": "Law, advance, numpy",
+         "rate-floats": "Law, state_rate, floats", "floats": "Law, advance, floats",
          "columns": "BacksteppingLaw subclass, column form"}
 
 
 def report(result: dict) -> None:
-    print(f"{'user law (44)-(45) by hand / built-in proposed':60s} {'ratio':>7s}  target")
-    for form in FORMS:
-        print(f"{'single run, ' + NAMES[form]:60s} {result['single_ratio'][form]:7.2f}  <= 2    "
-              f"({result['single_s'][form]:.3f} s vs {result['single_s']['built-in']:.3f} s, Python loop; "
-              f"{result['single_ratio_to_default'][form]:.1f}x the built-in's default run, "
-              f"{result['builtin_default_s']:.3f} s)")
+    print(f"{'user law (44)-(45) by hand / built-in proposed':52s} {'ratio':>10s}  target")
     copies = result["copies"]
-    for form in FORMS:
-        print(f"{f'batch of {copies}, ' + NAMES[form]:60s} {result['batch_ratio'][form]:7.2f}  "
-              f"{'<= 2' if form == 'columns' else '':7s}({result['batch_s'][form]:.3f} s vs "
-              f"{result['batch_s']['built-in']:.3f} s, {result['batch_duration_s']:g} s runs; "
-              f"{result['batch_ratio_to_default'][form]:.1f}x the built-in's default batch, "
-              f"{result['builtin_batch_default_s']:.3f} s)")
+    for run, label in (("single", "single run"), ("batch", f"batch of {copies}")):
+        for form in FORMS:
+            fresh = (f"fresh process {result['single_fresh_ratio'][form]:.2f}x, "
+                     if run == "single" else "")
+            times = result[f"{run}_s"]
+            print(f"{label + ', ' + NAMES[form]:52s} {result[f'{run}_ratio'][form]:10.2f}  <= 2    "
+                  f"({times[form]:.3f} s vs {times['built-in']:.3f} s in a session; "
+                  f"{fresh}QCONTROL_COMPILE=0 {result[f'{run}_python_ratio'][form]:.2f}x; "
+                  f"compiled form: {result['compiled_form'][form]})")
 
 
 def main(argv: list[str] | None = None) -> int:

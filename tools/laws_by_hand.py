@@ -1,4 +1,4 @@
-"""The paper's law (44)-(45) written by hand, as a user would write it, in the three documented
+"""The paper's law (44)-(45) written by hand, as a user would write it, in the documented
 forms of a user law (docs/laws.md): the bench times them against the built-in kind ``proposed``
 (tools/bench_laws.py), the tests check that each computes the built-in numbers
 (tests/test_laws_by_hand.py).
@@ -6,9 +6,10 @@ forms of a user law (docs/laws.md): the bench times them against the built-in ki
 * :class:`PaperLawRK4`: a ``qcontrol.Law``; eq. (45) as a rate, advanced by the engine's RK4;
 * :class:`PaperLawStepped`: a ``qcontrol.Law`` with its own ``advance``; eq. (45) solved exactly
   over each step with the sample held, ``eps <- target + (eps - target) exp(-gamma sigma h)``;
-* :class:`PaperLawFloats`: the stepped ``qcontrol.Law`` written for a single run's speed (what
-  docs/laws.md's speed section asks of a ``Law``): each call computes on Python floats, not numpy
-  on arrays of n numbers;
+* :class:`PaperLawRateFloats` and :class:`PaperLawFloats`: the same two ``qcontrol.Law`` forms
+  written as docs/laws.md's speed section asks: each call computes on Python floats with
+  arithmetic only (not numpy on arrays of n numbers, no ``float()``), so the engine finds a
+  compiled form of each (:mod:`qcontrol.engine.compiled_user`);
 * :class:`PaperLawColumns`: a ``qcontrol.BacksteppingLaw`` subclass in column form (floats for a
   single run, ``(batch,)`` arrays for a batch), registered with ``register_law`` as the others.
 
@@ -28,7 +29,8 @@ import numpy as np
 import qcontrol
 
 KEYS = ["kappa", "gamma", "sigma", "r"]
-KINDS = {"rk4": "paper-by-hand-rk4", "stepped": "paper-by-hand-stepped", "floats": "paper-by-hand-floats",
+KINDS = {"rk4": "paper-by-hand-rk4", "stepped": "paper-by-hand-stepped",
+         "rate-floats": "paper-by-hand-rate-floats", "floats": "paper-by-hand-floats",
          "columns": "paper-by-hand-columns"}
 FORMS = tuple(KINDS)
 
@@ -73,11 +75,13 @@ class PaperLawStepped(PaperLawRK4):
         return target + (state - target) * math.exp(-self.gamma * self.sigma * h)
 
 
-class PaperLawFloats:
-    """The same law, its state moved by the same exact solution, each call on Python floats: the
-    reading and the reference turned into floats once (``tolist()``), eqs. (31)-(34) by
+class PaperLawFloatTerms:
+    """What the two float forms share: the terms of eqs. (31)-(34) and (44), each call on Python
+    floats: the reading and the reference turned into floats once (``tolist()``), eqs. (31)-(34) by
     ``BacksteppingLaw.recursion`` (which serves floats as it serves columns), r by ``on_floats``,
-    a numpy array made only for the state ``advance`` returns."""
+    sums written out, ``u`` returned as computed (no ``float()``), a numpy array made only for the
+    state the update returns. Only arithmetic on the inputs: such a law has a compiled form
+    (docs/laws.md, 'Speed')."""
 
     def __init__(self, table: dict, n: int) -> None:
         by_arrays = PaperLawRK4(table, n)  # the same settings, read and checked the same way
@@ -101,12 +105,26 @@ class PaperLawFloats:
         robust = sum([e * ri for e, ri in zip(state.tolist(), r, strict=True)])  # eps_hat^T r(x_q)
         return alphabar[-1] - zbar[-1] * s * robust / (self.kappa * (self.kappa - self.L))
 
+
+class PaperLawFloats(PaperLawFloatTerms):
+    """The stepped law on floats: eq. (45) solved exactly over each step with the sample held."""
+
     def advance(self, t: float, x_q: np.ndarray, yd: np.ndarray, state: np.ndarray, h: float) -> np.ndarray:
         """Eq. (45), exact with the sample held."""
         _, _, r, s = self.terms(x_q, yd)
         decay = math.exp(-self.gamma * self.sigma * h)
         targets = [s * ri / self.sigma for ri in r]
         return np.array([g + (e - g) * decay for e, g in zip(state.tolist(), targets, strict=True)])
+
+
+class PaperLawRateFloats(PaperLawFloatTerms):
+    """The law on floats with eq. (45) as a rate, advanced by the engine's RK4."""
+
+    def state_rate(self, t: float, x_q: np.ndarray, yd: np.ndarray, state: np.ndarray) -> np.ndarray:
+        """Eq. (45): ``eps_hat' = gamma (s r(x_q) - sigma eps_hat)``."""
+        _, _, r, s = self.terms(x_q, yd)
+        rates = [self.gamma * (s * ri - self.sigma * e) for e, ri in zip(state.tolist(), r, strict=True)]
+        return np.array(rates)
 
 
 class PaperLawColumns(qcontrol.BacksteppingLaw):
@@ -152,9 +170,10 @@ class PaperLawColumns(qcontrol.BacksteppingLaw):
 
 
 def register() -> None:
-    """Register the three forms under :data:`KINDS` (again after an edit: replace=True)."""
+    """Register the forms under :data:`KINDS` (again after an edit: replace=True)."""
     qcontrol.register_law(KINDS["rk4"], PaperLawRK4, state_name="eps_hat", replace=True)
     qcontrol.register_law(KINDS["stepped"], PaperLawStepped, state_name="eps_hat", replace=True)
+    qcontrol.register_law(KINDS["rate-floats"], PaperLawRateFloats, state_name="eps_hat", replace=True)
     qcontrol.register_law(KINDS["floats"], PaperLawFloats, state_name="eps_hat", replace=True)
     qcontrol.register_law(KINDS["columns"], PaperLawColumns, keys=KEYS, replace=True)
 

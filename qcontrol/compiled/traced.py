@@ -173,6 +173,11 @@ class Symbol:
     def __neg__(self) -> Symbol:
         return current().assign(f"-{self.text}")
 
+    def evaluated(self, expression: Expression, columns: Sequence[Value]) -> Symbol:
+        """``expression`` on traced ``columns`` (this one among them), recorded: how an expression's
+        ``on_floats`` meets a symbol (:func:`evaluate`)."""
+        return evaluate(expression, columns)
+
     def __bool__(self) -> bool:
         if self.truth is None:
             raise TypeError("a traced formula branches on a column's value: it keeps the Python loop")
@@ -180,6 +185,32 @@ class Symbol:
 
     def __repr__(self) -> str:
         return f"Symbol({self.text!r})"
+
+
+class Row(tuple):
+    """One row of one copy of a recorded signal, ``(..., width)`` in the array form, as symbols:
+    indexed on its last axis as the array form's blocks are (``row[..., 0]`` a symbol,
+    ``row[..., :1]`` a row), with elementwise arithmetic, so that a derivation written on blocks
+    (``x[..., :1] - yd[..., :1]``) runs on it and is recorded."""
+
+    def __getitem__(self, index: Any) -> Any:
+        if isinstance(index, tuple) and len(index) == 2 and index[0] is Ellipsis:
+            index = index[1]
+        picked = tuple.__getitem__(self, index)
+        return Row(picked) if isinstance(index, slice) else picked
+
+    def _each(self, other: Any, operation: Callable[[Value, Value], Value]) -> Row:
+        others = other if isinstance(other, Row) else (other,) * len(self)
+        return Row(operation(a, b) for a, b in zip(self, others, strict=True))
+
+    def __add__(self, other: Any) -> Row:
+        return self._each(other, lambda a, b: a + b)
+
+    def __sub__(self, other: Any) -> Row:
+        return self._each(other, lambda a, b: a - b)
+
+    def __mul__(self, other: Any) -> Row:
+        return self._each(other, lambda a, b: a * b)
 
 
 class TracedTerms:
@@ -236,6 +267,10 @@ class TracedForm:
 
     def __init__(self, batch: int = 1) -> None:
         self.batch = batch
+
+    def __deepcopy__(self, memo: dict) -> TracedForm:
+        """Itself (a form holds no state; a law's copy keyed by it finds it)."""
+        return self
 
     def column(self, values: Any) -> float | np.ndarray:
         array = np.asarray(values, dtype=float)

@@ -11,7 +11,7 @@ import math
 from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field, replace
 from functools import reduce
-from operator import add, mul
+from operator import add, attrgetter, mul
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -21,6 +21,7 @@ from ..errors import QcontrolInputError
 from ..expr import Expression, compile_expression
 from ..quantizer import QuantizedReading
 from ..schema import OPTIONAL, Key, KindKeys, Table, expressions, number, read_keys, string
+from ..sharing import kept_for
 from .backstepping import (
     Advance,
     BacksteppingLaw,
@@ -175,11 +176,12 @@ class PaperLaw(BacksteppingLaw):
     def constants(self) -> dict[str, Any]:
         return {"kappa": self.kappa, "gamma": self.gamma, "sigma": self.sigma, "r_scale": self.r_scale}
 
-    def robust_gain(self, q: Columns, yd: Sequence[Column], eps_hat: Columns) -> Column:
+    def robust_gain(self, q: Columns, yd: Sequence[Column], eps_hat: Columns, form: ColumnForm = ARRAYS
+                    ) -> Column:
         """``K = s eps_hat^T r(x_q) / (kappa (kappa - L))`` of law (44) over columns of any shape
         (``(rows, batch)`` when evaluated on a record; per-copy constants broadcast on the last
-        axis)."""
-        law = self.constants_in(ARRAYS)
+        axis), or over the columns of ``form`` (one row of each copy, in the compiled batch)."""
+        law = self.constants_in(form)
         zn = self.recursion(q, yd)[0][-1]
         r = law.terms(q)
         if law.r_scale is not None:
@@ -187,9 +189,12 @@ class PaperLaw(BacksteppingLaw):
         s = zn * zn / law.kappa + self.L
         return s * reduce(add, map(mul, eps_hat, r)) * law.gain
 
-    def _gain_period(self, q: Columns, yd: Columns, eps_hat: Columns) -> np.ndarray:
-        """The diagnostic ``gain_period``: ``K T``."""
-        return np.asarray(self.robust_gain(q, yd, eps_hat)) * self.period
+    def _gain_period(self, q: Columns, yd: Columns, eps_hat: Columns, form: ColumnForm = ARRAYS
+                     ) -> np.ndarray:
+        """The diagnostic ``gain_period``: ``K T`` (in ``form``: see :meth:`robust_gain`)."""
+        if form is ARRAYS:  # (a subclass may define robust_gain without the form)
+            return np.asarray(self.robust_gain(q, yd, eps_hat)) * self.period
+        return self.robust_gain(q, yd, eps_hat, form) * self.period
 
     def held_factor(self, gain_period: Column) -> Column:
         """What the held robust term does to ``zbar_n`` over one period, ``1 - K_T T``: ``1 - K T``
@@ -333,7 +338,7 @@ def parse(table: Table, ctx: LawContext) -> ProposedSettings:
     q_names = [f"q{i + 1}" for i in range(ctx.order)]
     r_expr = tuple(compile_expression(e, q_names, f"{table.source}: {table.path(f'r[{i}]')}")
                    for i, e in enumerate(r))
-    _check_bounding_functions(table, r_expr, ctx)
+    kept_for("bounding functions", (r, ctx.order, ctx.delta), _check_bounding_functions, table, r_expr, ctx)
     return ProposedSettings(kappa, v["kappa_margin"], v["gamma"], v["sigma"], r, v["r_scale"], r_expr,
                             v["hold"])
 
@@ -345,7 +350,8 @@ def _kappa(table: Table, ctx: LawContext, kappa: float | None, margin: float | N
                           "give either kappa or kappa_margin (kappa = L + kappa_margin), not both")
     if kappa is None and margin is None:
         raise table.error("kappa_margin", "missing", "give kappa_margin (kappa = L + margin) or kappa")
-    L, n = ctx.L, ctx.order  # Lemma 2 with the quantizer's bound per channel
+    # Lemma 2 with the quantizer's bound per channel
+    L, n = kept_for("L", (ctx.c, ctx.max_error), attrgetter("L"), ctx), ctx.order
     if not math.isfinite(L):
         raise table.error_at("controller.delta", f"with c = {list(ctx.c)} gives L = L_z{n} = {L:g}, not a "
                              "finite number", "use a smaller quantizer step delta or smaller gains c")

@@ -110,6 +110,29 @@ class _Sample(NamedTuple):
 sample = partial(tuple.__new__, _Sample)  # _Sample((u, t, x_q, yd)) without NamedTuple's __new__ (hot loop)
 
 
+class FastCalls(NamedTuple):
+    """A law's calls on the Python loop where the engine traced and checked its code
+    (:mod:`qcontrol.engine.user_trace`): plain functions on floats, ``control(*q, *yd, *state, t)
+    -> u`` and ``advance(*q, *yd, t, *state) -> state``, each None (or raising what ``math``
+    raises) where the law's own code is to be called instead."""
+
+    control: Callable[..., Any]
+    advance: Callable[..., Any]
+
+
+class _FastSample(NamedTuple):
+    """What :class:`FastCalls` hand the update: ``u``, and the sample as floats."""
+
+    u: float
+    t: float
+    q: tuple
+    yd: list
+
+
+fast_sample = partial(tuple.__new__, _FastSample)
+HANDED_OVER = (ArithmeticError, ValueError)  # what math and float arithmetic raise: the law's own call
+
+
 def fresh_rows(form: ColumnForm, columns: Sequence[Column], batch: int, size: int
                ) -> list[np.ndarray]:
     """``columns`` (``size`` of them, in ``form``) as a fresh ``(size,)`` array per copy, which a
@@ -144,6 +167,10 @@ class UserLaw(Backstepping):
         self.stepped = all(advances_itself(law) for law in self.laws)
         self.diagnostics = declared_diagnostics(self.laws, kind)  # a law's own, if it declares them
         self.failures: dict[int, tuple[float, str, bool]] = {}  # copy -> (t, the line, in control())
+        # "compiled" once the engine has traced and checked the law's code for its compiled loop,
+        # else why it runs in Python (None: not asked yet): see qcontrol.engine.compiled_user
+        self.compiled_form: str | None = None
+        self.fast: FastCalls | None = None  # a single copy's traced calls, set by the engine (or None)
 
     def initial_state(self, batch: int) -> np.ndarray:
         try:
@@ -164,8 +191,12 @@ class UserLaw(Backstepping):
         column in the reading's form."""
         if not isinstance(reading, QuantizedReading) or reading.max_error != self.max_error:
             self.check_reading(reading)
-        yd_row = np.array(yd, dtype=float)
         form, batch = reading.form, reading.batch
+        if self.fast is not None and batch == 1 and self._first_calls_done():
+            u = self._fast_control(reading.columns, yd, state, t)
+            if u is not None:
+                return fast_sample((u, t, reading.columns, yd))
+        yd_row = np.array(yd, dtype=float)
         x_q = fresh_rows(form, reading.columns, 1, self.n) if batch == 1 else reading.values
         states = fresh_rows(form, state, batch, self.state_size)
         laws, failures, number, u = self.copies_laws(batch), self.failures, self._number, [0.0] * batch
@@ -180,6 +211,20 @@ class UserLaw(Backstepping):
             except Exception as exc:  # the user's code failed: this copy stops here (see .user_failure)
                 failures[b] = (t, describe(self.kind, "control()", exc, t, law.control), True)
         return sample((form.column(u), t, x_q, yd_row))
+
+    def _first_calls_done(self) -> bool:
+        """Whether the law's own methods made their first calls (which check what they return)."""
+        return "control()" in self._checked and (
+            not self.state_size or ("advance()" if self.stepped else "state_rate()") in self._checked)
+
+    def _fast_control(self, q: Sequence[float], yd: Sequence[float], state: Columns,
+                      t: float) -> float | None:
+        """u by the traced calls (:class:`FastCalls`), or None: the law's own ``control`` then."""
+        try:
+            u = self.fast.control(*q, *yd, *state, t)  # type: ignore[union-attr]
+        except HANDED_OVER:
+            return None
+        return None if u is None else float(u)
 
     def copies_laws(self, batch: int) -> list[Law]:
         """Each copy's law: one per copy, or the one law for every copy."""
@@ -285,6 +330,15 @@ class StateUpdate:
         law, h, m = self.law, self.h, self.law.state_size
         if not m:
             return state
+        if type(sample) is _FastSample:  # a single copy on its traced calls
+            try:
+                new = law.fast.advance(*sample.q, *sample.yd, sample.t, *state)  # type: ignore[union-attr]
+            except HANDED_OVER:
+                new = None
+            if new is not None:
+                return tuple([float(v) for v in new])
+            sample = _Sample(sample.u, sample.t, [np.array(sample.q, dtype=float)],
+                             np.array(sample.yd, dtype=float))
         x_q = sample.x_q
         batch = len(x_q)
         s, laws, step = fresh_rows(self.form, state, batch, m), law.copies_laws(batch), law.step_state

@@ -12,7 +12,9 @@ quantizer's :meth:`~qcontrol.quantizer.UniformQuantizer.apply`, the law's ``cont
 The generated function loops over the copies and, for each, over the rows between two of the
 engine's scheduled rows: the single run's loop body (:func:`.compiled_loop.loop_body`) writing
 column ``b`` of the run's buffer. So every copy's numbers are its run alone, to the last bit, and
-the record (metrics, divergence, reductions) is the array form's, at the same rows.
+the record (metrics, divergence, reductions) is the array form's, at the same rows. A batch of
+MuJoCo copies runs the same way, each copy's own ``MjData`` stepped by the plant's copy step
+(:class:`~qcontrol.plants.mujoco.native_step.MujocoNativeForm`, a row of pointers per copy).
 
 Divergence: the loop marks each row at which some copy's state or adaptive estimate fails the
 array form's quick test (non-finite, or ``|x_i|`` beyond the bound), and only those rows are
@@ -42,10 +44,10 @@ import numpy as np
 
 from .. import compiled as compiled_paths
 from ..compiled.traced import TracedForm
-from ..plants.base import NativeStepper
-from ..plants.ode import ChainPlant
+from ..plants.base import NativeStepper, NativeStepping
 from ..quantizer import UniformQuantizer
 from . import compiled_loop
+from .compiled_folds import Folds, helpers
 from .compiled_loop import (
     CONTROL_REFUSED,
     JIT,
@@ -59,6 +61,7 @@ from .compiled_loop import (
     module_source,
     traced_parts,
 )
+from .retention import MetricsRecord
 from .spec import RunSpec
 
 # the functions whose numpy array form gives math's numbers (checked on the floats of a run)
@@ -72,32 +75,41 @@ def same_as_array_form(*texts: str) -> bool:
     return all(call in SAME_IN_NUMPY for text in texts for call in _CALLS.findall(text))
 
 
+def unfolded(batch: int) -> tuple:
+    """The folds' arguments of a loop that folds nothing (a full record keeps every row)."""
+    return (np.zeros((batch, 0)), np.zeros((batch, 0)), np.zeros(batch, dtype=np.bool_), np.zeros(1),
+            np.zeros((1, 1)), np.zeros(1, dtype=np.intp), np.zeros((1, 2)))
+
+
 class Redo(Exception):
     """A copy's compiled code could not give a row it keeps: the run is done again in the array
     form."""
 
 
-def batch_source(parts: TracedParts, plant: NativeStepper, n: int, m: int) -> str:
+def batch_source(parts: TracedParts, plant: NativeStepper, n: int, m: int, fold: list[str] = ()) -> str:
     """The module text: ``copy_rows`` (one copy's rows, the single run's loop body on column b,
-    with the quick divergence test) and ``rows`` (every copy in turn)."""
+    with the quick divergence test and the reductions' folds) and ``rows`` (every copy in turn)."""
     finite = ([f"abs(x{i}) <= bound" for i in range(1, n + 1)]
               + [f"math.isfinite(adaptive[{i}])" for i in range(m)])
     test = [f"if not ({' and '.join(finite)}):", "    suspect[k - start] = True"]
-    body = loop_body(parts, plant, n, m, "b", test)
+    body = loop_body(parts, plant, n, m, "b", test, fold)
     arguments = "start, stop, step_first, hold, base, bound, yd, xb, mb, qb, ub, ab"
+    folds = "odd, e_instants, e_values, e_done, e_last"
     return module_source(plant, [
+        helpers(), "",
         JIT,
-        f"def copy_rows(b, {arguments}, adaptive, held, lp, pf, pi, xs, suspect):",
+        f"def copy_rows(b, {arguments}, adaptive, held, lp, pf, pi, xs, suspect, fp, lf, {folds}):",
         *_indented(body, 1),
         "",
         JIT,
-        f"def rows({arguments}, adaptives, helds, lps, pfs, pi, xss, suspect, status, at):",
+        f"def rows({arguments}, adaptives, helds, lps, pfs, pi, xss, suspect, status, at, fps, lfs,"
+        f" {folds}):",
         "    for b in range(xss.shape[0]):",
         "        if status[b] != 0:  # stopped computing: every row marked",
         "            suspect[:] = True",
         "            continue",
         f"        s, k = copy_rows(b, {arguments}, adaptives[b], helds[b], lps[b], pfs[b], pi, xss[b],"
-        " suspect)",
+        f" suspect, fps[b], lfs[b], {folds})",
         "        if s != 0:",
         "            status[b], at[b] = s, k",
         "            suspect[max(k + 1 - start, 0):] = True",
@@ -108,25 +120,36 @@ def batch_source(parts: TracedParts, plant: NativeStepper, n: int, m: int) -> st
 class CompiledBatch:
     """The compiled form of a batch's law and quantizer; :meth:`run` adds the ODE's step."""
 
-    def __init__(self, parts: TracedParts, form: TracedForm, n: int, m: int) -> None:
-        self.parts, self.form, self.n, self.m = parts, form, n, m
+    def __init__(self, parts: TracedParts, form: TracedForm, n: int, m: int, law: Any = None) -> None:
+        self.parts, self.form, self.n, self.m, self.law = parts, form, n, m, law
+        self.held_width = 1 + m + n  # u, the targets, zbar (a user law's: u and its sample)
 
-    def function(self, plant: NativeStepper):  # noqa: ANN201 (a numba dispatcher)
+    def function(self, plant: NativeStepper, folds: Folds | None = None):  # noqa: ANN201 (a numba dispatcher)
         from ..compiled.cache import generated_module
 
-        return generated_module("batch", batch_source(self.parts, plant, self.n, self.m)).rows
+        fold = [] if folds is None else folds.lines()
+        return generated_module("batch", batch_source(self.parts, plant, self.n, self.m, fold)).rows
+
+    def folds(self, loop: Schedule) -> Folds | None:
+        """The record's reductions folded in the loop (:mod:`.compiled_folds`): a metrics record's."""
+        record = loop.record
+        if not isinstance(record, MetricsRecord):
+            return None
+        return Folds(record.reductions, record.context, self.law, self.form, self.n, self.m, self.parts.q,
+                     loop.grid.dt)
 
     def run(self, loop: Schedule, plant: Any, adaptive: tuple) -> Resume | None:
         """The run from row 0 in compiled chunks, the engine's rare work between them; None when
         the run is over, :data:`START` when the plant has no compiled form for it (the array
         form runs it all); raises :class:`Redo` (see the module docstring)."""
         stepper = plant.native_stepper(loop.grid.dt, form=self.form)
-        parts = self.parts
+        parts, folds = self.parts, self.folds(loop)
+        fold = [] if folds is None else folds.lines()
         if stepper is None or not same_as_array_form(stepper.helpers, *parts.quantize, *parts.control,
-                                                     *parts.advance):
+                                                     *parts.advance, *fold):
             return START._replace(adaptive=adaptive)
         try:
-            rows = self.function(stepper)
+            rows = self.function(stepper, folds)
         except Exception as exc:  # numba refusing a construct: the array form, said once
             compiled_paths.fallback("the batch of copies", f"{type(exc).__name__}: {exc}")
             return START._replace(adaptive=adaptive)
@@ -134,12 +157,13 @@ class CompiledBatch:
         state = np.empty((batch, self.m))
         for i, column in enumerate(adaptive):
             state[:, i] = column
-        held = np.zeros((batch, 1 + self.m + self.n))
+        held = np.zeros((batch, self.held_width))
         arrays = record.buffer.arrays
         buffers = (arrays["x"], arrays["x_meas"], arrays["x_q"], arrays["u"], arrays["adaptive"])
         status, at = np.zeros(batch, dtype=np.int64), np.zeros(batch, dtype=np.int64)
         bound, lps = float(loop.rows.state_bound), np.ascontiguousarray(self.parts.constants)
         start, step_first = 0, False
+        record.folds = folds
         try:
             while True:
                 stop = loop.next_event(start - 1)
@@ -147,12 +171,16 @@ class CompiledBatch:
                 suspect = np.zeros(stop - start + 1, dtype=np.bool_)
                 stepper.sync_in()
                 rows(start, stop, step_first, loop.grid.hold, record.buffer.base, bound, yd, *buffers, state,
-                     held, lps, stepper.floats, stepper.ints, stepper.state, suspect, status, at)
+                     held, lps, stepper.floats, stepper.ints, stepper.state, suspect, status, at,
+                     *(unfolded(batch) if folds is None else folds.arguments()))
                 self.test(loop, start, suspect)
                 self.check(loop.divergence.kept, status, at)
                 if loop.rare_work(stop):
                     return None
                 start, step_first = stop + 1, True
+        except Redo:
+            record.folds = None
+            raise
         finally:
             stepper.sync_out()
 
@@ -182,7 +210,7 @@ def compiled_batch(spec: RunSpec) -> CompiledBatch | None:
     """The compiled form of ``spec``'s batch of copies, or None where it keeps the array form (the
     module docstring says when)."""
     plant, batch = spec.plant, spec.plant.batch
-    if batch == 1 or not isinstance(plant, ChainPlant) or spec.velocity_source != "sensor":
+    if batch == 1 or not isinstance(plant, NativeStepping) or spec.velocity_source != "sensor":
         return None
     if spec.grid.rows < compiled_loop.MIN_ROWS or spec.observer is not None:
         return None
@@ -197,4 +225,4 @@ def compiled_batch(spec: RunSpec) -> CompiledBatch | None:
         parts = traced_parts(spec.quantizer, spec.law, plant.n, spec.grid.dt, form)
     except (TypeError, ValueError):  # a formula that cannot be traced: the array form
         return None
-    return CompiledBatch(parts, form, plant.n, spec.law.state_size)
+    return CompiledBatch(parts, form, plant.n, spec.law.state_size, spec.law)

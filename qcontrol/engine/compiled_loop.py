@@ -159,10 +159,10 @@ def differenced_velocity(trace: Trace, q: list, period: float) -> tuple[list, li
 
 
 def loop_body(parts: TracedParts, plant: NativeStepper, n: int, m: int, copy: str = "0",
-              test: list[str] = ()) -> list[str]:
+              test: list[str] = (), fold: list[str] = ()) -> list[str]:
     """The lines of the loop over rows ``[start, stop]`` of one copy (column ``copy`` of the
     buffers), returning ``(status, row)``; ``test`` runs after the row is read (a batch's quick
-    divergence test)."""
+    divergence test), ``fold`` after it is written (a batch's reductions)."""
     record = ([f"xb[j, {copy}, {i - 1}] = x{i}" for i in range(1, n + 1)]
               + [f"mb[j, {copy}, {i - 1}] = m{i}" for i in range(1, n + 1)]
               + [f"qb[j, {copy}, {i}] = {q}" for i, q in enumerate(parts.q)]
@@ -182,6 +182,7 @@ def loop_body(parts: TracedParts, plant: NativeStepper, n: int, m: int, copy: st
         "        u = held[0]",
         "    j = k - base",
         *_indented(record, 1),
+        *_indented(list(fold), 1),
         "    if k == stop:",
         "        return 0, k",
         *_indented(plant.step + parts.advance, 1),
@@ -218,6 +219,7 @@ class CompiledLoop:
 
     def __init__(self, parts: TracedParts, n: int, m: int) -> None:
         self.parts, self.n, self.m = parts, n, m
+        self.held_width = 1 + m + n  # u, the targets, zbar (a user law's: u and its sample)
 
     def function(self, plant: NativeStepper):  # noqa: ANN201 (a numba dispatcher)
         """The generated loop for this law and plant, compiled or loaded from the disk cache."""
@@ -243,7 +245,7 @@ class CompiledLoop:
         except Exception as exc:  # numba refusing a construct: the Python loop, said once
             compiled_paths.fallback("the closed loop", f"{type(exc).__name__}: {exc}")
             return START._replace(adaptive=adaptive)
-        state, held = np.array(adaptive, dtype=float), np.zeros(1 + self.m + self.n)
+        state, held = np.array(adaptive, dtype=float), np.zeros(self.held_width)
         hold = loop.grid.hold
         positions = (np.zeros(hold),) if self.parts.keep else ()  # a differenced velocity's
         arrays = loop.record.buffer.arrays

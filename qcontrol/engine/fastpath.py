@@ -227,10 +227,7 @@ class FloatRows:
 
     def law(self, law: BatchLaw, h: float) -> tuple[Callable[..., Any], Advance]:
         """``(control, advance)`` of one copy on floats: the law in :data:`FLOATS`, or its array form."""
-        if isinstance(law, AnyColumnForm):
-            return law.control, law.advancer_in(FLOATS, h)
-        adapter = ArrayLawAsFloats(law, h)
-        return adapter.control, adapter.advance
+        return single_copy(law, h)
 
     def keep(self, k: int, x: list[float], meas: list[float], reading: QuantizedReading, u: float,
              adaptive: tuple) -> None:
@@ -258,9 +255,23 @@ class FloatRows:
         return ((k + 1) // FLUSH_ROWS + 1) * FLUSH_ROWS - 1
 
 
+def single_copy(law: BatchLaw, h: float) -> tuple[Callable[..., Any], Advance]:
+    """``(control, advance)`` of a single run's law in the form it steps in (:meth:`FloatRows.law`;
+    also what a user's law traced for the compiled loop is checked against)."""
+    if isinstance(law, AnyColumnForm):
+        return law.control, law.advancer_in(FLOATS, h)
+    adapter = ArrayLawAsFloats(law, h)
+    return adapter.control, adapter.advance
+
+
+def single_copy_quantizer(quantizer: Quantizer) -> Quantize:
+    """A single run's ``quantize(readings) -> QuantizedReading``, in the form it steps in."""
+    return FloatQuantize(quantizer).quantize
+
+
 def compiled_loop(spec: RunSpec) -> CompiledLoop | CompiledBatch | None:
     """The compiled form of a batch of one (:mod:`.compiled_loop`: numba, rows written into the
-    same buffer between the same rare rows) or of a batch of ODE copies (:mod:`.compiled_batch`),
+    same buffer between the same rare rows) or of a batch of copies (:mod:`.compiled_batch`),
     or None where the run keeps the Python loop (the array form for a batch): the other place the
     form of a run is chosen."""
     return compiled_loop_of(spec) if spec.plant.batch == 1 else compiled_batch(spec)

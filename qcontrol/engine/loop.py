@@ -27,6 +27,7 @@ from ..quantizer import Quantizer
 from ..quantizers import SensorQuantizer
 from .compiled_batch import Redo
 from .compiled_loop import START, Resume, numba_pays
+from .compiled_user import compiled_user
 from .divergence import Divergence
 from .fastpath import compiled_loop, rows_for
 from .reference_rows import ReferenceRows
@@ -100,7 +101,8 @@ class ClosedLoop:
         self.loads = Loads(plant, spec.loads)
         self.input_quantizer = spec.input_quantizer
         # None: the Python loop (see .compiled_loop); an input quantizer keeps it too
-        self.compiled = compiled_loop(spec) if spec.input_quantizer is None and compiled else None
+        self.compiled = (compiled_user(spec) or compiled_loop(spec)) if spec.input_quantizer is None \
+            and compiled else None  # (a user's law: its code traced and checked, see .compiled_user)
         self.handover: int | None = None  # the row the Python loop took over from (None: none)
 
     def next_event(self, k: int) -> int:

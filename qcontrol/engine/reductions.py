@@ -8,7 +8,7 @@ the same numbers. Rows at or after the row that stopped a copy do not count.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any, ClassVar
@@ -16,6 +16,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..error_rate import TABLE1_OMEGAS, TABLE1_SAMPLES, ErrorRateStream
+
+Constant = Callable[[float], str]  # a number as a slot of the compiled fold's constants
 
 
 @dataclass(frozen=True)
@@ -65,6 +67,13 @@ class Reduction:
     name: ClassVar[str]  # its key in RunMetrics and in the summary
     signal: ClassVar[str]  # the signal it reduces
     reads: ClassVar[tuple[str, ...]] = ()
+    # Its compiled form, for the compiled batch (qcontrol.engine.compiled_batch): None where only
+    # this array form folds it; else the start values of the per-copy partials that
+    # :meth:`fold_lines` folds the rows of one copy into (rows that all count and are finite),
+    # and :meth:`merge` adds to the reduction as :meth:`add` would. ``at_samples``: it folds
+    # the control samples only.
+    partials: ClassVar[tuple[float, ...] | None] = None
+    at_samples: ClassVar[bool] = False
 
     def __init__(self, batch: int, width: int, duration: float, settings: MetricSettings) -> None:
         self.batch = batch
@@ -81,6 +90,21 @@ class Reduction:
         raise NotImplementedError
 
     def value(self, b: int) -> Any:
+        raise NotImplementedError
+
+    def row_values(self, values: Any) -> list[Any]:
+        """The values one row of one copy folds, from :meth:`values` of a traced row."""
+        return [values]
+
+    def fold_lines(self, values: list[str], slot: int, t: str, constant: Constant) -> list[str]:
+        """The compiled fold of one row of one copy, a row that counts: ``values`` (their names)
+        into the partials ``fp[slot ..]``, taking only finite values where :meth:`add` does
+        (``v - v == 0.0``: v is finite); ``t`` names the row's instant."""
+        raise NotImplementedError
+
+    def merge(self, copies: np.ndarray, partials: np.ndarray) -> None:
+        """Add the partials ``(batch, slots)`` of the copies ``copies`` (a mask), whose rows all
+        counted, as :meth:`add` would have added those rows."""
         raise NotImplementedError
 
 
@@ -109,6 +133,15 @@ class LargestAbs(Reduction):
 
     def value(self, b: int) -> float:
         return _finite_or_nan(float(self.largest[b]))
+
+    partials = (-math.inf,)
+
+    def fold_lines(self, values: list[str], slot: int, t: str, constant: Constant) -> list[str]:
+        size = f"abs({values[0]})"
+        return [f"if {size} > fp[{slot}] and {size} - {size} == 0.0:", f"    fp[{slot}] = {size}"]
+
+    def merge(self, copies: np.ndarray, partials: np.ndarray) -> None:
+        self.largest[copies] = np.maximum(self.largest[copies], partials[copies, 0])
 
 
 def tracking_error(block: Mapping[str, np.ndarray]) -> np.ndarray:
@@ -146,12 +179,24 @@ class SaturatedFraction(Reduction):
     def value(self, b: int) -> float:
         return float(self.clipped[b] / self.samples[b]) if self.samples[b] else math.nan
 
+    # (its values are 0 or 1: their sums are whole numbers, the same in any order)
+    partials, at_samples = (0.0, 0.0), True
+
+    def fold_lines(self, values: list[str], slot: int, t: str, constant: Constant) -> list[str]:
+        value = values[0]
+        return [f"if {value} - {value} == 0.0:", f"    fp[{slot}] += 1.0", f"    fp[{slot + 1}] += {value}"]
+
+    def merge(self, copies: np.ndarray, partials: np.ndarray) -> None:
+        self.samples[copies] += partials[copies, 0]
+        self.clipped[copies] += partials[copies, 1]
+
 
 class ReadingSaturatedFraction(SaturatedFraction):
     """The fraction of rows (readings with a finite value) at which a reading saturated at the end
     of its channel's range (NaN when there is none)."""
 
     name, signal = "reading_saturated_fraction", "reading_saturated"
+    at_samples = False
 
     def add(self, chunk: Chunk, values: np.ndarray) -> None:
         counted = np.isfinite(values)
@@ -191,6 +236,35 @@ class ErrorRate(Reduction):
     def value(self, b: int) -> dict[str, float]:
         return self.stream.rates(self.omegas, run=b)
 
+    # folded into the stream's own arrays by error_rate.follow_row (no partials of its own): the
+    # compiled batch works on copies of the stream's progress (:meth:`working`)
+    partials = ()
+
+    def row_values(self, values: Any) -> list[Any]:
+        return [values[..., 0]]
+
+    def fold_lines(self, values: list[str], slot: int, t: str, constant: Constant) -> list[str]:
+        return [f"follow_row({t}, abs({values[0]}), e_instants, e_values, b, e_done, e_last)"]
+
+    def working(self) -> tuple[np.ndarray, ...]:
+        """The arrays the compiled fold reads and writes: the instants, the values at them, and
+        copies of each run's progress (``done``, ``(last_t, last_z)``)."""
+        stream = self.stream
+        self.started = stream.done.copy()
+        self.done = stream.done.copy()
+        self.last = np.column_stack([stream.last_t, stream.last_z])
+        return stream.instants, stream.values, self.done, self.last
+
+    def merge(self, copies: np.ndarray, partials: np.ndarray) -> None:
+        stream = self.stream
+        stream.done[copies] = self.done[copies]
+        stream.last_t[copies], stream.last_z[copies] = self.last[copies, 0], self.last[copies, 1]
+
+    def undo(self, copies: np.ndarray) -> None:
+        """Forget what the compiled fold wrote for ``copies`` (a mask): not reached yet."""
+        for b in np.flatnonzero(copies & (self.done != self.started)):
+            self.stream.values[self.started[b]:self.done[b], b] = np.inf
+
 
 class LastHalfLargestAbs(Reduction):
     """The largest finite ``|z_1|`` over the last half of the run (NaN when there is none)."""
@@ -210,6 +284,19 @@ class LastHalfLargestAbs(Reduction):
 
     def value(self, b: int) -> float:
         return _finite_or_nan(float(self.largest[b]))
+
+    partials = (-math.inf,)
+
+    def row_values(self, values: Any) -> list[Any]:
+        return [values[..., 0]]
+
+    def fold_lines(self, values: list[str], slot: int, t: str, constant: Constant) -> list[str]:
+        size = f"abs({values[0]})"
+        return [f"if {t} >= {constant(self.half)} and {size} > fp[{slot}] and {size} - {size} == 0.0:",
+                f"    fp[{slot}] = {size}"]
+
+    def merge(self, copies: np.ndarray, partials: np.ndarray) -> None:
+        self.largest[copies] = np.maximum(self.largest[copies], partials[copies, 0])
 
 
 class Lemma2Largest(Reduction):
@@ -302,6 +389,31 @@ class DiagnosticValues(Reduction):
     def value(self, b: int) -> dict[str, np.ndarray]:
         largest = np.where(np.isfinite(self.largest[b]), self.largest[b], np.nan)
         return {"max": largest, "last": self.last[b].copy()}
+
+    # per column: the largest value and the last (NaN: no sample yet); its values are the law's
+    # diagnostics traced on the row (the compiled batch: qcontrol.engine.compiled_batch)
+    at_samples = True
+
+    @property
+    def partials(self) -> tuple[float, ...]:  # type: ignore[override]
+        return (-math.inf, math.nan) * self.largest.shape[1]
+
+    def row_values(self, values: Any) -> list[Any]:
+        return list(values)
+
+    def fold_lines(self, values: list[str], slot: int, t: str, constant: Constant) -> list[str]:
+        lines = []
+        for i, value in enumerate(values):
+            top, last = slot + 2 * i, slot + 2 * i + 1
+            lines += [f"if {value} - {value} == 0.0:", f"    fp[{last}] = {value}",
+                      f"    if {value} > fp[{top}]:", f"        fp[{top}] = {value}"]
+        return lines
+
+    def merge(self, copies: np.ndarray, partials: np.ndarray) -> None:
+        top, last = partials[:, 0::2], partials[:, 1::2]
+        self.largest[copies] = np.maximum(self.largest[copies], top[copies])
+        seen = copies[:, None] & ~np.isnan(last)
+        self.last = np.where(seen, last, self.last)
 
 
 class SmallestBound(Reduction):

@@ -69,22 +69,26 @@ class _Record:
                                      self.context.diagnostic_width) for s in SIGNALS}
         self.started = 0.0  # the run's start (time.perf_counter), set by the loop
 
-    def meta(self, b: int, now: float) -> dict[str, Any]:
-        """What copy ``b``'s record carries besides its signals (:class:`RunRecord`'s fields)."""
+    def metas(self, now: float) -> list[dict[str, Any]]:
+        """What each copy's record carries besides its signals (:class:`RunRecord`'s fields); what
+        the copies share is made once."""
         d, separation = self.divergence, self.context.separation
         sensor = self.context.quantizer if isinstance(self.context.quantizer, SensorQuantizer) else None
-        return dict(adaptive_name=self.law.state_name, L_z=self.law.coordinates.L_z.copy(), dt=self.grid.dt,
-                    duration=self.grid.duration, hold=self.grid.hold,
-                    velocity_source=self.context.velocity_source, chain=self.context.chain,
-                    actuator_limited=self.context.actuator_limited,
-                    diverged=d.times[b] is not None, diverged_time=d.times[b],
-                    divergence_reason=d.reasons[b], law_failure=d.reasons[b] if d.law_failed[b] else None,
-                    wall_time_s=now - self.started, metrics=self.metrics,
-                    bound_names=() if separation is None else separation.names,
-                    law_diagnostics=self.context.diagnostics,
-                    quantizer_sector=sensor.sector if sensor is not None else None,
-                    reading_range=isinstance(sensor, ChannelQuantizer) and sensor.range is not None,
-                    quantized_input=self.context.input_quantizer is not None)
+        shared = dict(adaptive_name=self.law.state_name, dt=self.grid.dt,
+                      duration=self.grid.duration, hold=self.grid.hold,
+                      velocity_source=self.context.velocity_source, chain=self.context.chain,
+                      actuator_limited=self.context.actuator_limited,
+                      wall_time_s=now - self.started, metrics=self.metrics,
+                      bound_names=() if separation is None else separation.names,
+                      law_diagnostics=self.context.diagnostics,
+                      quantizer_sector=sensor.sector if sensor is not None else None,
+                      reading_range=isinstance(sensor, ChannelQuantizer) and sensor.range is not None,
+                      quantized_input=self.context.input_quantizer is not None)
+        L_z = self.law.coordinates.L_z
+        return [shared | dict(L_z=L_z.copy(), diverged=d.times[b] is not None, diverged_time=d.times[b],
+                              divergence_reason=d.reasons[b],
+                              law_failure=d.reasons[b] if d.law_failed[b] else None)
+                for b in range(self.batch)]
 
     def signals(self, first: int, stop: int, derived: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
         """The signals of run rows ``[first, stop)``: views of the buffer, the reference, and the
@@ -99,8 +103,8 @@ class _Record:
         return [
             Trajectory(t=self.grid.instants(first, first + lengths[b]),
                        signals={s.name: signals[s.name][: lengths[b], 0 if s.shared else b] for s in SIGNALS},
-                       **self.meta(b, now))
-            for b in range(self.batch)
+                       **meta)
+            for b, meta in enumerate(self.metas(now))
         ]
 
 
@@ -159,6 +163,7 @@ class MetricsRecord(_Record):
         self.reductions = [fold(self.batch, self.widths[fold.signal], self.grid.duration, self.metrics)
                            for fold in REDUCTIONS]
         self.derived = needed(tuple(name for fold in REDUCTIONS for name in fold.needs()))
+        self.folds: Any = None  # a compiled batch's folds of these reductions (engine/compiled_folds.py)
 
     def next_event(self, k: int) -> int:
         return chunk_end(self.buffer.base, self.chunk, self.grid.rows)
@@ -176,18 +181,25 @@ class MetricsRecord(_Record):
     def _reduce(self, base: int, stop: int) -> None:
         """Fold rows ``[base, stop)`` into the reductions, a cache-sized block at a time."""
         diverged = self.divergence.kept < self.grid.rows
+        reductions, derived = self.reductions, self.derived
+        if self.folds is not None:  # those the compiled batch folded are merged, unless a copy stopped
+            reductions = self.folds.merge(base, stop, self.divergence.kept, diverged)
+            if reductions is not self.reductions:
+                derived = needed(tuple(name for fold in reductions for name in fold.needs()))
         rows = max(1, REDUCE_ELEMENTS // self.batch)
         for first in range(base, stop, rows):
             last = min(stop, first + rows)
             chunk = Chunk(first, self.grid.instants(first, last), self.divergence.kept, diverged,
                           self.grid.hold)
-            block = self.signals(first, last, self.derived)
-            for fold in self.reductions:
+            block = self.signals(first, last, derived)
+            for fold in reductions:
                 fold.add(chunk, fold.values(block))
+        if self.folds is not None:
+            self.folds.reset()
 
     def results(self, now: float) -> list[RunMetrics]:
         return [
             RunMetrics(steps=int(self.divergence.kept[b]) - 1,
-                       values={fold.name: fold.value(b) for fold in self.reductions}, **self.meta(b, now))
-            for b in range(self.batch)
+                       values={fold.name: fold.value(b) for fold in self.reductions}, **meta)
+            for b, meta in enumerate(self.metas(now))
         ]

@@ -19,6 +19,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -61,6 +62,14 @@ __all__ = [
 ]
 
 
+@runtime_checkable
+class SelfRecording(Protocol):
+    """A value that records what is computed from it (the compiled loop's traced columns,
+    :mod:`qcontrol.compiled.traced`): an expression evaluated on it is recorded by it."""
+
+    def evaluated(self, expression: Expression, columns: Sequence[Any]) -> Any: ...
+
+
 @dataclass(frozen=True)
 class Expression:
     """A compiled expression: call it with an array ``values[..., len(variables)]``."""
@@ -79,6 +88,11 @@ class Expression:
             return np.full(values.shape[:-1], float(result))
         return np.asarray(result, dtype=float)
 
+    def __deepcopy__(self, memo: dict) -> Expression:
+        """Itself: an expression does not change, and its tree's operations are compared by
+        identity (a copy of a law holding one computes what the law computes)."""
+        return self
+
     def on_columns(self, columns: Sequence[np.ndarray]) -> np.ndarray | float:
         """Evaluate on ``columns[i]`` = values of ``variables[i]`` (no reshaping; a constant
         expression returns a float). The fast path for hot loops."""
@@ -95,6 +109,11 @@ class Expression:
         except FLOAT_REFUSED:
             with np.errstate(all="ignore"):
                 return float(self._fn(values))
+        except TypeError:  # a traced value (a user's law traced for the compiled loop) records itself
+            for value in values:
+                if isinstance(value, SelfRecording):
+                    return value.evaluated(self, values)
+            raise
 
     @cached_property
     def _scalar_fn(self) -> ScalarFn:

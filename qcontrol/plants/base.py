@@ -248,10 +248,14 @@ class NativeStepper:
 
 @runtime_checkable
 class NativeStepping(Protocol):
-    """A plant whose batch of one can run inside the engine's compiled loop."""
+    """A plant whose batch of one (and, if it says so, of copies) can run inside the engine's
+    compiled loop."""
 
-    def native_stepper(self, h: float, readings: int = 0) -> NativeStepper | None:
+    def native_stepper(self, h: float, readings: int = 0, form: Any = None) -> NativeStepper | None:
         """The one copy's :class:`NativeStepper` for steps of ``h`` (inside the ``with`` block,
         after :meth:`Plant.reset`), or None where this run cannot be compiled (then the Python
         loop runs); it must give, bit for bit, the numbers of the Python loop. ``readings``: how
-        many readings the run takes at most (its rows; what a plant drawing noise ahead needs)."""
+        many readings the run takes at most (its rows; what a plant drawing noise ahead needs).
+        ``form``: a batch of copies asks with its ``TracedForm(batch)`` (the engine's compiled
+        batch), and the stepper's numbers then have a row per copy; a plant without that form
+        returns None for it."""

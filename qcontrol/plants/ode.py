@@ -208,8 +208,9 @@ class ChainNativeForm:
                                self.plant._rate_in(self.form))
                 texts = [trace.text(v) for v in stepped]  # written after every refusal
         lines += trace.taken() + [f"xs[{i}] = {text}" for i, text in enumerate(texts)] + ["return False"]
-        return ('@numba.njit(cache=True, error_model="numpy", nogil=True)\ndef plant_step(u, xs, pf):\n'
-                + "".join(f"    {line}\n" for line in lines))
+        # inlined into the loop that calls it (numba's IR inlining: the same operations, no call)
+        return ('@numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")\n'
+                'def plant_step(u, xs, pf):\n' + "".join(f"    {line}\n" for line in lines))
 
     def sync_in(self) -> None:
         self.floats[..., 0] = self.plant._load

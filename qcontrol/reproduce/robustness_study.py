@@ -36,6 +36,7 @@ from ..assembly import run_scenario, scene
 from ..engine import compiled_loop
 from ..metrics import finite_max_abs, run_summary
 from ..scenario import Scenario, load_scenario
+from ..sharing import sharing
 from ..summary import Summary
 from ..sweep import run_batch
 from ..timegrid import TimeGrid
@@ -96,7 +97,8 @@ def _summaries(tasks: Sequence[StudyJob]) -> list[Summary]:
     many pays for numba's start once), else stepped as one batch (short runs, or no compiled
     paths). A run's numbers are its own either way."""
     _compiled_paths()
-    scenarios = [load_scenario(t.path, list(t.overrides)) for t in tasks]
+    with sharing():  # (what the runs' scenarios share is checked once)
+        scenarios = [load_scenario(t.path, list(t.overrides)) for t in tasks]
     backend, sim = tasks[0].backend, scenarios[0].simulation
     if len(tasks) > 1 and not (compiled_paths.requested()
                                and TimeGrid.of(sim.duration, sim.dt).rows >= compiled_loop.MIN_ROWS):

@@ -55,12 +55,15 @@ def provisional(terms: PlantTerms) -> PlantTerms:
     return replace(terms, theta=theta, input_gain=gain)
 
 
-def from_model(plant: Table, terms: PlantTerms, backends: dict[str, Any], dt: float) -> PlantTerms:
-    """``terms`` with every ``"model"`` replaced by the model's number, which is also written into
-    ``plant.data`` (the scenario's data); one line naming the key where no model gives it."""
+def from_model(plant: Table, terms: PlantTerms, backends: dict[str, Any], dt: float
+               ) -> tuple[PlantTerms, dict[str, Any]]:
+    """``terms`` with every ``"model"`` replaced by the model's number, and the entries of
+    ``[plant]`` that then state the numbers (the scenario's data is updated with them, so that its
+    resolved text states them; none when nothing was left to the model); one line naming the key
+    where no model gives it."""
     left = [i for i, t in enumerate(terms.theta) if t == FROM_MODEL]
     if not left and terms.input_gain != FROM_MODEL:
-        return terms
+        return terms, {}
     first = f"theta[{left[0]}]" if left else "input_gain"
     deriving = [name for name, backend in BACKENDS.items()
                 if name in backends and backend.model_coefficients is not None]
@@ -73,10 +76,8 @@ def from_model(plant: Table, terms: PlantTerms, backends: dict[str, Any], dt: fl
     for i in left:
         theta[i] = _coefficient(plant, i, terms, coefficients, name)
     stated = gain if terms.input_gain == FROM_MODEL else terms.input_gain
-    plant.data["theta"] = [*theta]  # the scenario's data: its resolved text states the numbers
-    if stated is not None:
-        plant.data["input_gain"] = stated
-    return replace(terms, theta=tuple(theta), input_gain=stated)
+    written = {"theta": tuple(theta)} | ({"input_gain": stated} if stated is not None else {})
+    return replace(terms, theta=tuple(theta), input_gain=stated), written
 
 
 def _coefficient(plant: Table, i: int, terms: PlantTerms, coefficients: dict[str, float | None],

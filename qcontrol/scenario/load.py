@@ -11,9 +11,8 @@ validation (:mod:`.overrides`; docs/scenarios.md); the ``[plant]`` table is read
 
 from __future__ import annotations
 
-import copy
 import tomllib
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
@@ -33,6 +32,7 @@ from ..quantizers import QuantizerSpec, channel_bounds, quantizer_step, read_qua
 from ..reference import REFERENCE_KINDS
 from ..resources import scenario_path, shipped_scenarios
 from ..schema import Section, Table, kind_table, read_keys
+from ..sharing import WITHOUT_X0, Stages, kept, per_object, sharing
 from ..timegrid import TimeGrid
 from .definition import ControllerConfig, ReferenceConfig, SimulationConfig
 from .from_model import from_model, provisional
@@ -54,10 +54,11 @@ from .overrides import (
     check_overrides,
     command_line_fix,
     from_override,
+    owned,
     remove_key,
     set_key,
 )
-from .plant_table import backend_sections, plant_section, plant_terms
+from .plant_table import backend_sections, initial_state, plant_section, plant_terms
 
 
 @dataclass(frozen=True)
@@ -134,12 +135,18 @@ class Scenario:
 
 def read_only(value: Any) -> Any:
     """A read-only view of parsed TOML: tables as ``MappingProxyType``, arrays as tuples, so a
-    scenario's ``data`` cannot drift from what it ran (and its provenance)."""
+    scenario's ``data`` cannot drift from what it ran (and its provenance). While
+    :func:`~qcontrol.sharing.sharing` is on, the view of a table or array is made once per object
+    (the variants of a file share the views of the tables they did not write)."""
     if isinstance(value, Mapping):
-        return MappingProxyType({k: read_only(v) for k, v in value.items()})
+        return MappingProxyType({k: _view(v) for k, v in value.items()})
     if isinstance(value, list | tuple):
-        return tuple(read_only(v) for v in value)
+        return tuple(_view(v) for v in value)
     return value
+
+
+def _view(value: Any) -> Any:
+    return per_object(read_only, value) if isinstance(value, Mapping | list | tuple) else value
 
 
 def plain_data(value: Any) -> Any:
@@ -155,10 +162,20 @@ def load_scenario(path: str | Path, overrides: Overrides = (), unset: Sequence[s
     """Read and validate a scenario file (or a shipped scenario by name, e.g. ``"example2"``),
     removing the ``unset`` keys and applying the overrides first: ``"key=value"`` strings as on the
     command line (``--set``), or a dict ``{"controller.kappa_margin": 0.1}``."""
+    return load_variants(path, [overrides], unset)[0]
+
+
+def load_variants(path: str | Path, override_sets: Sequence[Overrides], unset: Sequence[str] = (),
+                  each: Callable[[Scenario], object] | None = None) -> list[Scenario]:
+    """The scenario of each override set, each exactly what :func:`load_scenario` gives it: the
+    file read once, and what the variants share checked once (:func:`~qcontrol.sharing.sharing`); the
+    first bad variant is refused as it would be alone. ``each`` is called on every variant as soon
+    as it is loaded (a check of the caller's, which may refuse it before the next one loads)."""
     if not isinstance(path, str | Path):
         raise QcontrolInputError(f"load_scenario: path must be a file path (str or Path) or a shipped "
                                  f"scenario's name, got {type(path).__name__}")
-    check_overrides(overrides, "load_scenario")
+    for overrides in override_sets:
+        check_overrides(overrides, "load_scenario")
     if not isinstance(unset, list | tuple) or not all(isinstance(k, str) for k in unset):
         raise QcontrolInputError(f"load_scenario: unset must be a list of keys (strings), got {unset!r}")
     path = scenario_path(check_name(path, "scenario"))
@@ -173,9 +190,15 @@ def load_scenario(path: str | Path, overrides: Overrides = (), unset: Sequence[s
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise QcontrolInputError(f"{shown(path)}: cannot read the scenario ({exc}); check the file") from None
-    return parse_scenario(text, source=str(path), base_dir=path.parent, overrides=overrides,
-                          default_name=path.stem if path.stem.isprintable() else repr(path.stem)[1:-1],
-                          unset=unset)
+    name = path.stem if path.stem.isprintable() else repr(path.stem)[1:-1]
+    variants = []
+    with sharing():
+        for overrides in override_sets:
+            variants.append(parse_scenario(text, source=str(path), base_dir=path.parent, overrides=overrides,
+                                           default_name=name, unset=unset))
+            if each is not None:
+                each(variants[-1])
+    return variants
 
 
 def parse_scenario(
@@ -188,6 +211,35 @@ def parse_scenario(
 ) -> Scenario:
     """Validate scenario TOML ``text``; ``source`` names it in messages, ``base_dir`` is the folder
     paths in it are relative to. The ``unset`` keys are removed first, then the overrides applied."""
+    data = _file_data(text, source, tuple(unset))
+    given = as_given(overrides)
+    for item in given:  # strings and (key, value) pairs: the latter come from dicts
+        owned(data, item.partition("=")[0].strip() if isinstance(item, str) else str(item[0]))
+        if isinstance(item, str):
+            apply_override(data, item)
+        else:
+            set_key(data, item[0], item[1], item)
+    try:
+        _current_kind_names(data, source)
+        scenario = _build(data, source, base_dir or Path("."), text, given, default_name)
+    except KeyNotForKind as exc:
+        raise command_line_fix(exc, given) from None
+    except OverrideError:
+        raise
+    except QcontrolInputError as exc:  # (what the file holds tells the overrides' keys apart)
+        raise from_override(exc, source, given, _file_data(text, source, tuple(unset))) from None
+    return replace(scenario, unset=tuple(unset)) if unset else scenario
+
+
+def _file_data(text: str, source: str, unset: tuple[str, ...]) -> dict:
+    """The file's data, checked against :mod:`.limits`, with the ``unset`` keys removed. While
+    :func:`~qcontrol.sharing.sharing` is on, the file is read once and its tables are shared by
+    the variants: whatever writes into a table of the data (an override, the load) writes into a
+    copy of it made first (:func:`.overrides.owned`)."""
+    return dict(kept(("file", text, source, unset), lambda: _read_file(text, source, unset)))
+
+
+def _read_file(text: str, source: str, unset: tuple[str, ...]) -> dict:
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -201,23 +253,7 @@ def parse_scenario(
     check_limits(data, source)
     for key in unset:
         remove_key(data, key, source)
-    given = as_given(overrides)
-    file_data = copy.deepcopy(data) if given else data  # what the file holds, to tell its keys apart
-    for item in given:  # strings and (key, value) pairs: the latter come from dicts
-        if isinstance(item, str):
-            apply_override(data, item)
-        else:
-            set_key(data, item[0], item[1], item)
-    try:
-        _current_kind_names(data, source)
-        scenario = _build(data, source, base_dir or Path("."), text, given, default_name)
-    except KeyNotForKind as exc:
-        raise command_line_fix(exc, given) from None
-    except OverrideError:
-        raise
-    except QcontrolInputError as exc:
-        raise from_override(exc, source, given, file_data) from None
-    return replace(scenario, unset=tuple(unset)) if unset else scenario
+    return data
 
 
 def _current_kind_names(data: dict, source: str) -> None:
@@ -227,6 +263,9 @@ def _current_kind_names(data: dict, source: str) -> None:
     if not isinstance(controller, dict):
         return
     kind = controller.get("kind")
+    if isinstance(kind, str) and kind in KIND_ALIASES or any(isinstance(controller.get(o), dict)
+                                                             for o in KIND_ALIASES):
+        controller = data["controller"] = dict(controller)  # (the file's table may be shared: _file_data)
     if isinstance(kind, str) and kind in KIND_ALIASES:
         controller["kind"] = KIND_ALIASES[kind]
     for old, new in KIND_ALIASES.items():
@@ -239,23 +278,33 @@ def _current_kind_names(data: dict, source: str) -> None:
 
 def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[str | tuple[str, Any], ...],
            default_name: str) -> Scenario:
+    """The scenario of ``data``, stage by stage; each stage a function of the tables it names
+    (kept for the next variant while :func:`~qcontrol.sharing.sharing` is on)."""
     root = Table(data, source, "", TOP)
-    for key in required_tables():
+    for key in kept(("required tables",), required_tables):
         if key not in data:
             raise QcontrolInputError(f"{source}: [{key}]: missing table; add a [{key}] section")
-    about = scenario_section(default_name)
-    meta = read_keys(Table(data.get("scenario", {}), source, "scenario", about.names), about.keys, {})
+    stages = Stages(data, source, base_dir)
+    meta = stages.run("scenario", ("scenario",), _meta, root, default_name, also=(default_name,))
     plant = plant_section(root)
-    terms, x0 = plant_terms(plant)
-    simulation = _simulation(root.table("simulation", default={}))
-    backends = backend_sections(plant, provisional(terms), base_dir, simulation)
-    terms = from_model(plant, terms, backends, simulation.dt)  # the coefficients left to the model
-    quantizer, input_quantizer = (read_quantizers(root.table("quantizer"), terms.order) if "quantizer" in data
-                                  else (None, None))
-    controller = _controller(root.table("controller", default={}), terms, simulation, quantizer)
-    signal = _reference(root.table("reference", default={}), terms.order)
-    metrics = _metrics(root.table("metrics", default={}))
-    disturbances = parse_disturbances(data.get("disturbance"), source)
+    terms, _ = stages.run("plant", (WITHOUT_X0,), plant_terms, plant)
+    x0 = initial_state(plant, terms.order)  # (the stage's is the first variant's with these terms)
+    simulation = stages.run("simulation", ("simulation",), _simulation, root)
+    backends, terms, written = stages.run("backends", (WITHOUT_X0, "simulation"), _backends, plant, terms,
+                                          base_dir, simulation)
+    if written:  # the coefficients left to the model: the scenario's data states them
+        data["plant"] = plant.data | plain_data(written)  # (a copy: the file's table may be shared)
+        stages.changed("plant")
+    quantizer, input_quantizer = (None, None) if "quantizer" not in data else stages.run(
+        "quantizer", ("quantizer",), read_quantizers, root.table("quantizer"), terms.order,
+        also=(terms.order,))
+    controller = stages.run("controller", ("controller", WITHOUT_X0, "simulation", "quantizer"), _controller,
+                            root.table("controller", default={}), terms, simulation, quantizer)
+    signal = stages.run("reference", ("reference",), _reference, root.table("reference", default={}),
+                        terms.order, also=(terms.order,))
+    metrics = stages.run("metrics", ("metrics",), _metrics, root.table("metrics", default={}))
+    disturbances = stages.run("disturbance", ("disturbance",), parse_disturbances, data.get("disturbance"),
+                              source)
     scenario = Scenario(
         name=meta["name"], description=meta["description"], source=source, text=text, overrides=overrides,
         data=read_only(data), base_dir=base_dir,
@@ -266,8 +315,22 @@ def _build(data: dict, source: str, base_dir: Path, text: str, overrides: tuple[
         paper_example=meta["paper_example"],
         input_gain=terms.input_gain, quantizer=quantizer, input_quantizer=input_quantizer,
     )
-    _check_terms_at_x0(scenario)
+    stages.run("x0", ("plant",), _check_terms_at_x0, scenario)
     return scenario
+
+
+def _meta(root: Table, default_name: str) -> dict[str, Any]:
+    about = scenario_section(default_name)
+    table = Table(root.data.get("scenario", {}), root.source, "scenario", about.names)
+    return read_keys(table, about.keys, {})
+
+
+def _backends(plant: Table, terms: PlantTerms, base_dir: Path, simulation: SimulationConfig
+              ) -> tuple[dict[str, Any], PlantTerms, dict[str, Any]]:
+    """Each backend's section, and the terms with the coefficients left to the model resolved
+    (and the entries of ``[plant]`` that state them; :func:`~.from_model.from_model`)."""
+    backends = backend_sections(plant, provisional(terms), base_dir, simulation)
+    return backends, *from_model(plant, terms, backends, simulation.dt)
 
 
 def _chosen(table: Table, section: Section, sizes: dict[str, int] | None = None
@@ -280,7 +343,7 @@ def _chosen(table: Table, section: Section, sizes: dict[str, int] | None = None
 
 def _controller(table: Table, terms: PlantTerms, simulation: SimulationConfig,
                 quantizer: QuantizerSpec | None) -> ControllerConfig:
-    v, merged = _chosen(table, controller_section(), {"n": terms.order})
+    v, merged = _chosen(table, kept(("controller section",), controller_section), {"n": terms.order})
     kind, delta = v["kind"], quantizer_step(table, v["delta"], quantizer)
     ctx = LawContext(table.source, terms.order, delta, v["c"], terms.psi, terms.phi, terms.theta,
                      simulation.dt, simulation.period, controller=table, input_gain=terms.b,
@@ -294,9 +357,9 @@ def _reference(table: Table, order: int) -> ReferenceConfig:
     return ReferenceConfig(common["kind"], REFERENCE_KINDS[common["kind"]].parse(merged, order))
 
 
-def _simulation(table: Table) -> SimulationConfig:
+def _simulation(root: Table) -> SimulationConfig:
     section = simulation_section()
-    table = Table(table.data, table.source, table.name, section.names)
+    table = root.table("simulation", section.names, default={})
     v = read_keys(table, section.keys, {})
     ratio = v["duration"] / v["dt"]
     if ratio > MAX_STEPS:
@@ -323,12 +386,13 @@ def _check_terms_at_x0(sc: Scenario) -> None:
     """The plant's terms must be finite at the initial state."""
     rows = [(f"plant.phi[{r}][{j}]", e) for r, row in enumerate(sc.rows_expr) for j, e in enumerate(row)]
     last = "plant.phi[{i}]" if not rows else f"plant.phi[{len(sc.rows_expr)}][{{i}}]"
+    at = np.asarray([list(sc.x0)], dtype=float), np.asarray([[*sc.x0, 0.0]], dtype=float)  # (t = 0)
     for label, expr in [("plant.psi", sc.psi_expr)] + rows + [(last.format(i=i), e) for i,
                                                               e in enumerate(sc.phi_expr)]:
         if expr is None:
             continue
         with np.errstate(all="ignore"):
-            value = expr(np.asarray([[*sc.x0, 0.0] if timed(expr) else list(sc.x0)]))
+            value = expr(at[timed(expr)])
         if not np.all(np.isfinite(value)):
             raise QcontrolInputError(
                 f"{sc.source}: {label}: {expr.source!r} is not finite at x0 = {list(sc.x0)}; "

@@ -4,6 +4,7 @@ override which gave a bad value (docs/scenarios.md)."""
 
 from __future__ import annotations
 
+import re
 import tomllib
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -133,12 +134,42 @@ def apply_override(data: dict, item: str) -> None:
     if not sep or not key:
         raise OverrideError(override_label(item), "expected KEY=VALUE; write e.g. "
                             "--set controller.kappa_margin=0.1", item)
-    raw = raw.strip()
+    set_key(data, key, override_value(raw.strip()), item)
+
+
+# a decimal number as TOML writes it (no underscores), the usual value of an override
+_DECIMAL = re.compile(r"[+-]?(?:0|[1-9][0-9]*)(\.[0-9]+)?([eE][+-]?[0-9]+)?")
+
+
+def override_value(raw: str) -> Any:
+    """The value of ``key=raw`` read as TOML, else the text itself as a string. A decimal number,
+    or an array of them on one line (``[0.1, -2]``, as ``plant.x0``), is read directly, as TOML
+    reads it: ``float`` of its text, or ``int``."""
+    numbers = raw[1:-1].split(",") if raw.startswith("[") and raw.endswith("]") else [raw]
+    if len(numbers) > 1 and not numbers[-1].strip(" \t"):  # an array's trailing comma
+        numbers.pop()
+    matched = [_DECIMAL.fullmatch(text.strip(" \t")) for text in numbers]
+    if all(matched):
+        try:
+            values = [float(m[0]) if m[1] or m[2] else int(m[0]) for m in matched]
+            return values if raw.startswith("[") else values[0]
+        except ValueError:  # an integer of more digits than Python converts: as TOML fails on it
+            pass
     try:
-        value = tomllib.loads(f"v = {raw}")["v"]
+        return tomllib.loads(f"v = {raw}")["v"]
     except (tomllib.TOMLDecodeError, RecursionError, ValueError):
-        value = raw
-    set_key(data, key, value, item)
+        return raw
+
+
+def owned(data: dict, key: str) -> None:
+    """Make each table along the dotted ``key`` a copy of its own in ``data`` (before an override
+    writes there: the tables of a file read once may be shared by its variants)."""
+    node = data
+    for part in key.split(".")[:-1]:
+        child = node.get(part)
+        if not isinstance(child, dict):
+            return
+        node[part] = node = dict(child)
 
 
 def set_key(data: dict, key: str, value: Any, item: str | tuple[str, Any]) -> None:

@@ -20,13 +20,16 @@ def plant_section(root: Table) -> Table:
     """``[plant]``: the keys of eq. (1) and one sub-table per backend; a backend's key written
     directly in [plant] is refused with the sub-table it belongs in."""
     plant = root.table("plant")
+    names = PLANT.names
     for key in plant.data:
+        if key in names or key in BACKENDS:
+            continue
         owners = [name for name, backend in BACKENDS.items()
                   if backend.section is not None and key in backend.section.names]
-        if key not in PLANT.names and key not in BACKENDS and owners:
+        if owners:
             raise plant.error(key, f"does not apply to [plant] (it is a setting of backend {owners[0]!r})",
                               f"write it in [plant.{owners[0]}]")
-    return Table(plant.data, plant.source, plant.name, (*PLANT.names, *BACKENDS))
+    return Table(plant.data, plant.source, plant.name, (*names, *BACKENDS))
 
 
 def plant_terms(plant: Table) -> tuple[PlantTerms, tuple[float, ...]]:
@@ -49,6 +52,14 @@ def plant_terms(plant: Table) -> tuple[PlantTerms, tuple[float, ...]]:
     last_row = tuple(_plant_term(p, x_names, f"{where}.phi[{order - 1}][{j}]")
                      for j, p in enumerate(v["phi"]))
     return PlantTerms(order, psi, last_row, v["theta"], v["input_gain"], rows=earlier), v["x0"]
+
+
+def initial_state(plant: Table, order: int) -> tuple[float, ...]:
+    """``plant.x0``, read as :func:`plant_terms` reads it (which checks the keys before it)."""
+    return _X0.type.read(plant, _X0.name, _X0.default, {"n": order})
+
+
+_X0 = next(key for key in PLANT.keys if key.name == "x0")
 
 
 def _plant_term(text: str, x_names: list[str], where: str) -> Expression:

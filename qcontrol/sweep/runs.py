@@ -22,9 +22,11 @@ neighbours), so the in-process path, local worker processes and a Dask cluster g
 numbers however they chunk (only ``wall_time_s`` differs), and a copy's summary is its run
 alone's, key for key (the separation (37)-(43) is checked along every copy).
 
-MuJoCo. Chunks run as MuJoCo plant batches, spread over worker processes: on ``mujoco.batch``
-(the copies stepped in C, the unmodelled term in the native passive callback) where the plant
-allows it, else one ``MjData`` per copy; the numbers are the same either way
+MuJoCo. Chunks run as MuJoCo plant batches, spread over worker processes: on the compiled batch
+(each copy's ``MjData`` stepped from compiled code, a thousand rows of one copy at a time:
+:mod:`qcontrol.engine.compiled_batch`) where the law and the plant allow it, else on
+``mujoco.batch`` (the copies stepped in C, the unmodelled term in the native passive callback),
+else one ``MjData`` per copy; the numbers are the same either way
 (:mod:`qcontrol.plants.mujoco.threaded`). One batch runs on one thread: the workers are the
 parallelism.
 
@@ -51,7 +53,8 @@ from ..assembly import batch_structure, run_variants
 from ..errors import QcontrolInputError, Terminated, shown
 from ..metrics import run_summary
 from ..plants import BACKENDS
-from ..scenario import Scenario, load_scenario
+from ..scenario import Scenario
+from ..scenario.load import load_variants
 from ..summary import Summary
 from ..workers import worker_count, worker_pool
 
@@ -139,7 +142,7 @@ def _run_chunk(scenario_path: str, override_sets: list[list[str]], backend: str,
     loaded = _LOADED.get(key) if key is not None else None
     if loaded is not None and ids is not None:
         return run_batch([loaded[i] for i in ids], backend)
-    return run_batch([load_scenario(scenario_path, o, unset) for o in override_sets], backend)
+    return run_batch(load_variants(scenario_path, override_sets, unset), backend)
 
 
 def planned(scenario_path: str | Path, override_sets: Sequence[Sequence[str]], backend: str,
@@ -150,12 +153,13 @@ def planned(scenario_path: str | Path, override_sets: Sequence[Sequence[str]], b
     if backend not in BACKENDS:
         raise QcontrolInputError(f"--backend {backend!r}: use one of {', '.join(BACKENDS)}")
     groups: dict[tuple, list[int]] = {}
-    variants = []
-    for i, overrides in enumerate(override_sets):
-        sc = load_scenario(scenario_path, list(overrides), unset)
+    index = count()
+
+    def check(sc: Scenario) -> None:  # each variant as it loads: a bad one is refused before the next
         BACKENDS[backend].require(sc.backends.get(backend), sc.source)
-        groups.setdefault(batch_structure(sc, backend), []).append(i)
-        variants.append(sc)
+        groups.setdefault(batch_structure(sc, backend), []).append(next(index))
+
+    variants = load_variants(scenario_path, [list(overrides) for overrides in override_sets], unset, check)
     return chunks_of(groups.values()), variants
 
 

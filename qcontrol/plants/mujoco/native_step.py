@@ -111,28 +111,32 @@ def _helpers(read: Callable, step: Callable) -> str:
     return f"{EXTERNAL}UNSTABLE = {UNSTABLE!r}\n\n" + "".join(f"{jit}\n{text}\n" for text in texts)
 
 
-SETUP = [
-    "mp, dp = as_pointer(pi[0]), as_pointer(pi[1])",
-    "ctrl = carray(as_pointer(pi[2]), pi[7] + 1, dtype=np.float64)",
-    "sensordata = carray(as_pointer(pi[3]), max(pi[8], pi[9]) + 1, dtype=np.float64)",
-    "qpos = carray(as_pointer(pi[4]), pi[10] + 1, dtype=np.float64)",
-    "qvel = carray(as_pointer(pi[5]), pi[11] + 1, dtype=np.float64)",
-    f"warning = carray(as_pointer(pi[6]), {2 * WARNINGS}, dtype=np.int32)",
-]
+def setup_lines(at: str = "") -> list[str]:
+    """The pointers and views of one copy's arrays, from its integers ``pi[at k]`` (``at`` is
+    ``"b, "`` in a batch of copies, whose integers have a row per copy)."""
+    return [
+        f"mp, dp = as_pointer(pi[{at}0]), as_pointer(pi[{at}1])",
+        f"ctrl = carray(as_pointer(pi[{at}2]), pi[{at}7] + 1, dtype=np.float64)",
+        f"sensordata = carray(as_pointer(pi[{at}3]), max(pi[{at}8], pi[{at}9]) + 1, dtype=np.float64)",
+        f"qpos = carray(as_pointer(pi[{at}4]), pi[{at}10] + 1, dtype=np.float64)",
+        f"qvel = carray(as_pointer(pi[{at}5]), pi[{at}11] + 1, dtype=np.float64)",
+        f"warning = carray(as_pointer(pi[{at}6]), {2 * WARNINGS}, dtype=np.int32)",
+    ]
 
 
-def observe_lines(sensed: bool, noisy: bool) -> list[str]:
-    read = ["x1, x2, m1, m2 = read_copy(qpos, qvel, sensordata, pi[10], pi[11], pi[8], pi[9],"
-            f" pi[{DEAD}] != 0, {sensed})"]
+def observe_lines(sensed: bool, noisy: bool, at: str = "") -> list[str]:
+    read = [f"x1, x2, m1, m2 = read_copy(qpos, qvel, sensordata, pi[{at}10], pi[{at}11], pi[{at}8], "
+            f"pi[{at}9], pi[{at}{DEAD}] != 0, {sensed})"]
     if not noisy:
         return read
     noise = [f"m{i} = m{i} + pf[{i} + 2 * pi[{READ}]]" for i in (1, 2)]  # the Python reading += noise
     return read + noise + [f"pi[{READ}] += 1"]
 
 
-def step_lines(sensed: bool) -> list[str]:
-    return [f"if pi[{DEAD}] == 0 and step_copy(mp, dp, ctrl, pi[7], pf[0], u, pi[12], warning, {sensed}):",
-            f"    pi[{DEAD}] = 1"]
+def step_lines(sensed: bool, at: str = "") -> list[str]:
+    return [f"if pi[{at}{DEAD}] == 0 and step_copy(mp, dp, ctrl, pi[{at}7], pf[0], u, pi[{at}12], warning, "
+            f"{sensed}):",
+            f"    pi[{at}{DEAD}] = 1"]
 
 
 def plain_sensors(plant) -> bool:  # noqa: ANN001 (a MujocoPlant)
@@ -163,39 +167,55 @@ def load_mujoco_library() -> str:
 
 
 class MujocoNativeForm:
-    """The numbers the generated lines read for copy 0 of ``plant``: addresses, indices, the
-    substeps per step, ``I / gain``, the dead flag (read from and written back to the plant) and,
-    with sensor noise, the noise of the run's ``readings`` readings and how many were taken."""
+    """The numbers the generated lines read for the copies of ``plant`` (one: a run; every copy:
+    a batch of copies, each row of the integers one copy's, the lines indexing them by the copy
+    ``b`` the generated batch loop gives): addresses, indices, the substeps per step, ``I / gain``,
+    the dead flags (read from and written back to the plant) and, for a run with sensor noise,
+    the noise of its ``readings`` readings and how many were taken."""
 
     def __init__(self, plant, substeps: int, readings: int) -> None:  # noqa: ANN001 (a MujocoPlant)
         self.plant, self.noisy, self.taken = plant, plant._noisy, 0
-        data, ids = plant._datas[0], plant._ids
+        self.batched = plant.batch > 1
+        ids = plant._ids
         p, v = plant._sadr
-        self.ints = np.array([plant.model._address, data._address, data.ctrl.ctypes.data,
-                              data.sensordata.ctypes.data, data.qpos.ctypes.data, data.qvel.ctypes.data,
-                              data.warning.lastinfo.ctypes.data, ids.actuator, p, v, ids.qpos, ids.dof,
-                              substeps, int(plant._dead[0]), 0], dtype=np.int64)
+        self.ints = np.array([[plant.model._address, data._address, data.ctrl.ctypes.data,
+                               data.sensordata.ctypes.data, data.qpos.ctypes.data, data.qvel.ctypes.data,
+                               data.warning.lastinfo.ctypes.data, ids.actuator, p, v, ids.qpos, ids.dof,
+                               substeps, int(dead), 0] for data, dead in zip(plant._datas, plant._dead,
+                                                                               strict=True)],
+                             dtype=np.int64)
         noise = plant._noise.ahead(readings)[:, 0, :].ravel() if self.noisy else np.zeros(0)
         self.floats = np.concatenate([[plant._ctrl_per_u], noise])
+        if self.batched:  # (a batch of copies takes no noise: NativeStepping refuses it)
+            self.floats = np.repeat(self.floats[None, :], plant.batch, axis=0)
+        else:
+            self.ints = self.ints[0]
         self.plain = plain_sensors(plant)
 
     def sync_in(self) -> None:
-        self.ints[DEAD] = int(self.plant._dead[0])
+        dead = self.plant._dead
+        if self.batched:
+            self.ints[:, DEAD] = dead
+        else:
+            self.ints[DEAD] = int(dead[0])
 
     def sync_out(self) -> None:
         plant = self.plant
-        plant._dead[0] = bool(self.ints[DEAD])
+        plant._dead[:] = [bool(d) for d in self.ints[:, DEAD]] if self.batched else [bool(self.ints[DEAD])]
         if self.noisy:  # the readings the compiled loop took, taken from the streams
             plant._noise.skip(int(self.ints[READ]) - self.taken)
             self.taken = int(self.ints[READ])
-        if self.plain and not plant._dead[0]:  # sensordata as the Python step leaves it
-            mujoco.mj_sensorPos(plant.model, plant._datas[0])
-            mujoco.mj_sensorVel(plant.model, plant._datas[0])
+        if self.plain:  # sensordata as the Python step leaves it
+            for data, dead in zip(plant._datas, plant._dead, strict=True):
+                if not dead:
+                    mujoco.mj_sensorPos(plant.model, data)
+                    mujoco.mj_sensorVel(plant.model, data)
 
     def stepper(self) -> NativeStepper:
         key = (f"mujoco {load_mujoco_library()} {mujoco.__version__} plain sensors={self.plain} "
                f"noise={self.noisy}")
-        sensed = not self.plain
-        return NativeStepper(key, helpers(), SETUP, observe_lines(sensed, self.noisy), step_lines(sensed),
-                             self.floats,
-                             self.ints, np.zeros(0), self.sync_in, self.sync_out)
+        sensed, at = not self.plain, "b, " if self.batched else ""
+        return NativeStepper(key, helpers(), setup_lines(at), observe_lines(sensed, self.noisy, at),
+                             step_lines(sensed, at), self.floats, self.ints,
+                             np.zeros((self.plant.batch, 0)) if self.batched else np.zeros(0),
+                             self.sync_in, self.sync_out)

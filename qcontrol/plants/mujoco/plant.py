@@ -36,6 +36,7 @@ import mujoco
 import numpy as np
 
 from ... import compiled as compiled_paths
+from ...compiled.traced import TRACED, TracedForm
 from ...errors import QcontrolInputError
 from ...timegrid import whole_steps
 from ..base import NativeStepper, PlantTerms
@@ -284,17 +285,24 @@ class MujocoPlant:
         steppers = self._steppers[h] = [CopyStepper(self, b, substeps) for b in range(self.batch)]
         return steppers
 
-    def native_stepper(self, h: float, readings: int = 0) -> NativeStepper | None:
-        """The batch of one as source text for the engine's compiled loop (:mod:`.native_step`),
-        where compiled code can give the Python loop's numbers: one copy of order 2, and the passive
-        terms, if any, in the native callback MuJoCo calls itself; with sensor noise, its
-        ``readings`` readings' noise drawn ahead (None without that count)."""
-        if (not self._entered or self.batch != 1 or self._threads or self.n != 2
-                or (self._noisy and readings <= 0)):
+    def native_stepper(self, h: float, readings: int = 0, form: TracedForm = TRACED) -> NativeStepper | None:
+        """The copies as source text for the engine's compiled loop (:mod:`.native_step`; a batch
+        of one in :data:`TRACED`, a batch of copies in ``TracedForm(batch)``, each copy its own
+        ``MjData``), where compiled code can give the Python loop's numbers: order 2, and the passive
+        terms, if any, in the native callback MuJoCo calls itself; with sensor noise, a batch of one
+        whose ``readings`` readings' noise is drawn ahead (None without that count). A batch that
+        was to step on ``mujoco.batch`` (the same numbers) moves to its ``MjData`` here, at the state
+        it was reset to."""
+        if (not self._entered or form.batch != self.batch or self.n != 2
+                or (self._noisy and (readings <= 0 or self.batch != 1))):
             return None
         if python_callback_installed() or (self._forces is not None and self._native is None):
             return None
         substeps = whole_steps(h, self.timestep, f"{self.options.where}: step", "the model timestep")
+        if self._threads:
+            start = self._threaded.state()
+            self._threads = False
+            self.reset(start)
         return MujocoNativeForm(self, substeps, readings).stepper()
 
 

@@ -1,0 +1,139 @@
+"""The metrics of a compiled batch folded inside its loop, the same numbers as the array form's.
+
+A metrics-only run (:class:`~.retention.MetricsRecord`) folds each signal of the signal table
+into its reductions (:mod:`.reductions`) a block of rows at a time, in numpy. In the compiled
+batch (:mod:`.compiled_batch`) each row of each copy is folded where it is made: the signal's
+value is *traced* (:mod:`qcontrol.compiled.traced`) from its own derivation and the reduction's
+own ``values`` on one row of symbols (:class:`~qcontrol.compiled.traced.Row`), and the law's
+diagnostics from the law's own ``evaluate``; each reduction's compiled fold
+(:meth:`~.reductions.Reduction.fold_lines`) folds it into per-copy partials, which
+:meth:`~.reductions.Reduction.merge` adds as the array form's ``add`` would. The error rate's
+interpolation is :func:`qcontrol.error_rate.follow_row`, its one formula
+:func:`qcontrol.error_rate.interpolated`, the array form's too.
+
+The folds count a copy's rows as the array form does only where every row counts (the copy runs
+through the block). So a block of rows is merged only when every copy either counts all of its
+rows or had stopped before it; a block in which some copy stops (or in which a traced value met
+a refusal, where the array form takes numpy's answer) is reduced by the array form, as before,
+for every copy (the compiled partials are dropped). A reduction whose values cannot be traced
+(a derivation with numpy calls: the Lemma 2 errors' matrix products, which numpy hands to BLAS,
+whose fused multiply-adds depend on the BLAS build and the processor; an actuator's clipping;
+...) is always reduced by the array form.
+"""
+
+from __future__ import annotations
+
+import inspect
+from typing import Any
+
+import numpy as np
+
+from .. import error_rate
+from ..compiled.traced import Row, Symbol, Trace, TracedForm, recording
+from .reductions import DiagnosticValues, ErrorRate, Reduction
+from .signals import SignalContext, derive, needed
+
+
+def helpers() -> str:
+    """The error rate's row fold and its formula, as the generated module compiles them: their
+    own source (so the generated text, and its cache key, change with them)."""
+    return "\n\n".join('@numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")\n'
+                       + inspect.getsource(f) for f in (error_rate.interpolated, error_rate.follow_row))
+
+
+def row_block(n: int, m: int, q: list[str]) -> dict[str, Any]:
+    """One row of one copy of the recorded signals, as the compiled loop's locals."""
+    return {"x": Row(Symbol(f"x{i}") for i in range(1, n + 1)),
+            "x_meas": Row(Symbol(f"m{i}") for i in range(1, n + 1)),
+            "x_q": Row(Symbol(text) for text in q), "u": Symbol("u"),
+            "adaptive": Row(Symbol(f"adaptive[{i}]") for i in range(m)),
+            "yd": Row(Symbol(f"yd[r, {j}]") for j in range(n + 1))}
+
+
+class Folds:
+    """The reductions of a metrics record that the compiled batch folds, their lines, partials
+    and per-copy constants, and the merge at each block of rows (module docstring)."""
+
+    def __init__(self, reductions: list[Reduction], context: SignalContext, law: Any, form: TracedForm,
+                 n: int, m: int, q: list[str], dt: float) -> None:
+        batch = form.batch
+        trace = Trace("lf", "f")
+        self.every: list[str] = []  # lines of every row
+        self.samples: list[str] = []  # lines of the control samples
+        self.folded: list[tuple[Reduction, slice]] = []
+        start: list[float] = []
+        with recording(trace), trace.refusing("odd[b] = True"):
+            t = trace.assign(f"k * {trace.constant(dt)}").text  # the row's instant, as TimeGrid's
+            self.every += trace.taken()
+            for fold in reductions:
+                partials = fold.partials
+                if partials is None:
+                    continue
+                try:
+                    values = self.traced(fold, context, law, form, n, m, q)
+                    texts = [trace.text(v) for v in values]
+                except (TypeError, ValueError):  # not traceable: the array form reduces it
+                    trace.taken()
+                    continue
+                slot = len(start)
+                lines = [*trace.taken(), *fold.fold_lines(texts, slot, t, trace.constant)]
+                (self.samples if fold.at_samples else self.every).extend(lines)
+                start += partials
+                self.folded.append((fold, slice(slot, slot + len(partials))))
+        self.start = np.array(start, dtype=float)
+        self.partials = np.empty((batch, len(start)))
+        self.constants = trace.table(batch)
+        self.odd = np.zeros(batch, dtype=np.bool_)
+        self.rate = next((f for f, _ in self.folded if isinstance(f, ErrorRate)), None)
+        self.all = reductions
+        self.others = [f for f in reductions if all(f is not g for g, _ in self.folded)]
+        self.reset()
+
+    @staticmethod
+    def traced(fold: Reduction, context: SignalContext, law: Any, form: TracedForm, n: int, m: int,
+               q: list[str]) -> list[Any]:
+        """The values ``fold`` folds at a row, recorded from their own definitions."""
+        block = row_block(n, m, q)
+        if isinstance(fold, DiagnosticValues):
+            columns = (tuple(block["x_q"]), tuple(block["yd"]), tuple(block["adaptive"]))
+            values = [d.evaluate(*columns, form=form) for d in context.diagnostics]
+            if any(d.width != 1 for d in context.diagnostics):
+                raise TypeError("a diagnostic of several columns")
+            return fold.row_values(values)
+        derive(block, context, needed(fold.needs()))
+        values = fold.row_values(fold.values(block))
+        if not all(isinstance(v, Symbol | float) for v in values):
+            raise TypeError("a folded value that is not one number per row")
+        return values
+
+    def lines(self) -> list[str]:
+        """The fold of row k of copy b, after the row is written (``fp``: its partials)."""
+        if not self.folded:
+            return []
+        return [*self.every, "if k % hold == 0:", *["    " + line for line in self.samples or ["pass"]]]
+
+    def arguments(self) -> tuple:
+        """The arrays the generated loop reads and writes: partials, constants, the flag of
+        copies whose traced values met a refusal, the error rate's arrays."""
+        rate = self.working if self.rate is not None else (np.zeros(1), np.zeros((1, 1)),
+                                                            np.zeros(1, dtype=np.intp), np.zeros((1, 2)))
+        return (self.partials, self.constants, self.odd, *rate)
+
+    def reset(self) -> None:
+        self.partials[:] = self.start
+        self.odd[:] = False
+        if self.rate is not None:
+            self.working = self.rate.working()
+
+    def merge(self, base: int, stop: int, kept: np.ndarray, diverged: np.ndarray) -> list[Reduction]:
+        """Merge the partials of rows ``[base, stop)`` where the array form would have folded the
+        same rows (module docstring); return the reductions the array form still folds there
+        (then :meth:`reset`, before the loop goes on)."""
+        counted = ~self.odd & ((kept > stop) | ~diverged)  # every row counts
+        merged = bool(np.all(counted | (kept <= base)))
+        if merged:
+            for fold, slots in self.folded:
+                fold.merge(counted, self.partials[:, slots])
+        if self.rate is not None:
+            self.rate.undo(~counted if merged else np.ones_like(counted))
+        return self.others if merged else self.all

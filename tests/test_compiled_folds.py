@@ -1,0 +1,110 @@
+"""The compiled batch's metrics folded inside its loop (qcontrol.engine.compiled_folds): every
+copy's summary values equal the array form's to the last bit, over blocks the loop folded and
+blocks in which a copy stopped (reduced by the array form), with a control period of one and of
+two steps; and the folded values are traced from their one definition: the tracking error, the
+error rate's interpolation and the law's diagnostic changed in their one place change the
+compiled batch and the array form alike."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from conftest import SCENARIOS
+
+import qcontrol.engine.compiled_loop as compiled_loop
+import qcontrol.engine.retention as retention
+from qcontrol import error_rate
+from qcontrol.assembly import assemble
+from qcontrol.controller.proposed import PaperLaw
+from qcontrol.engine import ClosedLoop, compiled_folds, reductions
+from qcontrol.scenario import load_scenario
+
+
+@pytest.fixture(autouse=True)
+def _short_blocks(monkeypatch) -> None:
+    """Short runs compiled, reduced in blocks of 40 rows (copies stop in some blocks, not others)."""
+    monkeypatch.setattr(compiled_loop, "MIN_ROWS", 0)
+    monkeypatch.setattr(compiled_loop, "COLD_MIN_ROWS", 0)
+    monkeypatch.setattr(retention, "METRICS_CHUNK", 40)
+    monkeypatch.setattr(retention, "METRICS_BUFFER_ELEMENTS", 40)
+
+
+def _variants(name: str, extra: tuple[str, ...] = ()) -> list:
+    """Copies differing in kappa and x(0); the far ones diverge, at different rows."""
+    x1, x2 = np.linspace(-3.0, 3.0, 12).tolist(), np.tile([-60.0, 0.3, 5.0, 60.0], 3).tolist()
+    return [load_scenario(SCENARIOS / f"{name}.toml", ["simulation.duration=0.3", f"plant.x0=[{a!r}, {b!r}]",
+                                                       f"controller.kappa_margin={m!r}", *extra])
+            for a, b, m in zip(x1, x2, np.linspace(0.1, 2.0, 12).tolist(), strict=True)]
+
+
+def _metrics(scs: list, monkeypatch, compiled: bool) -> tuple[list, list[bool]]:
+    """The runs' metrics, and for each block the compiled loop folded whether it was merged."""
+    merged: list[bool] = []
+    merge = compiled_folds.Folds.merge
+
+    def spy(self, *args):  # noqa: ANN001, ANN202
+        left = merge(self, *args)
+        merged.append(left is self.others)
+        return left
+
+    monkeypatch.setattr(compiled_folds.Folds, "merge", spy)
+    if not compiled:
+        monkeypatch.setenv("QCONTROL_COMPILE", "0")
+    loop = ClosedLoop(dataclasses.replace(assemble(scs, "ode").spec, record="metrics"))
+    runs = loop.run()
+    monkeypatch.delenv("QCONTROL_COMPILE", raising=False)
+    assert loop.handover == (None if compiled else 0)
+    return runs, merged
+
+
+def _bits(value) -> object:  # noqa: ANN001
+    """A summary value's exact bits (floats and arrays), nested dicts kept."""
+    if isinstance(value, dict):
+        return {k: _bits(v) for k, v in value.items()}
+    return np.asarray(value, dtype=float).tobytes()
+
+
+def _same_metrics(scs: list, monkeypatch) -> list[bool]:
+    compiled, merged = _metrics(scs, monkeypatch, compiled=True)
+    array, _ = _metrics(scs, monkeypatch, compiled=False)
+    for a, b in zip(compiled, array, strict=True):
+        assert (a.steps, a.diverged, a.divergence_reason) == (b.steps, b.diverged, b.divergence_reason)
+        assert _bits(a.values) == _bits(b.values)
+    return merged
+
+
+@pytest.mark.parametrize(("name", "extra"), [("example1", ()), ("example2", ()),
+                                             ("example2", ("simulation.control_period=0.002",))])
+def test_folded_metrics_equal_the_array_form(monkeypatch, name: str, extra: tuple[str, ...]) -> None:
+    scs = _variants(name, extra)
+    merged = _same_metrics(scs, monkeypatch)
+    assert any(merged) and not all(merged)  # blocks folded in the loop, and blocks where a copy stopped
+
+
+def _late_error(block):  # noqa: ANN001, ANN202
+    """The tracking error changed: x_1 - y_d, half again."""
+    return (block["x"][..., :1] - block["yd"][..., :1]) * 1.5
+
+
+def interpolated(ta, za, tc, zc, x):  # noqa: ANN001, ANN201 (the changed formula, compiled by name)
+    slope = (zc - za) / (tc - ta)
+    return slope * (x - ta) * 0.5 + za
+
+
+def test_folded_values_change_with_their_one_definition(monkeypatch) -> None:
+    scs = _variants("example2", ("metrics.omega=[0.001, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0, 3.0]",))
+    before, _ = _metrics(scs, monkeypatch, compiled=True)
+    for owner in (reductions.ErrorRate, reductions.LastHalfLargestAbs):
+        monkeypatch.setattr(owner, "values", staticmethod(_late_error))
+    monkeypatch.setattr(error_rate, "interpolated", interpolated)
+    gain = PaperLaw.robust_gain
+    monkeypatch.setattr(PaperLaw, "robust_gain", lambda self, *a, **k: gain(self, *a, **k) * 3.0)
+    merged = _same_metrics(scs, monkeypatch)
+    assert any(merged)
+    after, _ = _metrics(scs, monkeypatch, compiled=True)
+    kept = [i for i, run in enumerate(after) if not run.diverged]
+    for i in kept:
+        old, new = before[i].values, after[i].values
+        assert new["max_abs_z1_last_half"] == 1.5 * old["max_abs_z1_last_half"]
+        assert new["diagnostics"]["max"][0] == pytest.approx(3.0 * old["diagnostics"]["max"][0], rel=1e-12)
+    assert any(after[i].values["error_rate"] != before[i].values["error_rate"] for i in kept)
