@@ -347,6 +347,19 @@ def staged() -> Iterator[None]:
             file.discard()
 
 
+@contextmanager
+def unstaged() -> Iterator[None]:
+    """Inside the block the calling thread's files go straight into place, outside any
+    :func:`staged` set it is in (a forked process writing files for its parent, which stages what
+    it takes of them)."""
+    files = getattr(_STAGING, "files", None)
+    _STAGING.files = None
+    try:
+        yield
+    finally:
+        _STAGING.files = files
+
+
 def write_file(path: str | Path, write: Callable[[IO[bytes]], Any]) -> Path:
     """Write a file atomically: ``write(file)`` fills the temporary file, which is then flushed,
     fsynced and moved into place (:func:`finish`). A failed write is a

@@ -159,7 +159,6 @@ class Renamed(PaperLaw):
 
 
 @pytest.mark.parametrize(("what", "overrides", "backend", "law_class"), [
-    ("velocity differencing", ["simulation.velocity_source=\"difference\""], "mujoco", None),
     ("a subclass that overrides a method", [], "ode", Integral),
 ])
 def test_what_keeps_the_python_loop(monkeypatch, what: str, overrides: list[str], backend: str,
@@ -175,6 +174,20 @@ def test_what_keeps_the_python_loop(monkeypatch, what: str, overrides: list[str]
     _assert_identical(compiled, python)
 
 
+@pytest.mark.parametrize(("backend", "period"), [("mujoco", None), ("ode", 0.005), ("mujoco", 0.02)])
+def test_velocity_differencing_is_compiled(monkeypatch, backend: str, period: float | None) -> None:
+    """x2 differenced from the encoder over the control period (every row without one)."""
+    timing = [] if period is None else [f"simulation.control_period={period!r}"]
+    sc = _scenario("example2", ["simulation.velocity_source=\"difference\"", *timing])
+    (loop, compiled), (_, python) = _both(monkeypatch, sc, backend)
+    assert loop.handover is None
+    _assert_identical(compiled, python)
+    q1, v = compiled.signals["x_q"][:, 0], compiled.signals["x_q"][:, 1]
+    hold = round((period or sc.simulation.dt) / sc.simulation.dt)
+    past = np.r_[np.full(hold, q1[0]), q1[:-hold]]  # the position one period before, q1(0) before the run
+    assert np.array_equal(v, (q1 - past) / (hold * sc.simulation.dt), equal_nan=True)
+
+
 def test_a_subclass_that_changes_nothing_is_compiled(monkeypatch) -> None:
     sc = _scenario("example2")
     base = build_controller(sc)
@@ -184,28 +197,32 @@ def test_a_subclass_that_changes_nothing_is_compiled(monkeypatch) -> None:
     _assert_identical(compiled, python)
 
 
-def _refusing_run(psi: str, r: str, x0: list[float]) -> RunSpec:
+def _refusing_run(psi: str, r: str, x0: list[float], velocity: str = "sensor") -> RunSpec:
     """An ODE run whose plant term or bounding function overflows ``math`` (the Python form then
-    takes numpy's inf) part of the way through."""
+    takes numpy's inf) part of the way through; ``velocity="difference"``: x2 differenced over a
+    5-row control period (the hand-over carries the positions the compiled loop kept)."""
     x = ["x1", "x2"]
     plant = ChainPlant(2, compile_expression(psi, x), [compile_expression("x2", x)], [1.0])
     law = PaperLaw([1.0, 1.0], 0.005, kappa=3.0, gamma=1.0, sigma=1.0,
                              r=[compile_expression(r, ["q1", "q2"]), compile_expression("1", ["q1", "q2"])])
     return RunSpec(plant=plant, law=law, quantizer=UniformQuantizer(0.01), reference=Constant(0.0),
-                   x0=x0, grid=TimeGrid.of(0.5, 1e-3, None), state_bound=1e300)
+                   x0=x0, grid=TimeGrid.of(0.5, 1e-3, 0.005 if velocity == "difference" else None),
+                   state_bound=1e300, velocity_source=velocity)
 
 
-@pytest.mark.parametrize(("psi", "r", "x0"), [
-    ("exp(x1)", "1", [700.0, 2000.0]),  # the plant's term overflows inside a step
-    ("0", "1 + exp(q1 / 2)", [0.0, 2000.0]),  # the bounding function overflows at a sample
+@pytest.mark.parametrize(("psi", "r", "x0", "velocity"), [
+    ("exp(x1)", "1", [700.0, 2000.0], "sensor"),  # the plant's term overflows inside a step
+    ("0", "1 + exp(q1 / 2)", [0.0, 2000.0], "sensor"),  # the bounding function overflows at a sample
+    ("exp(x1)", "1", [0.0, 2000.0], "difference"),  # (a step from row 8: the last 5 positions kept)
+    ("0", "1 + exp(q1 / 2)", [0.0, 2000.0], "difference"),  # (a sample at row 15)
 ])
 def test_the_python_loop_takes_over_where_math_refuses(monkeypatch, psi: str, r: str,
-                                                       x0: list[float]) -> None:
-    loop = ClosedLoop(_refusing_run(psi, r, x0))
+                                                       x0: list[float], velocity: str) -> None:
+    loop = ClosedLoop(_refusing_run(psi, r, x0, velocity))
     compiled = loop.run()[0]
     monkeypatch.setenv("QCONTROL_COMPILE", "0")
-    python = ClosedLoop(_refusing_run(psi, r, x0)).run()[0]
-    assert loop.handover is not None and loop.handover > 0
+    python = ClosedLoop(_refusing_run(psi, r, x0, velocity)).run()[0]
+    assert loop.handover is not None and loop.handover > (5 if velocity == "difference" else 0)
     _assert_identical(compiled, python)
 
 

@@ -12,6 +12,7 @@ import pytest
 from conftest import SCENARIOS
 
 import qcontrol.engine.compiled_loop as compiled_loop
+import qcontrol.engine.velocity as velocity
 import qcontrol.plants.ode as ode
 from qcontrol.assembly import (
     assemble,
@@ -101,6 +102,9 @@ CHANGES = {
     "MuJoCo sensor noise": (SensorNoise, "ahead", _wrapped(SensorNoise, "ahead", lambda noise: 3.0 * noise),
                             ["plant.mujoco.sensor_noise=[0.001, 0.05]", "plant.mujoco.noise_seed=7"],
                             "mujoco"),
+    "differenced velocity": (velocity, "differenced", lambda p, past, period: 0.5 * (p - past) / period,
+                             ['simulation.velocity_source="difference"', "simulation.control_period=0.002"],
+                             "mujoco"),
 }
 
 

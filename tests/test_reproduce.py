@@ -189,7 +189,9 @@ def test_the_region_study_compares_the_three_laws_at_two_rates(reproduction):
 
 def test_the_robustness_study_batches_each_rows_seeds(monkeypatch, tmp_path):
     """Each row's sensor-noise seeds share everything else: one job per row (8 of the study's
-    rows), every other run alone."""
+    rows), every other run alone. A run asked for twice is planned once: the seed the scenario
+    file has already (1) is the row's run without the override, and the disturbance cases' quiet
+    runs (the ideal and the realistic arm, each law, each backend) are rows' runs."""
     from pathlib import Path
 
     from qcontrol.reproduce import robustness_study as study
@@ -198,7 +200,9 @@ def test_the_robustness_study_batches_each_rows_seeds(monkeypatch, tmp_path):
 
     def capture(tasks, full, pool):
         planned["batches"] = study.batches(tasks)
-        planned["seeds"] = [{t.overrides[-1] for t in (tasks[i] for i in b)} for b in planned["batches"][:8]]
+        seed = lambda task: next((o for o in task.overrides if o.startswith(study.SEED_OVERRIDE)), "own")  # noqa: E731
+        planned["seeds"] = [{seed(tasks[i]) for i in b} for b in planned["batches"][:8]]
+        planned["shared"] = [t for t in full if t in set(tasks)]
         raise KeyboardInterrupt
 
     monkeypatch.setattr(study, "_execute", capture)
@@ -207,5 +211,40 @@ def test_the_robustness_study_batches_each_rows_seeds(monkeypatch, tmp_path):
         study.robustness_study(scenarios, 0.5, 1, log=lambda _: None)
     sizes = sorted((len(b) for b in planned["batches"]), reverse=True)
     assert sizes[:8] == [len(study.SEEDS)] * 8 and set(sizes[8:]) == {1}
-    assert all(seeds == {f"plant.mujoco.noise_seed={s}" for s in study.SEEDS} for seeds in planned["seeds"])
+    every = {f"plant.mujoco.noise_seed={s}" for s in study.SEEDS}
+    own = {"own", *(f"plant.mujoco.noise_seed={s}" for s in study.SEEDS[1:])}  # the realistic files' rows
+    matched = [seeds == own for seeds in planned["seeds"] if seeds in (every, own)]
+    assert len(matched) == 8 and sum(matched) == 4
+    quiet = [t for t in planned["shared"] if "disturbance=[]" in t.overrides]  # the realistic arm's
+    assert len(planned["shared"]) == 8 and len(quiet) == 4 and {t.backend for t in quiet} == {"mujoco", "ode"}
     assert sorted(i for b in planned["batches"] for i in b) == list(range(sum(sizes)))
+
+
+def test_figures_drawn_apart_are_the_figures_drawn_here(tmp_path):
+    """A forked worker draws the very bytes this process draws, its files are staged with the
+    others, and its failure reaches the caller."""
+    from qcontrol.outputs import staged
+    from qcontrol.plots.common import new_figure, save
+    from qcontrol.reproduce.drawing import Apart
+
+    def figures(folder):
+        fig, axes = new_figure()
+        axes[0, 0].plot([0.0, 1.0, 2.0], [1.0, -0.5, 2.0], label="a line")
+        axes[0, 0].legend()
+        save(fig, folder / "f.png")
+
+    def broken(folder):
+        raise ValueError("no figure")
+
+    here, there = tmp_path / "here", tmp_path / "there"
+    here.mkdir()
+    there.mkdir()
+    Apart(here, forked=False).draw(figures)
+    with staged(), Apart(there, forked=True) as apart:
+        apart.draw(figures)
+        apart.wait()
+        assert not (there / "f.png").exists()  # staged: in place with the set, at its end
+    assert (there / "f.png").read_bytes() == (here / "f.png").read_bytes()
+    with pytest.raises(ValueError, match="no figure"), Apart(there, forked=True) as apart:
+        apart.draw(broken)
+        apart.wait()

@@ -4,8 +4,9 @@ scheduled rows, generated from the parts' own Python code.
 The engine's float path (:mod:`.fastpath`) chooses it for a run whose parts all have a compiled
 form: the uniform quantizer, a built-in law, the plant's
 :class:`~qcontrol.plants.base.NativeStepper` (the ODE's RK4 on its terms, or MuJoCo's copy step
-calling ``mj_step`` from compiled code), the sensors' velocity. The quantizer's formula
-(:meth:`~qcontrol.quantizer.UniformQuantizer.apply`) and the law's ``control`` and advance are
+calling ``mj_step`` from compiled code), the velocity sensor's or the differenced velocity
+(:mod:`.velocity`). The quantizer's formula (:meth:`~qcontrol.quantizer.UniformQuantizer.apply`),
+the differenced velocity's (:func:`~.velocity.differenced`) and the law's ``control`` and advance are
 not restated here: they run once on the traced column form (:mod:`qcontrol.compiled.traced`),
 whose symbols record every operation they make, in order, as source lines
 (:func:`traced_parts`). The generated function runs the loop body of
@@ -18,7 +19,7 @@ loop's to the last bit. Between calls the engine does its rare work
 Where the compiled code cannot give the Python loop's numbers (``math`` refusing an evaluation
 the Python form answers with numpy), it stops before the row (or the step) and the Python loop
 runs on from there (:class:`Resume`). Everything else runs in Python from the start: user laws
-and subclasses that change a built-in law, velocity differencing, other
+and subclasses that change a built-in law, other
 quantizers, batches, runs shorter than :data:`MIN_ROWS` rows, single runs of fewer than
 :data:`COLD_MIN_ROWS` in a process that has not started numba (:func:`numba_pays`), and every
 run when ``QCONTROL_COMPILE=0`` or numba is missing.
@@ -43,6 +44,7 @@ from ..controller.law import BatchLaw
 from ..controller.proposed import PaperLaw
 from ..plants.base import NativeStepper, NativeStepping, Plant
 from ..quantizer import QuantizedReading, UniformQuantizer
+from . import velocity
 from .reference_rows import ReferenceRows
 from .spec import RunSpec
 
@@ -59,12 +61,14 @@ DONE, CONTROL_REFUSED, STEP_REFUSED = 0, 1, 2  # what a call returns, with the r
 
 class Resume(NamedTuple):
     """Where the Python loop takes over: at ``row``, with the adaptive state there and, when
-    ``step_first``, the step and advance of the row before still to do with the held ``out``."""
+    ``step_first``, the step and advance of the row before still to do with the held ``out``;
+    ``past``: a differenced velocity's positions of the rows before, oldest first."""
 
     row: int
     step_first: bool
     adaptive: tuple
     out: ControlOutput | None
+    past: tuple = ()
 
 
 START = Resume(0, False, (), None)
@@ -91,7 +95,8 @@ class TracedParts(NamedTuple):
     """The run's quantizer and law as lines of the loop, recorded from their own Python code run
     on symbols (:mod:`qcontrol.compiled.traced`): ``quantize`` (``m1 .. mn`` -> ``q``, the names
     or constants of ``q_1 .. q_n``), ``control`` (at a sample: fills ``held`` with u, the targets
-    and zbar), ``advance`` (every step), the constants ``lp`` they read, and the output's rate."""
+    and zbar), ``advance`` (every step), the constants ``lp`` they read, and the output's rate;
+    ``keep``: lines after the row's control (a differenced velocity keeping the position)."""
 
     quantize: list[str]
     q: list[str]
@@ -99,17 +104,22 @@ class TracedParts(NamedTuple):
     advance: list[str]
     constants: np.ndarray
     rate: Any  # a number, or per copy a (batch,) array
+    keep: tuple[str, ...] = ()
 
 
 def traced_parts(quantizer: UniformQuantizer, law: BatchLaw, n: int, dt: float,
-                 form: TracedForm = TRACED) -> TracedParts:
+                 form: TracedForm = TRACED, period: float | None = None) -> TracedParts:
     """:meth:`UniformQuantizer.apply`, ``law.control`` and ``law.advancer_in`` run on the traced
     form (``form``: :data:`TRACED`, or ``TracedForm(batch)`` for a batch of copies, whose
     constants then have a row per copy); raises TypeError where a formula cannot be traced (the
-    run keeps the Python loop)."""
+    run keeps the Python loop). ``period``: x2 differenced from the position over this many
+    seconds (the control period, ``hold`` rows; :func:`differenced_velocity`)."""
     m, trace = law.state_size, Trace()
     with recording(trace):
         q = [quantizer.apply(Symbol(f"m{i}"), TRACED.floor) for i in range(1, n + 1)]
+        keep: list[str] = []
+        if period is not None:
+            q, keep = differenced_velocity(trace, q, period)
         q_text = [trace.text(qi) for qi in q]
         quantize = trace.taken()
         with trace.refusing(f"return {CONTROL_REFUSED}, k"):
@@ -132,7 +142,20 @@ def traced_parts(quantizer: UniformQuantizer, law: BatchLaw, n: int, dt: float,
         advance = trace.taken()
     rate = out.rate if isinstance(out.rate, np.ndarray) else float(out.rate)
     constants = trace.table(None if form.batch == 1 else form.batch)
-    return TracedParts(quantize, q_text, control, advance, constants, rate)
+    return TracedParts(quantize, q_text, control, advance, constants, rate, tuple(keep))
+
+
+def differenced_velocity(trace: Trace, q: list, period: float) -> tuple[list, list[str]]:
+    """``q`` with x2 replaced by the velocity differenced from the quantized position
+    (:func:`~.velocity.differenced`, traced), as the float form's
+    :class:`~.fastpath.FloatDifferencing` does: the positions of the last ``hold`` rows are
+    kept in ``vb`` (row k's at ``k % hold``), all the first row's before the run. Returns the
+    readings and the line that keeps the row's position, run after the row's control (so a
+    control that hands over to Python leaves the positions as they were before the row)."""
+    position = trace.text(q[0])
+    trace.lines += ["if k == 0:", f"    vb[:] = {position}"]
+    rate = velocity.differenced(q[0], Symbol("vb[k % hold]"), period)
+    return [q[0], rate, *q[2:]], [f"vb[k % hold] = {position}"]
 
 
 def loop_body(parts: TracedParts, plant: NativeStepper, n: int, m: int, copy: str = "0",
@@ -143,7 +166,8 @@ def loop_body(parts: TracedParts, plant: NativeStepper, n: int, m: int, copy: st
     record = ([f"xb[j, {copy}, {i - 1}] = x{i}" for i in range(1, n + 1)]
               + [f"mb[j, {copy}, {i - 1}] = m{i}" for i in range(1, n + 1)]
               + [f"qb[j, {copy}, {i}] = {q}" for i, q in enumerate(parts.q)]
-              + [f"ub[j, {copy}] = u"] + [f"ab[j, {copy}, {i}] = adaptive[{i}]" for i in range(m)])
+              + [f"ub[j, {copy}] = u"] + [f"ab[j, {copy}, {i}] = adaptive[{i}]" for i in range(m)]
+              + list(parts.keep))
     return [
         *plant.setup,
         "u = held[0]",
@@ -185,7 +209,7 @@ def loop_source(parts: TracedParts, plant: NativeStepper, n: int, m: int) -> str
     return module_source(plant, [
         JIT,
         "def rows(start, stop, step_first, hold, base, yd, xb, mb, qb, ub, ab, adaptive, held, lp, pf, pi,"
-        " xs):",
+        f" xs{', vb' if parts.keep else ''}):",
         *_indented(loop_body(parts, plant, n, m), 1),
     ])
 
@@ -222,7 +246,9 @@ class CompiledLoop:
             compiled_paths.fallback("the closed loop", f"{type(exc).__name__}: {exc}")
             return START._replace(adaptive=adaptive)
         state, held = np.array(adaptive, dtype=float), np.zeros(self.held_width)
-        arrays, hold = loop.record.buffer.arrays, loop.grid.hold
+        hold = loop.grid.hold
+        positions = (np.zeros(hold),) if self.parts.keep else ()  # a differenced velocity's
+        arrays = loop.record.buffer.arrays
         buffers = (arrays["x"], arrays["x_meas"], arrays["x_q"], arrays["u"], arrays["adaptive"])
         start, step_first = 0, False
         while True:
@@ -230,12 +256,15 @@ class CompiledLoop:
             yd = np.ascontiguousarray(loop.reference.block(start, stop + 1))
             stepper.sync_in()
             status, row = rows(start, stop, step_first, hold, loop.record.buffer.base, yd, *buffers, state,
-                               held, self.parts.constants, stepper.floats, stepper.ints, stepper.state)
+                               held, self.parts.constants, stepper.floats, stepper.ints, stepper.state,
+                               *positions)
             stepper.sync_out()
-            if status == CONTROL_REFUSED:
-                return Resume(row, False, tuple(state.tolist()), None)
-            if status == STEP_REFUSED:
-                return Resume(row + 1, True, tuple(state.tolist()), self.held_output(held))
+            if status in (CONTROL_REFUSED, STEP_REFUSED):
+                after = status == STEP_REFUSED  # the row's step and advance still to do
+                resume = row + after
+                past = tuple(np.roll(positions[0], -resume).tolist()) if positions and resume else ()
+                return Resume(resume, after, tuple(state.tolist()), self.held_output(held) if after else None,
+                              past)
             if loop.rare_work(stop):
                 return None
             start, step_first = stop + 1, True
@@ -270,8 +299,13 @@ def compiled_loop(spec: RunSpec) -> CompiledLoop | None:
     """The compiled form of ``spec``'s law and quantizer for a batch of one, or None where the
     run keeps the Python loop (see the module docstring)."""
     rows = spec.grid.rows
-    if spec.plant.batch != 1 or spec.velocity_source != "sensor" or rows < MIN_ROWS:
+    if spec.plant.batch != 1 or rows < MIN_ROWS:
         return None
+    period = None  # x2 from the velocity sensor, else differenced over the control period
+    if spec.velocity_source == "difference":
+        if spec.plant.n < 2:
+            return None
+        period = spec.grid.hold * spec.grid.dt
     if not numba_pays(rows, 1):  # (before enabled(), which imports it)
         return None
     if type(spec.quantizer) is not UniformQuantizer:  # (a subclass may quantize otherwise)
@@ -281,7 +315,7 @@ def compiled_loop(spec: RunSpec) -> CompiledLoop | None:
     if not compilable(spec.law):
         return None
     try:
-        parts = traced_parts(spec.quantizer, spec.law, spec.plant.n, spec.grid.dt)
+        parts = traced_parts(spec.quantizer, spec.law, spec.plant.n, spec.grid.dt, period=period)
     except TypeError:  # a formula that cannot be traced: the Python loop
         return None
     return CompiledLoop(parts, spec.plant.n, spec.law.state_size)

@@ -49,6 +49,7 @@ from ..controller.law import AnyColumnForm, BatchLaw
 from ..expr import FLOAT_REFUSED, Expression, FloatCombination, FloatTerms
 from ..plants.base import ColumnIO, ColumnStepping, Plant
 from ..quantizer import QuantizedReading, Quantizer, UniformQuantizer
+from . import velocity
 from .compiled_batch import CompiledBatch, compiled_batch
 from .compiled_loop import CompiledLoop
 from .compiled_loop import compiled_loop as compiled_loop_of
@@ -140,9 +141,9 @@ class FloatDifferencing:
         past = self.past
         if not past:
             past.extend([q1] * self.hold)
-        velocity = (q1 - past[0]) / self.period
+        rate = velocity.differenced(q1, past[0], self.period)
         past.append(q1)
-        return QuantizedReading(None, q.max_error, columns=(q1, velocity, *columns[2:]),
+        return QuantizedReading(None, q.max_error, columns=(q1, rate, *columns[2:]),
                                  form=FLOATS, batch=1)
 
 
@@ -218,8 +219,8 @@ class FloatRows:
     def quantizer(self, quantizer: Quantizer) -> Quantize:
         return FloatQuantize(quantizer).quantize
 
-    def differenced(self, quantize: Quantize, hold: int, period: float) -> Quantize:
-        return FloatDifferencing(quantize, hold, period).quantize
+    def differenced(self, quantize: Quantize, hold: int, period: float) -> FloatDifferencing:
+        return FloatDifferencing(quantize, hold, period)
 
     def plant_io(self, plant: Plant, h: float) -> ColumnIO:
         return float_io(plant, h)

@@ -93,8 +93,10 @@ class ClosedLoop:
         if isinstance(spec.quantizer, SensorQuantizer):  # (one with memory starts every run afresh)
             spec.quantizer.reset()
         self.quantize = self.rows.quantizer(spec.quantizer)
+        self.differencing = None  # x2 differenced from the encoder (.velocity), or None
         if spec.velocity_source == "difference":
-            self.quantize = self.rows.differenced(self.quantize, grid.hold, grid.hold * grid.dt)
+            self.differencing = self.rows.differenced(self.quantize, grid.hold, grid.hold * grid.dt)
+            self.quantize = self.differencing.quantize
         self.progress = ProgressReports(spec.progress, grid.rows)
         self.loads = Loads(plant, spec.loads)
         self.input_quantizer = spec.input_quantizer
@@ -160,6 +162,8 @@ class ClosedLoop:
         observe, step = io.observe, io.step
         if self.input_quantizer is not None:  # the plant is stepped with q_u(u)
             step = QuantizedInput(step, self.input_quantizer).step
+        if resume.past:  # the positions the compiled loop differenced, oldest first
+            self.differencing.past.extend(resume.past)
         if resume.step_first:  # the step from the row before, which the compiled loop left
             step(out.u)
             adaptive = advance(adaptive, out)

@@ -60,8 +60,8 @@ class ArrayRows:
         return partial(quantize, quantizer)
 
     def differenced(self, quantize: Callable[[np.ndarray], QuantizedReading], hold: int, period: float
-                    ) -> Callable[[np.ndarray], QuantizedReading]:
-        return ArrayDifferencing(quantize, hold, period).quantize
+                    ) -> ArrayDifferencing:
+        return ArrayDifferencing(quantize, hold, period)
 
     def plant_io(self, plant: Plant, h: float) -> ArrayIO:
         return ArrayIO(plant, h)

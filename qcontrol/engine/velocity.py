@@ -28,6 +28,13 @@ VELOCITY_SOURCES = ("sensor", "difference")
 Quantize = Callable[[Any], QuantizedReading]
 
 
+def differenced(position: Any, past: Any, period: float) -> Any:
+    """The differenced velocity: ``(q(x1)(t_k) - q(x1)(t_k - T)) / T`` with ``position`` the
+    quantized position now and ``past`` the one ``period`` = T seconds before (floats, columns,
+    or the compiled loop's traced symbols)."""
+    return (position - past) / period
+
+
 def lemma2_applies(velocity_source: str) -> bool:
     """Whether Lemma 2's premise (every state the controller sees is q of its reading) holds."""
     return velocity_source == "sensor"
@@ -48,6 +55,6 @@ class ArrayDifferencing:
         q1 = out[:, 0].copy()
         if not self.past:
             self.past.extend([q1] * self.hold)
-        out[:, 1] = (q1 - self.past[0]) / self.period
+        out[:, 1] = differenced(q1, self.past[0], self.period)
         self.past.append(q1)
         return QuantizedReading(out, q.max_error)

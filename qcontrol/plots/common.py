@@ -95,8 +95,9 @@ def fit_titles(fig: Figure, most_lines: int = 4) -> None:
     suptitle = fig._suptitle  # matplotlib keeps the Text of fig.suptitle here (None without one)
     titles = [ax.title for ax in fig.axes if ax.title.get_text()] + ([] if suptitle is None else [suptitle])
     width, margin = fig.bbox.width, 0.1 * fig.bbox.width  # the layout moves an axes by less than margin
-    if all(margin <= box.x0 and box.x1 <= width - margin for box in
-           (title.get_window_extent(renderer) for title in titles)):
+    # (the layout moves the suptitle only up or down: inside the figure now, inside it drawn)
+    if all(edge <= box.x0 and box.x1 <= width - edge for box, edge in
+           ((title.get_window_extent(renderer), 0.0 if title is suptitle else margin) for title in titles)):
         return  # every title well inside: the figure is drawn exactly as without this check
     fig.draw_without_rendering()  # lays the figure out: where each title would be drawn
     for title in titles:

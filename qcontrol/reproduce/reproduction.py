@@ -4,7 +4,8 @@ Runs Example 1 and Example 2 (proposed law and the comparison law of reference [
 chosen backend, with the ideal ODE twin beside MuJoCo, then the sensitivity studies (kappa - L,
 a constant scale of r, plant variants) on the ODE backend, and the robustness study on realistic
 hardware (:mod:`.robustness_study`, MuJoCo, in worker processes, started first so that it runs
-while this process does the rest). Writes PNG figures,
+while this process does the rest; the sensor study's runs go to the same workers, and the
+examples' and studies' figures are drawn by forked workers, :mod:`.drawing`). Writes PNG figures,
 ``table1.md``, ``table1.json``, ``studies.json``, ``region.json`` (the sampled loop's region study,
 :mod:`.region_study`), ``tradeoff.json`` (tracking against the region, law by law,
 :mod:`.tradeoff_study`), ``robustness.json``, ``sensors.json`` (Example 2 with realistic sensors,
@@ -23,6 +24,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from contextlib import nullcontext
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +44,7 @@ from ..scenario import Scenario, load_scenario
 from ..scenario.resolve import scenario_provenance, scenarios_provenance
 from ..summary import Summary
 from ..sweep import sweep_summaries
+from .drawing import Apart
 from .region_study import LAWS as REGION_LAWS
 from .region_study import region_record, region_study, write_region_study
 from .report import (
@@ -54,9 +57,9 @@ from .report import (
     table1_markdown,
 )
 from .robustness_figures import fig_margins, fig_robustness
-from .robustness_study import EXAMPLES, LAWS, default_workers, study_law
+from .robustness_study import EXAMPLES, LAWS, Running, default_workers, study_law
 from .robustness_study import started as robustness_started
-from .sensor_study import fig_sensors, sensor_markdown, sensor_record, sensor_study
+from .sensor_study import fig_sensors, log_rows, sensor_markdown, sensor_record, sensor_runs, sensor_study
 from .tradeoff_study import check_tradeoff, tradeoff_record, tradeoff_study, write_tradeoff_figure
 
 SCENARIO_DIR = shipped_dir("scenarios")
@@ -187,34 +190,41 @@ def reproduce(
 
 def _write_all(rep: Reproduction, o: Path, command: str, workers: int | None, quick: bool) -> dict:
     """The runs and their files, in order; Table 1 as written to table1.json. The robustness
-    study starts first, on its workers, and runs while this process does the rest."""
+    study starts first, on its workers, and runs while this process does the rest; the sensor
+    study's runs go to the same workers, first."""
     laws = (*LAWS, *map(study_law, rep.laws))
+    sensors = [(sensor_runs, (rep.scenarios, rep.duration))]
     hardware = (nullcontext(None) if quick else
-                robustness_started(rep.scenarios, rep.duration, workers or default_workers(), rep.log, laws))
-    with hardware as robustness:
-        return _write_runs(rep, o, command, robustness)
+                robustness_started(rep.scenarios, rep.duration, workers or default_workers(), rep.log, laws,
+                                   sensors))
+    forked = (workers or default_workers()) > 1  # (figures drawn apart too, by forked workers)
+    with hardware as running, Apart(o, forked) as apart:
+        table = _write_runs(rep, o, command, running, apart)
+        apart.wait()
+        return table
 
 
-def _write_runs(rep: Reproduction, o: Path, command: str, robustness: Callable[[], dict] | None) -> dict:
-    """:func:`_write_all` with the robustness study started (``robustness`` waits for it; None:
-    no robustness study)."""
+def _write_runs(rep: Reproduction, o: Path, command: str, running: Running | None, apart: Apart) -> dict:
+    """:func:`_write_all` with the robustness study started (``running``; None: no robustness
+    study, and the sensor study runs here); the examples' and the studies' figures drawn by
+    ``apart``."""
+    robustness = None if running is None else running.result
     backend = rep.backend
     rep.log(f"Example 1 on {backend}")
     ex1, ex1_twin = rep.twins("example 1", rep.scenario("example1"))
-    _example1_figures(o, ex1, ex1_twin)
     _record(o / "example1.rrd", ex1, {"ode": ex1_twin}, command)
 
     rep.log(f"Example 2 on {backend}: proposed and comparison law [20]")
     ex2, ex2_twin = rep.twins("example 2 proposed", rep.scenario("example2"))
     base, base_twin = rep.twins("example 2 comparison", rep.scenario("example2", COMPARISON))
-    _example2_figures(o, ex2, ex2_twin, base)
+    apart.draw(partial(_example_figures, ex1=(ex1, ex1_twin), ex2=(ex2, ex2_twin, base)))
     _record(o / "example2.rrd", ex2, {"ode": ex2_twin, "comparison": base}, command)
     others = {kind: rep.twins(f"example 2 {kind}", rep.scenario("example2", study_law(kind)[1]))
               for kind in rep.laws}
 
     table = _table1(o, backend, ex2, ex2_twin, base, base_twin, command, others, rep.duration)
 
-    studies = _studies(rep)
+    studies = _studies(rep, apart)
     deviations = {
         name: backend_deviation(a.traj, b.traj)
         for name, a, b in (("example1", ex1, ex1_twin), ("example2", ex2, ex2_twin),
@@ -234,7 +244,11 @@ def _write_runs(rep: Reproduction, o: Path, command: str, robustness: Callable[[
                    region_record(region) | {"provenance": scenarios_provenance(examples, command)})
     tradeoff = None if region is None else _tradeoff(o, rep, region, command)
     rep.log("study: Example 2 with realistic sensors (ODE)")
-    sensors = sensor_study(rep.scenarios, rep.duration, rep.log)
+    if running is None:
+        sensors = sensor_study(rep.scenarios, rep.duration, rep.log)
+    else:
+        sensors = running.side[0]()
+        log_rows(sensors, rep.log)
     fig_sensors(sensors, o / "study_sensors.png")
     write_json(o / "sensors.json", sensor_record(sensors) | {"provenance": provenance})
     hardware = None if robustness is None else _robustness(o, rep, robustness)
@@ -333,6 +347,12 @@ def study_kinds(kinds: Sequence[str]) -> tuple[str, ...]:
     return tuple(kinds)
 
 
+def _example_figures(o: Path, ex1: tuple[Run, Run | None], ex2: tuple[Run, Run | None, Run]) -> None:
+    """Figures 1-8 and the backends' overlays into ``o``."""
+    _example1_figures(o, *ex1)
+    _example2_figures(o, *ex2)
+
+
 def _example1_figures(o: Path, run: Run, twin: Run | None) -> None:
     u = plots.EXAMPLE1_UNITS
     t = plots.PAPER_TITLES
@@ -380,37 +400,42 @@ def _studies_json(studies: dict) -> dict:
             for name, study in studies.items()}
 
 
-def _studies(rep: Reproduction) -> dict:
-    """Sensitivity studies next to the canonical result (never replacing it), ODE backend."""
-    o = rep.out
+def _studies(rep: Reproduction, apart: Apart) -> dict:
+    """Sensitivity studies next to the canonical result (never replacing it), ODE backend; their
+    figures drawn by ``apart``."""
     kappa = rep.study("kappa - L", "example2", [[f"controller.kappa_margin={m!r}"] for m in KAPPA_MARGINS])
-    plots.fig_sensitivity(
-        KAPPA_MARGINS, _rates(kappa), r"$\kappa - L$", o / "study_kappa.png",
-        "Study: Example 2 error rate vs kappa - L (proposed law, ODE)",
-        paper_rates=PAPER_TABLE1["proposed"], markers={"paper: 1.1": 1.1, "0.1": 0.1}, xscale="log",
-    )
     scale = rep.study("r scale", "example2", [[f"controller.r_scale={s!r}"] for s in R_SCALES])
-    plots.fig_sensitivity(
-        R_SCALES, _rates(scale), "constant scale s of r (r -> s r)", o / "study_r_scale.png",
-        "Study: Example 2 error rate vs a constant scale of r (kappa = 1.1 + L, ODE)",
-        paper_rates=PAPER_TABLE1["proposed"], xscale="log",
-    )
     variants: dict[str, list] = {"labels": [], "summaries": []}  # labels, and one Summary each
     for label, name, overrides in PLANT_VARIANTS:
         for method, extra in (("proposed", ()), ("comparison law (46)", COMPARISON)):
             variants["labels"].append(f"{label}\n{method}")
             variants["summaries"].append(rep.study(f"{label} {method}", name, [[*overrides, *extra]])[0])
-    plots.fig_sensitivity(
-        variants["labels"], _rates(variants["summaries"]), "plant reading and method",
-        o / "study_plant_variants.png", "Study: Example 2 plant readings (ODE)",
-        paper_rates=PAPER_TABLE1["proposed"],
-    )
+    apart.draw(partial(_study_figures, kappa=kappa, scale=scale, variants=variants))
     return {
         "kappa_margin": {"values": list(KAPPA_MARGINS), "summaries": kappa},
         "r_scale": {"values": list(R_SCALES), "summaries": scale},
         "plant_variants": {"values": [v.replace("\n", " ") for v in variants["labels"]],
                            "summaries": variants["summaries"]},
     }
+
+
+def _study_figures(o: Path, kappa: list[Summary], scale: list[Summary], variants: dict[str, list]) -> None:
+    """The sensitivity studies' figures into ``o``."""
+    plots.fig_sensitivity(
+        KAPPA_MARGINS, _rates(kappa), r"$\kappa - L$", o / "study_kappa.png",
+        "Study: Example 2 error rate vs kappa - L (proposed law, ODE)",
+        paper_rates=PAPER_TABLE1["proposed"], markers={"paper: 1.1": 1.1, "0.1": 0.1}, xscale="log",
+    )
+    plots.fig_sensitivity(
+        R_SCALES, _rates(scale), "constant scale s of r (r -> s r)", o / "study_r_scale.png",
+        "Study: Example 2 error rate vs a constant scale of r (kappa = 1.1 + L, ODE)",
+        paper_rates=PAPER_TABLE1["proposed"], xscale="log",
+    )
+    plots.fig_sensitivity(
+        variants["labels"], _rates(variants["summaries"]), "plant reading and method",
+        o / "study_plant_variants.png", "Study: Example 2 plant readings (ODE)",
+        paper_rates=PAPER_TABLE1["proposed"],
+    )
 
 
 def _report(rep: Reproduction, table: dict, studies: dict, deviations: dict, ex1: Run, ex2: Run,

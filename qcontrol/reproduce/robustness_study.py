@@ -23,16 +23,18 @@ from __future__ import annotations
 import statistics
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import partial
 from multiprocessing.pool import Pool
 from pathlib import Path
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from .. import compiled as compiled_paths
 from ..assembly import run_scenario, scene
 from ..engine import compiled_loop
-from ..metrics import finite_max_abs
+from ..metrics import finite_max_abs, run_summary
 from ..scenario import Scenario, load_scenario
 from ..sharing import sharing
 from ..summary import Summary
@@ -131,11 +133,14 @@ class Errors:
     diverged: bool
 
 
-def _errors(task: StudyJob) -> Errors:
-    """Worker entry point: the tracking error of one run (full record)."""
+def _errors(task: StudyJob, summarized: bool = False) -> tuple[Errors, Summary | None]:
+    """Worker entry point: the tracking error of one run (full record) and, ``summarized``, its
+    summary (a row reads the same run: the full record's summary is the metrics record's)."""
     _compiled_paths()
-    run = run_scenario(load_scenario(task.path, list(task.overrides)), task.backend)
-    return Errors(run.t, run.z[:, 0].copy(), bool(run.diverged))
+    sc = load_scenario(task.path, list(task.overrides))
+    run = run_scenario(sc, task.backend)
+    return (Errors(run.t, run.z[:, 0].copy(), bool(run.diverged)),
+            run_summary(run, sc.name, task.backend) if summarized else None)
 
 
 def recovery(disturbed: Errors, quiet: Errors, start: float, delta: float) -> dict:
@@ -208,12 +213,17 @@ def _physics_free(overrides: Sequence[str]) -> tuple[str, ...]:
 
 @dataclass
 class Plan:
-    """Every task of the study, each run once, and how the rows find their summaries."""
+    """Every task of the study, each run once, and how the rows find their summaries.
+    ``no_ops``: per scenario file, the overrides that change nothing of it (left out of a task,
+    so that the same run asked for twice is one task)."""
 
     tasks: list[StudyJob]
     index: dict[StudyJob, int]
+    no_ops: dict[str, frozenset[str]] = field(default_factory=dict)
 
     def add(self, task: StudyJob) -> StudyJob:
+        kept = self.no_ops.get(task.path, frozenset())
+        task = StudyJob(task.path, tuple(o for o in task.overrides if o not in kept), task.backend)
         if task not in self.index:
             self.index[task] = len(self.tasks)
             self.tasks.append(task)
@@ -241,16 +251,26 @@ def robustness_study(scenarios: Path, duration: float | None, workers: int,
                      log: Callable[[str], None] = print, laws: Sequence[StudyLaw] = LAWS) -> dict:
     """Run the whole study for each of ``laws`` (default: the paper's law and the comparison law);
     the object written to ``robustness.json``."""
-    with started(scenarios, duration, workers, log, laws) as result:
-        return result()
+    with started(scenarios, duration, workers, log, laws) as running:
+        return running.result()
+
+
+class Running(NamedTuple):
+    """A started study: ``result()`` waits for it and returns the object of
+    :func:`robustness_study`; ``side[i]()`` waits for the i-th side job and returns its value."""
+
+    result: Callable[[], dict]
+    side: list[Callable[[], Any]]
 
 
 @contextmanager
 def started(scenarios: Path, duration: float | None, workers: int, log: Callable[[str], None] = print,
-            laws: Sequence[StudyLaw] = LAWS) -> Iterator[Callable[[], dict]]:
+            laws: Sequence[StudyLaw] = LAWS, side: Sequence[tuple[Callable, tuple]] = ()
+            ) -> Iterator[Running]:
     """The study started on ``workers`` worker processes (more than one: they run while the
-    caller does other work); yields the function that waits for it and returns the object of
-    :func:`robustness_study`. The workers end with the block."""
+    caller does other work); yields its :class:`Running`. ``side``: other independent jobs
+    ``(function, arguments)`` of the caller's (picklable), given to the workers first (in this
+    process, when asked for, without workers). The workers end with the block."""
     study = _plan(scenarios, duration, laws)
     workers = worker_count(workers, len(study.plan.tasks))
     log(f"study: robustness: {len(study.plan.tasks)} runs, {len(study.disturbances)} disturbance cases, "
@@ -258,8 +278,10 @@ def started(scenarios: Path, duration: float | None, workers: int, log: Callable
     _compiled_paths()  # (before the workers fork: they start with numba loaded)
     pool = worker_pool(workers) if workers > 1 else None
     try:
+        waits = [partial(function, *arguments) if pool is None else pool.apply_async(function, arguments).get
+                 for function, arguments in side]
         results = _execute(study.plan.tasks, study.full.tasks, pool)
-        yield lambda: _assembled(study, *results())
+        yield Running(lambda: _assembled(study, *results()), waits)
         if pool is not None:
             pool.close()
     finally:
@@ -271,7 +293,9 @@ def started(scenarios: Path, duration: float | None, workers: int, log: Callable
 def _plan(scenarios: Path, duration: float | None, laws: Sequence[StudyLaw]) -> Study:
     """Every row, margin and disturbance case of the study, and the runs they read (each once)."""
     extra = (f"simulation.duration={duration!r}",) if duration is not None else ()
-    plan = Plan([], {})
+    no_ops = {str(scenarios / f"{name}.toml"): _no_ops(load_scenario(scenarios / f"{name}.toml", list(extra)))
+              for pair in EXAMPLES for name in pair}
+    plan = Plan([], {}, no_ops)
     rows, margins, disturbances = [], [], []
     for ideal, realistic in EXAMPLES:
         ideal_path, real_path = str(scenarios / f"{ideal}.toml"), str(scenarios / f"{realistic}.toml")
@@ -298,10 +322,19 @@ def _plan(scenarios: Path, duration: float | None, laws: Sequence[StudyLaw]) -> 
                                                                  "mujoco"))]})
         if ideal == "example2":
             disturbances += _disturbance_cases(ideal_path, real_path, real.simulation.duration, extra, laws)
-    full = Plan([], {})
+    full = Plan([], {}, no_ops)
     for case in disturbances:
         case["runs"] = (full.add(case.pop("task")), full.add(case.pop("quiet")))
     return Study(rows, margins, disturbances, plan, full)
+
+
+def _no_ops(sc: Scenario) -> frozenset[str]:
+    """The study's overrides that change nothing of ``sc``: ``disturbance=[]`` where it has no
+    ``[[disturbance]]``, its own sensor-noise seed (a row's first seed, the quiet run of a
+    disturbance case: the same run as a row's)."""
+    mujoco = sc.backends.get("mujoco")
+    return frozenset([*([] if sc.disturbances else ["disturbance=[]"]),
+                      *([] if mujoco is None else [f"{SEED_OVERRIDE}{mujoco.noise_seed}"])])
 
 
 def _assembled(study: Study, summaries: list[Summary], errors: list[Errors]) -> dict:
@@ -342,28 +375,36 @@ def _disturbance_cases(ideal_path: str, real_path: str, duration: float, extra: 
 def _execute(tasks: list[StudyJob], full: list[StudyJob],
              pool: Pool | None) -> Callable[[], tuple[list[Summary], list[Errors]]]:
     """Every task's summary and every full run's tracking error, in order, as the function that
-    waits for them: the summaries in :func:`batches`, the full runs one by one; on ``pool``'s
-    workers (started here, running while the caller goes on), else in this process when called."""
-    chunks = batches(tasks)
+    waits for them: the summaries in :func:`batches`, the full runs one by one (a task that is
+    also a full run takes its summary from it); on ``pool``'s workers (started here, running
+    while the caller goes on), else in this process when called."""
+    in_full = {task: i for i, task in enumerate(full)}
+    own = [i for i, task in enumerate(tasks) if task not in in_full]
+    chunks = [[own[j] for j in ids] for ids in batches([tasks[i] for i in own])]
     jobs = [[tasks[i] for i in ids] for ids in chunks]
+    summarized = {in_full[task] for task in tasks if task in in_full}
+    fulls = [(task, i in summarized) for i, task in enumerate(full)]
     if pool is None:
-        def done() -> tuple[list[list[Summary]], list[Errors]]:
-            return [_summaries(job) for job in jobs], [_errors(t) for t in full]
+        def done() -> tuple[list[list[Summary]], list[tuple[Errors, Summary | None]]]:
+            return [_summaries(job) for job in jobs], [_errors(*f) for f in fulls]
     else:
         batched = [pool.apply_async(_summaries, (job,)) for job in jobs if len(job) > 1]
-        pending = [pool.apply_async(_errors, (t,)) for t in full]
+        pending = [pool.apply_async(_errors, f) for f in fulls]
         single = [pool.apply_async(_summaries, (job,)) for job in jobs if len(job) == 1]
 
-        def done() -> tuple[list[list[Summary]], list[Errors]]:
+        def done() -> tuple[list[list[Summary]], list[tuple[Errors, Summary | None]]]:
             return [r.get() for r in batched + single], [e.get() for e in pending]
 
     def results() -> tuple[list[Summary], list[Errors]]:
         summaries: list[Summary] = [None] * len(tasks)  # type: ignore[list-item]
-        ran, errors = done()
+        ran, runs = done()
         for ids, job in zip(chunks, ran, strict=True):
             for i, s in zip(ids, job, strict=True):
                 summaries[i] = s
-        return summaries, errors
+        for i, task in enumerate(tasks):
+            if task in in_full:
+                summaries[i] = runs[in_full[task]][1]
+        return summaries, [errors for errors, _ in runs]
 
     return results
 

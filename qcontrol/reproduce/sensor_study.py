@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -61,9 +62,31 @@ def applicability(s: Summary) -> str:
     return f"Lemma 2 applies, L = {s.L:.4g}: {held}{extra}"
 
 
+@dataclass(frozen=True)
+class Traces:
+    """What the study's figure draws of a run (plain arrays: a worker process may send them):
+    its instants, z1 and the angle channel's quantization error x1 - q(x1)."""
+
+    t: np.ndarray
+    z1: np.ndarray
+    angle_error: np.ndarray
+
+    @classmethod
+    def of(cls, traj: Trajectory) -> Traces:
+        return cls(traj.t, traj.z[:, 0], traj.x_meas[:, 0] - traj.x_q[:, 0])
+
+
 def sensor_study(scenarios: Path, duration: float | None, log: Callable[[str], None]) -> dict:
-    """Every row of :data:`ROWS` on the ODE backend: ``{"rows": [...], "trajectories": [...]}``."""
-    rows, trajectories = [], []
+    """Every row of :data:`ROWS` on the ODE backend: ``{"rows": [...], "traces": [...]}`` (a
+    :class:`Traces` per row)."""
+    study = sensor_runs(scenarios, duration)
+    log_rows(study, log)
+    return study
+
+
+def sensor_runs(scenarios: Path, duration: float | None) -> dict:
+    """:func:`sensor_study` without its log (a worker process's entry point)."""
+    rows, traces = [], []
     extra = [f"simulation.duration={duration!r}"] if duration is not None else []
     for label, keys in ROWS:
         unset = ["controller.delta"] if keys else []
@@ -72,10 +95,16 @@ def sensor_study(scenarios: Path, duration: float | None, log: Callable[[str], N
         s = run_summary(traj, sc.name, "ode")
         rows.append({"label": label, "overrides": list(keys), "unset": unset, "summary": s,
                      "theory": applicability(s)})
-        trajectories.append(traj)
-        log(f"  sensors: {label}: E({OMEGA}) = {s.error_rate[OMEGA]:.4f}, Lemma 2 ratio "
+        traces.append(Traces.of(traj))
+    return {"rows": rows, "traces": traces}
+
+
+def log_rows(study: Mapping, log: Callable[[str], None]) -> None:
+    """A line per row: its E(0.100) and Lemma 2 ratio."""
+    for row in study["rows"]:
+        s = row["summary"]
+        log(f"  sensors: {row['label']}: E({OMEGA}) = {s.error_rate[OMEGA]:.4f}, Lemma 2 ratio "
             f"{s.lemma2_max_ratio:.4g}")
-    return {"rows": rows, "trajectories": trajectories}
 
 
 def sensor_record(study: Mapping) -> dict:
@@ -116,10 +145,10 @@ def fig_sensors(study: Mapping, path: str | Path) -> Path:
     """z1(t) of every row (top) and the quantization error of the angle channel (bottom)."""
     fig, axes = new_figure(2, 1, sharex=True)
     top, bottom = axes[0, 0], axes[1, 0]
-    for i, (row, traj) in enumerate(zip(study["rows"], study["trajectories"], strict=True)):
+    for i, (row, traces) in enumerate(zip(study["rows"], study["traces"], strict=True)):
         color = COLORS[i % len(COLORS)]
-        _trace(top, traj, traj.z[:, 0], row["label"], color)
-        _trace(bottom, traj, traj.x_meas[:, 0] - traj.x_q[:, 0], None, color)
+        _trace(top, traces, traces.z1, row["label"], color)
+        _trace(bottom, traces, traces.angle_error, None, color)
     top.set_ylabel("z1 = y - y_d")
     top.legend(fontsize=7, loc="upper right")
     top.set_title("Example 2 with realistic sensors (proposed law, ODE)")
@@ -129,5 +158,5 @@ def fig_sensors(study: Mapping, path: str | Path) -> Path:
     return save(fig, path)
 
 
-def _trace(ax, traj: Trajectory, values: np.ndarray, label: str | None, color: str) -> None:
-    ax.plot(traj.t, values, color=color, linewidth=0.8, label=label)
+def _trace(ax, traces: Traces, values: np.ndarray, label: str | None, color: str) -> None:
+    ax.plot(traces.t, values, color=color, linewidth=0.8, label=label)

@@ -27,6 +27,7 @@ import inspect
 import math
 import os
 import textwrap
+from collections.abc import Callable
 from functools import cache
 
 import mujoco
@@ -97,7 +98,13 @@ def helpers() -> str:
     """The module text the compiled loop's lines call: MuJoCo's functions by symbol, and
     :func:`read_copy` and :func:`step_copy` themselves (their source, as this module holds them
     now), compiled by numba."""
-    functions = (("read_copy", globals()["read_copy"]), ("step_copy", globals()["step_copy"]))
+    return _helpers(globals()["read_copy"], globals()["step_copy"])
+
+
+@cache
+def _helpers(read: Callable, step: Callable) -> str:
+    """:func:`helpers` of these two functions (their source read once per process)."""
+    functions = (("read_copy", read), ("step_copy", step))
     texts = [textwrap.dedent(inspect.getsource(f)).replace(f"def {f.__name__}(", f"def {name}(", 1)
              for name, f in functions]
     jit = '@numba.njit(cache=True, error_model="numpy", nogil=True)'
