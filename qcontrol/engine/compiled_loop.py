@@ -122,7 +122,7 @@ def traced_parts(quantizer: UniformQuantizer, law: BatchLaw, n: int, dt: float,
             q, keep = differenced_velocity(trace, q, period)
         q_text = [trace.text(qi) for qi in q]
         quantize = trace.taken()
-        with trace.refusing(f"return {CONTROL_REFUSED}, k"):
+        with trace.deferring(f"return {CONTROL_REFUSED}, k"):  # (held written after it)
             reading = QuantizedReading(None, quantizer.max_error, columns=q, form=form, batch=1)
             yd = [Symbol(f"yd[r, {j}]") for j in range(n + 1)]
             state = tuple(Symbol(f"adaptive[{i}]") for i in range(m))
@@ -130,7 +130,7 @@ def traced_parts(quantizer: UniformQuantizer, law: BatchLaw, n: int, dt: float,
             out = law.control(reading, yd, state, t)
             held = [out.u, *out.target, *out.zbar]
             texts = [trace.text(v) for v in held]
-            trace.lines += [f"held[{i}] = {text}" for i, text in enumerate(texts)]
+        trace.lines += [f"held[{i}] = {text}" for i, text in enumerate(texts)]
         control = trace.taken()
         if isinstance(out.rate, Symbol) or len(out.target) != m or len(out.zbar) != n:
             raise TypeError("a law output the compiled loop cannot hold")
