@@ -116,12 +116,23 @@ class ErrorRateStream:
 
     def rates(self, omegas: Sequence[float] = TABLE1_OMEGAS, run: int = 0) -> dict[str, float]:
         """``E(omega)`` of run ``run`` for each omega, keyed by :func:`omega_key`."""
-        values = self.values[:, run].copy()
-        if np.isfinite(self.last_t[run]):  # as np.interp does just past the last row: its value
-            stop = int(np.searchsorted(self.instants, self.last_t[run] + END_TOLERANCE, side="right"))
-            values[self.done[run] : stop] = self.last_z[run]
+        return self.every_rate(omegas, np.array([run]))[0]
+
+    def every_rate(self, omegas: Sequence[float] = TABLE1_OMEGAS, runs: np.ndarray | None = None
+                   ) -> list[dict[str, float]]:
+        """:meth:`rates` of each run of ``runs`` (default: all), counted for all of them at once."""
+        runs = np.arange(self.values.shape[1]) if runs is None else runs
+        values = self.values[:, runs]  # (a copy)
+        ended = np.isfinite(self.last_t[runs])  # as np.interp does just past the last row: its value
+        stop = np.searchsorted(self.instants, self.last_t[runs] + END_TOLERANCE, side="right")
+        index = np.arange(len(values))[:, None]
+        tail = ended & (index >= self.done[runs]) & (index < stop)
+        values = np.where(tail, self.last_z[runs], values)
         samples = len(values)
-        return {omega_key(w): float(np.count_nonzero(values > w)) / samples for w in omegas}
+        counts = [np.count_nonzero(values > w, axis=0).tolist() for w in omegas]
+        keys = [omega_key(w) for w in omegas]
+        return [{key: float(count[b]) / samples for key, count in zip(keys, counts, strict=True)}
+                for b in range(len(runs))]
 
 
 def error_rate(

@@ -49,6 +49,7 @@ class Trace:
         self.lines: list[str] = []
         self.constants: list[float | np.ndarray] = []  # a number, or a (batch,) column per copy
         self.refusal: str | None = None  # the statement where Python would raise; None: untraceable
+        self.deferred = False  # refusals gathered into REFUSED, tested at the end (:meth:`deferring`)
         self._count = 0
 
     def name(self, prefix: str = "") -> str:
@@ -97,18 +98,39 @@ class Trace:
         set: the formula cannot be traced here)."""
         if self.refusal is None:
             raise TypeError("a traced formula may raise where no hand-over to Python is possible")
-        self.lines += [f"if {condition}:", f"    {self.refusal}"]
+        if self.deferred:
+            self.lines.append(f"{REFUSED} = {REFUSED} or ({condition})")
+        else:
+            self.lines += [f"if {condition}:", f"    {self.refusal}"]
 
     @contextmanager
     def refusing(self, statement: str | None):  # noqa: ANN201 (a context manager)
         """Record with ``statement`` as the refusal (the compiled loop's ``return 2, k``)."""
-        before, self.refusal = self.refusal, statement
+        before, self.refusal, self.deferred = (self.refusal, self.deferred), statement, False
         try:
             yield self
         finally:
-            self.refusal = before
+            self.refusal, self.deferred = before
+
+    @contextmanager
+    def deferring(self, statement: str):  # noqa: ANN201 (a context manager)
+        """As :meth:`refusing`, but the refusals' conditions are gathered into one flag and
+        ``statement`` runs once, after the block, if any held. Only for a block with no effect
+        before its end (straight-line float arithmetic into locals: a step whose state is written
+        after it, a control whose output is), where stopping at the first refusal or at the end
+        is the same: what runs after a refusal only makes NaN or Inf (numpy's error model), and
+        one test replaces a branch per refusal, which kept the compiler from interleaving the
+        step's arithmetic."""
+        before, self.refusal, self.deferred = (self.refusal, self.deferred), statement, True
+        self.lines.append(f"{REFUSED} = False")
+        try:
+            yield self
+        finally:
+            self.refusal, self.deferred = before
+        self.lines += [f"if {REFUSED}:", f"    {statement}"]
 
 
+REFUSED = "refused"  # the flag of :meth:`Trace.deferring` (a bool local of the generated code)
 _CURRENT: list[Trace] = []  # the trace being recorded (a stack: recordings do not nest in practice)
 
 

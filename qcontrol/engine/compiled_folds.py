@@ -110,7 +110,7 @@ class Folds:
         """The fold of row k of copy b, after the row is written (``fp``: its partials)."""
         if not self.folded:
             return []
-        return [*self.every, "if k % hold == 0:", *["    " + line for line in self.samples or ["pass"]]]
+        return [*self.every, "if phase == 0:", *["    " + line for line in self.samples or ["pass"]]]
 
     def arguments(self) -> tuple:
         """The arrays the generated loop reads and writes: partials, constants, the flag of

@@ -122,7 +122,7 @@ def traced_parts(quantizer: UniformQuantizer, law: BatchLaw, n: int, dt: float,
             q, keep = differenced_velocity(trace, q, period)
         q_text = [trace.text(qi) for qi in q]
         quantize = trace.taken()
-        with trace.refusing(f"return {CONTROL_REFUSED}, k"):
+        with trace.deferring(f"return {CONTROL_REFUSED}, k"):  # (held written after it)
             reading = QuantizedReading(None, quantizer.max_error, columns=q, form=form, batch=1)
             yd = [Symbol(f"yd[r, {j}]") for j in range(n + 1)]
             state = tuple(Symbol(f"adaptive[{i}]") for i in range(m))
@@ -130,7 +130,7 @@ def traced_parts(quantizer: UniformQuantizer, law: BatchLaw, n: int, dt: float,
             out = law.control(reading, yd, state, t)
             held = [out.u, *out.target, *out.zbar]
             texts = [trace.text(v) for v in held]
-            trace.lines += [f"held[{i}] = {text}" for i, text in enumerate(texts)]
+        trace.lines += [f"held[{i}] = {text}" for i, text in enumerate(texts)]
         control = trace.taken()
         if isinstance(out.rate, Symbol) or len(out.target) != m or len(out.zbar) != n:
             raise TypeError("a law output the compiled loop cannot hold")
@@ -149,20 +149,23 @@ def differenced_velocity(trace: Trace, q: list, period: float) -> tuple[list, li
     """``q`` with x2 replaced by the velocity differenced from the quantized position
     (:func:`~.velocity.differenced`, traced), as the float form's
     :class:`~.fastpath.FloatDifferencing` does: the positions of the last ``hold`` rows are
-    kept in ``vb`` (row k's at ``k % hold``), all the first row's before the run. Returns the
-    readings and the line that keeps the row's position, run after the row's control (so a
-    control that hands over to Python leaves the positions as they were before the row)."""
+    kept in ``vb`` (row k's at ``k % hold``, the loop's ``phase``), all the first row's before
+    the run. Returns the readings and the line that keeps the row's position, run after the
+    row's control (so a control that hands over to Python leaves the positions as they were
+    before the row)."""
     position = trace.text(q[0])
     trace.lines += ["if k == 0:", f"    vb[:] = {position}"]
-    rate = velocity.differenced(q[0], Symbol("vb[k % hold]"), period)
-    return [q[0], rate, *q[2:]], [f"vb[k % hold] = {position}"]
+    rate = velocity.differenced(q[0], Symbol("vb[phase]"), period)
+    return [q[0], rate, *q[2:]], [f"vb[phase] = {position}"]
 
 
 def loop_body(parts: TracedParts, plant: NativeStepper, n: int, m: int, copy: str = "0",
               test: list[str] = (), fold: list[str] = ()) -> list[str]:
     """The lines of the loop over rows ``[start, stop]`` of one copy (column ``copy`` of the
     buffers), returning ``(status, row)``; ``test`` runs after the row is read (a batch's quick
-    divergence test), ``fold`` after it is written (a batch's reductions)."""
+    divergence test), ``fold`` after it is written (a batch's reductions). ``phase`` is
+    ``k % hold`` (a control sample at 0), counted rather than divided (no integer division a
+    row)."""
     record = ([f"xb[j, {copy}, {i - 1}] = x{i}" for i in range(1, n + 1)]
               + [f"mb[j, {copy}, {i - 1}] = m{i}" for i in range(1, n + 1)]
               + [f"qb[j, {copy}, {i}] = {q}" for i, q in enumerate(parts.q)]
@@ -174,10 +177,11 @@ def loop_body(parts: TracedParts, plant: NativeStepper, n: int, m: int, copy: st
         "if step_first:",
         "    k = start - 1",
         *_indented(plant.step + parts.advance, 1),
+        "phase = start % hold",
         "for k in range(start, stop + 1):",
         "    r = k - start",
         *_indented(plant.observe + parts.quantize + list(test), 1),
-        "    if k % hold == 0:",
+        "    if phase == 0:",
         *_indented(parts.control, 2),
         "        u = held[0]",
         "    j = k - base",
@@ -186,6 +190,7 @@ def loop_body(parts: TracedParts, plant: NativeStepper, n: int, m: int, copy: st
         "    if k == stop:",
         "        return 0, k",
         *_indented(plant.step + parts.advance, 1),
+        "    phase = 0 if phase + 1 == hold else phase + 1",
         "return 0, stop",
     ]
 

@@ -203,7 +203,7 @@ class ChainNativeForm:
             for header, load in ((f"if {self.load} != 0.0:", Symbol(self.load, truth=True)), ("else:", 0.0)):
                 held = trace.text(_loaded(Symbol("u"), load))
                 lines += [header, *[f"    {line}" for line in trace.taken()], f"    uu = {held}"]
-            with trace.refusing("return True"):
+            with trace.deferring("return True"):  # (the state written after it)
                 stepped = _rk4([Symbol(f"xs[{i}]") for i in range(n)], Symbol("uu"), self.h,
                                self.plant._rate_in(self.form))
                 texts = [trace.text(v) for v in stepped]  # written after every refusal
