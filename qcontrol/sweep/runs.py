@@ -36,7 +36,7 @@ Below that, starting the processes costs more than the half of the work they tak
 the array form, short runs, costs about as much halved as whole: a fixed amount per step).
 Before forking, this process starts numba's compiler once (when the batches will run compiled
 code), so that the workers inherit it instead of each starting it again (about 0.35 s of CPU
-each), and it freezes its objects for the workers' garbage collector (:mod:`qcontrol.workers`).
+each, 0.6 s under load), and it freezes its objects for the workers' garbage collector (:mod:`qcontrol.workers`).
 
 Laws registered from Python (:func:`qcontrol.register_law`) run in this process and on local
 workers (which start as copies of this process); a Dask cluster's workers do not know them.
@@ -278,10 +278,13 @@ def _start_numba(chunks: list[list[int]]) -> None:
     forked next inherit it rather than each paying for it."""
     if all(len(ids) < 2 for ids in chunks) or not compiled_paths.enabled():
         return
-    from numba.core.registry import cpu_target
+    try:  # (numba's own registry: where a version moved it, each worker starts numba as before)
+        from numba.core.registry import cpu_target
 
-    cpu_target.typing_context.refresh()
-    cpu_target.target_context.refresh()
+        cpu_target.typing_context.refresh()
+        cpu_target.target_context.refresh()
+    except (ImportError, AttributeError):
+        pass
 
 
 def _on_workers(workers: int, chunks: list[list[int]], tasks: list[ChunkJob],
