@@ -36,7 +36,8 @@ Below that, starting the processes costs more than the half of the work they tak
 the array form, short runs, costs about as much halved as whole: a fixed amount per step).
 Before forking, this process starts numba's compiler once (when the batches will run compiled
 code), so that the workers inherit it instead of each starting it again (about 0.35 s of CPU
-each, 0.6 s under load), and it freezes its objects for the workers' garbage collector (:mod:`qcontrol.workers`).
+each, 0.6 s under load), and it freezes its objects for the workers' garbage collector
+(:mod:`qcontrol.workers`).
 
 Laws registered from Python (:func:`qcontrol.register_law`) run in this process and on local
 workers (which start as copies of this process); a Dask cluster's workers do not know them.
