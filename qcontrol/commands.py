@@ -119,7 +119,8 @@ def region(scenario: Scenario, laws: Sequence[str] | None = None, *, axes: tuple
     classified as bounded, diverged or Lemma 2 violated, with its largest K T (the sampled gain of
     law (44), docs/math.md, 'Sampling the law'). The other components of x(0) are the scenario's.
     Batched on the ODE (``backend="mujoco"`` on request), in this process or on ``workers`` /
-    a Dask ``scheduler``, with the same numbers. With ``out`` writes region.csv, region.json and
+    a Dask ``scheduler``, with the same numbers (too little work for workers stays in this
+    process: ``qcontrol.sweep.runs.SPREAD_MIN_WORK``). With ``out`` writes region.csv, region.json and
     region.png there, as ``qcontrol region`` does.
 
     Returns a :class:`~qcontrol.region.Region`: ``points`` (one

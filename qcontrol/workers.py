@@ -10,6 +10,7 @@ capped at the work there is and at the machine's cores (more only share the core
 from __future__ import annotations
 
 import ctypes
+import gc
 import multiprocessing
 import multiprocessing.pool
 import os
@@ -55,8 +56,24 @@ def worker_pool(workers: int) -> multiprocessing.pool.Pool:
     ``terminate()`` on every exit path (a ``finally``), so an error, Ctrl-C or SIGTERM stops the
     workers at once."""
     context = multiprocessing.get_context("fork")
-    with _signals_after_forking():
+    with _signals_after_forking(), _frozen_heap():
         return context.Pool(workers, initializer=_worker_start, initargs=(os.getpid(),))
+
+
+@contextmanager
+def _frozen_heap() -> Iterator[None]:
+    """The objects of this process frozen while the workers fork: a worker's garbage collections
+    then never walk the objects it inherits, so they neither take its time nor copy the pages they
+    lie in (a forked process shares its parent's memory until it writes to it). This process
+    unfreezes them at once; one that froze objects of its own is left as it is."""
+    if gc.get_freeze_count():
+        yield
+        return
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
 
 
 @contextmanager

@@ -330,7 +330,11 @@ def test_a_failing_copy_of_a_batch_leaves_the_others_as_they_run_alone(failing_l
      "--set", "simulation.duration=0.3"],
     ["region", "--law", "failing:fail_at=0.1", "--resolution", "2", "--duration", "0.3", "--workers", "2"],
 ])
-def test_every_command_reports_a_failing_law_in_one_line_exit_4(failing_law, tmp_path, capsys, argv):
+def test_every_command_reports_a_failing_law_in_one_line_exit_4(failing_law, tmp_path, capsys, argv,
+                                                                monkeypatch):
+    from qcontrol.sweep import runs
+
+    monkeypatch.setattr(runs, "SPREAD_MIN_WORK", {})  # the sweep's and region's on workers however short
     command, *rest = argv
     out = ["--out", str(tmp_path / "out")] if command in ("sweep", "region") else []
     kind = {"region": [], "sweep": ["--set", "controller.kind=failing"]}.get(

@@ -186,14 +186,16 @@ def test_the_largest_working_scale_per_direction() -> None:
     assert math.isclose(max(p.x0[0] for p in region.points), 10.0)
 
 
-def test_the_region_is_the_same_in_process_and_on_workers() -> None:
+def test_the_region_is_the_same_in_process_and_on_workers(monkeypatch) -> None:
     """In this process a law's scenario is loaded once and its starts batched as the sweep batches
     them; on local workers every start goes through the sweep's executor: the same points."""
     from qcontrol.region import RegionGrid, measure_region, parse_law
+    from qcontrol.sweep import runs
 
     grid = RegionGrid((0, 1), (-10.0, -2.0), (10.0, 6.0), 3)
     laws = [parse_law("proposed"), parse_law("proposed:hold=exact")]
     here = measure_region(EX2, grid, laws, overrides=["simulation.duration=0.3"])
+    monkeypatch.setattr(runs, "SPREAD_MIN_WORK", {})  # workers however little the work
     there = measure_region(EX2, grid, laws, overrides=["simulation.duration=0.3"], workers=2)
     assert here.points == there.points and len(here.points) == 18
     assert {p.x0 for p in here.points} == {(a, b) for a in (-10.0, 0.0, 10.0) for b in (-2.0, 2.0, 6.0)}

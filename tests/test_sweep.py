@@ -102,8 +102,31 @@ def _comparable(summaries):
 
 def test_local_workers_give_the_in_process_table(monkeypatch):
     monkeypatch.setattr(sweep, "CHUNK", 2)  # two batches, so both workers get one
+    monkeypatch.setattr(sweep, "SPREAD_MIN_WORK", {})  # workers however little the work
     local = sweep_summaries(EXAMPLE2, SETS)
     assert _comparable(sweep_summaries(EXAMPLE2, SETS, workers=2)) == _comparable(local)
+
+
+def test_a_sweep_forks_workers_only_for_work_enough(monkeypatch):
+    """runs x rows against the backend's least work for workers: 49 runs of 10,001 rows on the
+    ODE stay in this process, 50 go to workers (500,050 copy-steps), on MuJoCo 2 runs already; a
+    small sweep with ``workers=2`` never forks and gives the in-process table."""
+    def variants(runs: int) -> list:
+        return sweep.planned(EXAMPLE2, [["simulation.duration=10.0"]] * runs, "ode")[1]
+
+    assert sweep.SPREAD_MIN_WORK["ode"] == 500_000
+    assert not sweep.worth_spreading(variants(49), "ode")
+    assert sweep.worth_spreading(variants(50), "ode")
+    assert sweep.SPREAD_MIN_WORK["mujoco"] == 20_000  # a MuJoCo copy-step costs some 40x an ODE one
+    assert not sweep.worth_spreading(variants(1), "mujoco") and sweep.worth_spreading(variants(2), "mujoco")
+    assert sweep.worth_spreading(None, "ode")  # variants loaded elsewhere: as asked
+
+    def no_fork(workers: int) -> None:
+        raise AssertionError("forked workers for a small sweep")
+
+    monkeypatch.setattr(sweep, "worker_pool", no_fork)
+    here = sweep_summaries(EXAMPLE2, SETS)
+    assert _comparable(sweep_summaries(EXAMPLE2, SETS, workers=2)) == _comparable(here)
 
 
 def test_dask_cluster_gives_the_local_table(monkeypatch):
@@ -218,6 +241,7 @@ def test_the_table_is_the_same_however_the_runs_are_chunked(tmp_path, monkeypatc
     argv = [str(EXAMPLE2), "--grid", "controller.gamma=1,2,3", "--random-initial", "4", "--seed", "3",
             "--set", "simulation.duration=0.5", "--backend", backend, "-q"]
     tables = []
+    monkeypatch.setattr(sweep, "SPREAD_MIN_WORK", {})  # workers however little the work
     for chunk, workers in ((250, 1), (250, 2), (6, 1)):
         monkeypatch.setattr(sweep, "CHUNK", chunk)
         out = tmp_path / f"{chunk}-{workers}"

@@ -30,6 +30,15 @@ else one ``MjData`` per copy; the numbers are the same either way
 (:mod:`qcontrol.plants.mujoco.threaded`). One batch runs on one thread: the workers are the
 parallelism.
 
+Small sweeps stay in this process. Workers are forked only when the work is worth it: at least
+:data:`SPREAD_MIN_WORK` copy-steps (runs x rows) on the backend (about 0.1 s of work on one core).
+Below that, starting the processes costs more than the half of the work they take (and a batch in
+the array form, short runs, costs about as much halved as whole: a fixed amount per step).
+Before forking, this process starts numba's compiler once (when the batches will run compiled
+code), so that the workers inherit it instead of each starting it again (about 0.35 s of CPU
+each, 0.6 s under load), and it freezes its objects for the workers' garbage collector
+(:mod:`qcontrol.workers`).
+
 Laws registered from Python (:func:`qcontrol.register_law`) run in this process and on local
 workers (which start as copies of this process); a Dask cluster's workers do not know them.
 
@@ -49,6 +58,7 @@ from itertools import count, pairwise
 from pathlib import Path
 from typing import Any
 
+from .. import compiled as compiled_paths
 from ..assembly import batch_structure, run_variants
 from ..errors import QcontrolInputError, Terminated, shown
 from ..metrics import run_summary
@@ -56,9 +66,14 @@ from ..plants import BACKENDS
 from ..scenario import Scenario
 from ..scenario.load import load_variants
 from ..summary import Summary
+from ..timegrid import TimeGrid
 from ..workers import worker_count, worker_pool
 
 CHUNK = 250  # runs per batch at most (fewer when there are more workers than chunks)
+# copy-steps (runs x rows) below which a sweep stays in this process whatever --workers says: about
+# 0.1 s of work on one core (a forked worker costs some 30-50 ms to start, feed and stop; measured
+# on Example 2, 10 s runs: 5-40 runs were 1.6-2.5x slower on 2 workers than in this process)
+SPREAD_MIN_WORK = {"ode": 500_000, "mujoco": 20_000}
 MIN_BATCH = 5  # smaller groups run run by run; chunks cut for workers stay at least this long
 DASK_CONNECT_TIMEOUT = 10.0  # seconds to reach a --scheduler and complete Dask's handshake
 RunsDone = Callable[[int, int], None]  # (runs done, runs in total)
@@ -231,7 +246,7 @@ def _summaries(path: str, sets: list[list[str]], backend: str, unset: list[str],
     try:
         if scheduler is not None:
             _on_dask(scheduler, lambda parts: jobs(parts, None), store)
-        elif workers > 1 and len(sets) > 1:
+        elif workers > 1 and len(sets) > 1 and worth_spreading(_LOADED.get(key), backend):
             cut, tasks = jobs(worker_count(workers, len(sets)))
             _on_workers(worker_count(workers, len(cut)), cut, tasks, store)
         else:
@@ -242,9 +257,41 @@ def _summaries(path: str, sets: list[list[str]], backend: str, unset: list[str],
     return results  # type: ignore[return-value]
 
 
+def worth_spreading(variants: Sequence[Scenario] | None, backend: str) -> bool:
+    """Whether the runs of ``variants`` are work enough for worker processes: at least
+    :data:`SPREAD_MIN_WORK` copy-steps on ``backend`` (a backend it does not name, or variants
+    loaded elsewhere: always)."""
+    least = SPREAD_MIN_WORK.get(backend)
+    if least is None or variants is None:
+        return True
+    work = 0
+    for sc in variants:
+        sim = sc.simulation
+        work += TimeGrid.of(sim.duration, sim.dt, sim.control_period).rows
+        if work >= least:
+            return True
+    return False
+
+
+def _start_numba(chunks: list[list[int]]) -> None:
+    """numba's compiler started in this process (its typing and target registries loaded) when a
+    chunk is a batch (batches run compiled code) and compiled paths are on, so that the workers
+    forked next inherit it rather than each paying for it."""
+    if all(len(ids) < 2 for ids in chunks) or not compiled_paths.enabled():
+        return
+    try:  # (numba's own registry: where a version moved it, each worker starts numba as before)
+        from numba.core.registry import cpu_target
+
+        cpu_target.typing_context.refresh()
+        cpu_target.target_context.refresh()
+    except (ImportError, AttributeError):
+        pass
+
+
 def _on_workers(workers: int, chunks: list[list[int]], tasks: list[ChunkJob],
                 store: Callable[[list[int], list[Summary]], None]) -> None:
     """The chunks on local worker processes (copies of this one: registered laws included)."""
+    _start_numba(chunks)
     pool = worker_pool(workers)
     try:
         pending = [pool.apply_async(_run_chunk, task) for task in tasks]
