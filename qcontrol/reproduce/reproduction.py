@@ -44,6 +44,7 @@ from ..scenario import Scenario, load_scenario
 from ..scenario.resolve import scenario_provenance, scenarios_provenance
 from ..summary import Summary
 from ..sweep import sweep_summaries
+from ..sweep.runs import planned
 from .drawing import Apart
 from .region_study import LAWS as REGION_LAWS
 from .region_study import region_record, region_study, write_region_study
@@ -57,7 +58,7 @@ from .report import (
     table1_markdown,
 )
 from .robustness_figures import fig_margins, fig_robustness
-from .robustness_study import EXAMPLES, LAWS, Running, default_workers, study_law
+from .robustness_study import EXAMPLES, LAWS, Running, default_workers, runs_alone, study_law
 from .robustness_study import started as robustness_started
 from .sensor_study import fig_sensors, log_rows, sensor_markdown, sensor_record, sensor_runs, sensor_study
 from .tradeoff_study import check_tradeoff, tradeoff_record, tradeoff_study, write_tradeoff_figure
@@ -131,10 +132,14 @@ class Reproduction:
         return main, twin
 
     def study(self, label: str, name: str, override_sets: Sequence[Sequence[str]]) -> list[Summary]:
-        """Summaries of one sensitivity study: ODE runs batched by the sweep engine."""
+        """Summaries of one sensitivity study: ODE runs by the sweep engine, one by one where each
+        takes the compiled loop (:func:`~.robustness_study.runs_alone`), else batched."""
         extra = [f"simulation.duration={self.duration!r}"] if self.duration is not None else []
-        summaries = sweep_summaries(self.scenarios / f"{name}.toml", [[*o, *extra] for o in override_sets],
-                                    "ode")
+        path, sets = self.scenarios / f"{name}.toml", [[*o, *extra] for o in override_sets]
+        chunks, variants = planned(path, sets, "ode")
+        if runs_alone(variants[0]):  # (the same numbers, batched or not)
+            chunks = [[i] for i in range(len(sets))]
+        summaries = sweep_summaries(path, sets, "ode", chunks=chunks, variants=variants)
         self.study_runs += len(summaries)
         self.lemma2_ratios += [s.lemma2_max_ratio for s in summaries]
         self.diverged += [f"{label} {' '.join(o)}" for o, s in zip(override_sets, summaries, strict=True)

@@ -99,11 +99,20 @@ def _summaries(tasks: Sequence[StudyJob]) -> list[Summary]:
     _compiled_paths()
     with sharing():  # (what the runs' scenarios share is checked once)
         scenarios = [load_scenario(t.path, list(t.overrides)) for t in tasks]
-    backend, sim = tasks[0].backend, scenarios[0].simulation
-    if len(tasks) > 1 and not (compiled_paths.requested()
-                               and TimeGrid.of(sim.duration, sim.dt).rows >= compiled_loop.MIN_ROWS):
+    backend = tasks[0].backend
+    if len(tasks) > 1 and not runs_alone(scenarios[0]):
         return run_batch(scenarios, backend)
     return [run_batch([sc], backend)[0] for sc in scenarios]
+
+
+def runs_alone(sc: Scenario) -> bool:
+    """Whether a study's runs like ``sc`` go faster one by one than as a batch: where a single run
+    takes the compiled loop (compiled paths asked for, runs of at least
+    :data:`~qcontrol.engine.compiled_loop.MIN_ROWS` rows). One compiled loop serves every run of
+    the same structure whatever its numbers, where a batch's compiled form is one per batch size
+    (compiled anew for each, when the cache is cold)."""
+    sim = sc.simulation
+    return compiled_paths.requested() and TimeGrid.of(sim.duration, sim.dt).rows >= compiled_loop.MIN_ROWS
 
 
 def _compiled_paths() -> None:
