@@ -97,12 +97,12 @@ def _summaries(tasks: Sequence[StudyJob]) -> list[Summary]:
     many pays for numba's start once), else stepped as one batch (short runs, or no compiled
     paths). A run's numbers are its own either way."""
     _compiled_paths()
-    with sharing():  # (what the runs' scenarios share is checked once)
+    with sharing():  # (what the runs' scenarios and plants share is checked once)
         scenarios = [load_scenario(t.path, list(t.overrides)) for t in tasks]
-    backend = tasks[0].backend
-    if len(tasks) > 1 and not runs_alone(scenarios[0]):
-        return run_batch(scenarios, backend)
-    return [run_batch([sc], backend)[0] for sc in scenarios]
+        backend = tasks[0].backend
+        if len(tasks) > 1 and not runs_alone(scenarios[0]):
+            return run_batch(scenarios, backend)
+        return [run_batch([sc], backend)[0] for sc in scenarios]
 
 
 def runs_alone(sc: Scenario) -> bool:
