@@ -256,7 +256,7 @@ def _write_runs(rep: Reproduction, o: Path, command: str, running: Running | Non
         log_rows(sensors, rep.log)
     fig_sensors(sensors, o / "study_sensors.png")
     write_json(o / "sensors.json", sensor_record(sensors) | {"provenance": provenance})
-    hardware = None if robustness is None else _robustness(o, rep, robustness)
+    hardware = None if robustness is None else _robustness(o, rep, robustness, apart)
     report = _report(rep, table, studies, deviations, ex1, ex2, hardware, region, tradeoff)
     write_text(o / "REPORT.md", report + "\n".join(sensor_markdown(sensors)))
     return table
@@ -304,17 +304,23 @@ def _tradeoff(o: Path, rep: Reproduction, region: dict, command: str) -> dict:
     return study
 
 
-def _robustness(o: Path, rep: Reproduction, result: Callable[[], dict]) -> dict:
+def _robustness(o: Path, rep: Reproduction, result: Callable[[], dict], apart: Apart) -> dict:
     """The robustness study on realistic hardware (``result`` waits for the started study):
-    robustness.json and its two figures."""
+    robustness.json and its two figures (the margins' drawn by ``apart`` meanwhile: the study's
+    workers are done, a core is free)."""
     robustness = result()
     rep.log(f"study: robustness done ({time.perf_counter() - rep.started:.1f} s elapsed)")
+    apart.draw(partial(_margins_figure, robustness=robustness))
     hardware = {name: rep.scenario(name) for name in ROBUSTNESS_SCENARIOS}
     provenance = scenarios_provenance(hardware, rep.command)
     write_json(o / "robustness.json", robustness | {"provenance": provenance})
     fig_robustness(robustness, o / "study_robustness.png")
-    fig_margins(robustness, o / "study_margins.png")
     return robustness
+
+
+def _margins_figure(o: Path, robustness: dict) -> None:
+    """The robustness study's margins figure into ``o``."""
+    fig_margins(robustness, o / "study_margins.png")
 
 
 def _validate(rep: Reproduction) -> None:
