@@ -145,7 +145,7 @@ class Reproduction:
         self.diverged += [f"{label} {' '.join(o)}" for o, s in zip(override_sets, summaries, strict=True)
                           if s.diverged]
         self.law_failures += [s.law_failure for s in summaries if s.law_failure]
-        self.log(f"study: {label}: {len(summaries)} runs batched on the ODE "
+        self.log(f"study: {label}: {len(summaries)} runs on the ODE "
                  f"({time.perf_counter() - self.started:.1f} s elapsed)")
         return summaries
 
