@@ -9,6 +9,7 @@ on ``u`` and a constant) to say which term disagrees and by how much. With a rea
 from __future__ import annotations
 
 import copy
+from functools import partial
 from typing import Any
 
 import mujoco
@@ -41,9 +42,13 @@ def consistency_report(compiled: CompiledModel, options: MujocoOptions, terms: P
         hash(key)
     except TypeError:  # (an unhashable part: measured every time)
         return _measured(compiled, options, terms, native, force)
-    # (the model is kept with its report: while kept, its id names no other model)
-    _, report = kept(key, lambda: (compiled, _measured(compiled, options, terms, native, force)))
+    _, report = kept(key, partial(_with_model, compiled, options, terms, native, force))
     return copy.deepcopy(report)
+
+
+def _with_model(compiled: CompiledModel, *args: Any) -> tuple[CompiledModel, dict[str, Any]]:
+    """The model with its measured report (kept together: while kept, its id names no other model)."""
+    return compiled, _measured(compiled, *args)
 
 
 def _measured(compiled: CompiledModel, options: MujocoOptions, terms: PlantTerms,
