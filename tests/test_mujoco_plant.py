@@ -457,24 +457,27 @@ def test_the_warning_handler_is_installed_for_a_block_and_restored_after_it():
 
 
 def test_the_model_check_is_measured_once_per_model_and_terms(monkeypatch) -> None:
-    """Plants that differ in a noise seed or the law share one measured report, equal to a fresh
-    measurement; another theta (another force) or another model is measured again."""
+    """Plants built together (under sharing) that differ in a noise seed or the law share one
+    measured report, equal to a fresh measurement; another theta (another force) or another model
+    is measured again; plants built apart measure it each."""
     from qcontrol.assembly import assemble
     from qcontrol.plants.mujoco import consistency
     from qcontrol.scenario import load_scenario
+    from qcontrol.sharing import sharing
 
     measured = []
     original = consistency._measured
-    monkeypatch.setattr(consistency, "_REPORTS", {})
     monkeypatch.setattr(consistency, "_measured", lambda *args: measured.append(args) or original(*args))
 
     def report(*overrides: str) -> dict:
         sc = load_scenario(SCENARIOS / "example2-arm.toml", list(overrides))
         return assemble(sc, "mujoco").spec.plant.consistency_report
 
-    a = report("plant.mujoco.noise_seed=3")
-    b = report("plant.mujoco.noise_seed=4", "controller.kind=comparison")
-    assert len(measured) == 1 and a == b and a is not b
-    assert original(*measured[0]) == a  # the kept report is the measurement
-    assert report("plant.theta=[-1.0, 3.5, -34.3]") != a and len(measured) == 2
-    assert report("plant.mujoco.frictionloss=3.0") != a and len(measured) == 3
+    with sharing():
+        a = report("plant.mujoco.noise_seed=3")
+        b = report("plant.mujoco.noise_seed=4", "controller.kind=comparison")
+        assert len(measured) == 1 and a == b and a is not b
+        assert original(*measured[0]) == a  # the kept report is the measurement
+        assert report("plant.theta=[-1.0, 3.5, -34.3]") != a and len(measured) == 2
+        assert report("plant.mujoco.frictionloss=3.0") != a and len(measured) == 3
+    assert report("plant.mujoco.noise_seed=3") == a and len(measured) == 4

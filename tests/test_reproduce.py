@@ -248,3 +248,26 @@ def test_figures_drawn_apart_are_the_figures_drawn_here(tmp_path):
     with pytest.raises(ValueError, match="no figure"), Apart(there, forked=True) as apart:
         apart.draw(broken)
         apart.wait()
+
+
+def test_a_study_of_long_runs_runs_them_alone_with_the_batchs_numbers(monkeypatch, tmp_path):
+    """A sensitivity study whose runs take the compiled loop runs them one by one (each its own
+    batch of one), in input order, with the numbers of the same variants stepped as one batch in
+    the array form."""
+    from qcontrol import compiled as compiled_paths
+    from qcontrol.reproduce import reproduction
+    from qcontrol.sweep import runs
+
+    sets = [[f"controller.kappa_margin={m!r}"] for m in (0.1, 0.5, 1.1, 2.0, 5.0)]  # (a sweep batches 5)
+    rep = reproduction.Reproduction(tmp_path, duration=5.0, log=lambda _: None)
+    batches, original = [], runs.run_batch
+    monkeypatch.setattr(runs, "run_batch", lambda scs, backend: batches.append(len(scs)) or
+                        original(scs, backend))
+    alone = rep.study("kappa", "example2", sets) if compiled_paths.enabled() else None
+    monkeypatch.setenv("QCONTROL_COMPILE", "0")
+    batched = rep.study("kappa", "example2", sets)
+    if alone is not None:
+        assert batches == [1] * len(sets) + [len(sets)]
+        assert [s.error_rate for s in alone] == [s.error_rate for s in batched]
+        assert [s.max_abs_z1_last_half for s in alone] == [s.max_abs_z1_last_half for s in batched]
+    assert len({s.error_rate["0.100"] for s in batched}) == len(sets)  # (every kappa its own numbers)

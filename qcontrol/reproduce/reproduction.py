@@ -44,6 +44,7 @@ from ..scenario import Scenario, load_scenario
 from ..scenario.resolve import scenario_provenance, scenarios_provenance
 from ..summary import Summary
 from ..sweep import sweep_summaries
+from ..sweep.runs import planned
 from .drawing import Apart
 from .region_study import LAWS as REGION_LAWS
 from .region_study import region_record, region_study, write_region_study
@@ -57,7 +58,7 @@ from .report import (
     table1_markdown,
 )
 from .robustness_figures import fig_margins, fig_robustness
-from .robustness_study import EXAMPLES, LAWS, Running, default_workers, study_law
+from .robustness_study import EXAMPLES, LAWS, Running, default_workers, runs_alone, study_law
 from .robustness_study import started as robustness_started
 from .sensor_study import fig_sensors, log_rows, sensor_markdown, sensor_record, sensor_runs, sensor_study
 from .tradeoff_study import check_tradeoff, tradeoff_record, tradeoff_study, write_tradeoff_figure
@@ -131,16 +132,20 @@ class Reproduction:
         return main, twin
 
     def study(self, label: str, name: str, override_sets: Sequence[Sequence[str]]) -> list[Summary]:
-        """Summaries of one sensitivity study: ODE runs batched by the sweep engine."""
+        """Summaries of one sensitivity study: ODE runs by the sweep engine, one by one where each
+        takes the compiled loop (:func:`~.robustness_study.runs_alone`), else batched."""
         extra = [f"simulation.duration={self.duration!r}"] if self.duration is not None else []
-        summaries = sweep_summaries(self.scenarios / f"{name}.toml", [[*o, *extra] for o in override_sets],
-                                    "ode")
+        path, sets = self.scenarios / f"{name}.toml", [[*o, *extra] for o in override_sets]
+        chunks, variants = planned(path, sets, "ode")
+        if runs_alone(variants[0]):  # (the same numbers, batched or not)
+            chunks = [[i] for i in range(len(sets))]
+        summaries = sweep_summaries(path, sets, "ode", chunks=chunks, variants=variants)
         self.study_runs += len(summaries)
         self.lemma2_ratios += [s.lemma2_max_ratio for s in summaries]
         self.diverged += [f"{label} {' '.join(o)}" for o, s in zip(override_sets, summaries, strict=True)
                           if s.diverged]
         self.law_failures += [s.law_failure for s in summaries if s.law_failure]
-        self.log(f"study: {label}: {len(summaries)} runs batched on the ODE "
+        self.log(f"study: {label}: {len(summaries)} runs on the ODE "
                  f"({time.perf_counter() - self.started:.1f} s elapsed)")
         return summaries
 
@@ -251,7 +256,7 @@ def _write_runs(rep: Reproduction, o: Path, command: str, running: Running | Non
         log_rows(sensors, rep.log)
     fig_sensors(sensors, o / "study_sensors.png")
     write_json(o / "sensors.json", sensor_record(sensors) | {"provenance": provenance})
-    hardware = None if robustness is None else _robustness(o, rep, robustness)
+    hardware = None if robustness is None else _robustness(o, rep, robustness, apart)
     report = _report(rep, table, studies, deviations, ex1, ex2, hardware, region, tradeoff)
     write_text(o / "REPORT.md", report + "\n".join(sensor_markdown(sensors)))
     return table
@@ -299,17 +304,23 @@ def _tradeoff(o: Path, rep: Reproduction, region: dict, command: str) -> dict:
     return study
 
 
-def _robustness(o: Path, rep: Reproduction, result: Callable[[], dict]) -> dict:
+def _robustness(o: Path, rep: Reproduction, result: Callable[[], dict], apart: Apart) -> dict:
     """The robustness study on realistic hardware (``result`` waits for the started study):
-    robustness.json and its two figures."""
+    robustness.json and its two figures (the margins' drawn by ``apart`` meanwhile: the study's
+    workers are done, a core is free)."""
     robustness = result()
     rep.log(f"study: robustness done ({time.perf_counter() - rep.started:.1f} s elapsed)")
+    apart.draw(partial(_margins_figure, robustness=robustness))
     hardware = {name: rep.scenario(name) for name in ROBUSTNESS_SCENARIOS}
     provenance = scenarios_provenance(hardware, rep.command)
     write_json(o / "robustness.json", robustness | {"provenance": provenance})
     fig_robustness(robustness, o / "study_robustness.png")
-    fig_margins(robustness, o / "study_margins.png")
     return robustness
+
+
+def _margins_figure(o: Path, robustness: dict) -> None:
+    """The robustness study's margins figure into ``o``."""
+    fig_margins(robustness, o / "study_margins.png")
 
 
 def _validate(rep: Reproduction) -> None:

@@ -97,13 +97,22 @@ def _summaries(tasks: Sequence[StudyJob]) -> list[Summary]:
     many pays for numba's start once), else stepped as one batch (short runs, or no compiled
     paths). A run's numbers are its own either way."""
     _compiled_paths()
-    with sharing():  # (what the runs' scenarios share is checked once)
+    with sharing():  # (what the runs' scenarios and plants share is checked once)
         scenarios = [load_scenario(t.path, list(t.overrides)) for t in tasks]
-    backend, sim = tasks[0].backend, scenarios[0].simulation
-    if len(tasks) > 1 and not (compiled_paths.requested()
-                               and TimeGrid.of(sim.duration, sim.dt).rows >= compiled_loop.MIN_ROWS):
-        return run_batch(scenarios, backend)
-    return [run_batch([sc], backend)[0] for sc in scenarios]
+        backend = tasks[0].backend
+        if len(tasks) > 1 and not runs_alone(scenarios[0]):
+            return run_batch(scenarios, backend)
+        return [run_batch([sc], backend)[0] for sc in scenarios]
+
+
+def runs_alone(sc: Scenario) -> bool:
+    """Whether a study's runs like ``sc`` go faster one by one than as a batch: where a single run
+    takes the compiled loop (compiled paths asked for, runs of at least
+    :data:`~qcontrol.engine.compiled_loop.MIN_ROWS` rows). One compiled loop serves every run of
+    the same structure whatever its numbers, where a batch's compiled form is one per batch size
+    (compiled anew for each, when the cache is cold)."""
+    sim = sc.simulation
+    return compiled_paths.requested() and TimeGrid.of(sim.duration, sim.dt).rows >= compiled_loop.MIN_ROWS
 
 
 def _compiled_paths() -> None:
@@ -133,14 +142,20 @@ class Errors:
     diverged: bool
 
 
-def _errors(task: StudyJob, summarized: bool = False) -> tuple[Errors, Summary | None]:
-    """Worker entry point: the tracking error of one run (full record) and, ``summarized``, its
-    summary (a row reads the same run: the full record's summary is the metrics record's)."""
+def _errors(runs: Sequence[tuple[StudyJob, bool]]) -> list[tuple[Errors, Summary | None]]:
+    """Worker entry point: for each ``(task, summarized)``, the tracking error of the task's run
+    (full record) and, ``summarized``, its summary (a row reads the same run: the full record's
+    summary is the metrics record's). The runs' scenarios are loaded and their plants built
+    together (:func:`~qcontrol.sharing.sharing`: what they share is checked once)."""
     _compiled_paths()
-    sc = load_scenario(task.path, list(task.overrides))
-    run = run_scenario(sc, task.backend)
-    return (Errors(run.t, run.z[:, 0].copy(), bool(run.diverged)),
-            run_summary(run, sc.name, task.backend) if summarized else None)
+    out = []
+    with sharing():
+        for task, summarized in runs:
+            sc = load_scenario(task.path, list(task.overrides))
+            run = run_scenario(sc, task.backend)
+            out.append((Errors(run.t, run.z[:, 0].copy(), bool(run.diverged)),
+                        run_summary(run, sc.name, task.backend) if summarized else None))
+    return out
 
 
 def recovery(disturbed: Errors, quiet: Errors, start: float, delta: float) -> dict:
@@ -375,32 +390,40 @@ def _disturbance_cases(ideal_path: str, real_path: str, duration: float, extra: 
 def _execute(tasks: list[StudyJob], full: list[StudyJob],
              pool: Pool | None) -> Callable[[], tuple[list[Summary], list[Errors]]]:
     """Every task's summary and every full run's tracking error, in order, as the function that
-    waits for them: the summaries in :func:`batches`, the full runs one by one (a task that is
-    also a full run takes its summary from it); on ``pool``'s workers (started here, running
+    waits for them: the summaries in :func:`batches`, the full runs by file and backend (a task
+    that is also a full run takes its summary from it); on ``pool``'s workers (started here, running
     while the caller goes on), else in this process when called."""
     in_full = {task: i for i, task in enumerate(full)}
     own = [i for i, task in enumerate(tasks) if task not in in_full]
     chunks = [[own[j] for j in ids] for ids in batches([tasks[i] for i in own])]
     jobs = [[tasks[i] for i in ids] for ids in chunks]
     summarized = {in_full[task] for task in tasks if task in in_full}
-    fulls = [(task, i in summarized) for i, task in enumerate(full)]
+    together: dict[tuple[str, str], list[int]] = {}  # the full runs of one file on one backend
+    for i, task in enumerate(full):
+        together.setdefault((task.path, task.backend), []).append(i)
+    groups = list(together.values())
+    fulls = [[(full[i], i in summarized) for i in ids] for ids in groups]
     if pool is None:
-        def done() -> tuple[list[list[Summary]], list[tuple[Errors, Summary | None]]]:
-            return [_summaries(job) for job in jobs], [_errors(*f) for f in fulls]
+        def done() -> tuple[list[list[Summary]], list[list[tuple[Errors, Summary | None]]]]:
+            return [_summaries(job) for job in jobs], [_errors(f) for f in fulls]
     else:
         batched = [pool.apply_async(_summaries, (job,)) for job in jobs if len(job) > 1]
-        pending = [pool.apply_async(_errors, f) for f in fulls]
+        pending = [pool.apply_async(_errors, (f,)) for f in fulls]
         single = [pool.apply_async(_summaries, (job,)) for job in jobs if len(job) == 1]
 
-        def done() -> tuple[list[list[Summary]], list[tuple[Errors, Summary | None]]]:
+        def done() -> tuple[list[list[Summary]], list[list[tuple[Errors, Summary | None]]]]:
             return [r.get() for r in batched + single], [e.get() for e in pending]
 
     def results() -> tuple[list[Summary], list[Errors]]:
         summaries: list[Summary] = [None] * len(tasks)  # type: ignore[list-item]
-        ran, runs = done()
+        ran, grouped = done()
         for ids, job in zip(chunks, ran, strict=True):
             for i, s in zip(ids, job, strict=True):
                 summaries[i] = s
+        runs: list[tuple[Errors, Summary | None]] = [None] * len(full)  # type: ignore[list-item]
+        for ids, group in zip(groups, grouped, strict=True):
+            for i, r in zip(ids, group, strict=True):
+                runs[i] = r
         for i, task in enumerate(tasks):
             if task in in_full:
                 summaries[i] = runs[in_full[task]][1]

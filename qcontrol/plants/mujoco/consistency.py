@@ -9,6 +9,7 @@ on ``u`` and a constant) to say which term disagrees and by how much. With a rea
 from __future__ import annotations
 
 import copy
+from functools import partial
 from typing import Any
 
 import mujoco
@@ -16,6 +17,7 @@ import numpy as np
 
 from ...errors import QcontrolInputError
 from ...expr.rows import is_zero
+from ...sharing import kept
 from ..base import PlantTerms, timed
 from .callbacks import GeneralizedForce, passive_forces
 from .equation import SAMPLES, ModelEquation, compiled_equation, matches, sampled_states
@@ -25,31 +27,28 @@ from .options import MujocoOptions
 TOLERANCE = 1e-9
 
 
-_REPORTS: dict[tuple, tuple[CompiledModel, dict[str, Any]]] = {}  # (see consistency_report)
-KEPT_REPORTS = 64
-
-
 def consistency_report(compiled: CompiledModel, options: MujocoOptions, terms: PlantTerms,
                        native: tuple[bool, ...], force: GeneralizedForce | None) -> dict[str, Any]:
     """Compare MuJoCo's qacc with eq. (1) at :data:`SAMPLES` states; refuse a mismatch
     (:class:`QcontrolInputError` naming the term) unless a realism option is on. A report is a
-    function of its arguments alone (the same samples each time): one measured for the same
-    compiled model, terms, native terms, force and realism options in this process is given
-    again (a copy), so a study's runs that differ in a noise seed or the law measure it once."""
+    function of its arguments alone (the same samples each time): while
+    :func:`~qcontrol.sharing.sharing` is on (plants built from variants loaded together: a
+    batch's, a study's), one measured for the same compiled model, terms, native terms, force and
+    realism options is given again (a copy), so runs that differ in a noise seed or the law
+    measure it once."""
+    key = ("model check", id(compiled), terms, native, tuple(options.realism),
+           None if force is None else tuple(c for c, _ in force.total.fast))
     try:
-        key = (id(compiled), terms, native, tuple(options.realism),
-               None if force is None else tuple(c for c, _ in force.total.fast))
-        kept = _REPORTS.get(key)
+        hash(key)
     except TypeError:  # (an unhashable part: measured every time)
-        key, kept = None, None
-    if kept is not None and kept[0] is compiled:
-        return copy.deepcopy(kept[1])
-    report = _measured(compiled, options, terms, native, force)
-    if key is not None:
-        if len(_REPORTS) >= KEPT_REPORTS:
-            _REPORTS.clear()
-        _REPORTS[key] = (compiled, copy.deepcopy(report))
-    return report
+        return _measured(compiled, options, terms, native, force)
+    _, report = kept(key, partial(_with_model, compiled, options, terms, native, force))
+    return copy.deepcopy(report)
+
+
+def _with_model(compiled: CompiledModel, *args: Any) -> tuple[CompiledModel, dict[str, Any]]:
+    """The model with its measured report (kept together: while kept, its id names no other model)."""
+    return compiled, _measured(compiled, *args)
 
 
 def _measured(compiled: CompiledModel, options: MujocoOptions, terms: PlantTerms,

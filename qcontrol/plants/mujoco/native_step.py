@@ -11,7 +11,9 @@ interpreter. The arrays are the same memory either way (``ctrl``, ``qpos``, ``qv
 
 Sensors that copy the state (a joint position and velocity sensor without history or cutoff:
 the shipped models') read ``qpos``/``qvel`` themselves, so the compiled loop skips the two
-sensor calls (``sensed=False``) and brings ``sensordata`` up to date once per call instead. The
+sensor calls (``sensed=False``) and brings ``sensordata`` up to date once per call instead;
+``sensed`` is one of the copy's integers, not part of the generated text, so one compiled loop
+serves both kinds of sensor. The
 passive terms run as the native callback, which MuJoCo calls itself; a run with the Python
 callback is not compiled. Sensor noise is drawn before the run, by the plant's own streams
 (:meth:`.noise.SensorNoise.ahead`: the same values in the same order), and each reading adds its
@@ -36,9 +38,11 @@ import numpy as np
 from ..base import NativeStepper
 from .threaded import UNSTABLE_WARNINGS
 
-# pi: model, data, ctrl, sensordata, qpos, qvel, warning, actuator, p, v, qadr, dof, substeps, dead, read
+# pi: model, data, ctrl, sensordata, qpos, qvel, warning, actuator, p, v, qadr, dof, substeps, dead, read,
+# sensed
 DEAD = 13
 READ = 14  # readings taken (pf holds I / gain, then the run's noise: two values per reading)
+SENSED = 15  # 1: the sensors' own readings (history, cutoff, other sensor types); 0: they copy the state
 WARNINGS = int(mujoco.mjtWarning.mjNWARNING)
 UNSTABLE = tuple(2 * w + 1 for w in UNSTABLE_WARNINGS)  # "unstable" counters in (lastinfo, number) pairs
 mj_step, mj_sensorPos, mj_sensorVel = mujoco.mj_step, mujoco.mj_sensorPos, mujoco.mj_sensorVel  # noqa: N816
@@ -124,18 +128,18 @@ def setup_lines(at: str = "") -> list[str]:
     ]
 
 
-def observe_lines(sensed: bool, noisy: bool, at: str = "") -> list[str]:
+def observe_lines(noisy: bool, at: str = "") -> list[str]:
     read = [f"x1, x2, m1, m2 = read_copy(qpos, qvel, sensordata, pi[{at}10], pi[{at}11], pi[{at}8], "
-            f"pi[{at}9], pi[{at}{DEAD}] != 0, {sensed})"]
+            f"pi[{at}9], pi[{at}{DEAD}] != 0, pi[{at}{SENSED}] != 0)"]
     if not noisy:
         return read
     noise = [f"m{i} = m{i} + pf[{i} + 2 * pi[{READ}]]" for i in (1, 2)]  # the Python reading += noise
     return read + noise + [f"pi[{READ}] += 1"]
 
 
-def step_lines(sensed: bool, at: str = "") -> list[str]:
+def step_lines(at: str = "") -> list[str]:
     return [f"if pi[{at}{DEAD}] == 0 and step_copy(mp, dp, ctrl, pi[{at}7], pf[0], u, pi[{at}12], warning, "
-            f"{sensed}):",
+            f"pi[{at}{SENSED}] != 0):",
             f"    pi[{at}{DEAD}] = 1"]
 
 
@@ -178,11 +182,12 @@ class MujocoNativeForm:
         self.batched = plant.batch > 1
         ids = plant._ids
         p, v = plant._sadr
+        self.plain = plain_sensors(plant)
         self.ints = np.array([[plant.model._address, data._address, data.ctrl.ctypes.data,
                                data.sensordata.ctypes.data, data.qpos.ctypes.data, data.qvel.ctypes.data,
                                data.warning.lastinfo.ctypes.data, ids.actuator, p, v, ids.qpos, ids.dof,
-                               substeps, int(dead), 0] for data, dead in zip(plant._datas, plant._dead,
-                                                                               strict=True)],
+                               substeps, int(dead), 0, int(not self.plain)]
+                              for data, dead in zip(plant._datas, plant._dead, strict=True)],
                              dtype=np.int64)
         noise = plant._noise.ahead(readings)[:, 0, :].ravel() if self.noisy else np.zeros(0)
         self.floats = np.concatenate([[plant._ctrl_per_u], noise])
@@ -190,7 +195,6 @@ class MujocoNativeForm:
             self.floats = np.repeat(self.floats[None, :], plant.batch, axis=0)
         else:
             self.ints = self.ints[0]
-        self.plain = plain_sensors(plant)
 
     def sync_in(self) -> None:
         dead = self.plant._dead
@@ -212,10 +216,9 @@ class MujocoNativeForm:
                     mujoco.mj_sensorVel(plant.model, data)
 
     def stepper(self) -> NativeStepper:
-        key = (f"mujoco {load_mujoco_library()} {mujoco.__version__} plain sensors={self.plain} "
-               f"noise={self.noisy}")
-        sensed, at = not self.plain, "b, " if self.batched else ""
-        return NativeStepper(key, helpers(), setup_lines(at), observe_lines(sensed, self.noisy, at),
-                             step_lines(sensed, at), self.floats, self.ints,
+        key = f"mujoco {load_mujoco_library()} {mujoco.__version__} noise={self.noisy}"
+        at = "b, " if self.batched else ""
+        return NativeStepper(key, helpers(), setup_lines(at), observe_lines(self.noisy, at),
+                             step_lines(at), self.floats, self.ints,
                              np.zeros((self.plant.batch, 0)) if self.batched else np.zeros(0),
                              self.sync_in, self.sync_out)
