@@ -323,8 +323,8 @@ def _vector(make: Any, value: Any, args: tuple, kwargs: dict) -> Any:
     if isinstance(value, list | tuple) and not args and not kwargs and value and any(
             isinstance(v, Symbol) for v in value) and not isinstance(value[0], list | tuple | np.ndarray):
         return traced_vector([v.item() if isinstance(v, np.ndarray) else v for v in value])
-    made = make(value, *args, **kwargs)
-    return made.view(TracedInputs) if made.dtype == object and isinstance(value, TracedInputs) else made
+    made = make(value, *args, **kwargs)  # (dtype=float here is the traced float: an object array)
+    return made.view(TracedInputs) if made.dtype == object else made  # its reductions refused
 
 
 class TracedMath(types.ModuleType):

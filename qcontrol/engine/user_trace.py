@@ -309,6 +309,9 @@ def why_not(exc: BaseException) -> str:
     if "float() argument" in text or "must be real number" in text:
         return ("it converts a value computed from its inputs to a number outside its own module "
                 "(float() or math in a helper module, dtype=float, an array of numbers it fills)")
+    if "for ** or pow()" in text:
+        return ("it raises a value computed from its inputs to a power with ** (pow rounds its own way, "
+                "not as x * x): write the product, or an expression")
     if text.startswith("numpy's"):
         return f"it uses {text}"
     if "branches on a column" in text or "not supported between" in text:
