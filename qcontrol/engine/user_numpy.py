@@ -31,7 +31,7 @@ import math
 import operator
 import sys
 import types
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from fractions import Fraction
 from functools import cache
 from typing import Any
@@ -67,19 +67,25 @@ def fma(a: float, b: float, c: float) -> float:
         return math.copysign(math.inf, p)
 
 
+def _fma_codegen(context: Any, builder: Any, sig: Any, args: Any) -> Any:
+    from numba import types as nb
+
+    values = [context.cast(builder, v, t, nb.float64) for v, t in zip(args, sig.args, strict=True)]
+    return builder.fma(*values)
+
+
+def _fma_typing(typingctx: Any, a: Any, b: Any, c: Any) -> tuple:
+    from numba import types as nb
+
+    return nb.float64(a, b, c), _fma_codegen
+
+
 @cache
 def compiled_fma() -> Any:
     """``fma(a, b, c)`` for numba: LLVM's fused multiply-add (one rounding, as :func:`fma`)."""
-    from numba import types as nb
     from numba.extending import intrinsic
 
-    @intrinsic
-    def fused(typingctx: Any, a: Any, b: Any, c: Any) -> Any:
-        def codegen(context: Any, builder: Any, sig: Any, args: Any) -> Any:
-            values = [context.cast(builder, v, t, nb.float64) for v, t in zip(args, sig.args, strict=True)]
-            return builder.fma(*values)
-        return nb.float64(a, b, c), codegen
-    return fused
+    return intrinsic(_fma_typing)
 
 
 # ---- probes: where numpy's float64 arithmetic is the written-out line's ---------------------------
@@ -202,25 +208,22 @@ def _one(ufunc: np.ufunc, args: tuple) -> Any:
     raise TypeError(f"numpy's {ufunc.__name__} on a value computed from its inputs")
 
 
-def ufunc_call(ufunc: np.ufunc, method: str, inputs: tuple, kwargs: dict) -> Any:
+def ufunc_call(ufunc: np.ufunc, method: str, operands: tuple, kwargs: dict) -> Any:
     """A numpy ufunc meeting traced values (a traced vector or a single traced value)."""
-    from .user_trace import TracedInputs
-    from .user_trace import inputs as traced_vector
-
     if method != "__call__" or kwargs:
         raise TypeError(f"numpy's {ufunc.__name__} ({method}) on a value computed from its inputs")
     if ufunc is np.matmul:
-        return dot(*inputs)
-    if not any(isinstance(x, np.ndarray) for x in inputs):
-        return _one(ufunc, inputs)
-    arrays = [np.asarray(x) if isinstance(x, np.ndarray) else _boxed(x) for x in inputs]
+        return dot(*operands)
+    if not any(isinstance(x, np.ndarray) for x in operands):
+        return _one(ufunc, operands)
+    arrays = [np.asarray(x) if isinstance(x, np.ndarray) else _boxed(x) for x in operands]
     shape = np.broadcast_shapes(*[a.shape for a in arrays])
     flat = [np.broadcast_to(a, shape).ravel().tolist() for a in arrays]
     values = [_one(ufunc, args) for args in zip(*flat, strict=True)]
     if not shape:
         return values[0]
-    if any(isinstance(x, TracedInputs) for x in inputs) or any(isinstance(v, Symbol) for v in values):
-        return traced_vector(values).reshape(shape)
+    if any(isinstance(x, TracedInputs) for x in operands) or any(isinstance(v, Symbol) for v in values):
+        return inputs(values).reshape(shape)
     return np.array(values).reshape(shape)
 
 
@@ -244,6 +247,39 @@ def dot(a: Any, b: Any) -> Any:
     return dot_model(a.tolist(), b.tolist())
 
 
+# numpy functions on the inputs that a traced law may not call: reductions and products whose float
+# results (pairwise sums, BLAS kernels) no sequence of + and * restates
+_REFUSED_FUNCTIONS = {np.vdot, np.inner, np.sum, np.prod, np.mean, np.einsum,
+                      np.tensordot, np.cumsum, np.cumprod, np.average, np.linalg.norm}
+
+
+class TracedInputs(np.ndarray):
+    """An object array of symbols given to a traced law (its inputs, and the vectors it makes of
+    traced values): elementwise arithmetic, indexing, and the numpy of this module (a function of
+    one value, a product of two vectors) recorded where a compiled line gives numpy's float; other
+    ufuncs and numpy's reductions refuse (TypeError), so the law keeps the Python loop."""
+
+    def __array_ufunc__(self, ufunc: Any, method: str, *inputs: Any, **kwargs: Any) -> Any:
+        return ufunc_call(ufunc, method, inputs, kwargs)
+
+    def __array_function__(self, func: Any, types: Any, args: Any, kwargs: Any) -> Any:
+        if func is np.dot and not kwargs:
+            return dot(*args)
+        if func in _REFUSED_FUNCTIONS or func is np.dot:
+            raise TypeError(f"numpy's {func.__name__} on a value computed from its inputs")
+        return super().__array_function__(func, types, args, kwargs)
+
+    def dot(self, other: Any) -> Any:  # type: ignore[override]  (numpy's own would sum objects)
+        return dot(self, other)
+
+
+def inputs(symbols: Sequence[Any]) -> TracedInputs:
+    """A traced vector of ``symbols`` (traced values or numbers)."""
+    array = np.empty(len(symbols), dtype=object)
+    array[:] = list(symbols)
+    return array.view(TracedInputs)
+
+
 class UserSymbol(Symbol):
     """A symbol of a traced user law: as :class:`Symbol`, and numpy on it recorded or refused
     (:func:`ufunc_call`) instead of refused outright; with a traced vector, elementwise."""
@@ -253,20 +289,31 @@ class UserSymbol(Symbol):
     def __array_ufunc__(self, ufunc: np.ufunc, method: str, *inputs: Any, **kwargs: Any) -> Any:
         return ufunc_call(ufunc, method, inputs, kwargs)
 
+    # with an array: NotImplemented, so the array's operator runs (elementwise, __array_ufunc__)
+    def __add__(self, other: Any) -> Any:
+        return NotImplemented if isinstance(other, np.ndarray) else Symbol.__add__(self, other)
 
-def _deferring(name: str) -> Any:
-    base = getattr(Symbol, name)
+    def __radd__(self, other: Any) -> Any:
+        return NotImplemented if isinstance(other, np.ndarray) else Symbol.__radd__(self, other)
 
-    def operation(self: UserSymbol, other: Any) -> Any:
-        if isinstance(other, np.ndarray):
-            return NotImplemented  # the array's operator: elementwise, through __array_ufunc__
-        return base(self, other)
-    return operation
+    def __sub__(self, other: Any) -> Any:
+        return NotImplemented if isinstance(other, np.ndarray) else Symbol.__sub__(self, other)
 
+    def __rsub__(self, other: Any) -> Any:
+        return NotImplemented if isinstance(other, np.ndarray) else Symbol.__rsub__(self, other)
 
-for _name in ("__add__", "__radd__", "__sub__", "__rsub__", "__mul__", "__rmul__", "__truediv__",
-              "__rtruediv__"):
-    setattr(UserSymbol, _name, _deferring(_name))
+    def __mul__(self, other: Any) -> Any:
+        return NotImplemented if isinstance(other, np.ndarray) else Symbol.__mul__(self, other)
+
+    def __rmul__(self, other: Any) -> Any:
+        return NotImplemented if isinstance(other, np.ndarray) else Symbol.__rmul__(self, other)
+
+    def __truediv__(self, other: Any) -> Any:
+        return NotImplemented if isinstance(other, np.ndarray) else Symbol.__truediv__(self, other)
+
+    def __rtruediv__(self, other: Any) -> Any:
+        return NotImplemented if isinstance(other, np.ndarray) else Symbol.__rtruediv__(self, other)
+
 
 
 class UserTrace(Trace):
@@ -317,12 +364,9 @@ class TracedNumpy(types.ModuleType):
 
 
 def _vector(make: Any, value: Any, args: tuple, kwargs: dict) -> Any:
-    from .user_trace import TracedInputs
-    from .user_trace import inputs as traced_vector
-
     if isinstance(value, list | tuple) and not args and not kwargs and value and any(
             isinstance(v, Symbol) for v in value) and not isinstance(value[0], list | tuple | np.ndarray):
-        return traced_vector([v.item() if isinstance(v, np.ndarray) else v for v in value])
+        return inputs([v.item() if isinstance(v, np.ndarray) else v for v in value])
     made = make(value, *args, **kwargs)  # (dtype=float here is the traced float: an object array)
     return made.view(TracedInputs) if made.dtype == object else made  # its reductions refused
 
@@ -336,12 +380,17 @@ class TracedMath(types.ModuleType):
 
     def __getattr__(self, name: str) -> Any:
         value = getattr(math, name)
-        if name not in _MATH_NAMES:
-            return value
+        return MathFunction(name) if name in _MATH_NAMES else value
 
-        def function(x: Any) -> Any:
-            return math_call(name, x) if isinstance(x, Symbol) else value(x)
-        return function
+
+class MathFunction:
+    """``math.<name>``: of a traced value recorded (:func:`math_call`), of a number math's."""
+
+    def __init__(self, name: str) -> None:
+        self.name, self.function = name, getattr(math, name)
+
+    def __call__(self, x: Any) -> Any:
+        return math_call(self.name, x) if isinstance(x, Symbol) else self.function(x)
 
 
 _NAMES = {"numpy": TracedNumpy(), "math": TracedMath()}

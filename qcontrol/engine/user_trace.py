@@ -48,42 +48,10 @@ import numpy as np
 from ..compiled.traced import Symbol, recording
 from ..controller.user import FastCalls, UserLaw, advances_itself, sample
 from .compiled_loop import CONTROL_REFUSED
-from .user_numpy import UserSymbol, UserTrace, dot, fma, traced_names, ufunc_call
+from .user_numpy import TracedInputs, UserSymbol, UserTrace, fma, inputs, traced_names
 
 COMPILED = "compiled"  # UserLaw.compiled_form of a law that has a compiled form
 CHECKS = 8  # samples at which the traced lines must equal the law's Python, bit for bit
-# numpy functions on the inputs that a traced law may not call: reductions and products whose float
-# results (pairwise sums, BLAS kernels) no sequence of + and * restates
-_REFUSED_FUNCTIONS = {np.vdot, np.inner, np.sum, np.prod, np.mean, np.einsum,
-                      np.tensordot, np.cumsum, np.cumprod, np.average, np.linalg.norm}
-
-
-class TracedInputs(np.ndarray):
-    """An object array of symbols given to a traced law (its inputs, and the vectors it makes of
-    traced values): elementwise arithmetic, indexing, and the numpy of :mod:`.user_numpy` (a
-    function of one value, a product of two vectors) recorded where a compiled line gives numpy's
-    float; other ufuncs and numpy's reductions refuse (TypeError), so the law keeps the Python loop."""
-
-    def __array_ufunc__(self, ufunc: Any, method: str, *inputs: Any, **kwargs: Any) -> Any:
-        return ufunc_call(ufunc, method, inputs, kwargs)
-
-    def __array_function__(self, func: Any, types: Any, args: Any, kwargs: Any) -> Any:
-        if func is np.dot and not kwargs:
-            return dot(*args)
-        if func in _REFUSED_FUNCTIONS or func is np.dot:
-            raise TypeError(f"numpy's {func.__name__} on a value computed from its inputs")
-        return super().__array_function__(func, types, args, kwargs)
-
-    def dot(self, other: Any) -> Any:  # type: ignore[override]  (numpy's own would sum objects)
-        return dot(self, other)
-
-
-def inputs(symbols: Sequence[Any]) -> TracedInputs:
-    array = np.empty(len(symbols), dtype=object)
-    array[:] = list(symbols)
-    return array.view(TracedInputs)
-
-
 def _real(value: Any) -> Any:
     """A traced result entry: a symbol, or a real number as a float; else TypeError."""
     if isinstance(value, Symbol):
