@@ -451,7 +451,8 @@ def quantized_backstepping(c: Sequence[float], x_q: np.ndarray, yd: np.ndarray) 
     q, y = (a if a.dtype == object else a.astype(float) for a in (q, y))  # object: traced values
     if q.ndim == 1 and y.ndim == 1:
         zbar, alphabar = coordinates.recursion(q.tolist(), y.tolist())
-        return np.array(zbar), np.array(alphabar)
+        kind = type(x_q) if q.dtype == object else np.ndarray  # traced: the traced vectors' class
+        return np.array(zbar).view(kind), np.array(alphabar).view(kind)
     zbar, alphabar = coordinates.recursion(list(np.moveaxis(q, -1, 0)), list(np.moveaxis(y, -1, 0)))
     shape = np.broadcast_shapes(q.shape[:-1], y.shape[:-1])
     return tuple(np.stack([np.broadcast_to(v, shape) for v in values], axis=-1)
