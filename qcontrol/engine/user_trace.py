@@ -355,7 +355,18 @@ def python_calls(trace: CopyTrace, n: int, m: int) -> FastCalls:
     Python loop (:attr:`UserLaw.fast`): ``control(q.., yd.., state.., t) -> u`` and
     ``advance(q.., yd.., t, state..) -> state``, None where the compiled loop would hand over.
     The same lines the check ran, with the arrays' entries as locals and the constants as
-    literals: the same operations on the same numbers."""
+    literals: the same operations on the same numbers. (The same trace again, as a law's next
+    run gives: the functions made for it before, without rewriting its lines.)"""
+    traced = (n, m, tuple(trace.control), tuple(trace.advance), repr(tuple(trace.constants)))
+    if traced in _CALLS_BY_TRACE:
+        return _CALLS_BY_TRACE[traced]
+    if len(_CALLS_BY_TRACE) > 64:
+        _CALLS_BY_TRACE.clear()
+    _CALLS_BY_TRACE[traced] = _calls_of(trace, n, m)
+    return _CALLS_BY_TRACE[traced]
+
+
+def _calls_of(trace: CopyTrace, n: int, m: int) -> FastCalls:
     constants = Literals(trace.constants)
     q, y, a = [f"sq{i}" for i in range(n)], [f"y{j}" for j in range(n + 1)], [f"a{i}" for i in range(m)]
     sample = [f"h{1 + i}" for i in range(n)] + [f"h{1 + n + j}" for j in range(n + 1)] + [f"h{2 * n + 2}"]
@@ -376,6 +387,7 @@ def python_calls(trace: CopyTrace, n: int, m: int) -> FastCalls:
 
 
 _CALLS: dict[str, FastCalls] = {}  # the functions of python_calls by their text
+_CALLS_BY_TRACE: dict[tuple, FastCalls] = {}  # and by the trace they were made from
 
 
 class Literals:
