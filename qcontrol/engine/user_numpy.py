@@ -203,8 +203,9 @@ def _one(ufunc: np.ufunc, args: tuple) -> Any:
     if ufunc in _FUNCTIONS and same_as_math(ufunc):
         return math_call(_FUNCTIONS[ufunc][0], args[0])
     if ufunc in _FUNCTIONS:
+        name = _FUNCTIONS[ufunc][0]
         raise TypeError(f"numpy's {ufunc.__name__} on a value computed from its inputs (numpy's rounds "
-                        f"differently from math's {_FUNCTIONS[ufunc][0]} here)")
+                        f"differently from math's {name} here): write math.{name}(...) or an expression")
     raise TypeError(f"numpy's {ufunc.__name__} on a value computed from its inputs")
 
 
