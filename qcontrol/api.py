@@ -443,9 +443,20 @@ def quantized_backstepping(c: Sequence[float], x_q: np.ndarray, yd: np.ndarray) 
     """The quantized backstepping signals for gains ``c`` (eqs. (31)-(34)): ``zbar`` and
     ``alphabar``, each of shape ``(n,)``, from the quantized reading ``x_q`` ``(n,)`` and
     ``yd = [y_d, y_d', ..., y_d^(n)]``. ``alphabar[-1]`` is the backstepping input without any
-    robust or adaptive term."""
+    robust or adaptive term. Computed by the recursion of eqs. (31)-(34) as written
+    (:meth:`~qcontrol.BacksteppingLaw.recursion`), on floats, or column by column for readings of
+    shape ``(..., n)``: the same numbers row by row, and a law that calls it has a compiled form."""
     coordinates = _coordinates(tuple(float(v) for v in c))
-    return coordinates.quantized_errors(np.asarray(x_q, dtype=float), np.asarray(yd, dtype=float))
+    q, y = np.asarray(x_q), np.asarray(yd)
+    q, y = (a if a.dtype == object else a.astype(float) for a in (q, y))  # object: traced values
+    if q.ndim == 1 and y.ndim == 1:
+        zbar, alphabar = coordinates.recursion(q.tolist(), y.tolist())
+        kind = type(x_q) if q.dtype == object else np.ndarray  # traced: the traced vectors' class
+        return np.array(zbar).view(kind), np.array(alphabar).view(kind)
+    zbar, alphabar = coordinates.recursion(list(np.moveaxis(q, -1, 0)), list(np.moveaxis(y, -1, 0)))
+    shape = np.broadcast_shapes(q.shape[:-1], y.shape[:-1])
+    return tuple(np.stack([np.broadcast_to(v, shape) for v in values], axis=-1)
+                 for values in (zbar, alphabar))
 
 
 def lemma2_bounds(c: Sequence[float], delta: float | Sequence[float]) -> np.ndarray:

@@ -7,9 +7,10 @@ forms of a user law (docs/laws.md): the bench times them against the built-in ki
 * :class:`PaperLawStepped`: a ``qcontrol.Law`` with its own ``advance``; eq. (45) solved exactly
   over each step with the sample held, ``eps <- target + (eps - target) exp(-gamma sigma h)``;
 * :class:`PaperLawRateFloats` and :class:`PaperLawFloats`: the same two ``qcontrol.Law`` forms
-  written as docs/laws.md's speed section asks: each call computes on Python floats with
-  arithmetic only (not numpy on arrays of n numbers, no ``float()``), so the engine finds a
-  compiled form of each (:mod:`qcontrol.engine.compiled_user`);
+  on Python floats: each call computes with arithmetic on floats (no numpy on arrays of n
+  numbers), cheaper where the law's own Python runs (``QCONTROL_COMPILE=0``). The engine finds a
+  compiled form of each of the four (:mod:`qcontrol.engine.compiled_user`; the numpy forms
+  through :mod:`qcontrol.engine.user_numpy`);
 * :class:`PaperLawColumns`: a ``qcontrol.BacksteppingLaw`` subclass in column form (floats for a
   single run, ``(batch,)`` arrays for a batch), registered with ``register_law`` as the others.
 
@@ -79,7 +80,7 @@ class PaperLawFloatTerms:
     """What the two float forms share: the terms of eqs. (31)-(34) and (44), each call on Python
     floats: the reading and the reference turned into floats once (``tolist()``), eqs. (31)-(34) by
     ``BacksteppingLaw.recursion`` (which serves floats as it serves columns), r by ``on_floats``,
-    sums written out, ``u`` returned as computed (no ``float()``), a numpy array made only for the
+    sums written out, ``u`` returned as computed, a numpy array made only for the
     state the update returns. Only arithmetic on the inputs: such a law has a compiled form
     (docs/laws.md, 'Speed')."""
 

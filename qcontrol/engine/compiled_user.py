@@ -30,6 +30,7 @@ from .compiled_batch import CompiledBatch, Redo
 from .compiled_loop import COMPILED_LAWS, MIN_ROWS, CompiledLoop, TracedParts, numba_pays, traced_parts
 from .fastpath import single_copy, single_copy_quantizer
 from .spec import RunSpec
+from .user_numpy import compiled_fma
 from .user_trace import (
     CHECKS,
     COMPILED,
@@ -133,6 +134,9 @@ class CompiledUserLoop(CompiledLoop):
         super().__init__(parts, n, law.state_size)
         self.law, self.held_width = law, Held(n).width
 
+    def function(self, *args: Any, **kwargs: Any) -> Any:
+        return with_fma(super().function(*args, **kwargs))
+
     def held_output(self, held: np.ndarray) -> Any:
         """``held`` (u, x_q, yd, t) as the sample the Python loop continues with."""
         n, values = self.n, held.tolist()
@@ -155,8 +159,18 @@ class CompiledUserBatch(CompiledBatch):
         super().__init__(parts, form, n, m)
         self.held_width = Held(n).width
 
+    def function(self, *args: Any, **kwargs: Any) -> Any:
+        return with_fma(super().function(*args, **kwargs))
+
     def run(self, loop: Any, plant: Any, adaptive: tuple) -> Any:
         return super().run(FirstChecked(loop, self.m), plant, adaptive)
+
+
+def with_fma(rows: Any) -> Any:
+    """The generated loop ``rows`` with ``fma`` among its globals (a traced law's products of
+    vectors, :mod:`.user_numpy`), before numba compiles it."""
+    rows.py_func.__globals__.setdefault("fma", compiled_fma())
+    return rows
 
 
 class FirstChecked:

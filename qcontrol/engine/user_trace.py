@@ -6,23 +6,25 @@ Here each copy's ``control`` and its update (``advance``, or the engine's RK4 of
 are called once with inputs whose entries are the traced form's symbols
 (:mod:`qcontrol.compiled.traced`): ``x_q``, ``yd`` and the state are object arrays of symbols,
 ``t`` a symbol. Whatever the law computes from them with ``+ - * /``, indexing, ``tolist()``,
-``np.array([...])`` and expressions' ``on_floats`` is recorded, in order, as lines of the
-compiled loop (:mod:`.compiled_user`); the sample the update holds (u, ``x_q``, ``yd``, ``t``) is
-kept in the loop's ``held`` array.
+``np.array([...])``, ``float()``, expressions' ``on_floats`` and the numpy and ``math`` that
+:mod:`.user_numpy` records (functions of one value, products of two vectors, where numpy's float
+is the compiled line's) is recorded, in order, as lines of the compiled loop
+(:mod:`.compiled_user`); the sample the update holds (u, ``x_q``, ``yd``, ``t``) is kept in the
+loop's ``held`` array.
 
 A law has no compiled form (:attr:`UserLaw.compiled_form` says why) when any of these holds:
 
-* tracing fails: the law calls ``float()``, ``math`` or numpy functions on an input, compares or
-  branches on one, uses numpy's reductions or products (``@``, ``np.dot``, ``sum()`` of an
-  array, ``qcontrol.quantized_backstepping``), whose float results no compiled line restates,
-  divides by an input in its update, or returns what its method must not;
+* tracing fails: the law converts an input to a float outside its own module, compares or
+  branches on one, uses numpy's reductions or matrix products (``np.sum``, ``A @ x``) or a numpy
+  function that rounds differently from ``math`` on this machine, whose float results no
+  compiled line restates, divides by an input in its update, or returns what its method must not;
 * the law changed itself while traced (an attribute, a list it keeps), or traces to other lines
   or numbers when traced again (random numbers, a clock);
 * the copies of a batch trace to different code;
 * the check: the recorded lines, run in Python, must give the law's own Python results bit for
   bit (u, and the state one step on through the engine's own update) at :data:`CHECKS` samples
   (zero and random readings, references and states): a law that reads a global that changes, or
-  rounds differently (numpy's ``@`` on floats), fails it.
+  rounds differently, fails it.
 
 Tracing calls the law's methods on copies of it (``copy.deepcopy``); the check calls the law
 itself only once its copy was found to keep no state; numpy's and Python's global random streams
@@ -43,42 +45,13 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..compiled.traced import Symbol, Trace, recording
+from ..compiled.traced import Symbol, recording
 from ..controller.user import FastCalls, UserLaw, advances_itself, sample
 from .compiled_loop import CONTROL_REFUSED
+from .user_numpy import TracedInputs, UserSymbol, UserTrace, fma, inputs, traced_names
 
 COMPILED = "compiled"  # UserLaw.compiled_form of a law that has a compiled form
 CHECKS = 8  # samples at which the traced lines must equal the law's Python, bit for bit
-# numpy functions on the inputs that a traced law may not call: reductions and products whose float
-# results (pairwise sums, BLAS kernels) no sequence of + and * restates
-_REFUSED_FUNCTIONS = {np.dot, np.vdot, np.inner, np.matmul, np.sum, np.prod, np.mean, np.einsum,
-                      np.tensordot, np.cumsum, np.cumprod, np.average, np.linalg.norm}
-_ELEMENTWISE = {np.add, np.subtract, np.multiply, np.true_divide, np.negative, np.positive}
-
-
-class TracedInputs(np.ndarray):
-    """An object array of symbols given to a traced law: elementwise ``+ - * /`` and indexing
-    only (what numpy does with them is recorded by the symbols); other ufuncs and numpy's
-    reductions and products refuse (TypeError), so the law keeps the Python loop."""
-
-    def __array_ufunc__(self, ufunc: Any, method: str, *inputs: Any, **kwargs: Any) -> Any:
-        if ufunc not in _ELEMENTWISE or method != "__call__" or kwargs:
-            raise TypeError(f"numpy's {ufunc.__name__} ({method}) on the law's inputs")
-        plain = [np.asarray(x) if isinstance(x, TracedInputs) else x for x in inputs]
-        return np.asarray(ufunc(*plain)).view(TracedInputs)
-
-    def __array_function__(self, func: Any, types: Any, args: Any, kwargs: Any) -> Any:
-        if func in _REFUSED_FUNCTIONS:
-            raise TypeError(f"numpy's {func.__name__} on the law's inputs")
-        return super().__array_function__(func, types, args, kwargs)
-
-
-def inputs(symbols: Sequence[Any]) -> TracedInputs:
-    array = np.empty(len(symbols), dtype=object)
-    array[:] = list(symbols)
-    return array.view(TracedInputs)
-
-
 def _real(value: Any) -> Any:
     """A traced result entry: a symbol, or a real number as a float; else TypeError."""
     if isinstance(value, Symbol):
@@ -112,8 +85,9 @@ class Held(NamedTuple):
 
     def symbols(self) -> tuple[Symbol, TracedInputs, TracedInputs, Symbol]:
         n = self.n
-        return (Symbol("held[0]"), inputs([Symbol(f"held[{1 + i}]") for i in range(n)]),
-                inputs([Symbol(f"held[{1 + n + j}]") for j in range(n + 1)]), Symbol(f"held[{2 * n + 2}]"))
+        return (UserSymbol("held[0]"), inputs([UserSymbol(f"held[{1 + i}]") for i in range(n)]),
+                inputs([UserSymbol(f"held[{1 + n + j}]") for j in range(n + 1)]),
+                UserSymbol(f"held[{2 * n + 2}]"))
 
 
 class CopyTrace(NamedTuple):
@@ -140,14 +114,14 @@ def trace_copy(law: Any, n: int, m: int, dt: float, slots: Sequence[float] = ())
     """``law``'s control and update as lines (see the module docstring), its locals ``w1, w2, ..``
     and its constants after ``slots`` (the quantizer's); raises TypeError (or whatever the law
     raises) where it cannot be traced. ``law`` should be a copy: it is called."""
-    trace, held = Trace(prefix="w"), Held(n)
+    trace, held = UserTrace(prefix="w"), Held(n)
     trace.constants = list(slots)
-    with recording(trace):
+    with recording(trace), traced_names(law):
         with trace.refusing(f"return {CONTROL_REFUSED}, k"):
-            x_q = inputs([Symbol(f"sq{i}") for i in range(n)])
-            yd = inputs([Symbol(f"yd[r, {j}]") for j in range(n + 1)])
-            state = inputs([Symbol(f"adaptive[{i}]") for i in range(m)])
-            t = Symbol("st")
+            x_q = inputs([UserSymbol(f"sq{i}") for i in range(n)])
+            yd = inputs([UserSymbol(f"yd[r, {j}]") for j in range(n + 1)])
+            state = inputs([UserSymbol(f"adaptive[{i}]") for i in range(m)])
+            t = UserSymbol("st")
             u = trace.text(_real(law.control(t, x_q.copy(), yd.copy(), state.copy())))
             trace.lines += [f"held[0] = {u}", *[f"held[{1 + i}] = sq{i}" for i in range(n)],
                             *[f"held[{1 + n + j}] = yd[r, {j}]" for j in range(n + 1)],
@@ -261,7 +235,7 @@ def check_functions(trace: CopyTrace, n: int) -> dict[str, Any]:
     if source not in _CHECKERS:
         if len(_CHECKERS) > 64:
             _CHECKERS.clear()
-        names = {"math": QuietMath(), "np": np}
+        names = {"math": QuietMath(), "np": np, "fma": fma}
         exec(compile(source, "<traced law>", "exec"), names)  # noqa: S102 (text made by the tracer alone)
         _CHECKERS[source] = names
     return _CHECKERS[source]
@@ -301,11 +275,18 @@ def why_not(exc: BaseException) -> str:
     """A traced law's failure as a reason a user can act on."""
     text = str(exc)
     if "float() argument" in text or "must be real number" in text:
-        return "it converts a value computed from its inputs with float() or a math function"
+        return ("it converts a value computed from its inputs to a number outside its own module "
+                "(float() or math in a helper module, dtype=float, an array of numbers it fills)")
+    if "for ** or pow()" in text:
+        return ("it raises a value computed from its inputs to a power with ** (pow rounds its own way, "
+                "not as x * x): write the product, or an expression")
+    if text.startswith("numpy's"):
+        return f"it uses {text}"
     if "branches on a column" in text or "not supported between" in text:
         return "it compares or branches on a value computed from its inputs"
     if "may raise where no hand-over" in text:
-        return "its state update divides by a value computed from its inputs"
+        return ("its state update divides by a value computed from its inputs, or calls a function "
+                "that may refuse one (log, sqrt, exp)")
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
@@ -374,7 +355,18 @@ def python_calls(trace: CopyTrace, n: int, m: int) -> FastCalls:
     Python loop (:attr:`UserLaw.fast`): ``control(q.., yd.., state.., t) -> u`` and
     ``advance(q.., yd.., t, state..) -> state``, None where the compiled loop would hand over.
     The same lines the check ran, with the arrays' entries as locals and the constants as
-    literals: the same operations on the same numbers."""
+    literals: the same operations on the same numbers. (The same trace again, as a law's next
+    run gives: the functions made for it before, without rewriting its lines.)"""
+    traced = (n, m, tuple(trace.control), tuple(trace.advance), repr(tuple(trace.constants)))
+    if traced in _CALLS_BY_TRACE:
+        return _CALLS_BY_TRACE[traced]
+    if len(_CALLS_BY_TRACE) > 64:
+        _CALLS_BY_TRACE.clear()
+    _CALLS_BY_TRACE[traced] = _calls_of(trace, n, m)
+    return _CALLS_BY_TRACE[traced]
+
+
+def _calls_of(trace: CopyTrace, n: int, m: int) -> FastCalls:
     constants = Literals(trace.constants)
     q, y, a = [f"sq{i}" for i in range(n)], [f"y{j}" for j in range(n + 1)], [f"a{i}" for i in range(m)]
     sample = [f"h{1 + i}" for i in range(n)] + [f"h{1 + n + j}" for j in range(n + 1)] + [f"h{2 * n + 2}"]
@@ -388,13 +380,14 @@ def python_calls(trace: CopyTrace, n: int, m: int) -> FastCalls:
     if key not in _CALLS:
         if len(_CALLS) > 64:
             _CALLS.clear()
-        names = {"math": math, "np": np, "lp": tuple(trace.constants)}
+        names = {"math": math, "np": np, "fma": fma, "lp": tuple(trace.constants)}
         exec(compile(source, "<traced law>", "exec"), names)  # noqa: S102 (text made by the tracer alone)
         _CALLS[key] = FastCalls(names["control"], names["advance"])
     return _CALLS[key]
 
 
 _CALLS: dict[str, FastCalls] = {}  # the functions of python_calls by their text
+_CALLS_BY_TRACE: dict[tuple, FastCalls] = {}  # and by the trace they were made from
 
 
 class Literals:
