@@ -1,5 +1,5 @@
 """Every code block of the README and of the user guide's pages that hold code (docs/index.md,
-docs/commands.md, docs/python.md) runs: the Python blocks in a fresh interpreter each, and every
+docs/commands.md, docs/python.md) runs: the Python blocks in a fresh process each, and every
 ``qcontrol`` command of the shell blocks, in a folder holding the scenarios and models (the install
 and test commands are what CI itself runs). The README stays one screenful that links into the
 documentation, and its headline is the shipped reproduction."""
