@@ -8,6 +8,7 @@ import io
 import json
 import os
 import subprocess
+import sys
 import tempfile
 from pathlib import Path
 
@@ -41,12 +42,15 @@ INTEGRAL_LAW_METHODS = """
 """
 
 
-# The files that take longest, heaviest first. With `--dist loadfile` a file runs whole on one
-# worker, so a long file handed out last leaves the other worker idle at the end; the rest keep
-# their order. xdist's own reordering (files with the most tests first) is turned off for that.
-HEAVY_FIRST = ("test_recipes.py", "test_laws_doc.py", "test_output_safety.py", "test_compiled_loop.py",
-               "test_reproduce.py", "test_readme.py", "test_one_definition.py", "test_sweep.py",
-               "test_reproduce_laws.py", "test_plots.py", "test_tuning.py", "test_reliability.py")
+# The files that take longest, heaviest first (CPU seconds of each file measured on a fresh clone,
+# an empty compiled-code cache). With `--dist loadfile` a file runs whole on one worker, so a long
+# file handed out last leaves the other worker idle at the end; the rest keep their order. xdist's
+# own reordering (files with the most tests first) is turned off for that.
+HEAVY_FIRST = ("test_compiled_loop.py", "test_one_definition.py", "test_output_safety.py", "test_recipes.py",
+               "test_reproduce.py", "test_compiled_batch.py", "test_readme.py", "test_compiled_folds.py",
+               "test_laws_doc.py", "test_sweep.py", "test_reliability.py", "test_closed_loop.py",
+               "test_video.py", "test_plots.py", "test_record.py", "test_reproduce_laws.py",
+               "test_sensors.py", "test_mujoco_compiled_batch.py", "test_cli.py", "test_tuning.py")
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -99,6 +103,68 @@ def quick_reproduction(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, 
     folder = _once_per_session(tmp_path_factory, "quick-reproduce", _quick_reproduction)
     run = json.loads((folder / "run.json").read_text())
     return folder / "out", run["status"], run["stdout"]
+
+
+# Runs the commands of argv[1] (a JSON list of argv lists, ["python", "-c", text] for a script; an
+# item {"argv": [...], "cwd": folder} runs in a folder of its own) each as the process it names
+# would: `qcontrol ...` through the console script's entry point, `python FILE`, `python -m
+# MODULE` and `python -c TEXT` as the interpreter runs them, anything
+# else (git) as a subprocess. A command runs in a fork of this interpreter, which has imported
+# the package (the one on its PYTHONPATH: a recipe's copy, as the recipe left it) and run nothing,
+# not numba either: what a fresh process is once it has imported the package, without starting an
+# interpreter per command. Prints one JSON line per command: its exit status, stdout and stderr.
+FORKING_RUNNER = """
+import json, os, runpy, subprocess, sys, tempfile
+import qcontrol, qcontrol._entry, qcontrol.cli
+
+
+def child(argv):
+    if argv[0] == "qcontrol":
+        sys.argv = argv
+        sys.exit(qcontrol._entry.main())
+    if argv[1] == "-c":
+        sys.argv, sys.path[0] = ["-c", *argv[3:]], ""
+        exec(compile(argv[2], "<string>", "exec"), {"__name__": "__main__", "__builtins__": __builtins__})
+    elif argv[1] == "-m":
+        sys.argv, sys.path[0] = argv[2:], os.getcwd()
+        runpy.run_module(argv[2], run_name="__main__", alter_sys=True)
+    else:
+        sys.argv, sys.path[0] = argv[1:], os.path.dirname(os.path.abspath(argv[1]))
+        runpy.run_path(argv[1], run_name="__main__")
+    sys.exit(0)
+
+
+folder = tempfile.mkdtemp()
+for argv in json.loads(sys.argv[1]):
+    cwd = None
+    if isinstance(argv, dict):
+        argv, cwd = argv["argv"], argv["cwd"]
+    if argv[0] not in ("python", "qcontrol"):
+        done = subprocess.run(argv, capture_output=True, text=True, cwd=cwd)
+        print(json.dumps([done.returncode, done.stdout, done.stderr]), flush=True)
+        continue
+    out, err = os.path.join(folder, "out"), os.path.join(folder, "err")
+    sys.stdout.flush()
+    pid = os.fork()
+    if pid == 0:
+        os.dup2(os.open(out, os.O_WRONLY | os.O_CREAT | os.O_TRUNC), 1)
+        os.dup2(os.open(err, os.O_WRONLY | os.O_CREAT | os.O_TRUNC), 2)
+        if cwd is not None:
+            os.chdir(cwd)
+        child(argv)
+    status = os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1])
+    print(json.dumps([status, open(out).read(), open(err).read()]), flush=True)
+"""
+
+
+def run_forked(commands: list, cwd: Path, env: dict,
+               timeout: float = 600) -> list[tuple[int, str, str]]:
+    """Each command's exit status, stdout and stderr, run in ``cwd`` by :data:`FORKING_RUNNER`."""
+    done = subprocess.run([sys.executable, "-c", FORKING_RUNNER, json.dumps(commands)], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=timeout)
+    results = [tuple(json.loads(line)) for line in done.stdout.splitlines()]
+    assert done.returncode == 0 and len(results) == len(commands), done.stderr
+    return results
 
 
 @pytest.fixture

@@ -1,19 +1,18 @@
 """Every code block of the README and of the user guide's pages that hold code (docs/index.md,
-docs/commands.md, docs/python.md) runs: the Python blocks in a fresh interpreter each, and every
+docs/commands.md, docs/python.md) runs: the Python blocks in a fresh process each, and every
 ``qcontrol`` command of the shell blocks, in a folder holding the scenarios and models (the install
 and test commands are what CI itself runs). The README stays one screenful that links into the
 documentation, and its headline is the shipped reproduction."""
 
 from __future__ import annotations
 
+import os
 import re
 import shlex
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
-from conftest import ROOT
+from conftest import ROOT, run_forked
 
 from qcontrol.cli import main
 
@@ -71,18 +70,36 @@ def test_the_readmes_headline_is_the_shipped_reproduction() -> None:
         assert rows[label] == [round(v, 4) for v in shipped["ours"]["mujoco"][method].values()]
 
 
-@pytest.mark.parametrize("block", PYTHON_BLOCKS + GUIDE_PYTHON,
-                         ids=[f"block{i}" for i in range(len(PYTHON_BLOCKS + GUIDE_PYTHON))])
-def test_python_block_runs(workplace: Path, block: str) -> None:
-    result = subprocess.run([sys.executable, "-c", block], cwd=workplace, capture_output=True, text=True,
-                            timeout=300)
-    assert result.returncode == 0, result.stderr
+BLOCKS = PYTHON_BLOCKS + GUIDE_PYTHON
+
+
+@pytest.fixture(scope="module")
+def block_runs(tmp_path_factory: pytest.TempPathFactory) -> list[tuple[int, str, str]]:
+    """Each Python block run as ``python -c BLOCK`` in a folder of its own holding the scenarios and
+    models, each in a fresh process (a fork of one interpreter that has imported the package and
+    run nothing, conftest's runner): its exit status, stdout and stderr."""
+    root = tmp_path_factory.mktemp("blocks")
+    commands = []
+    for i, block in enumerate(BLOCKS):
+        folder = root / f"block{i}"
+        folder.mkdir()
+        for name in ("scenarios", "models"):
+            (folder / name).symlink_to(ROOT / name)
+        commands.append({"argv": ["python", "-c", block], "cwd": str(folder)})
+    return run_forked(commands, root, dict(os.environ), timeout=300)
+
+
+@pytest.mark.parametrize("i", range(len(BLOCKS)), ids=[f"block{i}" for i in range(len(BLOCKS))])
+def test_python_block_runs(block_runs: list[tuple[int, str, str]], i: int) -> None:
+    status, _, err = block_runs[i]
+    assert status == 0, err
 
 
 # Commands run with a shorter horizon: the README's full `qcontrol reproduce` (paper's 10 s horizon,
-# the robustness study: minutes of CPU) runs with --quick appended; its whole pipeline at a short
-# horizon is tests/test_reproduce.py's, and its numbers are the committed docs/reproduction/*.json.
-SHORTENED = {"reproduce": ["--quick"]}
+# the robustness study: minutes of CPU) runs with --quick and 0.3 s runs appended; its whole
+# pipeline at a short horizon is tests/test_reproduce.py's, and its numbers are the committed
+# docs/reproduction/*.json.
+SHORTENED = {"reproduce": ["--quick", "--duration", "0.3"]}
 
 
 @pytest.mark.parametrize("command", sorted(set(_commands()).union(*(_commands(t) for t in GUIDE.values()))))

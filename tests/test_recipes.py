@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import ROOT
+from conftest import ROOT, run_forked
 
 PAGE = ROOT / "docs" / "architecture.md"
 RECIPES = {"law": "**A control law in the package**", "backend": "**A plant backend**",
@@ -61,72 +61,20 @@ def place(text: str, root: Path) -> bool:
     return True
 
 
-# Runs the commands of argv[1] (a JSON list of argv lists; ["python", "-c", text] for a script)
-# each as the process it names would: `qcontrol ...` through the console script's entry point,
-# `python FILE`, `python -m MODULE` and `python -c TEXT` as the interpreter runs them, anything
-# else (git) as a subprocess. A command runs in a fork of this interpreter, which has imported
-# the package (the copy's, as the recipe left it) and run nothing: what a fresh process is once it
-# has imported the package, without starting a dozen interpreters. Prints one JSON line per
-# command: its exit status, stdout and stderr.
-RUNNER = """
-import json, os, runpy, subprocess, sys, tempfile
-import qcontrol, qcontrol._entry, qcontrol.cli
-
-
-def child(argv):
-    if argv[0] == "qcontrol":
-        sys.argv = argv
-        sys.exit(qcontrol._entry.main())
-    if argv[1] == "-c":
-        sys.argv, sys.path[0] = ["-c", *argv[3:]], ""
-        exec(compile(argv[2], "<string>", "exec"), {"__name__": "__main__", "__builtins__": __builtins__})
-    elif argv[1] == "-m":
-        sys.argv, sys.path[0] = argv[2:], os.getcwd()
-        runpy.run_module(argv[2], run_name="__main__", alter_sys=True)
-    else:
-        sys.argv, sys.path[0] = argv[1:], os.path.dirname(os.path.abspath(argv[1]))
-        runpy.run_path(argv[1], run_name="__main__")
-    sys.exit(0)
-
-
-folder = tempfile.mkdtemp()
-for argv in json.loads(sys.argv[1]):
-    if argv[0] not in ("python", "qcontrol"):
-        done = subprocess.run(argv, capture_output=True, text=True)
-        print(json.dumps([done.returncode, done.stdout, done.stderr]), flush=True)
-        continue
-    out, err = os.path.join(folder, "out"), os.path.join(folder, "err")
-    sys.stdout.flush()
-    pid = os.fork()
-    if pid == 0:
-        os.dup2(os.open(out, os.O_WRONLY | os.O_CREAT | os.O_TRUNC), 1)
-        os.dup2(os.open(err, os.O_WRONLY | os.O_CREAT | os.O_TRUNC), 2)
-        child(argv)
-    status = os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1])
-    print(json.dumps([status, open(out).read(), open(err).read()]), flush=True)
-"""
-
-
-def run_all(commands: list[list[str]], root: Path, env: dict) -> list[tuple[int, str, str]]:
-    """Each command's exit status, stdout and stderr, run in the copy by :data:`RUNNER`."""
-    done = subprocess.run([sys.executable, "-c", RUNNER, json.dumps(commands)], cwd=root, env=env,
-                          capture_output=True, text=True, timeout=TIMEOUT)
-    results = [tuple(json.loads(line)) for line in done.stdout.splitlines()]
-    assert done.returncode == 0 and len(results) == len(commands), done.stderr
-    return results
-
-
 def run(commands: list[list[str]], root: Path, env: dict) -> list[str]:
     """Each command's stdout; every command must exit 0."""
     outputs = []
-    for command, (status, out, err) in zip(commands, run_all(commands, root, env), strict=True):
+    for command, (status, out, err) in zip(commands, run_forked(commands, root, env, TIMEOUT), strict=True):
         assert status == 0, f"{shlex.join(command)}: {status}\n{out}\n{err}"
         outputs.append(out)
     return outputs
 
 
-def perform(name: str, root: Path) -> dict[str, str]:
-    """Every step of the recipe, in a copy of the repository at ``root``: each command's output."""
+def perform(name: str, root: Path, then: tuple[str, ...] = ()) -> dict[str, str]:
+    """Every step of the recipe, in a copy of the repository at ``root``: each command's output.
+    ``then``: Python scripts run in the copy once the recipe is done (as ``python -c``, each in a
+    fork of the interpreter that ran the recipe's last commands); the stdout of ``then[i]`` is
+    the output named ``then i``."""
     for item in COPIED:
         source = ROOT / item
         if source.is_dir():
@@ -161,14 +109,11 @@ def perform(name: str, root: Path) -> dict[str, str]:
         elif language == "python":
             names.append("python")
             commands.append(["python", "-c", text])
+    for i, script in enumerate(then):
+        names.append(f"then {i}")
+        commands.append(["python", "-c", script])
     run_pending()
     return outputs
-
-
-def in_copy(root: Path, script: str) -> dict:
-    """What ``script`` (run in the copy, with its package) prints as JSON."""
-    env = dict(os.environ, PYTHONPATH=str(root), HOME=str(root / "home"))
-    return json.loads(run([["python", "-c", script]], root, env)[0])
 
 
 def test_every_recipe_names_where_each_block_goes() -> None:
@@ -181,10 +126,7 @@ def test_every_recipe_names_where_each_block_goes() -> None:
 
 
 def test_recipe_a_control_law(tmp_path) -> None:
-    outputs = perform("law", tmp_path)
-    assert "ok" in next(out for line, out in outputs.items() if line.startswith("qcontrol check"))
-    assert '### [controller] kind = "damped"' in (tmp_path / "docs" / "scenarios.md").read_text()
-    seen = in_copy(tmp_path, """
+    outputs = perform("law", tmp_path, then=("""
 import json
 import numpy as np
 import qcontrol
@@ -193,7 +135,10 @@ sc = qcontrol.load_scenario("example2", {"controller.kind": "damped", "controlle
 res = qcontrol.run(sc, backend="ode")
 print(json.dumps({"c": list(sc.controller.c), "x_q": res.x_q.tolist(), "yd": res.yd.tolist(),
                   "u": res.u.tolist()}))
-""")
+""",))
+    assert "ok" in next(out for line, out in outputs.items() if line.startswith("qcontrol check"))
+    assert '### [controller] kind = "damped"' in (tmp_path / "docs" / "scenarios.md").read_text()
+    seen = json.loads(outputs["then 0"])
     for k in (0, 100, 300):  # u = alphabar_n - gain zbar_n from eqs. (31)-(34), computed here
         import qcontrol
 
@@ -211,13 +156,13 @@ def _optional_parts_default() -> bool:
 @pytest.mark.skipif(not _optional_parts_default(), reason="a plant's optional parts have no defaults yet: "
                     "run and check read PhysicsReport unguarded")
 def test_recipe_a_plant_backend(tmp_path) -> None:
-    perform("backend", tmp_path)
-    seen = in_copy(tmp_path, """
+    outputs = perform("backend", tmp_path, then=("""
 import json
 import qcontrol
 res = qcontrol.run(qcontrol.load_scenario("example2", {"simulation.duration": 0.3}), backend="euler")
 print(json.dumps({"x": res.x.tolist(), "u": res.u.tolist(), "dt": res.summary["dt"]}))
-""")
+""",))
+    seen = json.loads(outputs["then 0"])
     x, u, h = np.array(seen["x"]), np.array(seen["u"]), seen["dt"]
     theta = (-1.0, -3.5, -34.3)  # example2.toml: phi = [x2, x2**2 cos(x1), sin(x1)], no psi
     phi = np.column_stack([x[:-1, 1], x[:-1, 1] ** 2 * np.cos(x[:-1, 0]), np.sin(x[:-1, 0])])
@@ -226,13 +171,7 @@ print(json.dumps({"x": res.x.tolist(), "u": res.u.tolist(), "dt": res.summary["d
 
 
 def test_recipe_a_recorded_signal(tmp_path) -> None:
-    outputs = perform("signal", tmp_path)
-    assert "ok" in next(out for line, out in outputs.items() if line.startswith("qcontrol check"))
-    written = json.loads((tmp_path / "sensor-run" / "summary.json").read_text())
-    assert list(written).index("max_abs_sensor_error") == list(written).index("saturated_fraction") + 1
-    largest, independent = (float(v) for v in outputs["python"].split())
-    assert largest == independent > 0.0  # the reduction is the largest |x_meas - x|, computed here too
-    seen = in_copy(tmp_path, """
+    outputs = perform("signal", tmp_path, then=("""
 import json
 import qcontrol
 from qcontrol.recording import series
@@ -244,7 +183,13 @@ rows = qcontrol.sweep(sc, grid={"controller.delta": [0.01, 0.02]}, backend="mujo
 print(json.dumps({"error": res.sensor_error.tolist(), "x": res.x.tolist(), "x_meas": res.x_meas.tolist(),
                   "old": old.max_abs_sensor_error, "sweep": [r["max_abs_sensor_error"] for r in rows],
                   "paths": sorted({s.path for s in series.run_series(res.trajectory, "mujoco")})}))
-""")
+""",))
+    assert "ok" in next(out for line, out in outputs.items() if line.startswith("qcontrol check"))
+    written = json.loads((tmp_path / "sensor-run" / "summary.json").read_text())
+    assert list(written).index("max_abs_sensor_error") == list(written).index("saturated_fraction") + 1
+    largest, independent = (float(v) for v in outputs["python"].split())
+    assert largest == independent > 0.0  # the reduction is the largest |x_meas - x|, computed here too
+    seen = json.loads(outputs["then 0"])
     np.testing.assert_array_equal(seen["error"], np.array(seen["x_meas"]) - np.array(seen["x"]))
     assert np.abs(np.array(seen["error"])[:, 1]).max() == 0.0  # noise on x1 only
     assert seen["old"] is None and all(v > 0 for v in seen["sweep"])
@@ -257,7 +202,7 @@ def test_recipe_a_command(tmp_path) -> None:
     assert steps == "example2: 250 steps\n"
     env = dict(os.environ, PYTHONPATH=str(tmp_path), HOME=str(tmp_path / "home"))
     refused = ["python", "-m", "qcontrol", "steps", "example2", "--set", "controller.c=1"]
-    [(status, _, err)] = run_all([refused], tmp_path, env)
+    [(status, _, err)] = run_forked([refused], tmp_path, env)
     assert status == 2 and err.count("\n") == 1 and "controller" in err
 
 
