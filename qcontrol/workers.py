@@ -56,8 +56,13 @@ def worker_pool(workers: int) -> multiprocessing.pool.Pool:
     ``terminate()`` on every exit path (a ``finally``), so an error, Ctrl-C or SIGTERM stops the
     workers at once."""
     context = multiprocessing.get_context("fork")
-    with _signals_after_forking(), _frozen_heap():
-        return context.Pool(workers, initializer=_worker_start, initargs=(os.getpid(),))
+    with _signals_after_forking() as caught, _frozen_heap():
+        pool = context.Pool(workers, initializer=_worker_start, initargs=(os.getpid(),))
+    if caught:  # the command was asked to stop while the workers forked: they are not left running
+        pool.terminate()
+        for signum in caught:
+            signal.raise_signal(signum)
+    return pool
 
 
 @contextmanager
@@ -77,14 +82,15 @@ def _frozen_heap() -> Iterator[None]:
 
 
 @contextmanager
-def _signals_after_forking() -> Iterator[None]:
-    """Ctrl-C or SIGTERM arriving while the pool forks its workers is acted on once they are
-    forked. Python runs a signal's handler at the next line of Python, which may be one of the
-    hooks run around a fork (logging's lock), and it ignores an exception raised there: the
-    command's "stop now" would be printed as "Exception ignored" and lost, and the command would
-    run on. A child forked meanwhile ends on the signal as it would without a handler."""
+def _signals_after_forking() -> Iterator[list[int]]:
+    """Ctrl-C or SIGTERM arriving while the pool forks its workers is held, and given (the list
+    yielded) for :func:`worker_pool` to act on once they are forked. Python runs a signal's handler
+    at the next line of Python, which may be one of the hooks run around a fork (logging's lock),
+    and it ignores an exception raised there: the command's "stop now" would be printed as
+    "Exception ignored" and lost, and the command would run on. A child forked meanwhile ends on
+    the signal as it would without a handler. If forking fails, a held signal is acted on here."""
     if threading.current_thread() is not threading.main_thread():
-        yield
+        yield []
         return
     parent, caught = os.getpid(), []
 
@@ -97,9 +103,12 @@ def _signals_after_forking() -> Iterator[None]:
 
     previous = {signum: signal.signal(signum, hold) for signum in (signal.SIGINT, signal.SIGTERM)}
     try:
-        yield
-    finally:
+        yield caught
+    except BaseException:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
         for signum in caught:
             signal.raise_signal(signum)
+        raise
+    for signum, handler in previous.items():
+        signal.signal(signum, handler)
