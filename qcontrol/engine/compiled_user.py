@@ -30,7 +30,7 @@ from .compiled_batch import CompiledBatch, Redo
 from .compiled_loop import COMPILED_LAWS, MIN_ROWS, CompiledLoop, TracedParts, numba_pays, traced_parts
 from .fastpath import single_copy, single_copy_quantizer
 from .spec import RunSpec
-from .user_numpy import compiled_fma
+from .user_numpy import compiled_fma, same_bits
 from .user_trace import (
     CHECKS,
     COMPILED,
@@ -39,7 +39,6 @@ from .user_trace import (
     check_points,
     python_calls,
     quietly,
-    same_bits,
     trace_law,
     unchanged,
     why_not,

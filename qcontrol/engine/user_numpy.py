@@ -97,7 +97,8 @@ def _probe_values(count: int, seed: int) -> np.ndarray:
     return np.concatenate([special, values])
 
 
-def _same(a: float, b: float) -> bool:
+def same_bits(a: float, b: float) -> bool:
+    """Whether two floats are the same to the bit (the sign of zero included; any NaN is any NaN)."""
     return (math.isnan(a) and math.isnan(b)) or (a == b and math.copysign(1, a) == math.copysign(1, b))
 
 
@@ -126,7 +127,7 @@ def dot_model_holds(k: int) -> bool:
             a[0], b[0] = -(1.0 + 2.0 ** -29), 1.0
             a[-1], b[-1] = (1.0 + 2.0 ** -30), (1.0 + 2.0 ** -30)
         numpy_product = float(np.ascontiguousarray(a) @ np.ascontiguousarray(b))
-        if not _same(numpy_product, dot_model(a.tolist(), b.tolist())):
+        if not same_bits(numpy_product, dot_model(a.tolist(), b.tolist())):
             return False
     return True
 
@@ -163,7 +164,7 @@ def same_as_math(ufunc: np.ufunc) -> bool:
     lengths += [(i, i + k) for k in range(1, 17) for i in range(0, 4000, 97)]
     for (start, stop), got in zip(lengths, results, strict=True):
         for w, g in zip(wanted[start:stop], got, strict=False):
-            if w is not None and not _same(w, float(g)):
+            if w is not None and not same_bits(w, float(g)):
                 return False
     return True
 

@@ -48,7 +48,7 @@ import numpy as np
 from ..compiled.traced import Symbol, recording
 from ..controller.user import FastCalls, UserLaw, advances_itself, sample
 from .compiled_loop import CONTROL_REFUSED
-from .user_numpy import TracedInputs, UserSymbol, UserTrace, fma, inputs, traced_names
+from .user_numpy import TracedInputs, UserSymbol, UserTrace, fma, inputs, same_bits, traced_names
 
 COMPILED = "compiled"  # UserLaw.compiled_form of a law that has a compiled form
 CHECKS = 8  # samples at which the traced lines must equal the law's Python, bit for bit
@@ -191,10 +191,6 @@ def check_points(n: int, m: int, state0: np.ndarray, seed: int) -> list[tuple]:
         points.append((float(rng.uniform(0, 10)) * (i > 0), rng.normal(0, scale, n),
                        rng.normal(0, scale, n + 1), state0 + rng.normal(0, scale, m)))
     return points
-
-
-def same_bits(a: float, b: float) -> bool:
-    return (math.isnan(a) and math.isnan(b)) or (a == b and math.copysign(1, a) == math.copysign(1, b))
 
 
 class QuietFunction:
