@@ -351,15 +351,14 @@ def python_calls(trace: CopyTrace, n: int, m: int) -> FastCalls:
     Python loop (:attr:`UserLaw.fast`): ``control(q.., yd.., state.., t) -> u`` and
     ``advance(q.., yd.., t, state..) -> state``, None where the compiled loop would hand over.
     The same lines the check ran, with the arrays' entries as locals and the constants as
-    literals: the same operations on the same numbers. (The same trace again, as a law's next
-    run gives: the functions made for it before, without rewriting its lines.)"""
+    literals: the same operations on the same numbers. The same trace again (a law's next run,
+    or another law tracing to the same lines and constants) gives the functions made before."""
     traced = (n, m, tuple(trace.control), tuple(trace.advance), repr(tuple(trace.constants)))
-    if traced in _CALLS_BY_TRACE:
-        return _CALLS_BY_TRACE[traced]
-    if len(_CALLS_BY_TRACE) > 64:
-        _CALLS_BY_TRACE.clear()
-    _CALLS_BY_TRACE[traced] = _calls_of(trace, n, m)
-    return _CALLS_BY_TRACE[traced]
+    if traced not in _CALLS:
+        if len(_CALLS) > 64:
+            _CALLS.clear()
+        _CALLS[traced] = _calls_of(trace, n, m)
+    return _CALLS[traced]
 
 
 def _calls_of(trace: CopyTrace, n: int, m: int) -> FastCalls:
@@ -371,19 +370,12 @@ def _calls_of(trace: CopyTrace, n: int, m: int) -> FastCalls:
                         f"def advance({', '.join([*sample, *a])}, lp=lp):",
                         *[_renamed(line, constants) for line in trace.advance],
                         f"    return ({''.join(v + ', ' for v in a)})"])
-    # the same law again: the same text (its constants written in it, the others in the key)
-    key = source + repr([c for c in trace.constants if not math.isfinite(c)])
-    if key not in _CALLS:
-        if len(_CALLS) > 64:
-            _CALLS.clear()
-        names = {"math": math, "np": np, "fma": fma, "lp": tuple(trace.constants)}
-        exec(compile(source, "<traced law>", "exec"), names)  # noqa: S102 (text made by the tracer alone)
-        _CALLS[key] = FastCalls(names["control"], names["advance"])
-    return _CALLS[key]
+    names = {"math": math, "np": np, "fma": fma, "lp": tuple(trace.constants)}
+    exec(compile(source, "<traced law>", "exec"), names)  # noqa: S102 (text made by the tracer alone)
+    return FastCalls(names["control"], names["advance"])
 
 
-_CALLS: dict[str, FastCalls] = {}  # the functions of python_calls by their text
-_CALLS_BY_TRACE: dict[tuple, FastCalls] = {}  # and by the trace they were made from
+_CALLS: dict[tuple, FastCalls] = {}  # the functions of python_calls by the trace they are made from
 
 
 class Literals:
