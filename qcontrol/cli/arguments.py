@@ -1,7 +1,7 @@
 """What the commands share on the command line: the exit statuses, the parser whose usage errors
 are one line, the scenario options (a scenario file and ``--set``, ``--unset``, ``--duration``,
-``--dt``, ``-q``) and the scenario they name, the recording options, and the output checks made
-before anything runs."""
+``--dt``, ``-q``) and the scenario they name, the recording options, where a sweep's or a region's
+runs go (``--workers``, ``--scheduler``), and the output checks made before anything runs."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ from ..plants import BACKENDS
 from ..progress import ProgressLine
 from ..resources import shipped_scenarios
 from ..scenario import Scenario, load_scenario
+from ..sweep.runs import DASK_CONNECT_TIMEOUT
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_WRITE_FAILED, EXIT_LAW_FAILED = 0, 1, 2, 3, 4
 EXIT_INTERRUPTED, EXIT_TERMINATED = 130, 143
@@ -58,6 +59,17 @@ def add_scenario_options(p: argparse.ArgumentParser, *, timing: bool = True, sce
         p.add_argument("--duration", type=float, metavar="S", help="simulated time in seconds")
         p.add_argument("--dt", type=float, metavar="S", help="integration step in seconds")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+
+
+def add_parallel_options(p: argparse.ArgumentParser) -> None:
+    """``--workers`` and ``--scheduler``: where the runs of a sweep or a region go (the same numbers
+    wherever they run)."""
+    p.add_argument("--workers", type=int, default=1, metavar="N",
+                   help="local worker processes, at most (default 1; runs too few to repay starting "
+                   "workers stay in this process)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="send the runs to a running Dask scheduler (needs qcontrol[cluster]); one that "
+                   f"does not complete Dask's handshake within {DASK_CONNECT_TIMEOUT:g} s is refused")
 
 
 def backend_names() -> str:

@@ -18,8 +18,15 @@ from ..provenance import command_line
 from ..region import BOX, check_region_size, default_laws, measure_region, parse_grid, parse_law, write_region
 from ..scenario import load_scenario
 from ..scenario.resolve import scenario_provenance
-from ..sweep.runs import DASK_CONNECT_TIMEOUT, SweepInterrupted
-from .arguments import EXIT_OK, add_scenario_options, backend_names, options_named, timing_overrides
+from ..sweep.runs import SweepInterrupted
+from .arguments import (
+    EXIT_OK,
+    add_parallel_options,
+    add_scenario_options,
+    backend_names,
+    options_named,
+    timing_overrides,
+)
 from .printing import report_law_failures
 
 
@@ -48,10 +55,7 @@ def add_region_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--resolution", type=int, default=21, metavar="N", help="points per axis (default 21)")
     p.add_argument("--backend", metavar=backend_names(), default="ode",
                    help="plant backend (default ode: batched; mujoco on request)")
-    p.add_argument("--workers", type=int, default=1, metavar="N", help="local worker processes (default 1)")
-    p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="send the runs to a running Dask scheduler (needs qcontrol[cluster]); one that "
-                   f"does not complete Dask's handshake within {DASK_CONNECT_TIMEOUT:g} s is refused")
+    add_parallel_options(p)
     p.add_argument("--out", type=Path, default=Path("region"), metavar="DIR",
                    help="output folder (default ./region)")
     p.set_defaults(command_line=None)

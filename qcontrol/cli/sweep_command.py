@@ -28,9 +28,9 @@ from ..provenance import command_line
 from ..scenario import Scenario, load_scenario
 from ..scenario.resolve import scenario_provenance
 from ..sweep.grid import check_size, grid_points, parse_grid
-from ..sweep.runs import DASK_CONNECT_TIMEOUT, SweepInterrupted, planned, sweep_summaries
+from ..sweep.runs import SweepInterrupted, planned, sweep_summaries
 from ..sweep.table import csv_text, metric_columns, sweep_record, sweep_rows
-from .arguments import EXIT_OK, add_scenario_options, backend_names, options_named
+from .arguments import EXIT_OK, add_parallel_options, add_scenario_options, backend_names, options_named
 from .printing import law_failed
 
 OUTPUTS = ("sweep.csv", "sweep.json", "sweep.png")
@@ -65,10 +65,7 @@ def add_sweep_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="seed of --random-initial, 0 to 2**63 - 1 (default 0)")
     p.add_argument("--backend", metavar=backend_names(),
                    help="plant backend (default: the scenario's; --backend ode runs batched and is faster)")
-    p.add_argument("--workers", type=int, default=1, metavar="N", help="local worker processes (default 1)")
-    p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="send the runs to a running Dask scheduler (needs qcontrol[cluster]); one that "
-                   f"does not complete Dask's handshake within {DASK_CONNECT_TIMEOUT:g} s is refused")
+    add_parallel_options(p)
     p.add_argument("--out", type=Path, default=Path("sweep"), metavar="DIR",
                    help="output folder (default: ./sweep)")
     p.set_defaults(command_line=None)  # the command line's main() names the command it runs
