@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from itertools import repeat
 from typing import NamedTuple
 
 import numpy as np
@@ -215,14 +216,15 @@ def elementwise(f: Callable[..., float]) -> Callable[..., np.ndarray | float]:
     each other and against plain numbers): a float for plain operands, else an array."""
 
     def each(*operands: np.ndarray | float) -> np.ndarray | float:
-        if not any(isinstance(a, np.ndarray) and a.ndim for a in operands):
+        shapes = {a.shape for a in operands if isinstance(a, np.ndarray) and a.ndim}
+        if not shapes:
             return f(*[float(a) for a in operands])
-        if len(operands) == 1:
-            a = operands[0]
-            return np.fromiter(map(f, a.ravel().tolist()), float, a.size).reshape(a.shape)
-        arrays = np.broadcast_arrays(*operands)
-        shape = arrays[0].shape
-        lists = [a.ravel().tolist() for a in arrays]
+        if len(shapes) > 1:
+            operands = tuple(np.broadcast_arrays(*operands))
+            shapes = {operands[0].shape}
+        (shape,) = shapes
+        lists = [a.ravel().tolist() if isinstance(a, np.ndarray) and a.ndim else repeat(float(a))
+                 for a in operands]
         return np.fromiter(map(f, *lists), float, math.prod(shape)).reshape(shape)
 
     return each
