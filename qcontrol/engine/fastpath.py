@@ -39,6 +39,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable, Sequence
+from functools import partial
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -319,8 +320,7 @@ class CopyRows(ArrayRows):
     :class:`ArrayPlantAsFloats`)."""
 
     def quantizer(self, quantizer: Quantizer) -> Quantize:
-        max_error = quantizer.max_error
-        return lambda readings: QuantizedReading(quantizer(readings), max_error, form=COPIES)
+        return partial(copies_reading, quantizer)
 
     def plant_io(self, plant: Plant, h: float) -> ColumnIO | ArrayIO:
         if isinstance(plant, ColumnStepping):
@@ -330,11 +330,18 @@ class CopyRows(ArrayRows):
     def law(self, law: BatchLaw, h: float) -> tuple[Callable[..., Any], Advance]:
         if isinstance(law, AnyColumnForm):
             return law.control, law.advancer_in(COPIES, h)
+        return partial(array_control, law), law.advancer(h)
 
-        def control(reading: QuantizedReading, yd: Sequence[float], state: Columns, t: float = 0.0) -> Any:
-            return law.control(QuantizedReading(reading.values, reading.max_error), yd, state, t)
 
-        return control, law.advancer(h)
+def copies_reading(quantizer: Quantizer, readings: np.ndarray) -> QuantizedReading:
+    """A batch's ``(batch, n)`` readings quantized, the reading in :data:`COPIES`."""
+    return QuantizedReading(quantizer(readings), quantizer.max_error, form=COPIES)
+
+
+def array_control(law: BatchLaw, reading: QuantizedReading, yd: Sequence[float], state: Columns,
+                  t: float = 0.0) -> Any:
+    """``law.control`` of a law with only the array form, given the reading in the array form."""
+    return law.control(QuantizedReading(reading.values, reading.max_error), yd, state, t)
 
 
 class ColumnsAsArrays:
