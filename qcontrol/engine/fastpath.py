@@ -39,21 +39,23 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable, Sequence
+from functools import partial
 from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..columns import Column, Parameter
+from ..columns import ArrayForm, Column, Combination, Parameter
 from ..controller.backstepping import Advance, Columns
 from ..controller.law import AnyColumnForm, BatchLaw
 from ..expr import FLOAT_REFUSED, Expression, FloatCombination, FloatTerms
+from ..expr.generators import elementwise
 from ..plants.base import ColumnIO, ColumnStepping, Plant
 from ..quantizer import QuantizedReading, Quantizer, UniformQuantizer
 from . import velocity
 from .compiled_batch import CompiledBatch, compiled_batch
 from .compiled_loop import CompiledLoop
 from .compiled_loop import compiled_loop as compiled_loop_of
-from .row_buffer import ArrayRows, RowBuffer
+from .row_buffer import ArrayIO, ArrayRows, RowBuffer
 from .signals import RECORDED
 from .spec import RunSpec
 
@@ -277,8 +279,86 @@ def compiled_loop(spec: RunSpec) -> CompiledLoop | CompiledBatch | None:
     return compiled_loop_of(spec) if spec.plant.batch == 1 else compiled_batch(spec)
 
 
-def rows_for(buffer: RowBuffer, batch: int, state_bound: float) -> FloatRows | ArrayRows:
+class CopiesForm(ArrayForm):
+    """The form a batch of copies steps in: ``(batch,)`` numpy columns, as in the array form, but
+    every value a function gives is what the float form gives that copy (expressions by
+    :meth:`~qcontrol.expr.Expression.on_copies`, ``math.expm1`` element by element), where numpy's
+    own exp, pow, ... may round otherwise: so each copy's numbers are its run alone's. What is
+    computed from a record keeps the array form (numpy's functions, for a batch and a single run
+    alike)."""
+
+    expm1 = staticmethod(elementwise(math.expm1))
+
+    def terms(self, expressions: Sequence[Expression]) -> CopiesTerms:
+        return CopiesTerms(expressions)
+
+    def combination(self, expressions: Sequence[Expression], coefficients: Sequence[Parameter | None]
+                    ) -> Combination:
+        return Combination(tuple(zip(coefficients, (e.on_copies for e in expressions), strict=True)))
+
+    def __repr__(self) -> str:
+        return "COPIES"
+
+
+class CopiesTerms:
+    """Expressions evaluated on a batch's columns, each copy's values its run alone's."""
+
+    def __init__(self, expressions: Sequence[Expression]) -> None:
+        self.functions = tuple(e.on_copies for e in expressions)
+
+    def __call__(self, columns: Sequence[Column]) -> list[Column]:
+        return [f(columns) for f in self.functions]
+
+
+COPIES = CopiesForm()
+
+
+class CopyRows(ArrayRows):
+    """A batch of copies in :data:`COPIES`: the reading, a law whose formulas serve any form and a
+    plant that steps in any form are in it; a law or a plant with only the array form is driven
+    in the array form, as a run alone drives it (:class:`ArrayLawAsFloats`,
+    :class:`ArrayPlantAsFloats`)."""
+
+    def quantizer(self, quantizer: Quantizer) -> Quantize:
+        return partial(copies_reading, quantizer)
+
+    def plant_io(self, plant: Plant, h: float) -> ColumnIO | ArrayIO:
+        if isinstance(plant, ColumnStepping):
+            return ColumnsAsArrays(plant.column_io(COPIES, h), plant.batch)
+        return ArrayIO(plant, h)
+
+    def law(self, law: BatchLaw, h: float) -> tuple[Callable[..., Any], Advance]:
+        if isinstance(law, AnyColumnForm):
+            return law.control, law.advancer_in(COPIES, h)
+        return partial(array_control, law), law.advancer(h)
+
+
+def copies_reading(quantizer: Quantizer, readings: np.ndarray) -> QuantizedReading:
+    """A batch's ``(batch, n)`` readings quantized, the reading in :data:`COPIES`."""
+    return QuantizedReading(quantizer(readings), quantizer.max_error, form=COPIES)
+
+
+def array_control(law: BatchLaw, reading: QuantizedReading, yd: Sequence[float], state: Columns,
+                  t: float = 0.0) -> Any:
+    """``law.control`` of a law with only the array form, given the reading in the array form."""
+    return law.control(QuantizedReading(reading.values, reading.max_error), yd, state, t)
+
+
+class ColumnsAsArrays:
+    """A plant's observe in a form's columns, given as the ``(batch, n)`` arrays the loop records."""
+
+    def __init__(self, io: ColumnIO, batch: int) -> None:
+        self.io, self.batch, self.step = io, batch, io.step
+
+    def observe(self) -> tuple[np.ndarray, np.ndarray]:
+        x, meas = self.io.observe()
+        state = COPIES.array(x, self.batch)
+        return state, state if meas is x else COPIES.array(meas, self.batch)
+
+
+def rows_for(buffer: RowBuffer, batch: int, state_bound: float) -> FloatRows | CopyRows:
     """The loop's rows for a run, the one place the form is chosen: floats for a batch of one,
-    ``(batch,)`` columns otherwise. Each offers the loop the quantizer, the plant's and the law's
-    observe/step/control/advance in its form."""
-    return FloatRows(buffer) if batch == 1 else ArrayRows(buffer, state_bound)
+    ``(batch,)`` columns whose values are each copy's float form's otherwise (:data:`COPIES`).
+    Each offers the loop the quantizer, the plant's and the law's observe/step/control/advance in
+    its form."""
+    return FloatRows(buffer) if batch == 1 else CopyRows(buffer, state_bound)

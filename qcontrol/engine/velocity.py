@@ -57,4 +57,4 @@ class ArrayDifferencing:
             self.past.extend([q1] * self.hold)
         out[:, 1] = differenced(q1, self.past[0], self.period)
         self.past.append(q1)
-        return QuantizedReading(out, q.max_error)
+        return QuantizedReading(out, q.max_error, form=q.form)

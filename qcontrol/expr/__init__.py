@@ -3,10 +3,12 @@
 Nonlinearities such as ``"x2**2 * cos(x1)"`` are parsed with :mod:`ast` once, checked node by node
 against a whitelist and turned into a small validated tree (numbers, variables, operations); user
 text is never passed to ``eval`` or ``exec``, and anything outside the whitelist is rejected with a
-message that names it. Two generators turn that tree into closures: numpy calls on columns
-(:meth:`Expression.__call__`, :meth:`Expression.on_columns`) and ``math`` calls on plain floats
-(:func:`scalar_function`, :meth:`Expression.on_floats`). Both read one table, :data:`OPERATIONS`:
-a row per operator, function and constant, with its numpy and its plain-float implementation.
+message that names it. Generators turn that tree into closures: numpy calls on columns
+(:meth:`Expression.__call__`, :meth:`Expression.on_columns`), ``math`` calls on plain floats
+(:func:`scalar_function`, :meth:`Expression.on_floats`), and the plain-float values on columns
+(:meth:`Expression.on_copies`: each copy of a batch computes what its run alone computes). All
+read one table, :data:`OPERATIONS`: a row per operator, function and constant, with its numpy and
+its plain-float implementation.
 
 Allowed: numbers, the declared variables (``x1..xn``, ``q1..qn``), ``pi``, ``+ - * / **``, unary
 ``-``/``+``, and calls to ``abs sqrt cbrt exp log sin cos tan tanh sign min max`` and
@@ -25,7 +27,7 @@ import numpy as np
 
 from ..errors import QcontrolInputError
 from .calculus import differentiate, text
-from .generators import columns_closure, float_closure
+from .generators import columns_closure, copies_closure, float_closure
 from .operations import FLOAT_REFUSED, NAMED, OPERATIONS, ColumnsFn, Operation, ScalarFn
 from .tree import (
     MAX_CONSTANT_EXPONENT,
@@ -118,6 +120,29 @@ class Expression:
     @cached_property
     def _scalar_fn(self) -> ScalarFn:
         return scalar_function(self)
+
+    def on_copies(self, columns: Sequence[np.ndarray | float]) -> np.ndarray | float:
+        """Evaluate on ``(batch,)`` columns (numbers shared by every copy beside them), each
+        element exactly :meth:`on_floats` of that copy's values: what the copy's run alone
+        computes (:func:`~.generators.copies_closure`; numpy's own exp, pow, ... may differ from
+        ``math``'s in the last bit, and :meth:`on_columns` keeps numpy's). Where ``math`` refuses
+        some copy's value, every copy is evaluated by :meth:`on_floats`, numpy's answer where it
+        refuses."""
+        try:
+            return self._copies_fn(columns)
+        except FLOAT_REFUSED:
+            pass
+        arrays = [c for c in columns if isinstance(c, np.ndarray) and c.ndim]
+        if not arrays:
+            return self.on_floats([float(c) for c in columns])
+        shape = np.broadcast_shapes(*(a.shape for a in arrays))
+        each = [np.broadcast_to(c, shape).ravel().tolist() for c in columns]
+        values = [self.on_floats(copy) for copy in zip(*each, strict=True)]
+        return np.array(values, dtype=float).reshape(shape)
+
+    @cached_property
+    def _copies_fn(self) -> ColumnsFn:
+        return copies_closure(self._tree)
 
 
 def compile_expression(source: object, variables: Sequence[str], where: str = "expression") -> Expression:

@@ -1,15 +1,18 @@
-"""The two code generators: a validated tree -> numpy calls on columns, and -> ``math`` calls on
-plain floats (the hot loops of a batch of one and MuJoCo's passive callback). Both read the rows of
+"""The code generators: a validated tree -> numpy calls on columns, -> ``math`` calls on plain
+floats (the hot loops of a batch of one and MuJoCo's passive callback), and -> the float
+generator's values on columns (a batch of copies, each its run alone's). All read the rows of
 :data:`~qcontrol.expr.operations.OPERATIONS`."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
+from itertools import repeat
 from typing import NamedTuple
 
 import numpy as np
 
-from .operations import POWER, ColumnsFn, Operation, ScalarFn
+from .operations import FLOAT_REFUSED, POWER, ColumnsFn, Operation, ScalarFn
 from .tree import Number, Tree, Variable
 
 # --------------------------------------------------------------------------------------------
@@ -150,3 +153,78 @@ def _float_variadic(f: Callable[..., float], parts: list[ScalarFn]) -> ScalarFn:
         first, second = parts
         return lambda xs: f(first(xs), second(xs))
     return lambda xs: f(*[part(xs) for part in parts])
+
+
+# --------------------------------------------------------------------------------------------
+# Copies generator: validated tree -> closure over columns whose every element is the float
+# closure's value on that copy's floats (a batch of copies in the engine's loop)
+
+
+def copies_closure(node: Tree) -> ColumnsFn:
+    """``f(columns)`` on ``(batch,)`` columns (or plain floats), each element what
+    :func:`float_closure` gives on that copy's floats, to the last bit: the rows that are
+    ``same_on_arrays`` (``+ - *``, ``abs``, ...) and ``x**2`` (a product in both) run as numpy
+    calls on whole columns, every other row applies its ``on_floats`` element by element (numpy's
+    exp, pow, ... round differently from ``math``'s), and constant parts take the float
+    generator's values. Where ``on_floats`` refuses an element (:data:`FLOAT_REFUSED`), that
+    error is raised, as the float closure raises it (:meth:`qcontrol.expr.Expression.on_copies`
+    then evaluates copy by copy)."""
+    if node.constant is not None:
+        return _copies_constant(float_part(node))
+    if isinstance(node, Variable):
+        i = node.index
+        return lambda cols: cols[i]
+    row, parts = node.operation, [copies_closure(operand) for operand in node.operands]
+    if row is POWER and node.operands[1].constant == 2.0:
+        base = parts[0]
+
+        def square(cols: Sequence[np.ndarray]) -> np.ndarray:
+            a = base(cols)
+            return a * a
+
+        return square
+    fn = row.on_arrays if row.same_on_arrays else elementwise(row.on_floats)
+    if len(parts) == 1:
+        inner = parts[0]
+        return lambda cols: fn(inner(cols))
+    if len(parts) == 2 and row.arity is not None:
+        left, right = parts
+        return lambda cols: fn(left(cols), right(cols))
+    return lambda cols: fn(*[part(cols) for part in parts])
+
+
+def _copies_constant(part: _FloatPart) -> ColumnsFn:
+    """A constant part as the float closure computes it: folded, or a function of constants
+    (evaluated once here; where ``math`` refuses it, every evaluation raises the refusal)."""
+    if part.value is not None:
+        value = part.value
+        return lambda cols: value
+    try:
+        value = part.fn(())
+    except FLOAT_REFUSED as exc:
+        refusal = exc
+
+        def refused(cols: Sequence[np.ndarray]) -> float:
+            raise refusal
+
+        return refused
+    return lambda cols: value
+
+
+def elementwise(f: Callable[..., float]) -> Callable[..., np.ndarray | float]:
+    """``f`` of plain floats applied to each element of its operands (arrays broadcast against
+    each other and against plain numbers): a float for plain operands, else an array."""
+
+    def each(*operands: np.ndarray | float) -> np.ndarray | float:
+        shapes = {a.shape for a in operands if isinstance(a, np.ndarray) and a.ndim}
+        if not shapes:
+            return f(*[float(a) for a in operands])
+        if len(shapes) > 1:
+            operands = tuple(np.broadcast_arrays(*operands))
+            shapes = {operands[0].shape}
+        (shape,) = shapes
+        lists = [a.ravel().tolist() if isinstance(a, np.ndarray) and a.ndim else repeat(float(a))
+                 for a in operands]
+        return np.fromiter(map(f, *lists), float, math.prod(shape)).reshape(shape)
+
+    return each

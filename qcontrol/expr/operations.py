@@ -33,6 +33,10 @@ class Operation:
     # Python's own operator written out on the operands' closures, which saves the call of
     # ``on_floats`` per evaluation (only where no operand can be read directly)
     inline: Callable[..., ScalarFn] | None = None
+    # ``on_arrays`` gives ``on_floats``' value for every element, on every machine, and never
+    # meets a value ``on_floats`` refuses: a correctly rounded IEEE operation (numpy's own
+    # functions, e.g. exp, pow, or its min's sign of a zero, may round or pick otherwise)
+    same_on_arrays: bool = False
 
     @property
     def is_operator(self) -> bool:
@@ -68,14 +72,17 @@ def _signed_power_of_floats(a: float, p: float) -> float:
 
 
 OPERATIONS: tuple[Operation, ...] = (
-    Operation("+", 2, np.add, operator.add, ast.Add, lambda a, b: lambda xs: a(xs) + b(xs)),
-    Operation("-", 2, np.subtract, operator.sub, ast.Sub, lambda a, b: lambda xs: a(xs) - b(xs)),
-    Operation("*", 2, np.multiply, operator.mul, ast.Mult, lambda a, b: lambda xs: a(xs) * b(xs)),
+    Operation("+", 2, np.add, operator.add, ast.Add, lambda a, b: lambda xs: a(xs) + b(xs),
+              same_on_arrays=True),
+    Operation("-", 2, np.subtract, operator.sub, ast.Sub, lambda a, b: lambda xs: a(xs) - b(xs),
+              same_on_arrays=True),
+    Operation("*", 2, np.multiply, operator.mul, ast.Mult, lambda a, b: lambda xs: a(xs) * b(xs),
+              same_on_arrays=True),
     Operation("/", 2, np.divide, operator.truediv, ast.Div, lambda a, b: lambda xs: a(xs) / b(xs)),
     Operation("**", 2, np.power, math.pow, ast.Pow),  # x**2 is a product in both generators
-    Operation("-", 1, np.negative, operator.neg, ast.USub, lambda a: lambda xs: -a(xs)),
-    Operation("pi", 0, lambda: np.pi, lambda: math.pi),
-    Operation("abs", 1, np.abs, abs),
+    Operation("-", 1, np.negative, operator.neg, ast.USub, lambda a: lambda xs: -a(xs), same_on_arrays=True),
+    Operation("pi", 0, lambda: np.pi, lambda: math.pi, same_on_arrays=True),
+    Operation("abs", 1, np.abs, abs, same_on_arrays=True),
     Operation("sqrt", 1, np.sqrt, math.sqrt),
     Operation("cbrt", 1, np.cbrt, math.cbrt),  # the real cube root, also of a negative number
     Operation("exp", 1, np.exp, math.exp),
@@ -84,7 +91,7 @@ OPERATIONS: tuple[Operation, ...] = (
     Operation("cos", 1, np.cos, math.cos),
     Operation("tan", 1, np.tan, math.tan),
     Operation("tanh", 1, np.tanh, math.tanh),
-    Operation("sign", 1, np.sign, _sign_of_float),
+    Operation("sign", 1, np.sign, _sign_of_float, same_on_arrays=True),
     Operation("min", None, np.minimum, _nan_or(min)),
     Operation("max", None, np.maximum, _nan_or(max)),
     Operation("spow", 2, _signed_power_of_arrays, _signed_power_of_floats),  # sign(a) |a|**p
