@@ -37,6 +37,7 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 
 from .. import compiled as compiled_paths
+from ..compiled import JIT
 from ..compiled.traced import TRACED, Symbol, Trace, TracedForm, recording
 from ..controller.backstepping import ControlOutput, output
 from ..controller.comparison import ComparisonLaw
@@ -206,7 +207,6 @@ def module_source(plant: NativeStepper, functions: list[str]) -> str:
     ])
 
 
-JIT = '@numba.njit(cache=True, error_model="numpy", nogil=True)'
 
 
 def loop_source(parts: TracedParts, plant: NativeStepper, n: int, m: int) -> str:
