@@ -197,13 +197,17 @@ def loop_body(parts: TracedParts, plant: NativeStepper, n: int, m: int, copy: st
 
 
 def module_source(plant: NativeStepper, functions: list[str]) -> str:
-    """A generated module: its imports, the plant's helpers, then ``functions``' lines."""
+    """A generated module: its imports, the plant's helpers (from a module of their own, compiled
+    once for every loop and batch of the plant: :func:`~qcontrol.compiled.cache.shared`), then
+    ``functions``' lines."""
+    from ..compiled.cache import shared
+
     return "\n".join([
         '"""qcontrol\'s compiled loop (generated): see KEY."""',  # (user text only as a repr literal)
         "import math", "", "import numba", "import numpy as np", "",
         f"KEY = {plant.key!r}", "",
         "from qcontrol.compiled.pointers import as_pointer, carray", "",
-        plant.helpers, "", *functions, "",
+        shared("step", plant.helpers), "", *functions, "",
     ])
 
 
