@@ -73,6 +73,24 @@ def test_every_copy_equals_its_run_alone_and_the_array_form(monkeypatch, name: s
         _same(compiled[i], assemble([scs[i]], "ode").run()[0], ("x", "x_meas", "x_q", "u", "adaptive"))
 
 
+
+def test_one_module_serves_every_batch_size(monkeypatch) -> None:
+    """The batch size is a run-time value: batches of 3 and 24 copies of one structure run the
+    same generated text (one module, one cache entry), and a copy's numbers are the same in both."""
+    import qcontrol.compiled.cache as cache
+
+    texts, generated = [], cache.generated_module
+    monkeypatch.setattr(cache, "generated_module", lambda kind, source: (
+        texts.append(source) if kind == "batch" else None, generated(kind, source))[1])
+    scs, runs = _variants("example2"), []
+    for copies in (scs[:3], scs):
+        loop, done = _run(_spec(copies, "metrics"), monkeypatch)
+        assert loop.handover is None and len(done) == len(copies)
+        runs.append(done)
+    assert len(texts) == 2 and texts[0] == texts[1]
+    for a, b in zip(runs[0], runs[1], strict=False):
+        _same(a, b)
+
 def _refusing(x1: list[float]) -> RunSpec:
     """A batch whose plant term sqrt(x1) math refuses (numpy answers NaN) where x1 < 0."""
     x = ["x1", "x2"]

@@ -18,6 +18,11 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 ENVIRONMENT_SWITCH = "QCONTROL_COMPILE"
+# generated code's decorators: numpy's error model, no fast-math (the Python form's numbers);
+# CALLED for a function only compiled code calls (no wrappers for calls from Python or C: less to
+# compile)
+JIT = '@numba.njit(cache=True, error_model="numpy", nogil=True)'
+CALLED = JIT[:-1] + ", no_cpython_wrapper=True, no_cfunc_wrapper=True)"
 _SAID: set[str] = set()
 _NOT_NEEDED: list[None] = []  # one entry per open not_needed() block
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import os
+import re
 import sys
 import tempfile
 from pathlib import Path
@@ -64,3 +65,13 @@ def generated_module(kind: str, source: str) -> ModuleType:
     spec.loader.exec_module(module)
     _LOADED[name] = module
     return module
+
+
+def shared(kind: str, source: str) -> str:
+    """The line importing the functions of ``source`` (module-level text of decorated functions)
+    from a generated module of their own, compiled once and kept in the cache like any other,
+    then linked into each generated module that imports them instead of compiled again in each.
+    Its name is the hash of its text, so an importer's text (and its cache entry) changes with it."""
+    names = re.findall(r"^def (\w+)\(", source, flags=re.MULTILINE)
+    module = generated_module(kind, f"import math\n\nimport numba\nimport numpy as np\n\n{source}")
+    return f"from {module.__name__} import {', '.join(names)}"

@@ -99,7 +99,7 @@ class Trace:
         if self.refusal is None:
             raise TypeError("a traced formula may raise where no hand-over to Python is possible")
         if self.deferred:
-            self.lines.append(f"{REFUSED} = {REFUSED} or ({condition})")
+            self.lines.append(f"{REFUSED} = {REFUSED} | ({condition})")
         else:
             self.lines += [f"if {condition}:", f"    {self.refusal}"]
 
@@ -267,7 +267,7 @@ def _expm1(x: Value) -> Value:
         return math.expm1(x)
     trace = current()
     result = trace.assign(f"math.expm1({x.text})")
-    trace.refuse_if(f"math.isinf({result.text}) and math.isfinite({x.text})")
+    trace.refuse_if(f"math.isinf({result.text}) & math.isfinite({x.text})")
     return result
 
 

@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from .. import compiled as compiled_paths
+from ..compiled import CALLED
 from ..compiled.traced import TracedForm
 from ..plants.base import NativeStepper, NativeStepping
 from ..quantizer import UniformQuantizer
@@ -97,7 +98,7 @@ def batch_source(parts: TracedParts, plant: NativeStepper, n: int, m: int, fold:
     folds = "odd, e_instants, e_values, e_done, e_last"
     return module_source(plant, [
         helpers(), "",
-        JIT,
+        CALLED,
         f"def copy_rows(b, {arguments}, adaptive, held, lp, pf, pi, xs, suspect, fp, lf, {folds}):",
         *_indented(body, 1),
         "",

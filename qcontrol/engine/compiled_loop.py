@@ -37,6 +37,7 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 
 from .. import compiled as compiled_paths
+from ..compiled import JIT
 from ..compiled.traced import TRACED, Symbol, Trace, TracedForm, recording
 from ..controller.backstepping import ControlOutput, output
 from ..controller.comparison import ComparisonLaw
@@ -196,17 +197,20 @@ def loop_body(parts: TracedParts, plant: NativeStepper, n: int, m: int, copy: st
 
 
 def module_source(plant: NativeStepper, functions: list[str]) -> str:
-    """A generated module: its imports, the plant's helpers, then ``functions``' lines."""
+    """A generated module: its imports, the plant's helpers (from a module of their own, compiled
+    once for every loop and batch of the plant: :func:`~qcontrol.compiled.cache.shared`), then
+    ``functions``' lines."""
+    from ..compiled.cache import shared
+
     return "\n".join([
         '"""qcontrol\'s compiled loop (generated): see KEY."""',  # (user text only as a repr literal)
         "import math", "", "import numba", "import numpy as np", "",
         f"KEY = {plant.key!r}", "",
         "from qcontrol.compiled.pointers import as_pointer, carray", "",
-        plant.helpers, "", *functions, "",
+        shared("step", plant.helpers), "", *functions, "",
     ])
 
 
-JIT = '@numba.njit(cache=True, error_model="numpy", nogil=True)'
 
 
 def loop_source(parts: TracedParts, plant: NativeStepper, n: int, m: int) -> str:

@@ -19,7 +19,8 @@ import math
 from .operations import NAMED, OPERATORS, POWER, Operation
 from .tree import Apply, Number, Tree, Variable
 
-FLAG = "bad"  # the generated statements' error flag (a bool the caller initialises to False)
+FLAG = "bad"  # the generated statements' error flag (a bool the caller initialises to False), set
+# with | and & rather than or/and: no branch per test, less for numba to compile
 _MATH = {"sqrt", "exp", "log", "sin", "cos", "tan", "tanh"}  # CPython's math_1 functions
 
 
@@ -78,8 +79,8 @@ def _unary(row: Operation, operand: tuple[str, float | None], out: Statements) -
     assert row.name in _MATH, row.name
     a = out.temporary(text)
     r = out.temporary(f"math.{row.name}({a})")
-    out.lines.append(f"{FLAG} = {FLAG} or ({r} != {r} and {a} == {a}) "
-                     f"or (math.isinf({r}) and math.isfinite({a}))")
+    out.lines.append(f"{FLAG} = {FLAG} | (({r} != {r}) & ({a} == {a})) "
+                     f"| (math.isinf({r}) & math.isfinite({a}))")
     return r, None
 
 
@@ -100,7 +101,7 @@ def _binary(row: Operation, left: tuple[str, float | None], right: tuple[str, fl
         return out.temporary(f"{_sign(a, out)} * {_power(f'abs({a})', rt, out)}"), None
     if row.syntax is ast.Div:
         b = out.temporary(rt)
-        out.lines.append(f"{FLAG} = {FLAG} or {b} == 0.0")
+        out.lines.append(f"{FLAG} = {FLAG} | ({b} == 0.0)")
         return out.temporary(f"{lt} / {b}"), None
     symbol = {ast.Add: "+", ast.Sub: "-", ast.Mult: "*"}[row.syntax]
     return out.temporary(f"{lt} {symbol} {rt}"), None
@@ -115,8 +116,8 @@ def _power(base: str, exponent: str, out: Statements) -> str:
     """``math.pow``, flagged where CPython's raises (a non-finite result of finite arguments)."""
     b, e = out.temporary(base), out.temporary(exponent)
     r = out.temporary(f"math.pow({b}, {e})")
-    out.lines.append(f"{FLAG} = {FLAG} or (math.isfinite({b}) and math.isfinite({e}) "
-                     f"and not math.isfinite({r}))")
+    out.lines.append(f"{FLAG} = {FLAG} | (math.isfinite({b}) & math.isfinite({e}) "
+                     f"& (not math.isfinite({r})))")
     return r
 
 

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from ..columns import ARRAYS, Column, ColumnForm
+from ..compiled import CALLED
 from ..compiled.traced import TRACED, Symbol, Trace, TracedForm, recording
 from ..expr import Expression
 from ..expr.rows import is_zero
@@ -208,9 +209,10 @@ class ChainNativeForm:
                                self.plant._rate_in(self.form))
                 texts = [trace.text(v) for v in stepped]  # written after every refusal
         lines += trace.taken() + [f"xs[{i}] = {text}" for i, text in enumerate(texts)] + ["return False"]
-        # inlined into the loop that calls it (numba's IR inlining: the same operations, no call)
-        return ('@numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")\n'
-                'def plant_step(u, xs, pf):\n' + "".join(f"    {line}\n" for line in lines))
+        # called, not inlined by numba (whose IR inlining re-typed it at each of the loop's two
+        # steps): compiled once per module, the same IEEE operations
+        return (f"{CALLED}\n"
+                "def plant_step(u, xs, pf):\n" + "".join(f"    {line}\n" for line in lines))
 
     def sync_in(self) -> None:
         self.floats[..., 0] = self.plant._load

@@ -35,6 +35,7 @@ from functools import cache
 import mujoco
 import numpy as np
 
+from ...compiled import CALLED
 from ..base import NativeStepper
 from .threaded import UNSTABLE_WARNINGS
 
@@ -111,8 +112,7 @@ def _helpers(read: Callable, step: Callable) -> str:
     functions = (("read_copy", read), ("step_copy", step))
     texts = [textwrap.dedent(inspect.getsource(f)).replace(f"def {f.__name__}(", f"def {name}(", 1)
              for name, f in functions]
-    jit = '@numba.njit(cache=True, error_model="numpy", nogil=True)'
-    return f"{EXTERNAL}UNSTABLE = {UNSTABLE!r}\n\n" + "".join(f"{jit}\n{text}\n" for text in texts)
+    return f"{EXTERNAL}UNSTABLE = {UNSTABLE!r}\n\n" + "".join(f"{CALLED}\n{text}\n" for text in texts)
 
 
 def setup_lines(at: str = "") -> list[str]:
