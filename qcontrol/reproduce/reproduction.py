@@ -4,13 +4,13 @@ Runs Example 1 and Example 2 (proposed law and the comparison law of reference [
 chosen backend, with the ideal ODE twin beside MuJoCo, then the sensitivity studies (kappa - L,
 a constant scale of r, plant variants) on the ODE backend, and the robustness study on realistic
 hardware (:mod:`.robustness_study`, MuJoCo, in worker processes, started first so that it runs
-while this process does the rest; the region, trade-off and sensor studies' runs go to the
-same workers, first, and the examples' and studies' figures are drawn by forked workers, :mod:`.drawing`). Writes PNG figures,
-``table1.md``, ``table1.json``, ``studies.json``, ``region.json`` (the sampled loop's region study,
-:mod:`.region_study`), ``tradeoff.json`` (tracking against the region, law by law,
-:mod:`.tradeoff_study`), ``robustness.json``, ``sensors.json`` (Example 2 with realistic sensors,
-:mod:`.sensor_study`), ``REPORT.md`` and one rerun
-recording per example into the output folder, all put in place together at the end
+while this process does the rest; the region, trade-off and sensor studies' runs go to the same
+workers, first, and the examples' and studies' figures are drawn by forked workers,
+:mod:`.drawing`). Writes PNG figures, ``table1.md``, ``table1.json``, ``studies.json``,
+``region.json`` (the sampled loop's region study, :mod:`.region_study`), ``tradeoff.json``
+(tracking against the region, law by law, :mod:`.tradeoff_study`), ``robustness.json``,
+``sensors.json`` (Example 2 with realistic sensors, :mod:`.sensor_study`), ``REPORT.md`` and one
+rerun recording per example into the output folder, all put in place together at the end
 (:func:`qcontrol.outputs.staged`): an interrupted or failed reproduction leaves the folder's
 previous files as they were, never a mix of old and new. Parameters come from the paper's Section 4
 (docs/math.md, 'The paper's examples'); nothing is fitted to Table 1. Laws of one's own (``laws``,
