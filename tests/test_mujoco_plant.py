@@ -481,3 +481,26 @@ def test_the_model_check_is_measured_once_per_model_and_terms(monkeypatch) -> No
         assert report("plant.theta=[-1.0, 3.5, -34.3]") != a and len(measured) == 2
         assert report("plant.mujoco.frictionloss=3.0") != a and len(measured) == 3
     assert report("plant.mujoco.noise_seed=3") == a and len(measured) == 4
+
+
+def test_runs_step_without_mujocos_profiling_timer_and_put_it_back() -> None:
+    """The bindings' timer (installed with every MjData) is off inside a run and restored after;
+    a timer of the user's own is left running."""
+    model = mujoco.MjModel.from_xml_string(
+        "<mujoco><worldbody><body><joint/><geom size='0.1'/></body></worldbody></mujoco>")
+    data = mujoco.MjData(model)
+    slot = qmj._timer_slot()
+    found = slot.value
+    assert found  # the bindings' timer
+    with qmj.untimed():
+        assert slot.value is None
+        mujoco.mj_step(model, data)
+    assert slot.value == found and data.timer[0].number == 1 and data.timer[0].duration == 0.0
+    calls = []
+    mujoco.set_mjcb_time(lambda: float(len(calls.append(0) or calls)))
+    try:
+        with qmj.untimed():
+            mujoco.mj_step(model, data)
+        assert calls and data.timer[0].duration > 0.0
+    finally:
+        mujoco.set_mjcb_time(None)

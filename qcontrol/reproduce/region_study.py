@@ -87,12 +87,12 @@ def _row(region: Region, law: LawSpec, s: Summary, dt: float) -> dict[str, Any]:
     }
 
 
-def write_region_study(study: Mapping[str, Any], path: Path) -> Path:
-    """study_region.png: a row per example and rate, a map per law."""
-    regions: Sequence[Region] = study["regions"]
+def write_region_study(maps: Sequence[Sequence[Any]], path: Path) -> Path:
+    """study_region.png: a row per example and rate (``maps``: each region's
+    :meth:`~qcontrol.region.Region.maps`), a map per law."""
     title = (f"Region study: {RESOLUTION} x {RESOLUTION} starts in |x_i(0)| <= {BOX:g} per map (coarse; "
              "qcontrol region draws finer maps), ODE")
-    return fig_region([r.maps() for r in regions], OUTCOMES, path, title)
+    return fig_region(maps, OUTCOMES, path, title)
 
 
 def region_record(study: Mapping[str, Any]) -> dict[str, Any]:

@@ -4,13 +4,13 @@ Runs Example 1 and Example 2 (proposed law and the comparison law of reference [
 chosen backend, with the ideal ODE twin beside MuJoCo, then the sensitivity studies (kappa - L,
 a constant scale of r, plant variants) on the ODE backend, and the robustness study on realistic
 hardware (:mod:`.robustness_study`, MuJoCo, in worker processes, started first so that it runs
-while this process does the rest; the sensor study's runs go to the same workers, and the
-examples' and studies' figures are drawn by forked workers, :mod:`.drawing`). Writes PNG figures,
-``table1.md``, ``table1.json``, ``studies.json``, ``region.json`` (the sampled loop's region study,
-:mod:`.region_study`), ``tradeoff.json`` (tracking against the region, law by law,
-:mod:`.tradeoff_study`), ``robustness.json``, ``sensors.json`` (Example 2 with realistic sensors,
-:mod:`.sensor_study`), ``REPORT.md`` and one rerun
-recording per example into the output folder, all put in place together at the end
+while this process does the rest; the region, trade-off and sensor studies' runs go to the same
+workers, first, and the examples' and studies' figures are drawn by forked workers,
+:mod:`.drawing`). Writes PNG figures, ``table1.md``, ``table1.json``, ``studies.json``,
+``region.json`` (the sampled loop's region study, :mod:`.region_study`), ``tradeoff.json``
+(tracking against the region, law by law, :mod:`.tradeoff_study`), ``robustness.json``,
+``sensors.json`` (Example 2 with realistic sensors, :mod:`.sensor_study`), ``REPORT.md`` and one
+rerun recording per example into the output folder, all put in place together at the end
 (:func:`qcontrol.outputs.staged`): an interrupted or failed reproduction leaves the folder's
 previous files as they were, never a mix of old and new. Parameters come from the paper's Section 4
 (docs/math.md, 'The paper's examples'); nothing is fitted to Table 1. Laws of one's own (``laws``,
@@ -47,7 +47,7 @@ from ..sweep import sweep_summaries
 from ..sweep.runs import planned
 from .drawing import Apart
 from .region_study import LAWS as REGION_LAWS
-from .region_study import region_record, region_study, write_region_study
+from .region_study import write_region_study
 from .report import (
     PAPER_HORIZON,
     PAPER_TABLE1,
@@ -61,7 +61,7 @@ from .robustness_figures import fig_margins, fig_robustness
 from .robustness_study import EXAMPLES, LAWS, Running, default_workers, runs_alone, study_law
 from .robustness_study import started as robustness_started
 from .sensor_study import fig_sensors, log_rows, sensor_markdown, sensor_record, sensor_runs, sensor_study
-from .tradeoff_study import check_tradeoff, tradeoff_record, tradeoff_study, write_tradeoff_figure
+from .tradeoff_study import check_tradeoff, maps_runs, tradeoff_record, write_tradeoff_figure
 
 SCENARIO_DIR = shipped_dir("scenarios")
 KAPPA_MARGINS = (0.05, 0.1, 0.2, 0.3, 0.5, 0.75, 1.1, 1.5, 2.0)
@@ -195,13 +195,15 @@ def reproduce(
 
 def _write_all(rep: Reproduction, o: Path, command: str, workers: int | None, quick: bool) -> dict:
     """The runs and their files, in order; Table 1 as written to table1.json. The robustness
-    study starts first, on its workers, and runs while this process does the rest; the sensor
-    study's runs go to the same workers, first."""
+    study starts first, on its workers, and runs while this process does the rest; the region and
+    trade-off studies' runs (together: the trade-off study reuses the region study's maps) and the
+    sensor study's go to the same workers, first."""
     laws = (*LAWS, *map(study_law, rep.laws))
-    sensors = [(sensor_runs, (rep.scenarios, rep.duration))]
+    side = [(maps_runs, (rep.scenarios, rep.duration, (*REGION_LAWS, *rep.laws))),
+            (sensor_runs, (rep.scenarios, rep.duration))]
     hardware = (nullcontext(None) if quick else
                 robustness_started(rep.scenarios, rep.duration, workers or default_workers(), rep.log, laws,
-                                   sensors))
+                                   side))
     forked = (workers or default_workers()) > 1  # (figures drawn apart too, by forked workers)
     with hardware as running, Apart(o, forked) as apart:
         table = _write_runs(rep, o, command, running, apart)
@@ -240,19 +242,12 @@ def _write_runs(rep: Reproduction, o: Path, command: str, running: Running | Non
     studied = {name: rep.scenario(name) for name in ("example2", "example2-rigid")}
     provenance = scenarios_provenance(studied, command)
     write_json(o / "studies.json", _studies_json(studies) | {"provenance": provenance})
-    quick = robustness is None
-    region = None if quick else region_study(rep.scenarios, rep.duration, rep.log, (*REGION_LAWS, *rep.laws))
-    if region is not None:
-        write_region_study(region, o / "study_region.png")
-        examples = {name: rep.scenario(name) for name in ("example1", "example2")}
-        write_json(o / "region.json",
-                   region_record(region) | {"provenance": scenarios_provenance(examples, command)})
-    tradeoff = None if region is None else _tradeoff(o, rep, region, command)
+    region, tradeoff = (None, None) if running is None else _maps(o, rep, running.side[0](), command)
     rep.log("study: Example 2 with realistic sensors (ODE)")
     if running is None:
         sensors = sensor_study(rep.scenarios, rep.duration, rep.log)
     else:
-        sensors = running.side[0]()
+        sensors = running.side[1]()
         log_rows(sensors, rep.log)
     fig_sensors(sensors, o / "study_sensors.png")
     write_json(o / "sensors.json", sensor_record(sensors) | {"provenance": provenance})
@@ -294,14 +289,20 @@ def _table1(o: Path, backend: str, ex2: Run, ex2_twin: Run | None, base: Run, ba
     return table
 
 
-def _tradeoff(o: Path, rep: Reproduction, region: dict, command: str) -> dict:
-    """The trade-off study on the region study's 1 kHz maps: tradeoff.json and its figure."""
-    study = tradeoff_study(rep.scenarios, rep.duration, rep.log, region)
-    write_tradeoff_figure(study, o / "study_tradeoff.png")
+def _maps(o: Path, rep: Reproduction, mapped: dict, command: str) -> tuple[dict, dict]:
+    """The region study and the trade-off study on its 1 kHz maps (``mapped``: their runs, made by
+    a worker, :func:`~.tradeoff_study.maps_runs`): region.json, tradeoff.json and their figures;
+    returns both studies as REPORT.md reads them."""
+    for line in mapped["log"]:
+        rep.log(line)
+    region, study = mapped["region"], mapped["tradeoff"]
     examples = {name: rep.scenario(name) for name in ("example1", "example2")}
     provenance = scenarios_provenance(examples, command)
+    write_region_study(mapped["region_maps"], o / "study_region.png")
+    write_json(o / "region.json", region | {"provenance": provenance})
+    write_tradeoff_figure(study, o / "study_tradeoff.png")
     write_json(o / "tradeoff.json", tradeoff_record(study) | {"provenance": provenance})
-    return study
+    return region, study
 
 
 def _robustness(o: Path, rep: Reproduction, result: Callable[[], dict], apart: Apart) -> dict:

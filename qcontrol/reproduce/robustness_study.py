@@ -290,7 +290,8 @@ def started(scenarios: Path, duration: float | None, workers: int, log: Callable
     workers = worker_count(workers, len(study.plan.tasks))
     log(f"study: robustness: {len(study.plan.tasks)} runs, {len(study.disturbances)} disturbance cases, "
         f"on {workers} worker(s)")
-    _compiled_paths()  # (before the workers fork: they start with numba loaded)
+    if compiled_paths.requested():  # (before the workers fork: they start with numba loaded and started)
+        compiled_paths.started()
     pool = worker_pool(workers) if workers > 1 else None
     try:
         waits = [partial(function, *arguments) if pool is None else pool.apply_async(function, arguments).get

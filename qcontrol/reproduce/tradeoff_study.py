@@ -24,7 +24,7 @@ from ..paper import OMEGA_KEYS, PAPER_HORIZON
 from ..region import OUTCOMES, LawSpec, parse_law
 from ..region.study import Region
 from ..scenario import load_scenario
-from .region_study import BOX, EXAMPLES, LAWS, RATES, measure_at, study_grid
+from .region_study import BOX, EXAMPLES, LAWS, RATES, measure_at, region_record, region_study, study_grid
 
 CONTROL_PERIOD, GRID_DURATION = RATES[0]  # 1 kHz, the paper's sampling of its examples
 HIGH_GAINS = "[20.0, 20.0]"  # c1 = c2 = 20: for n = 2 the PD gains kp = c1 c2 = 400, kd = c1 + c2 = 40
@@ -104,6 +104,18 @@ def tradeoff_study(scenarios: Path, duration: float | None, log: Callable[[str],
             "laws": [{"law": r["law"], "name": r["name"], "equation": r["equation"]}
                      for r in rows if r["example"] == EXAMPLES[0]],
             "rows": rows, "maps": maps}
+
+
+def maps_runs(scenarios: Path, duration: float | None, law_texts: Sequence[str]) -> dict[str, Any]:
+    """The region study (``law_texts``: its laws) and this study after it, as plain data a worker
+    process sends back: ``region`` (what region.json holds, without provenance), ``region_maps``
+    (each region's maps), ``tradeoff`` (:func:`tradeoff_study`'s result) and ``log`` (the lines
+    both studies logged, in order)."""
+    lines: list[str] = []
+    region = region_study(scenarios, duration, lines.append, law_texts)
+    study = tradeoff_study(scenarios, duration, lines.append, region)
+    return {"region": region_record(region), "region_maps": [r.maps() for r in region["regions"]],
+            "tradeoff": study, "log": lines}
 
 
 def _reused(region: Mapping[str, Any], name: str) -> list[tuple[Region, list[dict[str, Any]]]]:

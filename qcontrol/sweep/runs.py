@@ -277,15 +277,8 @@ def _start_numba(chunks: list[list[int]]) -> None:
     """numba's compiler started in this process (its typing and target registries loaded) when a
     chunk is a batch (batches run compiled code) and compiled paths are on, so that the workers
     forked next inherit it rather than each paying for it."""
-    if all(len(ids) < 2 for ids in chunks) or not compiled_paths.enabled():
-        return
-    try:  # (numba's own registry: where a version moved it, each worker starts numba as before)
-        from numba.core.registry import cpu_target
-
-        cpu_target.typing_context.refresh()
-        cpu_target.target_context.refresh()
-    except (ImportError, AttributeError):
-        pass
+    if any(len(ids) > 1 for ids in chunks):
+        compiled_paths.started()
 
 
 def _on_workers(workers: int, chunks: list[list[int]], tasks: list[ChunkJob],

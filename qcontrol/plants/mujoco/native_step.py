@@ -24,7 +24,6 @@ streams after each call, so the Python loop, where it takes over, reads on from 
 from __future__ import annotations
 
 import ctypes
-import glob
 import inspect
 import math
 import os
@@ -37,6 +36,7 @@ import numpy as np
 
 from ...compiled import CALLED
 from ..base import NativeStepper
+from .callbacks import mujoco_library_path
 from .threaded import UNSTABLE_WARNINGS
 
 # pi: model, data, ctrl, sensordata, qpos, qvel, warning, actuator, p, v, qadr, dof, substeps, dead, read,
@@ -161,13 +161,9 @@ def load_mujoco_library() -> str:
     bindings loaded, by its path in the mujoco package."""
     import llvmlite.binding as llvm
 
-    found = sorted(glob.glob(os.path.join(os.path.dirname(mujoco.__file__), "libmujoco.so*"))
-                   + glob.glob(os.path.join(os.path.dirname(mujoco.__file__), "libmujoco*.dylib"))
-                   + glob.glob(os.path.join(os.path.dirname(mujoco.__file__), "mujoco*.dll")))
-    if not found:
-        raise LookupError("MuJoCo's C library was not found beside its Python bindings")
-    llvm.load_library_permanently(found[0])
-    return os.path.basename(found[0])
+    path = mujoco_library_path()
+    llvm.load_library_permanently(path)
+    return os.path.basename(path)
 
 
 class MujocoNativeForm:

@@ -47,6 +47,7 @@ from .callbacks import (
     kept_aside,
     passive_forces,
     python_callback_installed,
+    untimed,
 )
 from .consistency import consistency_report, filter_consistency_report
 from .mjcf import CompiledModel, check_input_gain, compiled
@@ -143,7 +144,7 @@ class MujocoPlant:
                 self._native.fill(data, self._ids.qpos, self._ids.dof, userdata)
         self._entered = [passive_forces(self.model, self._datas, self._ids.qpos, self._ids.dof, self._forces,
                                         self._native),
-                         collect_warnings(self.warnings)]
+                         collect_warnings(self.warnings), untimed()]
         for manager in self._entered:
             manager.__enter__()
         self._threads = self._threaded is not None and not python_callback_installed()
