@@ -92,7 +92,7 @@ def batch_source(parts: TracedParts, plant: NativeStepper, n: int, m: int, fold:
     finite = ([f"abs(x{i}) <= bound" for i in range(1, n + 1)]
               + [f"math.isfinite(adaptive[{i}])" for i in range(m)])
     test = [f"if not ({' and '.join(finite)}):", "    suspect[k - start] = True"]
-    body = loop_body(parts, plant, n, m, "b", test, fold)
+    body = loop_body(parts, plant, n, m, "b, j", test, fold)  # (buffers stored copy after copy)
     arguments = "start, stop, step_first, hold, base, bound, yd, xb, mb, qb, ub, ab"
     folds = "odd, e_instants, e_values, e_done, e_last"
     return module_source(plant, [
@@ -158,7 +158,7 @@ class CompiledBatch:
         for i, column in enumerate(adaptive):
             state[:, i] = column
         held = np.zeros((batch, self.held_width))
-        arrays = record.buffer.arrays
+        arrays = record.buffer.by_copy()  # (rows stored copy after copy: see RowBuffer)
         buffers = (arrays["x"], arrays["x_meas"], arrays["x_q"], arrays["u"], arrays["adaptive"])
         status, at = np.zeros(batch, dtype=np.int64), np.zeros(batch, dtype=np.int64)
         bound, lps = float(loop.rows.state_bound), np.ascontiguousarray(self.parts.constants)
