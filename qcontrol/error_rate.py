@@ -66,7 +66,9 @@ class ErrorRateStream:
         if samples < 2:
             raise ValueError("the error rate needs at least 2 samples")
         self.instants = np.arange(samples) * (horizon / (samples - 1))
-        self.values = np.full((samples, batch), np.inf)  # inf: not covered (yet): counts as exceeding
+        # inf: not covered (yet): counts as exceeding; stored run after run (the compiled batch
+        # fills one run's instants after another: their values stay on a few memory pages)
+        self.values = np.full((batch, samples), np.inf).T
         self.done = np.zeros(batch, dtype=np.intp)  # run b's instants [0, done[b]) have their value
         self.last_t = np.full(batch, np.nan)  # (t, |z_1|) of each run's last finite row so far
         self.last_z = np.full(batch, np.nan)

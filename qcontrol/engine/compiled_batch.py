@@ -47,7 +47,7 @@ from ..compiled.traced import TracedForm
 from ..plants.base import NativeStepper, NativeStepping
 from ..quantizer import UniformQuantizer
 from . import compiled_loop
-from .compiled_folds import Folds, helpers
+from .compiled_folds import NO_VALUES, Folds, helpers
 from .compiled_loop import (
     CONTROL_REFUSED,
     JIT,
@@ -78,7 +78,7 @@ def same_as_array_form(*texts: str) -> bool:
 def unfolded(batch: int) -> tuple:
     """The folds' arguments of a loop that folds nothing (a full record keeps every row)."""
     return (np.zeros((batch, 0)), np.zeros((batch, 0)), np.zeros(batch, dtype=np.bool_), np.zeros(1),
-            np.zeros((1, 1)), np.zeros(1, dtype=np.intp), np.zeros((1, 2)))
+            NO_VALUES, np.zeros(1, dtype=np.intp), np.zeros((1, 2)))
 
 
 class Redo(Exception):
