@@ -86,13 +86,19 @@ class Redo(Exception):
     form."""
 
 
-def batch_source(parts: TracedParts, plant: NativeStepper, n: int, m: int, fold: list[str] = ()) -> str:
+def batch_source(parts: TracedParts, plant: NativeStepper, n: int, m: int, fold: list[str] = (),
+                 enter: list[str] = (), leave: list[str] = ()) -> str:
     """The module text: ``copy_rows`` (one copy's rows, the single run's loop body on column b,
-    with the quick divergence test and the reductions' folds) and ``rows`` (every copy in turn)."""
+    with the quick divergence test and the reductions' folds, ``enter`` before the rows and
+    ``leave`` before every return) and ``rows`` (every copy in turn)."""
     finite = ([f"abs(x{i}) <= bound" for i in range(1, n + 1)]
               + [f"math.isfinite(adaptive[{i}])" for i in range(m)])
     test = [f"if not ({' and '.join(finite)}):", "    suspect[k - start] = True"]
-    body = loop_body(parts, plant, n, m, "b, j", test, fold)  # (buffers stored copy after copy)
+    body = [*enter]
+    for line in loop_body(parts, plant, n, m, "b, j", test, fold):  # (buffers stored copy after copy)
+        if line.lstrip().startswith("return "):
+            body += [line[: len(line) - len(line.lstrip())] + text for text in leave]
+        body.append(line)
     arguments = "start, stop, step_first, hold, base, bound, yd, xb, mb, qb, ub, ab"
     folds = "odd, e_instants, e_values, e_done, e_last"
     return module_source(plant, [
@@ -127,8 +133,9 @@ class CompiledBatch:
     def function(self, plant: NativeStepper, folds: Folds | None = None):  # noqa: ANN201 (a numba dispatcher)
         from ..compiled.cache import generated_module
 
-        fold = [] if folds is None else folds.lines()
-        return generated_module("batch", batch_source(self.parts, plant, self.n, self.m, fold)).rows
+        fold, enter, leave = ([], [], []) if folds is None else (folds.lines(), folds.enter, folds.leave)
+        source = batch_source(self.parts, plant, self.n, self.m, fold, enter, leave)
+        return generated_module("batch", source).rows
 
     def folds(self, loop: Schedule) -> Folds | None:
         """The record's reductions folded in the loop (:mod:`.compiled_folds`): a metrics record's."""

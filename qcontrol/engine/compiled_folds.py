@@ -65,6 +65,8 @@ class Folds:
         self.every: list[str] = []  # lines of every row
         self.samples: list[str] = []  # lines of the control samples
         self.folded: list[tuple[Reduction, slice]] = []
+        self.enter: list[str] = []  # lines before a copy's rows, and before the loop returns
+        self.leave: list[str] = []
         start: list[float] = []
         with recording(trace), trace.refusing("odd[b] = True"):
             t = trace.assign(f"k * {trace.constant(dt)}").text  # the row's instant, as TimeGrid's
@@ -82,6 +84,8 @@ class Folds:
                 slot = len(start)
                 lines = [*trace.taken(), *fold.fold_lines(texts, slot, t, trace.constant)]
                 (self.samples if fold.at_samples else self.every).extend(lines)
+                self.enter += fold.enter
+                self.leave += fold.leave
                 start += partials
                 self.folded.append((fold, slice(slot, slot + len(partials))))
         self.start = np.array(start, dtype=float)
