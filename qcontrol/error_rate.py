@@ -37,16 +37,16 @@ def interpolated(ta, za, tc, zc, x):  # noqa: ANN001, ANN201 (floats or arrays; 
     return slope * (x - ta) + za
 
 
-def follow_row(t, z, instants, values, b, done, last):  # noqa: ANN001, ANN201 (numba's subset of Python)
+def follow_row(t, z, instants, values, b, ta, za, i):  # noqa: ANN001, ANN201 (numba's subset of Python)
     """The next row ``(t, |z_1|)`` of run ``b``, rows given one at a time in time order: the
     compiled batch's form of :meth:`ErrorRateStream.add`, the same numbers (every instant up to
-    ``t`` takes its value on the same pair of rows, by :func:`interpolated`). ``done[b]``: the
-    run's instants with their value; ``last[b]``: its last finite row's ``(t, |z_1|)`` so far
-    (NaN: none). A non-finite ``z`` is skipped, as there."""
+    ``t`` takes its value on the same pair of rows, by :func:`interpolated`). ``(ta, za)``: the
+    run's last finite row so far (NaN: none), ``i``: its instants with their value; returns them
+    after this row (kept in the compiled loop's locals between rows, written back when it returns:
+    stores every row would keep the compiler from holding anything in registers). A non-finite
+    ``z`` is skipped, as there."""
     if not (z - z == 0.0):
-        return
-    ta, za = last[b, 0], last[b, 1]
-    i = done[b]
+        return ta, za, i
     while i < instants.shape[0] and instants[i] <= t:
         x = instants[i]
         if not (ta == ta) or t <= x:  # no row before (np.interp's left), or the row is at x
@@ -54,8 +54,7 @@ def follow_row(t, z, instants, values, b, done, last):  # noqa: ANN001, ANN201 (
         else:
             values[i, b] = interpolated(ta, za, t, z, x)
         i += 1
-    done[b] = i
-    last[b, 0], last[b, 1] = t, z
+    return t, z, i
 
 
 class ErrorRateStream:
@@ -66,7 +65,9 @@ class ErrorRateStream:
         if samples < 2:
             raise ValueError("the error rate needs at least 2 samples")
         self.instants = np.arange(samples) * (horizon / (samples - 1))
-        self.values = np.full((samples, batch), np.inf)  # inf: not covered (yet): counts as exceeding
+        # inf: not covered (yet): counts as exceeding; stored run after run (the compiled batch
+        # fills one run's instants after another: their values stay on a few memory pages)
+        self.values = np.full((batch, samples), np.inf).T
         self.done = np.zeros(batch, dtype=np.intp)  # run b's instants [0, done[b]) have their value
         self.last_t = np.full(batch, np.nan)  # (t, |z_1|) of each run's last finite row so far
         self.last_z = np.full(batch, np.nan)

@@ -48,7 +48,7 @@ from ..compiled.traced import TracedForm
 from ..plants.base import NativeStepper, NativeStepping
 from ..quantizer import UniformQuantizer
 from . import compiled_loop
-from .compiled_folds import Folds, helpers
+from .compiled_folds import NO_VALUES, Folds, helpers
 from .compiled_loop import (
     CONTROL_REFUSED,
     JIT,
@@ -79,7 +79,7 @@ def same_as_array_form(*texts: str) -> bool:
 def unfolded(batch: int) -> tuple:
     """The folds' arguments of a loop that folds nothing (a full record keeps every row)."""
     return (np.zeros((batch, 0)), np.zeros((batch, 0)), np.zeros(batch, dtype=np.bool_), np.zeros(1),
-            np.zeros((1, 1)), np.zeros(1, dtype=np.intp), np.zeros((1, 2)))
+            NO_VALUES, np.zeros(1, dtype=np.intp), np.zeros((1, 2)))
 
 
 class Redo(Exception):
@@ -87,13 +87,19 @@ class Redo(Exception):
     form."""
 
 
-def batch_source(parts: TracedParts, plant: NativeStepper, n: int, m: int, fold: list[str] = ()) -> str:
+def batch_source(parts: TracedParts, plant: NativeStepper, n: int, m: int, fold: list[str] = (),
+                 enter: list[str] = (), leave: list[str] = ()) -> str:
     """The module text: ``copy_rows`` (one copy's rows, the single run's loop body on column b,
-    with the quick divergence test and the reductions' folds) and ``rows`` (every copy in turn)."""
+    with the quick divergence test and the reductions' folds, ``enter`` before the rows and
+    ``leave`` before every return) and ``rows`` (every copy in turn)."""
     finite = ([f"abs(x{i}) <= bound" for i in range(1, n + 1)]
               + [f"math.isfinite(adaptive[{i}])" for i in range(m)])
     test = [f"if not ({' and '.join(finite)}):", "    suspect[k - start] = True"]
-    body = loop_body(parts, plant, n, m, "b", test, fold)
+    body = [*enter]
+    for line in loop_body(parts, plant, n, m, "b, j", test, fold):  # (buffers stored copy after copy)
+        if line.lstrip().startswith("return "):
+            body += [line[: len(line) - len(line.lstrip())] + text for text in leave]
+        body.append(line)
     arguments = "start, stop, step_first, hold, base, bound, yd, xb, mb, qb, ub, ab"
     folds = "odd, e_instants, e_values, e_done, e_last"
     return module_source(plant, [
@@ -128,8 +134,9 @@ class CompiledBatch:
     def function(self, plant: NativeStepper, folds: Folds | None = None):  # noqa: ANN201 (a numba dispatcher)
         from ..compiled.cache import generated_module
 
-        fold = [] if folds is None else folds.lines()
-        return generated_module("batch", batch_source(self.parts, plant, self.n, self.m, fold)).rows
+        fold, enter, leave = ([], [], []) if folds is None else (folds.lines(), folds.enter, folds.leave)
+        source = batch_source(self.parts, plant, self.n, self.m, fold, enter, leave)
+        return generated_module("batch", source).rows
 
     def folds(self, loop: Schedule) -> Folds | None:
         """The record's reductions folded in the loop (:mod:`.compiled_folds`): a metrics record's."""
@@ -159,7 +166,7 @@ class CompiledBatch:
         for i, column in enumerate(adaptive):
             state[:, i] = column
         held = np.zeros((batch, self.held_width))
-        arrays = record.buffer.arrays
+        arrays = record.buffer.by_copy()  # (rows stored copy after copy: see RowBuffer)
         buffers = (arrays["x"], arrays["x_meas"], arrays["x_q"], arrays["u"], arrays["adaptive"])
         status, at = np.zeros(batch, dtype=np.int64), np.zeros(batch, dtype=np.int64)
         bound, lps = float(loop.rows.state_bound), np.ascontiguousarray(self.parts.constants)

@@ -33,6 +33,10 @@ from ..compiled.traced import Row, Symbol, Trace, TracedForm, recording
 from .reductions import DiagnosticValues, ErrorRate, Reduction
 from .signals import SignalContext, derive, needed
 
+# the error rate's values where nothing is folded: of the layout of ErrorRateStream.values (stored
+# run after run), so that the generated loop is compiled for one type of arrays
+NO_VALUES = np.zeros((2, 2), order="F")
+
 
 def helpers() -> str:
     """The error rate's row fold and its formula, as the generated module compiles them: their
@@ -61,6 +65,8 @@ class Folds:
         self.every: list[str] = []  # lines of every row
         self.samples: list[str] = []  # lines of the control samples
         self.folded: list[tuple[Reduction, slice]] = []
+        self.enter: list[str] = []  # lines before a copy's rows, and before the loop returns
+        self.leave: list[str] = []
         start: list[float] = []
         with recording(trace), trace.refusing("odd[b] = True"):
             t = trace.assign(f"k * {trace.constant(dt)}").text  # the row's instant, as TimeGrid's
@@ -78,6 +84,8 @@ class Folds:
                 slot = len(start)
                 lines = [*trace.taken(), *fold.fold_lines(texts, slot, t, trace.constant)]
                 (self.samples if fold.at_samples else self.every).extend(lines)
+                self.enter += fold.enter
+                self.leave += fold.leave
                 start += partials
                 self.folded.append((fold, slice(slot, slot + len(partials))))
         self.start = np.array(start, dtype=float)
@@ -115,7 +123,7 @@ class Folds:
     def arguments(self) -> tuple:
         """The arrays the generated loop reads and writes: partials, constants, the flag of
         copies whose traced values met a refusal, the error rate's arrays."""
-        rate = self.working if self.rate is not None else (np.zeros(1), np.zeros((1, 1)),
+        rate = self.working if self.rate is not None else (np.zeros(1), NO_VALUES,
                                                             np.zeros(1, dtype=np.intp), np.zeros((1, 2)))
         return (self.partials, self.constants, self.odd, *rate)
 

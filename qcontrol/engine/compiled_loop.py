@@ -160,17 +160,18 @@ def differenced_velocity(trace: Trace, q: list, period: float) -> tuple[list, li
     return [q[0], rate, *q[2:]], [f"vb[phase] = {position}"]
 
 
-def loop_body(parts: TracedParts, plant: NativeStepper, n: int, m: int, copy: str = "0",
+def loop_body(parts: TracedParts, plant: NativeStepper, n: int, m: int, at: str = "j, 0",
               test: list[str] = (), fold: list[str] = ()) -> list[str]:
-    """The lines of the loop over rows ``[start, stop]`` of one copy (column ``copy`` of the
-    buffers), returning ``(status, row)``; ``test`` runs after the row is read (a batch's quick
-    divergence test), ``fold`` after it is written (a batch's reductions). ``phase`` is
-    ``k % hold`` (a control sample at 0), counted rather than divided (no integer division a
-    row)."""
-    record = ([f"xb[j, {copy}, {i - 1}] = x{i}" for i in range(1, n + 1)]
-              + [f"mb[j, {copy}, {i - 1}] = m{i}" for i in range(1, n + 1)]
-              + [f"qb[j, {copy}, {i}] = {q}" for i, q in enumerate(parts.q)]
-              + [f"ub[j, {copy}] = u"] + [f"ab[j, {copy}, {i}] = adaptive[{i}]" for i in range(m)]
+    """The lines of the loop over rows ``[start, stop]`` of one copy, returning ``(status, row)``;
+    ``at`` indexes the row (``j``) of the copy in the buffers (``"j, 0"``: buffers stored row
+    after row; a batch's, stored copy after copy: ``"b, j"``); ``test`` runs after the row is read
+    (a batch's quick divergence test), ``fold`` after it is written (a batch's reductions).
+    ``phase`` is ``k % hold`` (a control sample at 0), counted rather than divided (no integer
+    division a row)."""
+    record = ([f"xb[{at}, {i - 1}] = x{i}" for i in range(1, n + 1)]
+              + [f"mb[{at}, {i - 1}] = m{i}" for i in range(1, n + 1)]
+              + [f"qb[{at}, {i}] = {q}" for i, q in enumerate(parts.q)]
+              + [f"ub[{at}] = u"] + [f"ab[{at}, {i}] = adaptive[{i}]" for i in range(m)]
               + list(parts.keep))
     return [
         *plant.setup,

@@ -74,6 +74,10 @@ class Reduction:
     # the control samples only.
     partials: ClassVar[tuple[float, ...] | None] = None
     at_samples: ClassVar[bool] = False
+    # lines run before a copy's rows and after them (before the loop returns): state of the fold
+    # held in the loop's locals
+    enter: ClassVar[tuple[str, ...]] = ()
+    leave: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, batch: int, width: int, duration: float, settings: MetricSettings) -> None:
         self.batch = batch
@@ -248,7 +252,13 @@ class ErrorRate(Reduction):
         return [values[..., 0]]
 
     def fold_lines(self, values: list[str], slot: int, t: str, constant: Constant) -> list[str]:
-        return [f"follow_row({t}, abs({values[0]}), e_instants, e_values, b, e_done, e_last)"]
+        return [f"e_ta, e_za, e_i = follow_row({t}, abs({values[0]}), e_instants, e_values, b, e_ta, e_za,"
+                " e_i)"]
+
+    # the run's progress in the loop's locals: read when a copy's rows start, written back whenever
+    # they stop (the compiled batch: qcontrol.engine.compiled_folds)
+    enter = ("e_ta, e_za, e_i = e_last[b, 0], e_last[b, 1], e_done[b]",)
+    leave = ("e_done[b] = e_i", "e_last[b, 0], e_last[b, 1] = e_ta, e_za")
 
     def working(self) -> tuple[np.ndarray, ...]:
         """The arrays the compiled fold reads and writes: the instants, the values at them, and

@@ -118,10 +118,15 @@ class FullRecord(_Record):
         self.observe_every = observe_every
         self.observed = 0  # rows [0, observed) went to the observer
         self.derived = 0  # rows [0, derived) have their derived signals
-        self.arrays = self.buffer.arrays | {"yd": parts.reference.table[:, None, :]}
+        self.own = {"yd": parts.reference.table[:, None, :]}  # what the buffer does not hold
         for s in DERIVED:
             width = () if s.width == "1" else (self.widths[s.name],)
-            self.arrays[s.name] = np.full((self.grid.rows, self.batch, *width), np.nan)
+            self.own[s.name] = np.full((self.grid.rows, self.batch, *width), np.nan)
+
+    @property
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Every signal's rows: the buffer's (however it stores them) and the derived."""
+        return self.buffer.arrays | self.own
 
     def next_event(self, k: int) -> int:
         return NEVER if self.observer is None else chunk_end(self.observed, self.observe_every,
@@ -147,7 +152,7 @@ class FullRecord(_Record):
             last = min(stop, first + block)
             signals = self.signals(first, last)
             for s in DERIVED:
-                self.arrays[s.name][first:last] = signals[s.name]
+                self.own[s.name][first:last] = signals[s.name]
         self.derived = max(self.derived, stop)
 
 

@@ -28,14 +28,39 @@ class RowBuffer:
     """Arrays of the recorded signals for ``capacity`` rows of ``batch`` copies:
     ``arrays[name]`` has shape ``(capacity, batch, width)`` (``(capacity, batch)`` for a scalar);
     buffer row ``j`` holds run row ``base + j`` (a metrics-only run reuses the buffer chunk after
-    chunk)."""
+    chunk).
+
+    Stored row after row (a row of every copy together: the array form writes a row at a time), or,
+    after :meth:`by_copy`, copy after copy (``arrays`` are then views of ``copies``, the arrays
+    ``(batch, capacity[, width])``): the compiled batch writes every row of one copy in turn, and
+    rows of a copy stored together stay on a few memory pages instead of one page per row (with
+    1000 copies a row of ``x`` is 16 kB: the pages' translations, not the stores, cost most)."""
 
     def __init__(self, capacity: int, batch: int, n: int, m: int) -> None:
         self.base = 0
-        self.arrays = {
-            s.name: np.full((capacity, batch) if s.width == "1" else (capacity, batch, s.size(n, m)), np.nan)
-            for s in RECORDED
-        }
+        self.shapes = {s.name: (capacity, batch) if s.width == "1" else (capacity, batch, s.size(n, m))
+                       for s in RECORDED}
+        self._arrays: dict[str, np.ndarray] | None = None  # made when first asked for (or by by_copy)
+        self.copies: dict[str, np.ndarray] | None = None
+
+    @property
+    def arrays(self) -> dict[str, np.ndarray]:
+        if self._arrays is None:
+            self._arrays = {name: np.full(shape, np.nan) for name, shape in self.shapes.items()}
+        return self._arrays
+
+    def by_copy(self) -> dict[str, np.ndarray]:
+        """Store the rows copy after copy from now on (rows written before are kept); returns
+        ``copies``. The same values are read through ``arrays``, whatever the storage."""
+        if self.copies is None:
+            if self._arrays is None:
+                self.copies = {name: np.full((shape[1], shape[0], *shape[2:]), np.nan)
+                               for name, shape in self.shapes.items()}
+            else:
+                self.copies = {name: np.ascontiguousarray(np.swapaxes(a, 0, 1))
+                               for name, a in self._arrays.items()}
+            self._arrays = {name: np.swapaxes(a, 0, 1) for name, a in self.copies.items()}
+        return self.copies
 
     def rows(self, first: int, stop: int) -> dict[str, np.ndarray]:
         """Views of run rows ``[first, stop)`` of every recorded signal."""
@@ -48,13 +73,12 @@ class ArrayRows:
     while the row is in the cache); only a row that fails the test is examined copy by copy."""
 
     def __init__(self, buffer: RowBuffer, state_bound: float) -> None:
-        self.buffer = buffer
+        self.buffer, self.batch = buffer, buffer.shapes["u"][1]
         self.state_bound = state_bound
-        self._x, self._x_meas, self._x_q, self._u, self._adaptive = (buffer.arrays[s.name] for s in RECORDED)
         self._suspect = -1  # the last row that failed the quick test
 
     def initial_state(self, law: BatchLaw) -> tuple[np.ndarray, ...]:
-        return tuple(np.ascontiguousarray(law.initial_state(self._u.shape[1]).T))
+        return tuple(np.ascontiguousarray(law.initial_state(self.batch).T))
 
     def quantizer(self, quantizer: Quantizer) -> Callable[[np.ndarray], QuantizedReading]:
         return partial(quantize, quantizer)
@@ -73,11 +97,11 @@ class ArrayRows:
     def keep(self, k: int, x: np.ndarray, meas: np.ndarray, reading: QuantizedReading, u: np.ndarray,
              adaptive: tuple) -> bool:
         """Row ``k``; True when some copy may have diverged there (NaN fails either test)."""
-        j = k - self.buffer.base
-        self._x[j], self._x_meas[j], self._x_q[j], self._u[j] = x, meas, reading.values, u
+        j, arrays = k - self.buffer.base, self.buffer.arrays  # (its storage may change: RowBuffer.by_copy)
+        arrays["x"][j], arrays["x_meas"][j], arrays["x_q"][j], arrays["u"][j] = x, meas, reading.values, u
         for i, a in enumerate(adaptive):
-            self._adaptive[j, :, i] = a
-        if np.abs(self._x[j]).max() <= self.state_bound and math.isfinite(self._adaptive[j].sum()):
+            arrays["adaptive"][j, :, i] = a
+        if np.abs(arrays["x"][j]).max() <= self.state_bound and math.isfinite(arrays["adaptive"][j].sum()):
             return False
         self._suspect = k
         return True
