@@ -188,6 +188,16 @@ def short_example2():
 
 
 @pytest.fixture
+def python_loop(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Runs in the Python loop and the array form (``QCONTROL_COMPILE=0``), for a test of what a
+    run does rather than of its compiled form whose scenario (a plant term, a bounding function of
+    its own) would be one more generated module to compile: seconds on an empty cache against a
+    fraction of a second in Python. The compiled forms give the Python loop's numbers to the last
+    bit (tests/test_compiled_loop.py, tests/test_compiled_batch.py)."""
+    monkeypatch.setenv("QCONTROL_COMPILE", "0")
+
+
+@pytest.fixture
 def ctrl_c_on_second_chunk(monkeypatch):
     """Call it to make the sweeps that follow run one run per chunk and be interrupted
     (KeyboardInterrupt, as Ctrl-C) when their second chunk starts: the first chunk's rows are
