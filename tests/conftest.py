@@ -47,10 +47,11 @@ INTEGRAL_LAW_METHODS = """
 # file handed out last leaves the other worker idle at the end; the rest keep their order. xdist's
 # own reordering (files with the most tests first) is turned off for that.
 HEAVY_FIRST = ("test_compiled_loop.py", "test_one_definition.py", "test_output_safety.py", "test_recipes.py",
-               "test_reproduce.py", "test_compiled_batch.py", "test_readme.py", "test_compiled_folds.py",
-               "test_laws_doc.py", "test_sweep.py", "test_reliability.py", "test_closed_loop.py",
-               "test_video.py", "test_plots.py", "test_record.py", "test_reproduce_laws.py",
-               "test_sensors.py", "test_mujoco_compiled_batch.py", "test_cli.py", "test_tuning.py")
+               "test_reproduce.py", "test_readme.py", "test_laws_doc.py", "test_compiled_batch.py",
+               "test_sweep.py", "test_plots.py", "test_reliability.py", "test_reproduce_laws.py",
+               "test_tuning.py", "test_cli.py", "test_video.py", "test_mujoco_compiled_batch.py",
+               "test_failures.py", "test_compiled_folds.py", "test_law_api.py", "test_bad_input.py",
+               "test_fastpath.py", "test_commands_api.py", "test_physics.py", "test_native_passive.py")
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -185,6 +186,16 @@ def short_example2():
     from qcontrol.scenario import load_scenario
 
     return load_scenario(EX2, ["simulation.duration=0.2"])
+
+
+@pytest.fixture
+def python_loop(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Runs in the Python loop and the array form (``QCONTROL_COMPILE=0``), for a test of what a
+    run does rather than of its compiled form whose scenario (a plant term, a bounding function of
+    its own) would be one more generated module to compile: seconds on an empty cache against a
+    fraction of a second in Python. The compiled forms give the Python loop's numbers to the last
+    bit (tests/test_compiled_loop.py, tests/test_compiled_batch.py)."""
+    monkeypatch.setenv("QCONTROL_COMPILE", "0")
 
 
 @pytest.fixture

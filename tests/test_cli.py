@@ -34,6 +34,7 @@ def test_run_writes_summary_per_contract(tmp_path, capsys):
     assert "error rate" in printed and "Lemma 2" in printed
 
 
+@pytest.mark.usefixtures("python_loop")
 def test_diverged_run_exit_1_and_summary_says_so(tmp_path):
     out = tmp_path / "div"
     status = main(["run", str(EX1), "--out", str(out), "-q", "--set", 'plant.psi="x2**3"',

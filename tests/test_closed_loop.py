@@ -55,6 +55,7 @@ def test_theorem1_signals_finite_and_bounded(runs, name):
     assert np.abs(traj.z[half, 0]).max() < Z1_LAST_HALF_BOUND
 
 
+@pytest.mark.usefixtures("python_loop")
 def test_quantizer_off_tracks_far_tighter():
     """delta -> 0 with the unknown psi removed: quantization is the only error source left, and
     z_1 converges more than 10x tighter than with delta = 0.1 (measured: ~23x)."""
@@ -93,6 +94,7 @@ def test_rk4_plant_against_closed_form():
     assert x1 == pytest.approx(0.5 * 1.0 + 1.5 * (1 - np.exp(-1.0)), abs=1e-12)
 
 
+@pytest.mark.usefixtures("python_loop")
 def test_divergence_stops_the_run_and_keeps_the_rows():
     # psi = x2^3 drives x2 to ~6.5 before the loop recovers; a bound of 5 stops it there
     sc = load_scenario(SCENARIOS / "example1.toml", ['plant.psi="x2**3"', "simulation.state_bound=5.0"])
@@ -103,6 +105,7 @@ def test_divergence_stops_the_run_and_keeps_the_rows():
     assert "bound" in traj.divergence_reason
 
 
+@pytest.mark.usefixtures("python_loop")
 def test_nan_stops_the_run():
     sc = load_scenario(SCENARIOS / "example1.toml", ['plant.psi="exp(x2)**2"', "plant.x0=[0.8, 3.0]"])
     traj = run_scenario(sc, "ode")
@@ -117,6 +120,7 @@ def test_same_scenario_same_numbers():
         assert np.array_equal(getattr(a, field), getattr(b, field))
 
 
+@pytest.mark.usefixtures("python_loop")
 def test_high_gain_sampled_loop_diverges_and_lemma2_is_checked_before_it():
     """kappa = 0.1 + L with r x 30 is unstable when sampled at 1 kHz (fine at 10 kHz): the run
     stops, and the Lemma 2 check covers the rows before the out-of-range state (|x| >> 1e6)."""

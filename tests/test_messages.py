@@ -117,6 +117,7 @@ def test_the_gain_period_monitor_is_printed_without_a_warning_on_the_paper_run(c
     assert SAMPLED_WARNING not in printed
 
 
+@pytest.mark.usefixtures("python_loop")
 def test_the_diverged_reason_names_a_nan_state() -> None:
     from qcontrol.assembly import run_scenario
 

@@ -341,6 +341,7 @@ def test_rerun_cli_accepts_the_file(compare_recording):
     rrd_verify(compare_recording[0])
 
 
+@pytest.mark.usefixtures("python_loop")
 def test_diverging_run_ends_at_the_divergence_time(tmp_path):
     path = tmp_path / "diverged.rrd"
     with Recording(path) as rec:

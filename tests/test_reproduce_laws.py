@@ -88,6 +88,7 @@ def test_quick_reproduce_adds_the_law_to_table1_and_leaves_the_rest(tmp_path, la
     assert f"| {KIND} (--law; not in the paper) |" in (more / "REPORT.md").read_text()
 
 
+@pytest.mark.usefixtures("python_loop")
 def test_the_region_study_maps_the_law_beside_the_built_in_ones(law_file) -> None:
     from qcontrol.reproduce.region_study import LAWS, region_study
     quiet = lambda _: None  # noqa: E731

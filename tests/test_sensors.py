@@ -240,6 +240,7 @@ def test_the_compiled_loop_declines_what_it_does_not_know(keys: dict) -> None:
 # ---- time in the plant's terms: the forced Duffing oscillator --------------------------------------
 
 
+@pytest.mark.usefixtures("python_loop")
 def test_forced_duffing_agrees_on_both_backends() -> None:
     sc = qcontrol.load_scenario("duffing")
     assert sc.terms.timed and sc.psi == "2.1*cos(1.8*t)"
