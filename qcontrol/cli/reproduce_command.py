@@ -30,8 +30,9 @@ def add_reproduce_parser(sub: argparse._SubParsersAction) -> None:
         "the tuning-function law and the linear law (paper's gains; kp 400, kd 40) mapped beside them at "
         "1 kHz, every law with Table 1's rates (about 4 s of CPU with its figure); (3) the robustness "
         "study: 248 MuJoCo runs of the realistic arm and cart (each imperfection alone, 20 noise seeds, "
-        "margins beyond the hardware, disturbances: about 25 s over two worker processes, 50 s of CPU; "
-        "longer on a shared machine). --quick skips (2b), (2c) and (3) and runs 1 s horizons: about 12 s "
+        "margins beyond the hardware, disturbances; with (2b) and (2c) on the same two worker processes: "
+        "about 17 s for the whole command, 32 s of CPU; longer on a shared machine). --quick skips (2b), "
+        "(2c) and (3) and runs 1 s horizons: about 12 s "
         "on a shared 2-core VM, most of it writing the figures.",
     )
     rep.add_argument("--out", type=Path, default=Path("results"), metavar="DIR",

@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from .. import compiled as compiled_paths
-from ..compiled import CALLED
+from ..compiled import CALLED, JIT
 from ..compiled.traced import TracedForm
 from ..plants.base import NativeStepper, NativeStepping
 from ..quantizer import UniformQuantizer
@@ -51,7 +51,6 @@ from . import compiled_loop
 from .compiled_folds import NO_VALUES, Folds, helpers
 from .compiled_loop import (
     CONTROL_REFUSED,
-    JIT,
     START,
     Resume,
     Schedule,

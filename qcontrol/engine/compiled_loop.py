@@ -212,8 +212,6 @@ def module_source(plant: NativeStepper, functions: list[str]) -> str:
     ])
 
 
-
-
 def loop_source(parts: TracedParts, plant: NativeStepper, n: int, m: int) -> str:
     """The module text of the loop function ``rows(...) -> (status, row)``."""
     return module_source(plant, [

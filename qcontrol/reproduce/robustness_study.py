@@ -109,8 +109,7 @@ def runs_alone(sc: Scenario) -> bool:
     """Whether a study's runs like ``sc`` go faster one by one than as a batch: where a single run
     takes the compiled loop (compiled paths asked for, runs of at least
     :data:`~qcontrol.engine.compiled_loop.MIN_ROWS` rows). One compiled loop serves every run of
-    the same structure whatever its numbers, where a batch's compiled form is one per batch size
-    (compiled anew for each, when the cache is cold)."""
+    the same structure whatever its numbers."""
     sim = sc.simulation
     return compiled_paths.requested() and TimeGrid.of(sim.duration, sim.dt).rows >= compiled_loop.MIN_ROWS
 
@@ -290,8 +289,7 @@ def started(scenarios: Path, duration: float | None, workers: int, log: Callable
     workers = worker_count(workers, len(study.plan.tasks))
     log(f"study: robustness: {len(study.plan.tasks)} runs, {len(study.disturbances)} disturbance cases, "
         f"on {workers} worker(s)")
-    if compiled_paths.requested():  # (before the workers fork: they start with numba loaded and started)
-        compiled_paths.started()
+    compiled_paths.started()  # (before the workers fork: they start with numba loaded and started)
     pool = worker_pool(workers) if workers > 1 else None
     try:
         waits = [partial(function, *arguments) if pool is None else pool.apply_async(function, arguments).get
