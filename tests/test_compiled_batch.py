@@ -73,6 +73,26 @@ def test_every_copy_equals_its_run_alone_and_the_array_form(monkeypatch, name: s
         _same(compiled[i], assemble([scs[i]], "ode").run()[0], ("x", "x_meas", "x_q", "u", "adaptive"))
 
 
+def test_the_lemma2_figure_of_a_batch_is_its_runs_alone(monkeypatch) -> None:
+    """With c_1 = 3 a batch's matrix product of the Lemma 2 coordinates rounds otherwise than a
+    run alone's row by row; the figure is still each run alone's, in the compiled batch (the rows
+    it notes in its loop recomputed; with three slots the first block overflows and is reduced in
+    the array form, the later 40-row blocks are merged) and in the array form."""
+    import qcontrol.engine.reductions as reductions
+    import qcontrol.engine.retention as retention
+
+    monkeypatch.setattr(reductions, "CANDIDATES", 3)
+    monkeypatch.setattr(retention, "METRICS_CHUNK", 40)
+    monkeypatch.setattr(retention, "METRICS_BUFFER_ELEMENTS", 40)
+    scs = _variants("example2", ["controller.c=[3.0, 5.0]"])
+    loop, compiled = _run(_spec(scs, "metrics"), monkeypatch)
+    assert loop.handover is None
+    _, array = _run(_spec(scs, "metrics"), monkeypatch, compiled=False)
+    monkeypatch.setenv("QCONTROL_COMPILE", "0")
+    for sc, a, b in zip(scs, compiled, array, strict=True):
+        alone = assemble([sc], "ode").run(record="metrics")[0].e_z_max.tobytes()
+        assert a.e_z_max.tobytes() == alone == b.e_z_max.tobytes()
+
 
 def test_one_module_serves_every_batch_size(monkeypatch) -> None:
     """The batch size is a run-time value: batches of 3 and 24 copies of one structure run the
