@@ -96,6 +96,10 @@ class Reduction:
     def value(self, b: int) -> Any:
         raise NotImplementedError
 
+    def every_value(self) -> list[Any]:
+        """:meth:`value` of every copy in turn (made at once where that costs less)."""
+        return [self.value(b) for b in range(self.batch)]
+
     def row_values(self, values: Any) -> list[Any]:
         """The values one row of one copy folds, from :meth:`values` of a traced row."""
         return [values]
@@ -119,6 +123,11 @@ def _finite_or_nan(value: float) -> float:
     return value if math.isfinite(value) else math.nan
 
 
+def _each_finite_or_nan(values: np.ndarray) -> list[float]:
+    """:func:`_finite_or_nan` of each value (NaN as ``math.nan`` itself, as there)."""
+    return [_finite_or_nan(v) for v in values.tolist()]
+
+
 class LargestAbs(Reduction):
     """The largest finite ``|u|`` (NaN when there is none)."""
 
@@ -140,6 +149,9 @@ class LargestAbs(Reduction):
 
     def value(self, b: int) -> float:
         return _finite_or_nan(float(self.largest[b]))
+
+    def every_value(self) -> list[float]:
+        return _each_finite_or_nan(self.largest)
 
     partials = (-math.inf,)
 
@@ -185,6 +197,11 @@ class SaturatedFraction(Reduction):
 
     def value(self, b: int) -> float:
         return float(self.clipped[b] / self.samples[b]) if self.samples[b] else math.nan
+
+    def every_value(self) -> list[float]:
+        with np.errstate(all="ignore"):
+            fractions = (self.clipped / self.samples).tolist()
+        return [f if n else math.nan for f, n in zip(fractions, self.samples.tolist(), strict=True)]
 
     # (its values are 0 or 1: their sums are whole numbers, the same in any order)
     partials, at_samples = (0.0, 0.0), True
@@ -302,6 +319,9 @@ class LastHalfLargestAbs(Reduction):
 
     def value(self, b: int) -> float:
         return _finite_or_nan(float(self.largest[b]))
+
+    def every_value(self) -> list[float]:
+        return _each_finite_or_nan(self.largest)
 
     partials = (-math.inf,)
 
@@ -507,6 +527,10 @@ class DiagnosticValues(Reduction):
     def value(self, b: int) -> dict[str, np.ndarray]:
         largest = np.where(np.isfinite(self.largest[b]), self.largest[b], np.nan)
         return {"max": largest, "last": self.last[b].copy()}
+
+    def every_value(self) -> list[dict[str, np.ndarray]]:
+        largest, last = np.where(np.isfinite(self.largest), self.largest, np.nan), self.last.copy()
+        return [{"max": largest[b], "last": last[b]} for b in range(self.batch)]
 
     # per column: the largest value and the last (NaN: no sample yet); its values are the law's
     # diagnostics traced on the row (the compiled batch: qcontrol.engine.compiled_batch)

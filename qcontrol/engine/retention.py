@@ -224,8 +224,9 @@ class MetricsRecord(_Record):
             self.folds.reset()
 
     def results(self, now: float) -> list[RunMetrics]:
+        every = [(fold.name, fold.every_value()) for fold in self.reductions]
         return [
-            RunMetrics(steps=int(self.divergence.kept[b]) - 1,
-                       values={fold.name: fold.value(b) for fold in self.reductions}, **meta)
+            RunMetrics(steps=int(self.divergence.kept[b]) - 1, values={name: v[b] for name, v in every},
+                       **meta)
             for b, meta in enumerate(self.metas(now))
         ]
