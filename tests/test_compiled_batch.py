@@ -78,10 +78,10 @@ def test_the_lemma2_figure_of_a_batch_is_its_runs_alone(monkeypatch) -> None:
     run alone's row by row; the figure is still each run alone's, in the compiled batch (the rows
     it notes in its loop recomputed; with three slots the first block overflows and is reduced in
     the array form, the later 40-row blocks are merged) and in the array form."""
-    import qcontrol.engine.reductions as reductions
+    import qcontrol.engine.lemma2 as lemma2
     import qcontrol.engine.retention as retention
 
-    monkeypatch.setattr(reductions, "CANDIDATES", 3)
+    monkeypatch.setattr(lemma2, "CANDIDATES", 3)
     monkeypatch.setattr(retention, "METRICS_CHUNK", 40)
     monkeypatch.setattr(retention, "METRICS_BUFFER_ELEMENTS", 40)
     scs = _variants("example2", ["controller.c=[3.0, 5.0]"])

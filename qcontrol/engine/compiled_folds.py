@@ -18,7 +18,7 @@ a refusal, where the array form takes numpy's answer) is reduced by the array fo
 for every copy (the compiled partials are dropped). A reduction whose values cannot be traced
 (a derivation with numpy calls: an actuator's clipping; ...) is always reduced by the array form.
 The Lemma 2 errors' matrix products, which numpy hands to BLAS, are not traced: their own fold
-(:class:`~.reductions.Lemma2Largest`) evaluates them by the recursion (31)-(34) and notes the
+(:class:`~.lemma2.Lemma2Largest`) evaluates them by the recursion (31)-(34) and notes the
 rows that may hold a copy's largest, which the merge recomputes as the copy's run alone does.
 """
 
@@ -32,7 +32,8 @@ import numpy as np
 from .. import error_rate
 from ..compiled import JIT
 from ..compiled.traced import Row, Symbol, Trace, TracedForm, recording
-from .reductions import DiagnosticValues, ErrorRate, Lemma2Largest, Reduction
+from .lemma2 import Lemma2Largest
+from .reductions import DiagnosticValues, ErrorRate, Reduction
 from .signals import SignalContext, derive, needed
 
 # the error rate's values where nothing is folded: of the layout of ErrorRateStream.values (stored

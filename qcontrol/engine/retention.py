@@ -18,7 +18,8 @@ from ..controller.law import BatchLaw
 from ..quantizers import ChannelQuantizer, SensorQuantizer
 from ..timegrid import TimeGrid
 from .divergence import Divergence
-from .reductions import Chunk, Lemma2Largest, MetricSettings, lemma2_slack
+from .lemma2 import Lemma2Largest, lemma2_slack
+from .reductions import Chunk, MetricSettings
 from .reference_rows import ReferenceRows
 from .results import RunMetrics, Trajectory
 from .row_buffer import NEVER, RowBuffer
