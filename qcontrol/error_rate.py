@@ -123,14 +123,14 @@ class ErrorRateStream:
                    ) -> list[dict[str, float]]:
         """:meth:`rates` of each run of ``runs`` (default: all), counted for all of them at once."""
         runs = np.arange(self.values.shape[1]) if runs is None else runs
-        values = self.values[:, runs]  # (a copy)
+        values = self.values.T[runs]  # (runs, samples): a run's instants together, as stored (a copy)
         ended = np.isfinite(self.last_t[runs])  # as np.interp does just past the last row: its value
         stop = np.searchsorted(self.instants, self.last_t[runs] + END_TOLERANCE, side="right")
-        index = np.arange(len(values))[:, None]
-        tail = ended & (index >= self.done[runs]) & (index < stop)
-        values = np.where(tail, self.last_z[runs], values)
-        samples = len(values)
-        counts = [np.count_nonzero(values > w, axis=0).tolist() for w in omegas]
+        index = np.arange(values.shape[1])
+        tail = ended[:, None] & (index >= self.done[runs][:, None]) & (index < stop[:, None])
+        values = np.where(tail, self.last_z[runs][:, None], values)
+        samples = values.shape[1]
+        counts = [np.count_nonzero(values > w, axis=1).tolist() for w in omegas]
         keys = [omega_key(w) for w in omegas]
         return [{key: float(count[b]) / samples for key, count in zip(keys, counts, strict=True)}
                 for b in range(len(runs))]

@@ -73,6 +73,26 @@ def test_every_copy_equals_its_run_alone_and_the_array_form(monkeypatch, name: s
         _same(compiled[i], assemble([scs[i]], "ode").run()[0], ("x", "x_meas", "x_q", "u", "adaptive"))
 
 
+def test_the_lemma2_figure_of_a_batch_is_its_runs_alone(monkeypatch) -> None:
+    """With c_1 = 3 a batch's matrix product of the Lemma 2 coordinates rounds otherwise than a
+    run alone's row by row; the figure is still each run alone's, in the compiled batch (the rows
+    it notes in its loop recomputed; with three slots the first block overflows and is reduced in
+    the array form, the later 40-row blocks are merged) and in the array form."""
+    import qcontrol.engine.lemma2 as lemma2
+    import qcontrol.engine.retention as retention
+
+    monkeypatch.setattr(lemma2, "CANDIDATES", 3)
+    monkeypatch.setattr(retention, "METRICS_CHUNK", 40)
+    monkeypatch.setattr(retention, "METRICS_BUFFER_ELEMENTS", 40)
+    scs = _variants("example2", ["controller.c=[3.0, 5.0]"])
+    loop, compiled = _run(_spec(scs, "metrics"), monkeypatch)
+    assert loop.handover is None
+    _, array = _run(_spec(scs, "metrics"), monkeypatch, compiled=False)
+    monkeypatch.setenv("QCONTROL_COMPILE", "0")
+    for sc, a, b in zip(scs, compiled, array, strict=True):
+        alone = assemble([sc], "ode").run(record="metrics")[0].e_z_max.tobytes()
+        assert a.e_z_max.tobytes() == alone == b.e_z_max.tobytes()
+
 
 def test_one_module_serves_every_batch_size(monkeypatch) -> None:
     """The batch size is a run-time value: batches of 3 and 24 copies of one structure run the
@@ -110,10 +130,31 @@ def test_a_copy_refused_before_it_stopped_has_the_batch_done_in_the_array_form(m
         _same(a, b)
 
 
-def test_functions_numpy_evaluates_otherwise_keep_the_array_form(monkeypatch) -> None:
-    scs = _variants("example2", ['controller.hold="exact"'])[:3]  # math.expm1 in the law
+def test_exp_and_expm1_are_compiled_and_each_copy_is_its_run_alone(monkeypatch) -> None:
+    """numba's exp and expm1 are libm's, as the math a run alone and the Python loop step with: a
+    batch with the exact hold (expm1) and an exponential in its terms is compiled, and each copy's
+    numbers are its run alone's and the Python loop's, signals and metrics."""
+    phi = 'plant.phi=["x2", "x2**2*cos(x1)", "sin(x1)*exp(-0.1*x1*x1)"]'
+    scs = _variants("example2", ['controller.hold="exact"', phi])[:6]
+    for record in ("metrics", "full"):
+        loop, compiled = _run(_spec(scs, record), monkeypatch)
+        assert loop.handover is None  # compiled from row 0 to the end
+        _, array = _run(_spec(scs, record), monkeypatch, compiled=False)
+        for a, b in zip(compiled, array, strict=True):
+            _same(a, b)
+        monkeypatch.setenv("QCONTROL_COMPILE", "0")
+        for sc, a in zip(scs, compiled, strict=True):
+            alone = assemble([sc], "ode").run(record=record)[0]
+            _same(a, alone, None if record == "metrics" else ("x", "x_meas", "x_q", "u", "adaptive"))
+        monkeypatch.delenv("QCONTROL_COMPILE")
+
+
+def test_a_power_keeps_the_python_loop(monkeypatch) -> None:
+    """LLVM computes a constant power 0.5 as a square root, which libm's pow does not always equal:
+    such a batch keeps the Python loop (its numbers the Python loop's)."""
+    scs = _variants("example2", ['plant.phi=["x2*abs(x2)**0.5", "x2**2*cos(x1)", "sin(x1)"]'])[:3]
     loop, compiled = _run(_spec(scs, "metrics"), monkeypatch)
-    assert loop.handover == 0  # the array form from row 0
+    assert loop.handover == 0  # the Python loop from row 0
     _, array = _run(_spec(scs, "metrics"), monkeypatch, compiled=False)
     for a, b in zip(compiled, array, strict=True):
         _same(a, b)

@@ -16,9 +16,10 @@ through the block). So a block of rows is merged only when every copy either cou
 rows or had stopped before it; a block in which some copy stops (or in which a traced value met
 a refusal, where the array form takes numpy's answer) is reduced by the array form, as before,
 for every copy (the compiled partials are dropped). A reduction whose values cannot be traced
-(a derivation with numpy calls: the Lemma 2 errors' matrix products, which numpy hands to BLAS,
-whose fused multiply-adds depend on the BLAS build and the processor; an actuator's clipping;
-...) is always reduced by the array form.
+(a derivation with numpy calls: an actuator's clipping; ...) is always reduced by the array form.
+The Lemma 2 errors' matrix products, which numpy hands to BLAS, are not traced: their own fold
+(:class:`~.lemma2.Lemma2Largest`) evaluates them by the recursion (31)-(34) and notes the
+rows that may hold a copy's largest, which the merge recomputes as the copy's run alone does.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ import numpy as np
 from .. import error_rate
 from ..compiled import JIT
 from ..compiled.traced import Row, Symbol, Trace, TracedForm, recording
+from .lemma2 import Lemma2Largest
 from .reductions import DiagnosticValues, ErrorRate, Reduction
 from .signals import SignalContext, derive, needed
 
@@ -110,6 +112,8 @@ class Folds:
             if any(d.width != 1 for d in context.diagnostics):
                 raise TypeError("a diagnostic of several columns")
             return fold.row_values(values)
+        if isinstance(fold, Lemma2Largest):
+            return fold.traced_values(block, context.coordinates)
         derive(block, context, needed(fold.needs()))
         values = fold.row_values(fold.values(block))
         if not all(isinstance(v, Symbol | float) for v in values):
@@ -131,6 +135,8 @@ class Folds:
 
     def reset(self) -> None:
         self.partials[:] = self.start
+        for fold, slots in self.folded:
+            fold.restart(self.partials[:, slots])
         self.odd[:] = False
         if self.rate is not None:
             self.working = self.rate.working()

@@ -96,6 +96,10 @@ class Reduction:
     def value(self, b: int) -> Any:
         raise NotImplementedError
 
+    def every_value(self) -> list[Any]:
+        """:meth:`value` of every copy in turn (made at once where that costs less)."""
+        return [self.value(b) for b in range(self.batch)]
+
     def row_values(self, values: Any) -> list[Any]:
         """The values one row of one copy folds, from :meth:`values` of a traced row."""
         return [values]
@@ -111,9 +115,17 @@ class Reduction:
         counted, as :meth:`add` would have added those rows."""
         raise NotImplementedError
 
+    def restart(self, partials: np.ndarray) -> None:
+        """Per-copy start values of the partials ``(batch, slots)``, after the common ones (none)."""
+
 
 def _finite_or_nan(value: float) -> float:
     return value if math.isfinite(value) else math.nan
+
+
+def _each_finite_or_nan(values: np.ndarray) -> list[float]:
+    """:func:`_finite_or_nan` of each value (NaN as ``math.nan`` itself, as there)."""
+    return [_finite_or_nan(v) for v in values.tolist()]
 
 
 class LargestAbs(Reduction):
@@ -137,6 +149,9 @@ class LargestAbs(Reduction):
 
     def value(self, b: int) -> float:
         return _finite_or_nan(float(self.largest[b]))
+
+    def every_value(self) -> list[float]:
+        return _each_finite_or_nan(self.largest)
 
     partials = (-math.inf,)
 
@@ -182,6 +197,11 @@ class SaturatedFraction(Reduction):
 
     def value(self, b: int) -> float:
         return float(self.clipped[b] / self.samples[b]) if self.samples[b] else math.nan
+
+    def every_value(self) -> list[float]:
+        with np.errstate(all="ignore"):
+            fractions = (self.clipped / self.samples).tolist()
+        return [f if n else math.nan for f, n in zip(fractions, self.samples.tolist(), strict=True)]
 
     # (its values are 0 or 1: their sums are whole numbers, the same in any order)
     partials, at_samples = (0.0, 0.0), True
@@ -300,6 +320,9 @@ class LastHalfLargestAbs(Reduction):
     def value(self, b: int) -> float:
         return _finite_or_nan(float(self.largest[b]))
 
+    def every_value(self) -> list[float]:
+        return _each_finite_or_nan(self.largest)
+
     partials = (-math.inf,)
 
     def row_values(self, values: Any) -> list[Any]:
@@ -312,27 +335,6 @@ class LastHalfLargestAbs(Reduction):
 
     def merge(self, copies: np.ndarray, partials: np.ndarray) -> None:
         self.largest[copies] = np.maximum(self.largest[copies], partials[copies, 0])
-
-
-class Lemma2Largest(Reduction):
-    """The largest finite Lemma 2 error ``|e_zi|`` per i, over every row before a divergence (the
-    row that stopped a diverged copy holds an out-of-range state, where quantization error is
-    meaningless)."""
-
-    name, signal = "e_z_max", "e_z"
-
-    def __init__(self, batch: int, width: int, duration: float, settings: MetricSettings) -> None:
-        super().__init__(batch, width, duration, settings)
-        self.largest = np.full((batch, width), -np.inf)
-
-    def add(self, chunk: Chunk, values: np.ndarray) -> None:
-        checked = np.isfinite(values)
-        if not chunk.everyone:
-            checked &= chunk.before_divergence[..., None]
-        np.maximum(self.largest, np.where(checked, values, -np.inf).max(axis=0), out=self.largest)
-
-    def value(self, b: int) -> np.ndarray:
-        return self.largest[b].copy()
 
 
 class FinalValue(Reduction):
@@ -404,6 +406,10 @@ class DiagnosticValues(Reduction):
     def value(self, b: int) -> dict[str, np.ndarray]:
         largest = np.where(np.isfinite(self.largest[b]), self.largest[b], np.nan)
         return {"max": largest, "last": self.last[b].copy()}
+
+    def every_value(self) -> list[dict[str, np.ndarray]]:
+        largest, last = np.where(np.isfinite(self.largest), self.largest, np.nan), self.last.copy()
+        return [{"max": largest[b], "last": last[b]} for b in range(self.batch)]
 
     # per column: the largest value and the last (NaN: no sample yet); its values are the law's
     # diagnostics traced on the row (the compiled batch: qcontrol.engine.compiled_batch)

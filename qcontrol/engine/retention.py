@@ -18,6 +18,7 @@ from ..controller.law import BatchLaw
 from ..quantizers import ChannelQuantizer, SensorQuantizer
 from ..timegrid import TimeGrid
 from .divergence import Divergence
+from .lemma2 import Lemma2Largest, lemma2_slack
 from .reductions import Chunk, MetricSettings
 from .reference_rows import ReferenceRows
 from .results import RunMetrics, Trajectory
@@ -31,6 +32,10 @@ Observer = Callable[[int, int, list[Trajectory]], None]
 OBSERVE_EVERY = 5000  # rows per observer call: streamed chunks, few enough to keep recording cheap
 METRICS_CHUNK = 1000  # rows buffered per reduction in a metrics-only run (at least; see below)
 METRICS_BUFFER_ELEMENTS = 5000  # rows x copies per chunk (so a single run reduces 5000 rows at a time)
+# and at most (a large batch: each page of a fresh buffer costs a first touch, about 15 ns per copy-step
+# of 1000 copies with 1500-row buffers, 96 MB), down to METRICS_MIN_CHUNK rows
+METRICS_BUFFER_LIMIT = 250_000
+METRICS_MIN_CHUNK = 250
 REDUCE_ELEMENTS = 100_000  # rows x copies per block when deriving z, e_z (cache-sized temporaries)
 
 
@@ -158,17 +163,34 @@ class FullRecord(_Record):
 
 class MetricsRecord(_Record):
     """Keeps only the reductions of the signal table (:class:`RunMetrics`): rows are buffered a
-    chunk at a time (``METRICS_CHUNK`` rows, more for small batches) and folded in, so 1000 copies
-    of a 10 s, 1 kHz run need about 80 MB instead of several GB and memory does not grow with the
-    run. An observer receives each chunk as short trajectories (rows ``[0, len)`` new)."""
+    chunk at a time (``METRICS_CHUNK`` rows, more for small batches, fewer for large ones) and
+    folded in, so 1000 copies of a 10 s, 1 kHz run need about 25 MB instead of several GB and
+    memory does not grow with the run. An observer receives each chunk as short trajectories
+    (rows ``[0, len)`` new)."""
 
     def __init__(self, parts: RunParts, observer: Observer | None) -> None:
-        self.chunk = max(METRICS_CHUNK, METRICS_BUFFER_ELEMENTS // parts.batch)
+        batch = parts.batch
+        self.chunk = max(METRICS_BUFFER_ELEMENTS // batch,
+                         min(METRICS_CHUNK, max(METRICS_MIN_CHUNK, METRICS_BUFFER_LIMIT // batch)))
         super().__init__(parts, min(parts.grid.rows, self.chunk + self.chunk // 2), observer)
         self.reductions = [fold(self.batch, self.widths[fold.signal], self.grid.duration, self.metrics)
                            for fold in REDUCTIONS]
         self.derived = needed(tuple(name for fold in REDUCTIONS for name in fold.needs()))
         self.folds: Any = None  # a compiled batch's folds of these reductions (engine/compiled_folds.py)
+        if self.batch > 1:  # a batch: Lemma 2's largest errors as its runs alone's
+            for fold in self.reductions:
+                if isinstance(fold, Lemma2Largest):
+                    fold.alone, fold.slack = self.alone, lemma2_slack(self.context.coordinates)
+
+    def alone(self, rows: np.ndarray, copies: np.ndarray) -> np.ndarray:
+        """Lemma 2's errors ``(len(rows), n)`` at run rows ``rows`` (held in the buffer) of copies
+        ``copies``, each derived as the copy's run alone derives it: from a block of one copy,
+        whose products numpy takes row by row (a vector times a matrix), where a batch's block
+        is multiplied as a matrix, which BLAS rounds otherwise."""
+        arrays, first = self.buffer.arrays, int(rows.min())
+        block = {name: arrays[name][rows - self.buffer.base, copies][:, None] for name in ("x_meas", "x_q")}
+        block["yd"] = self.reference.block(first, int(rows.max()) + 1)[rows - first][:, None]
+        return derive(block, self.context, ("zbar", "e_z"))["e_z"][:, 0]
 
     def next_event(self, k: int) -> int:
         return chunk_end(self.buffer.base, self.chunk, self.grid.rows)
@@ -203,8 +225,9 @@ class MetricsRecord(_Record):
             self.folds.reset()
 
     def results(self, now: float) -> list[RunMetrics]:
+        every = [(fold.name, fold.every_value()) for fold in self.reductions]
         return [
-            RunMetrics(steps=int(self.divergence.kept[b]) - 1,
-                       values={fold.name: fold.value(b) for fold in self.reductions}, **meta)
+            RunMetrics(steps=int(self.divergence.kept[b]) - 1, values={name: v[b] for name, v in every},
+                       **meta)
             for b, meta in enumerate(self.metas(now))
         ]

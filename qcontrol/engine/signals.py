@@ -26,6 +26,7 @@ from ..controller.law import Diagnostic
 from ..expr import Expression
 from ..plants.base import applied_as_commanded
 from ..quantizers import SensorQuantizer
+from .lemma2 import Lemma2Largest
 from .reductions import (
     BoundConstants,
     DiagnosticValues,
@@ -36,7 +37,6 @@ from .reductions import (
     LargestAbsApplied,
     LargestInputQuantizationError,
     LastHalfLargestAbs,
-    Lemma2Largest,
     ReadingSaturatedFraction,
     Reduction,
     SaturatedFraction,
