@@ -99,7 +99,9 @@ def fit_titles(fig: Figure, most_lines: int = 4) -> None:
     if all(edge <= box.x0 and box.x1 <= width - edge for box, edge in
            ((title.get_window_extent(renderer), 0.0 if title is suptitle else margin) for title in titles)):
         return  # every title well inside: the figure is drawn exactly as without this check
-    fig.draw_without_rendering()  # lays the figure out: where each title would be drawn
+    engine = fig.get_layout_engine()
+    if engine is not None:  # the layout alone, not the drawing (the same positions as a draw's)
+        engine.execute(fig)  # where each title would be drawn
     for title in titles:
         text = title.get_text()
         for lines in range(2, most_lines + 1):
