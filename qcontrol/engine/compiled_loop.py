@@ -42,6 +42,7 @@ from ..compiled.traced import TRACED, Symbol, Trace, TracedForm, recording
 from ..controller.backstepping import ControlOutput, output
 from ..controller.comparison import ComparisonLaw
 from ..controller.law import BatchLaw
+from ..controller.linear import LinearLaw
 from ..controller.proposed import PaperLaw
 from ..plants.base import NativeStepper, NativeStepping, Plant
 from ..quantizer import QuantizedReading, UniformQuantizer
@@ -278,7 +279,8 @@ class CompiledLoop:
             start, step_first = stop + 1, True
 
 
-COMPILED_LAWS = (PaperLaw, ComparisonLaw)  # the laws whose objects say when their code is their class's
+# the laws whose objects say when their code is their class's
+COMPILED_LAWS = (PaperLaw, ComparisonLaw, LinearLaw)
 
 
 def compilable(law: BatchLaw, copies: int = 1) -> bool:
