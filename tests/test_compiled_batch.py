@@ -111,9 +111,20 @@ def test_a_copy_refused_before_it_stopped_has_the_batch_done_in_the_array_form(m
 
 
 def test_functions_numpy_evaluates_otherwise_keep_the_array_form(monkeypatch) -> None:
-    scs = _variants("example2", ['controller.hold="exact"'])[:3]  # math.expm1 in the law
+    r = 'controller.proposed.r=["1 + q2**2", "1 + 2*q2**2", "1 + exp(0.1*q1)"]'  # math.exp in the law
+    scs = _variants("example2", [r])[:3]
     loop, compiled = _run(_spec(scs, "metrics"), monkeypatch)
     assert loop.handover == 0  # the array form from row 0
+    _, array = _run(_spec(scs, "metrics"), monkeypatch, compiled=False)
+    for a, b in zip(compiled, array, strict=True):
+        _same(a, b)
+
+
+def test_the_exact_hold_is_compiled_with_the_array_forms_numbers(monkeypatch) -> None:
+    """The exact hold's expm1 is math's in the batch's array form too (element by element)."""
+    scs = _variants("example2", ['controller.hold="exact"'])[:3]
+    loop, compiled = _run(_spec(scs, "metrics"), monkeypatch)
+    assert loop.handover is None  # the compiled batch ran to the end
     _, array = _run(_spec(scs, "metrics"), monkeypatch, compiled=False)
     for a, b in zip(compiled, array, strict=True):
         _same(a, b)

@@ -27,7 +27,8 @@ in the array form (:class:`Redo`).
 Functions: the array form evaluates a batch's expressions with numpy's vectorised functions, which
 for some (exp, expm1, tanh, log, pow with most exponents, ...) differ in the last bit from
 ``math``'s that a run alone and this loop use. A batch whose code calls any function but
-:data:`SAME_IN_NUMPY` keeps the array form, so that its numbers stay what they were.
+:data:`SAME_IN_NUMPY` keeps the array form, so that its numbers stay what they were (the exact
+hold's expm1 is in it: the batch's array form evaluates it with ``math``, element by element).
 
 Same fallback rules as the single compiled loop (:func:`compiled_batch`): the built-in laws only,
 the uniform quantizer only, no input quantizer, input gain b = 1, no terms in t, the sensors'
@@ -64,9 +65,10 @@ from .compiled_loop import (
 from .retention import MetricsRecord
 from .spec import RunSpec
 
-# the functions whose numpy array form gives math's numbers (checked on the floats of a run)
+# the functions whose array form gives math's numbers (checked on the floats of a run; expm1: the
+# COPIES form's own math.expm1, element by element)
 SAME_IN_NUMPY = frozenset({"math.sin", "math.cos", "math.sqrt", "math.fabs", "math.isfinite", "math.isinf",
-                           "math.nan", "np.floor"})
+                           "math.nan", "np.floor", "math.expm1"})
 _CALLS = re.compile(r"\b(?:math|np)\.\w+")
 
 
