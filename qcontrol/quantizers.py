@@ -110,6 +110,12 @@ class ChannelQuantizer:
             q = np.minimum(np.maximum(q, self.low), self.high)
         return q
 
+    def apply_channel(self, i: int, x: Any, form: Any) -> Any:
+        """Channel ``i`` (from 0) of :meth:`__call__` on one column of ``form`` (its ``floor`` and
+        ``clip``): the same operations, channel by channel (the compiled loop's quantizer)."""
+        q = uniform(x, float(self.delta[i]), form.floor)
+        return q if self.range is None else form.clip(q, float(self.low[i]), float(self.high[i]))
+
     def saturated(self, x: np.ndarray) -> np.ndarray:
         """Where a reading ``x`` (``(..., n)``) lies beyond its channel's range: 1 where any
         channel's ``q(x)`` left ``[q(-R), q(R)]``, else 0 (NaN where x is not finite), ``(...,)``."""

@@ -31,7 +31,8 @@ def _compile_short_runs(monkeypatch) -> None:
     monkeypatch.setattr(compiled_loop, "COLD_MIN_ROWS", 0)
 
 
-LAWS = {"exact hold": ["controller.hold=\"exact\""], "comparison law": ["controller.kind=\"comparison\""]}
+LAWS = {"exact hold": ["controller.hold=\"exact\""], "comparison law": ["controller.kind=\"comparison\""],
+        "linear law": ["controller.kind=\"linear\""]}
 
 
 def _loop(sc, backend: str, record: str = "full", law=None) -> tuple[ClosedLoop, object]:
@@ -78,7 +79,8 @@ def test_compiled_and_python_loops_agree_on_every_shipped_scenario(monkeypatch, 
 # only); the exact hold changes how the law's own constants hold u (no plant term): on Example 2, as
 # each plant's lines are checked with the default law above (each further plant is one more module
 # to compile)
-LAW_CASES = [("exact hold", "example2"), ("comparison law", "example1"), ("comparison law", "example2")]
+LAW_CASES = [("exact hold", "example2"), ("comparison law", "example1"), ("comparison law", "example2"),
+             ("linear law", "example2")]
 
 
 @pytest.mark.parametrize("backend", ["ode", "mujoco"])
@@ -87,6 +89,17 @@ def test_compiled_and_python_loops_agree_for_each_built_in_law(monkeypatch, back
                                                                name: str) -> None:
     (loop, compiled), (_, python) = _both(monkeypatch, _scenario(name, LAWS[law]), backend)
     assert loop.handover is None
+    _assert_identical(compiled, python)
+
+
+@pytest.mark.parametrize("backend", ["ode", "mujoco"])
+def test_a_quantizer_per_channel_with_a_range_is_compiled(monkeypatch, backend: str) -> None:
+    """A step per channel and a range the arm leaves (its angle readings saturate at q(0.35))."""
+    keys = ["simulation.duration=0.4", "quantizer.delta=[0.0015, 0.05]", "quantizer.range=[0.35, 20.0]"]
+    sc = load_scenario(SCENARIOS / "example2.toml", keys, unset=["controller.delta"])
+    (loop, compiled), (_, python) = _both(monkeypatch, sc, backend)
+    assert loop.handover is None
+    assert np.max(compiled.x_q[:, 0]) < np.max(compiled.x_meas[:, 0])  # saturated
     _assert_identical(compiled, python)
 
 

@@ -226,7 +226,6 @@ def test_a_sweep_over_per_channel_steps() -> None:
 
 
 @pytest.mark.parametrize("keys", [
-    {"quantizer.delta": [0.0015, 0.05]},
     {"quantizer.kind": "hysteresis", "quantizer.delta": 0.01},
     {"quantizer.delta": 0.01, "quantizer.input.delta": 0.5},
     {"quantizer.delta": 0.01, "plant.input_gain": 2.0},

@@ -26,12 +26,15 @@ def add_reproduce_parser(sub: argparse._SubParsersAction) -> None:
         "twin (about 5 s with the figures and recordings); (2) the sensitivity studies on the ODE: "
         "kappa - L, the scale of r, the plant variants (21 runs, batched: about 3 s); (2b) the sampled "
         "loop's region of attraction: both examples at 1 and 2 kHz, the paper's law, its exact hold and "
-        "the comparison law on a 9 x 9 grid of initial states (batched ODE: about 10 s); (2c) the trade-off: "
+        "the comparison law on a 9 x 9 grid of initial states (compiled ODE batches: about 2 s of CPU with "
+        "its figure); (2c) the trade-off: "
         "the tuning-function law and the linear law (paper's gains; kp 400, kd 40) mapped beside them at "
-        "1 kHz, every law with Table 1's rates (about 4 s of CPU with its figure); (3) the robustness "
+        "1 kHz, every law with Table 1's rates (about 2.5 s of CPU with its figure); (3) the robustness "
         "study: 248 MuJoCo runs of the realistic arm and cart (each imperfection alone, 20 noise seeds, "
         "margins beyond the hardware, disturbances; with (2b) and (2c) on the same two worker processes: "
-        "about 17 s for the whole command, 32 s of CPU; longer on a shared machine). --quick skips (2b), "
+        "about 28 s of CPU, about 15 s for the whole command by that estimate (it took 17 s and 32 s of "
+        "CPU before the region maps, the linear law and per-channel sensors were compiled: 36 -> 31 s of "
+        "CPU side by side at load 6-16); longer on a shared machine). --quick skips (2b), "
         "(2c) and (3) and runs 1 s horizons: about 12 s "
         "on a shared 2-core VM, most of it writing the figures.",
     )

@@ -279,6 +279,14 @@ def _floor(x: Value) -> Value:
     return current().assign(f"np.floor({x.text})")
 
 
+def _clip(x: Value, low: float, high: float) -> Value:
+    """numpy's ``minimum(maximum(x, low), high)`` (NaN stays NaN), on a symbol or a number."""
+    if not isinstance(x, Symbol):
+        return float(np.minimum(np.maximum(x, low), high))
+    trace = current()
+    return trace.assign(f"np.minimum(np.maximum({x.text}, {trace.text(low)}), {trace.text(high)})")
+
+
 class TracedForm:
     """The :class:`~qcontrol.columns.ColumnForm` whose columns are :class:`Symbol`\\ s; a
     parameter is a plain number, as in the float form (a batch of one), or for a batch of
@@ -286,6 +294,7 @@ class TracedForm:
 
     expm1: Callable[[Value], Value] = staticmethod(_expm1)
     floor: Callable[[Value], Value] = staticmethod(_floor)
+    clip: Callable[[Value, float, float], Value] = staticmethod(_clip)
 
     def __init__(self, batch: int = 1) -> None:
         self.batch = batch

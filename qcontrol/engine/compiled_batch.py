@@ -34,8 +34,8 @@ outside :data:`SAME_AS_MATH` keeps the Python loop.
 
 Same fallback rules as the single compiled loop (:func:`compiled_batch`): the built-in laws only,
 the uniform quantizer only, no input quantizer, input gain b = 1, no terms in t, the sensors'
-velocity, runs of at least :data:`~.compiled_loop.MIN_ROWS` rows, no observer; the rest runs the
-array form. The text is cached on disk (:mod:`qcontrol.compiled.cache`).
+velocity, batches of at least :data:`~.compiled_loop.MIN_ROWS` copy-rows (as a user's law's), no
+observer; the rest runs the array form. The text is cached on disk (:mod:`qcontrol.compiled.cache`).
 """
 
 from __future__ import annotations
@@ -224,7 +224,7 @@ def compiled_batch(spec: RunSpec) -> CompiledBatch | None:
     plant, batch = spec.plant, spec.plant.batch
     if batch == 1 or not isinstance(plant, NativeStepping) or spec.velocity_source != "sensor":
         return None
-    if spec.grid.rows < compiled_loop.MIN_ROWS or spec.observer is not None:
+    if spec.grid.rows * batch < compiled_loop.MIN_ROWS or spec.observer is not None:  # (copy-rows)
         return None
     if spec.input_quantizer is not None:
         return None

@@ -2,7 +2,8 @@
 scheduled rows, generated from the parts' own Python code.
 
 The engine's float path (:mod:`.fastpath`) chooses it for a run whose parts all have a compiled
-form: the uniform quantizer, a built-in law, the plant's
+form: the uniform quantizer (one step, or a step and a range per channel:
+:class:`~qcontrol.quantizers.ChannelQuantizer`), a built-in law, the plant's
 :class:`~qcontrol.plants.base.NativeStepper` (the ODE's RK4 on its terms, or MuJoCo's copy step
 calling ``mj_step`` from compiled code), the velocity sensor's or the differenced velocity
 (:mod:`.velocity`). The quantizer's formula (:meth:`~qcontrol.quantizer.UniformQuantizer.apply`),
@@ -42,9 +43,11 @@ from ..compiled.traced import TRACED, Symbol, Trace, TracedForm, recording
 from ..controller.backstepping import ControlOutput, output
 from ..controller.comparison import ComparisonLaw
 from ..controller.law import BatchLaw
+from ..controller.linear import LinearLaw
 from ..controller.proposed import PaperLaw
 from ..plants.base import NativeStepper, NativeStepping, Plant
 from ..quantizer import QuantizedReading, UniformQuantizer
+from ..quantizers import ChannelQuantizer
 from . import velocity
 from .reference_rows import ReferenceRows
 from .spec import RunSpec
@@ -117,7 +120,8 @@ def traced_parts(quantizer: UniformQuantizer, law: BatchLaw, n: int, dt: float,
     seconds (the control period, ``hold`` rows; :func:`differenced_velocity`)."""
     m, trace = law.state_size, Trace()
     with recording(trace):
-        q = [quantizer.apply(Symbol(f"m{i}"), TRACED.floor) for i in range(1, n + 1)]
+        q = [quantizer.apply(Symbol(f"m{i}"), TRACED.floor) if isinstance(quantizer, UniformQuantizer)
+             else quantizer.apply_channel(i - 1, Symbol(f"m{i}"), TRACED) for i in range(1, n + 1)]
         keep: list[str] = []
         if period is not None:
             q, keep = differenced_velocity(trace, q, period)
@@ -278,7 +282,8 @@ class CompiledLoop:
             start, step_first = stop + 1, True
 
 
-COMPILED_LAWS = (PaperLaw, ComparisonLaw)  # the laws whose objects say when their code is their class's
+# the laws whose objects say when their code is their class's
+COMPILED_LAWS = (PaperLaw, ComparisonLaw, LinearLaw)
 
 
 def compilable(law: BatchLaw, copies: int = 1) -> bool:
@@ -316,7 +321,7 @@ def compiled_loop(spec: RunSpec) -> CompiledLoop | None:
         period = spec.grid.hold * spec.grid.dt
     if not numba_pays(rows, 1):  # (before enabled(), which imports it)
         return None
-    if type(spec.quantizer) is not UniformQuantizer:  # (a subclass may quantize otherwise)
+    if type(spec.quantizer) not in (UniformQuantizer, ChannelQuantizer):  # (a subclass: its own way)
         return None
     if not compiled_paths.enabled():
         return None

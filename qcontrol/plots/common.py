@@ -78,35 +78,46 @@ def new_figure(rows: int = 1, cols: int = 1, **subplot_kw) -> tuple[Figure, np.n
 
 def save(fig: Figure, path: str | os.PathLike) -> Path:
     """Write ``fig`` to ``path`` atomically, as PNG, PDF or SVG by its suffix (PNG for any other
-    suffix; the command line refuses those before the run); missing folders are created."""
+    suffix; the command line refuses those before the run); missing folders are created. The
+    figure is laid out once (twice where a title had to be wrapped, :func:`fit_titles`) and drawn
+    as laid out, not laid out again by the drawing."""
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
     fit_titles(fig)
     suffix = target.suffix.lower()
     kind = suffix[1:] if suffix in FIGURE_FORMATS else "png"
-    return write_file(target, lambda handle: fig.savefig(handle, format=kind, dpi=FIG_DPI))
+    engine = fig.get_layout_engine()
+    if engine is None:
+        return write_file(target, lambda handle: fig.savefig(handle, format=kind, dpi=FIG_DPI))
+    fig.set_layout_engine("none")  # (laid out by fit_titles)
+    try:
+        return write_file(target, lambda handle: fig.savefig(handle, format=kind, dpi=FIG_DPI))
+    finally:
+        fig.set_layout_engine(engine)
 
 
 def fit_titles(fig: Figure, most_lines: int = 4) -> None:
-    """Wrap each title of ``fig`` (its axes' and its suptitle) that would run past the figure's
-    edges onto as few lines as keep it inside (at most ``most_lines``); constrained layout then
-    makes room for the extra lines. Only the titles' text changes, never what is drawn."""
+    """Lay ``fig`` out (its layout engine, if any), then wrap each title (its axes' and its
+    suptitle) that runs past the figure's edges onto as few lines as keep it inside (at most
+    ``most_lines``) and, if one was wrapped, lay it out again: constrained layout then makes room
+    for the extra lines. Only the titles' text changes, never what is drawn."""
     renderer = fig.canvas.get_renderer()
     suptitle = fig._suptitle  # matplotlib keeps the Text of fig.suptitle here (None without one)
     titles = [ax.title for ax in fig.axes if ax.title.get_text()] + ([] if suptitle is None else [suptitle])
-    width, margin = fig.bbox.width, 0.1 * fig.bbox.width  # the layout moves an axes by less than margin
-    # (the layout moves the suptitle only up or down: inside the figure now, inside it drawn)
-    if all(edge <= box.x0 and box.x1 <= width - edge for box, edge in
-           ((title.get_window_extent(renderer), 0.0 if title is suptitle else margin) for title in titles)):
-        return  # every title well inside: the figure is drawn exactly as without this check
-    fig.draw_without_rendering()  # lays the figure out: where each title would be drawn
+    engine = fig.get_layout_engine()
+    if engine is not None:
+        engine.execute(fig)  # where each title is drawn
+    wrapped = False
     for title in titles:
         text = title.get_text()
         for lines in range(2, most_lines + 1):
             box = title.get_window_extent(renderer)
-            if box.x0 >= 0 and box.x1 <= width:
+            if box.x0 >= 0 and box.x1 <= fig.bbox.width:
                 break
             title.set_text(wrap_title(text, lines))
+            wrapped = True
+    if wrapped and engine is not None:
+        engine.execute(fig)
 
 
 def wrap_title(text: str, lines: int) -> str:
