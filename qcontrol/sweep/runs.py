@@ -124,8 +124,8 @@ def _even(ids: list[int], size: int) -> list[list[int]]:
 
 def _chunk_size(runs: int, workers: int) -> int:
     """At most :data:`CHUNK` runs, fewer (down to :data:`MIN_BATCH`) so that ``runs`` make a
-    multiple of ``workers`` chunks: each worker gets as many (1000 runs on 2 workers: 4 of 250; 600
-    on 2: 4 of 150, not 3 of 200, which would leave one worker idle for a third of the sweep)."""
+    multiple of ``workers`` chunks: each worker gets as many (1000 runs on 2 workers: 250; 600 on
+    2: 150, not 200, whose three chunks would leave one worker idle for a third of the sweep)."""
     workers = max(1, workers)
     rounds = -(-runs // (workers * CHUNK))
     return min(CHUNK, max(MIN_BATCH, -(-runs // (workers * rounds))))
@@ -149,10 +149,12 @@ def for_workers(chunks: list[list[int]], workers: int) -> list[list[int]]:
     one worker's 200 against the other's 100). Largest first, so that the last are the shortest."""
     total = sum(len(ids) for ids in chunks)
     size = _chunk_size(total, workers)
+    if workers <= 1:  # (in this process: the chunks in input order)
+        return [piece for ids in chunks for piece in (_even(ids, size) if len(ids) > size else [ids])]
     while True:
         cut = sorted((piece for ids in chunks for piece in (_even(ids, size) if len(ids) > size else [ids])),
                      key=len, reverse=True)
-        if size <= MIN_BATCH or workers <= 1 or _busiest(cut, workers) <= BALANCE * total / workers:
+        if size <= MIN_BATCH or _busiest(cut, workers) <= BALANCE * total / workers:
             return cut
         size = max(MIN_BATCH, size * 9 // 10)
 
