@@ -232,6 +232,12 @@ def test_chunks_are_cut_so_that_every_worker_gets_one():
     assert [len(c) for c in sweep.chunks_of([list(range(1000))], workers=2)] == [250] * 4
     assert [len(c) for c in sweep.chunks_of([list(range(6))], workers=3)] == [6]  # no batch below MIN_BATCH
     assert sweep.for_workers([[0, 1], [2, 3]], 2) == [[0, 1], [2, 3]]  # short chunks are left whole
+    # 600 runs: as many runs per worker (not 3 of 200: one worker's 400 against the other's 200)
+    assert [len(c) for c in sweep.for_workers(sweep.chunks_of([list(range(600))]), 2)] == [100] * 6
+    # three groups of 100 on 2 workers: six of 50, the largest first; every run once
+    cut = sweep.for_workers([list(range(k, k + 100)) for k in (0, 100, 200)], 2)
+    assert [len(c) for c in cut] == [50] * 6 and sorted(i for c in cut for i in c) == list(range(300))
+    assert [len(c) for c in sweep.for_workers([list(range(10)), list(range(10, 40))], 2)] == [10] * 4
 
 
 @pytest.mark.parametrize("backend", ["ode", "mujoco"])

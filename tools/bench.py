@@ -1,7 +1,7 @@
 """qcontrol's performance figures, as ratios measured in one process against the physical limit
 (the targets: docs/performance.md).
 
-    python tools/bench.py [--quick] [--json FILE] [--repeat N] [--sweeps] [--reproduce]
+    python tools/bench.py [--quick] [--json FILE] [--repeat N] [--sweeps | --only-sweeps] [--reproduce]
 
 * MuJoCo closed loop: us per step, and the ratio to a bare C ``mj_step`` loop on the same model
   and integrator with no passive callback; ``mj_step`` with the plant's native callback, and with
@@ -20,10 +20,12 @@
 * User laws: the paper's law (44)-(45) written by hand in each documented form of a user law
   against the built-in kind, single run and batch (tools/bench_laws.py; target <= 2x).
 * ``--sweeps``: 200- and 1000-run ``sweep_summaries`` of 10 s Example 2 runs on ``--workers``:
-  on MuJoCo the wall time against the runs' bare C ``mj_step`` steps on one core (targets on 2
-  workers: <= 0.65 and <= 0.6), on the ODE against the runs' compiled bare RK4 on one core (target
-  for 1000 runs <= 4); the same for ``qcontrol region`` (121 bounded starts of Example 2, both
-  backends); wall and CPU time (this process and its workers) per simulated second (slow).
+  on MuJoCo the wall time against the runs' bare C ``mj_step`` steps on one core (untimed, as the
+  runs step; targets on 2 workers: <= 0.65 and <= 0.6), on the ODE against the runs' compiled bare
+  RK4 on one core (target for 1000 runs <= 4); the same for ``qcontrol region`` (121 bounded starts
+  of Example 2, both backends; <= 0.65 on MuJoCo, <= 4 on the ODE); on W workers the targets are
+  2 / W times those; wall and CPU time (this process and its workers) per simulated second; the
+  bare steps' CPU time measured before and after (slow). ``--only-sweeps``: these figures alone.
 
 Timings are best-of-N (the machine may be shared); ``--quick`` shortens every horizon.
 """
@@ -47,7 +49,7 @@ from pathlib import Path
 import bench_laws
 import mujoco
 import numpy as np
-from bench_timing import best_of
+from bench_timing import best_of, best_of_both
 from bench_timing import python_loop as compiled_off  # QCONTROL_COMPILE=0 inside the block
 
 from qcontrol.assembly import (
@@ -334,34 +336,61 @@ def peak_memory_mb(duration: float) -> float:
     return peak / 2**20
 
 
-def sweep_limits(duration: float, workers: int, mj_step_s: float) -> dict:
-    """200- and 1000-run sweeps of Example 2 (per-copy kappa) on ``workers`` local workers: wall
-    and CPU time, per simulated second, and the wall time against the runs' bare steps on one core
-    (``mj_step_s`` a bare C ``mj_step``; on the ODE a step of the compiled bare RK4 of the rhs)."""
+# wall time / the runs' bare steps on one core, on 2 workers; on W workers the target is 2 / W times
+# this (the same work per core: the batches cost about one bare step per copy-step)
+SWEEP_TARGETS = {("mujoco", "sweep", 200): 0.65, ("mujoco", "sweep", 1000): 0.6, ("ode", "sweep", 1000): 4.0,
+                 ("mujoco", "region", 121): 0.65, ("ode", "region", 121): 4.0}
+
+
+def bare_limits(sc: Scenario, repeat: int) -> dict:
+    """Seconds of one bare step on one core: a C ``mj_step`` of the model (no passive callback,
+    without the bindings' profiling timer, as the runs step) and a step of the compiled bare RK4
+    of the right-hand side (ODE); the shortest CPU time of ``repeat`` loops (a loop's wall time on
+    a shared machine counts the waits for a core: at a load of 15 it made mj_step 6.4 us, not 3.4)."""
+    steps = round(sc.simulation.duration / sc.simulation.dt)
+    rk4 = compiled_rk4(sc)
+    mj_step = _mj_step_loop(build_plant(sc, "mujoco"), steps, installed=False)
+    return {"mujoco": best_of_both(repeat, mj_step)[1] / steps,
+            "ode": best_of_both(repeat, lambda: rk4(steps))[1] / steps}
+
+
+def sweep_limits(duration: float, workers: int, repeat: int) -> dict:
+    """200- and 1000-run sweeps of Example 2 (per-copy kappa) on ``workers`` local workers, and
+    ``qcontrol region`` (:func:`region_limits`): wall and CPU time, per simulated second, and
+    against the runs' bare steps on one core (:func:`bare_limits`, measured before and after the
+    sweeps: the shorter, the load may change meanwhile), with the targets."""
     path = ROOT / "scenarios" / "example2.toml"
     sc = scenario("example2", duration)
-    steps = round(duration / sc.simulation.dt)
-    rk4 = compiled_rk4(sc)
-    limit = {"mujoco": mj_step_s, "ode": best_of(3, lambda: rk4(steps)) / steps}
-    out, targets = {}, {"mujoco_200": "<= 0.65", "mujoco_1000": "<= 0.6", "ode_1000": "<= 4"}
+    before = bare_limits(sc, max(3, repeat))
+    timed: dict = {}
     for backend, runs in (("mujoco", 200), ("mujoco", 1000), ("ode", 1000)):
         sets = [[f"simulation.duration={duration!r}", f"controller.kappa_margin={m!r}"]
                 for m in np.linspace(0.1, 1.1, runs).tolist()]
         started, used = time.perf_counter(), cpu_seconds()
         sweep_summaries(path, sets, backend=backend, workers=workers)
-        wall, cpu = time.perf_counter() - started, cpu_seconds() - used
-        out[f"{backend}_{runs}"] = {
-            "wall_s": wall, "cpu_s": cpu, "ratio_to_bare_one_core": wall / (runs * steps * limit[backend]),
+        timed[backend, "sweep", runs] = (time.perf_counter() - started, cpu_seconds() - used, {})
+    timed.update(region_limits(path, duration, workers))
+    after = bare_limits(sc, max(3, repeat))
+    limit = {backend: min(before[backend], after[backend]) for backend in before}
+    steps = round(duration / sc.simulation.dt)
+    out = {}
+    for (backend, kind, runs), (wall, cpu, extra) in timed.items():
+        bare = runs * steps * limit[backend]
+        out[f"{backend}_{'region_' if kind == 'region' else ''}{runs}"] = {
+            "wall_s": wall, "cpu_s": cpu, "ratio_to_bare_one_core": wall / bare,
+            "cpu_ratio_to_bare": cpu / bare,  # (this process and its workers: what the work cost)
             "wall_ms_per_simulated_s": wall / (runs * duration) * 1e3,
             "cpu_ms_per_simulated_s": cpu / (runs * duration) * 1e3,
-            "target": targets[f"{backend}_{runs}"]}
-    out.update(region_limits(path, duration, workers, steps, limit))
-    return {"duration_s": duration, "workers": workers, "load": os.getloadavg()[0], "runs": out}
+            "target": f"<= {SWEEP_TARGETS[backend, kind, runs] * 2 / workers:g}", **extra}
+    return {"duration_s": duration, "workers": workers, "load": os.getloadavg()[0], "runs": out,
+            "bare_mj_step_us": limit["mujoco"] * 1e6, "bare_rk4_ns": limit["ode"] * 1e9,
+            "bare_before_after": {k: [before[k], after[k]] for k in before},
+            "note": "targets on 2 workers; on W workers 2 / W times those (the same work per core)"}
 
 
-def region_limits(path: Path, duration: float, workers: int, steps: int, limit: dict) -> dict:
+def region_limits(path: Path, duration: float, workers: int) -> dict:
     """``qcontrol region`` of Example 2 (the paper's law, 11 x 11 starts in |x_i| <= 1.5, all of
-    them bounded) on ``workers`` local workers, against its runs' bare steps on one core."""
+    them bounded) on ``workers`` local workers: (backend, "region", runs) -> (wall, CPU, extra)."""
     from qcontrol.region import RegionGrid, measure_region, parse_law
 
     grid, out = RegionGrid((0, 1), (-1.5, -1.5), (1.5, 1.5), 11), {}
@@ -370,13 +399,8 @@ def region_limits(path: Path, duration: float, workers: int, steps: int, limit: 
         region = measure_region(path, grid, [parse_law("proposed")], backend,
                                 overrides=[f"simulation.duration={duration!r}"], workers=workers)
         wall, cpu = time.perf_counter() - started, cpu_seconds() - used
-        runs = len(region.points)
-        out[f"{backend}_region_{runs}"] = {
-            "wall_s": wall, "cpu_s": cpu, "ratio_to_bare_one_core": wall / (runs * steps * limit[backend]),
-            "wall_ms_per_simulated_s": wall / (runs * duration) * 1e3,
-            "cpu_ms_per_simulated_s": cpu / (runs * duration) * 1e3,
-            "target": "<= 0.65" if backend == "mujoco" else "",
-            "diverged": sum(p.outcome != "bounded" for p in region.points)}
+        out[backend, "region", len(region.points)] = (
+            wall, cpu, {"diverged": sum(p.outcome != "bounded" for p in region.points)})
     return out
 
 
@@ -421,8 +445,7 @@ def measure(args: argparse.Namespace) -> dict:
     result["peak_memory_mb"] = peak_memory_mb(duration)
     result["peak_memory_note"] = f"Example 2, ODE, full record, {duration:g} s at dt = 1e-4 (tracemalloc)"
     if args.sweeps:
-        bare = details["mujoco"]["example2"]["bare_mj_step_us_per_step"] * 1e-6
-        result["sweeps"] = sweep_limits(duration, args.workers, bare)
+        result["sweeps"] = sweep_limits(duration, args.workers, repeat)
     if args.reproduce:
         result["reproduce"] = reproduce_wall(args.workers)
     result["details"] = details
@@ -477,19 +500,24 @@ def report(result: dict, args: argparse.Namespace) -> None:
     print(f"{'peak memory, 10 kHz run [MB]':52s} {result['peak_memory_mb']:10.1f}  "
           f"({result['peak_memory_note']})")
     if "sweeps" in result:
-        sweeps = result["sweeps"]
-        for label, r in sweeps["runs"].items():
-            backend, *region, runs = label.split("_")
-            limit = "bare C mj_step" if backend == "mujoco" else "bare RK4"
-            what = f"{runs}-run {backend} {'region' if region else 'sweep'}"
-            print(f"{what + ', wall / ' + limit + ' on one core':52s} "
-                  f"{r['ratio_to_bare_one_core']:10.2f}  {r['target']:7s} ({r['wall_s']:.1f} s wall, "
-                  f"CPU {r['cpu_s']:.1f} s; per simulated s {r['wall_ms_per_simulated_s']:.2f} ms wall, "
-                  f"{r['cpu_ms_per_simulated_s']:.2f} ms CPU; {sweeps['workers']} workers, "
-                  f"load {sweeps['load']:.1f})")
+        report_sweeps(result["sweeps"])
     if "reproduce" in result:
         print(f"{'qcontrol reproduce wall time [s]':52s} {result['reproduce']['wall_s']:10.1f}  <= 15    "
               f"({args.workers} workers; CPU {result['reproduce']['cpu_s']:.1f} s)")
+
+
+def report_sweeps(sweeps: dict) -> None:
+    """The lines of :func:`sweep_limits`: wall time against the runs' bare steps on one core."""
+    for label, r in sweeps["runs"].items():
+        backend, *region, runs = label.split("_")
+        kind, limit = "region" if region else "sweep", "mj_step" if backend == "mujoco" else "RK4"
+        what = f"{backend} {kind} of {runs}, {sweeps['workers']} w. / bare {limit} on 1 core"
+        print(f"{what:52s} "
+              f"{r['ratio_to_bare_one_core']:10.3f}  {r['target']:7s} ({r['wall_s']:.2f} s wall, "
+              f"CPU {r['cpu_s']:.2f} s = {r['cpu_ratio_to_bare']:.3f} x bare; per simulated s "
+              f"{r['wall_ms_per_simulated_s']:.2f} ms wall, {r['cpu_ms_per_simulated_s']:.2f} ms CPU)")
+    print(f"{'':52s} (bare mj_step {sweeps['bare_mj_step_us']:.3f} us untimed, bare RK4 step "
+          f"{sweeps['bare_rk4_ns']:.1f} ns; load {sweeps['load']:.1f}; {sweeps['note']})")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -501,13 +529,22 @@ def main(argv: list[str] | None = None) -> int:
                         help="also time 200- and 1000-run sweeps against the bare steps (slow)")
     parser.add_argument("--reproduce", action="store_true", help="also time qcontrol reproduce (slow)")
     parser.add_argument("--workers", type=int, default=2, help="workers for --sweeps, --reproduce (2)")
+    parser.add_argument("--only-sweeps", action="store_true", help="the --sweeps figures alone")
     args = parser.parse_args(argv)
-    result = measure(args)
-    report(result, args)
+    if args.only_sweeps:
+        import numba  # noqa: F401  (a process that has started numba, as measure's)
+        repeat = 1 if args.quick else args.repeat
+        result = {"sweeps": sweep_limits(1.0 if args.quick else 10.0, args.workers, repeat)}
+        report_sweeps(result["sweeps"])
+    else:
+        result = measure(args)
+        report(result, args)
     if args.json is not None:
         args.json.write_text(json.dumps(result, indent=2, default=lambda v: None if v != v else v) + "\n")
         print(f"wrote {args.json}")
-    return 0 if all(math.isfinite(v) for v in result["mujoco_step_ratio"].values()) else 1
+    figures = result["mujoco_step_ratio"].values() if "mujoco_step_ratio" in result else [
+        r["ratio_to_bare_one_core"] for r in result["sweeps"]["runs"].values()]
+    return 0 if all(math.isfinite(v) for v in figures) else 1
 
 
 if __name__ == "__main__":

@@ -10,9 +10,11 @@ Anything else (e.g. a grid over ``controller.c``) splits the runs into groups, e
 
 Chunks. Groups are cut into chunks of at most ``CHUNK`` runs in input order, of even sizes; a chunk
 is one batch. With several workers (local processes, or a Dask cluster's threads) the chunks are
-cut smaller, down to ``MIN_BATCH``, so that there are at least as many as workers: a 200-run
-sweep on 2 workers runs as two batches of 100, one per worker. A group of fewer than ``MIN_BATCH``
-runs goes run by run instead:
+cut smaller, down to ``MIN_BATCH``, so that each worker gets as many runs: a 200-run sweep on 2
+workers runs as two batches of 100, one per worker, a 600-run one as six of 100 (not three of
+200); groups of different sizes are cut until no worker would run :data:`BALANCE` times an even
+share, and the chunks go out largest first. A group of fewer than ``MIN_BATCH`` runs goes run by
+run instead:
 a batch's array form costs a fixed amount per step, which a single run (the engine's fast path)
 does not pay, so small batches are slower than their runs alone (measured on Example 2, 10 s, both
 backends: a batch of 2 costs 2.3-2.8x its two runs, 4 about 1.2x, 8 about 0.6-0.8x).
@@ -29,6 +31,10 @@ MuJoCo. Chunks run as MuJoCo plant batches, spread over worker processes: on the
 else one ``MjData`` per copy; the numbers are the same either way
 (:mod:`qcontrol.plants.mujoco.threaded`). One batch runs on one thread: the workers are the
 parallelism.
+
+The runs take place inside :func:`qcontrol.sharing.sharing`, as the variants' loading does (the
+workers are forked inside it): a plant checks its model against eq. (1) once per process, not
+once per batch (about 8 ms of each MuJoCo batch of Example 2).
 
 Small sweeps stay in this process. Workers are forked only when the work is worth it: at least
 :data:`SPREAD_MIN_WORK` copy-steps (runs x rows) on the backend (about 0.1 s of work on one core).
@@ -51,6 +57,7 @@ variants from the file and the override sets.
 
 from __future__ import annotations
 
+import heapq
 import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -65,6 +72,7 @@ from ..metrics import run_summary
 from ..plants import BACKENDS
 from ..scenario import Scenario
 from ..scenario.load import load_variants
+from ..sharing import sharing
 from ..summary import Summary
 from ..timegrid import TimeGrid
 from ..workers import worker_count, worker_pool
@@ -75,6 +83,7 @@ CHUNK = 250  # runs per batch at most (fewer when there are more workers than ch
 # on Example 2, 10 s runs: 5-40 runs were 1.6-2.5x slower on 2 workers than in this process)
 SPREAD_MIN_WORK = {"ode": 500_000, "mujoco": 20_000}
 MIN_BATCH = 5  # smaller groups run run by run; chunks cut for workers stay at least this long
+BALANCE = 1.1  # the busiest worker's runs at most this times an even share, where chunks allow
 DASK_CONNECT_TIMEOUT = 10.0  # seconds to reach a --scheduler and complete Dask's handshake
 RunsDone = Callable[[int, int], None]  # (runs done, runs in total)
 # (path, override sets of a chunk, backend, unset, and where this process or a fork of it holds
@@ -114,8 +123,12 @@ def _even(ids: list[int], size: int) -> list[list[int]]:
 
 
 def _chunk_size(runs: int, workers: int) -> int:
-    """At most :data:`CHUNK` runs, fewer (down to :data:`MIN_BATCH`) so each worker gets a chunk."""
-    return min(CHUNK, max(MIN_BATCH, -(-runs // max(1, workers))))
+    """At most :data:`CHUNK` runs, fewer (down to :data:`MIN_BATCH`) so that ``runs`` make a
+    multiple of ``workers`` chunks: each worker gets as many (1000 runs on 2 workers: 250; 600 on
+    2: 150, not 200, whose three chunks would leave one worker idle for a third of the sweep)."""
+    workers = max(1, workers)
+    rounds = -(-runs // (workers * CHUNK))
+    return min(CHUNK, max(MIN_BATCH, -(-runs // (workers * rounds))))
 
 
 def chunks_of(groups: Iterable[list[int]], workers: int = 1) -> list[list[int]]:
@@ -129,9 +142,29 @@ def chunks_of(groups: Iterable[list[int]], workers: int = 1) -> list[list[int]]:
 
 
 def for_workers(chunks: list[list[int]], workers: int) -> list[list[int]]:
-    """``chunks`` (a :func:`plan`) cut further, where they are long, to give each of ``workers`` one."""
-    size = _chunk_size(sum(len(ids) for ids in chunks), workers)
-    return [piece for ids in chunks for piece in (_even(ids, size) if len(ids) > size else [ids])]
+    """``chunks`` (a :func:`plan`) cut further, where they are long, to give each of ``workers`` as
+    many runs; cut smaller (down to :data:`MIN_BATCH`) while the chunks, handed out largest first
+    to whichever worker is free, would keep one worker busy :data:`BALANCE` times longer than an
+    even share (groups of different sizes: three of 100 runs on 2 workers run as six of 50, not
+    one worker's 200 against the other's 100). Largest first, so that the last are the shortest."""
+    total = sum(len(ids) for ids in chunks)
+    size = _chunk_size(total, workers)
+    if workers <= 1:  # (in this process: the chunks in input order)
+        return [piece for ids in chunks for piece in (_even(ids, size) if len(ids) > size else [ids])]
+    while True:
+        cut = sorted((piece for ids in chunks for piece in (_even(ids, size) if len(ids) > size else [ids])),
+                     key=len, reverse=True)
+        if size <= MIN_BATCH or _busiest(cut, workers) <= BALANCE * total / workers:
+            return cut
+        size = max(MIN_BATCH, size * 9 // 10)
+
+
+def _busiest(chunks: list[list[int]], workers: int) -> int:
+    """The runs of the busiest of ``workers`` when each free worker takes the next chunk."""
+    loads = [0] * workers
+    for ids in chunks:
+        heapq.heapreplace(loads, loads[0] + len(ids))
+    return max(loads)
 
 
 def run_variants_batched(scs: Sequence[Scenario], backend: str) -> list[Summary]:
@@ -216,7 +249,8 @@ def sweep_summaries(
     if key is not None:
         _LOADED[key] = variants
     try:
-        return _summaries(path, sets, backend, unset, chunks, key, workers, scheduler, progress)
+        with sharing():  # (a plant checks its model once per process: see the module docstring)
+            return _summaries(path, sets, backend, unset, chunks, key, workers, scheduler, progress)
     finally:
         _LOADED.pop(key, None)
 
