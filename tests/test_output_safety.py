@@ -15,6 +15,7 @@ import socket
 import stat
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -177,6 +178,60 @@ def test_a_full_disk_keeps_the_previous_recording(small_disk, tmp_path):
     assert old.read_bytes() == before
     assert (small_disk / "r.partial.rrd").stat().st_size > 0  # what was recorded, under its partial name
     assert not _temporaries(small_disk)
+
+
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")  # the file given up on is read as it is
+@pytest.mark.parametrize("disk_full, cause", [(True, "no space left on the device"),
+                                              (False, "rerun's writer took nothing for 0.05 s")])
+def test_a_sink_that_never_answers_ends_the_recording(tmp_path, monkeypatch, disk_full, cause):
+    """rerun's file sink whose writer died on a write error (a full disk) while a flush was queued
+    behind the failed write never answers that flush (nor any later flush or close of the stream):
+    rerun's flush then only returns at its timeout, as simulated here. The run still ends, with one
+    error naming the cause; the previous file is kept, nothing half-written replaces it, and the
+    stream is never touched again (rerun's exit hook, which would close it, is turned off). A full
+    disk gives up at the first slice without progress; otherwise after the stall limit. A flush
+    that waited without bound would leave the worker thread running at the join below."""
+    from qcontrol.recording import recording as recording_module
+    from qcontrol.recording.rrd_file import RrdFile
+
+    rr = pytest.importorskip("rerun")
+    never = threading.Event()
+
+    def unanswered(self, *, timeout_sec=1e38):
+        if timeout_sec:  # rerun waits until its timeout, then raises
+            never.wait(min(timeout_sec, 3600.0))
+            raise RuntimeError("Flush timed out - not all log messages were sent.")
+
+    turned_off: list[int] = []
+    monkeypatch.setattr(rr.RecordingStream, "flush", unanswered)
+    monkeypatch.setattr(rr, "unregister_shutdown", lambda: turned_off.append(1))
+    monkeypatch.setattr(recording_module, "FLUSH_SLICE", 0.01)
+    monkeypatch.setattr(recording_module, "FLUSH_STALL", 3600.0 if disk_full else 0.05)
+    monkeypatch.setattr(RrdFile, "space_left", lambda self: not disk_full)
+    monkeypatch.setenv("QCONTROL_COMPILE", "0")
+    old = tmp_path / "r.rrd"
+    old.write_bytes(b"previous")
+    sc = load_scenario(EX2, {"simulation.duration": 0.2})
+    raised: list[BaseException] = []
+    worker = threading.Thread(target=lambda: _catch(raised, qcontrol.run, sc, "ode", rrd=old), daemon=True)
+    worker.start()
+    worker.join(20)
+    never.set()  # a worker still waiting ends now
+    assert not worker.is_alive(), "the recording waited on a sink that never answers"
+    assert len(raised) == 1 and isinstance(raised[0], QcontrolOutputError), raised
+    message = str(raised[0])
+    assert f"cannot write the recording ({cause})" in message and "r.rrd is unchanged" in message, message
+    assert "\n" not in message
+    assert old.read_bytes() == b"previous"
+    assert turned_off == [1]
+    assert not _temporaries(tmp_path)
+
+
+def _catch(raised: list[BaseException], call, *args, **kwargs) -> None:
+    try:
+        call(*args, **kwargs)
+    except BaseException as exc:  # the test's thread reports what the run raised
+        raised.append(exc)
 
 
 @pytest.mark.parametrize("option, name", [("--save", "x.npz"), ("--save", "x.csv"), ("--plot", "x.png"),

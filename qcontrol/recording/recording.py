@@ -23,7 +23,9 @@ File handling (:mod:`.rrd_file`): data goes to a temporary file of its own besid
 stream is flushed and closed, the file is checked (it reads back, footer included) and moved to
 ``path``. On an exception (an error, ``KeyboardInterrupt``, SIGTERM) what was recorded up to the
 last chunk is kept as ``NAME.partial.rrd`` and ``path`` is left as it was. Only a killed process
-leaves its temporary file (readable up to its last chunk but one at least).
+leaves its temporary file (readable up to its last chunk but one at least). A blocking flush waits
+only while rerun's writer makes progress (:meth:`Recording.flush`): a stream whose writer stopped
+(a full disk) is given up on, never flushed or closed again, and its file is judged as it is.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ import errno
 import json
 import os
 import re
+import time
 import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -56,6 +59,8 @@ if TYPE_CHECKING:
     import rerun as rr
 
 _COMPARISON_ALPHA = 90
+FLUSH_SLICE = 0.25  # s: a blocking flush waits on rerun this long at a time, then checks the sink's progress
+FLUSH_STALL = 30.0  # s: a sink that took nothing for this long while a flush waited is given up on
 _MAIN_RUN_TAKEN = "a main (non-ghost) run is already being recorded into this file"
 
 
@@ -101,6 +106,7 @@ class Recording:
         self.main_series: list[Series] = []  # the main run's, restyled once a twin is drawn on them
         self.main_label = "main"
         self._flush_error: str | None = None  # the first failure to flush, reported at close
+        self._given_up: str | None = None  # why the stream was given up on (its sink stopped answering)
         self._live = False  # streaming to a viewer (the layout is then sent as the runs go on)
         self._open()
 
@@ -162,8 +168,9 @@ class Recording:
 
     def close(self, complete: bool = True) -> None:
         """Flush and close the stream; a ``complete`` recording's file is checked and moved to its
-        final name, any other is kept under its partial name (see the module docstring; idempotent)."""
-        if self._stream is None:
+        final name, any other is kept under its partial name (see the module docstring; idempotent).
+        A stream given up on (:meth:`flush`) is not touched again: its file is judged as it is."""
+        if self._stream is None and self._given_up is None:
             if self._file is not None:  # nowhere to write after all (no sink): nothing to keep
                 self._file.discard()
                 self._file = None
@@ -171,7 +178,8 @@ class Recording:
         try:
             self.update_layout(final=True)
             self.flush()
-            self._stream.disconnect()  # closes the file: writes rerun's footer
+            if self._stream is not None:  # the sink answered every flush: rerun can close it
+                self._stream.disconnect()  # closes the file: writes rerun's footer
         except BaseException:
             complete = False
             raise
@@ -179,7 +187,10 @@ class Recording:
             self._stream = None
             if self._file is not None:
                 file, self._file = self._file, None
-                file.finish(complete)  # a file that was not written whole raises here
+                file.finish(complete, self._given_up)  # a file that was not written whole raises here
+            elif self._given_up is not None:
+                warnings.warn(f"the rerun viewer stopped taking the recording ({self._given_up}); the rest "
+                              "of the run was not streamed", stacklevel=3)
             if self._flush_error is not None:
                 warnings.warn(f"rerun could not flush the recording: {self._flush_error}", stacklevel=3)
 
@@ -188,13 +199,60 @@ class Recording:
         writing it and return, so that the run goes on while rerun encodes and writes on another
         core. A failure does not stop the run: a file that could not be written is reported when
         the recording closes (it is checked then), any other failure (e.g. a viewer that went away)
-        as one warning then."""
+        as one warning then.
+
+        A blocking flush waits in slices of :data:`FLUSH_SLICE` s and only while the sink makes
+        progress. rerun's file sink whose writer stopped on a write error (a full disk) while a
+        flush was queued behind the failed write never answers that flush, and from then on no
+        flush or close of the stream ever returns. So when the file did not grow during a slice and
+        its disk has no space left, or nothing answered and nothing was written for
+        :data:`FLUSH_STALL` s, the stream is given up on (:meth:`_give_up`): the recording logs
+        nothing more and its file is judged as it is when it closes."""
         if self._stream is None:
             return
+        written, quiet = self._written(), 0.0
+        while self._stream is not None:
+            started = time.monotonic()
+            error = self._flush_once(FLUSH_SLICE if wait else 0.0)
+            if error is None or not wait or time.monotonic() - started < FLUSH_SLICE:
+                # written (or started), or failed before its time: the flush ended, the sink answered
+                self._flush_error = self._flush_error or error
+                return
+            now = self._written()
+            quiet = 0.0 if now != written else quiet + FLUSH_SLICE
+            written = now
+            full = self._file is not None and not self._file.space_left()
+            if quiet and (full or quiet >= FLUSH_STALL):
+                self._give_up("no space left on the device" if full else
+                              f"rerun's writer took nothing for {FLUSH_STALL:g} s")
+
+    def _flush_once(self, timeout: float) -> str | None:
+        """One rerun flush waiting at most ``timeout`` s (0: started, not waited for); its error,
+        if any (a timeout is one)."""
         try:
-            self._stream.flush(timeout_sec=1e38 if wait else 0.0)
+            self._stream.flush(timeout_sec=timeout)  # type: ignore[union-attr]
         except RuntimeError as exc:
-            self._flush_error = self._flush_error or str(exc)
+            return str(exc)
+        return None
+
+    def _written(self) -> int:
+        return -1 if self._file is None else self._file.written()
+
+    def _give_up(self, why: str) -> None:
+        """Stop using a stream whose sink no longer answers. rerun's own pipeline waits for that
+        sink forever, so would anything that flushes or closes the stream: rerun's exit hook
+        (it closes every stream) and the stream's release (it closes streams nobody holds). The
+        stream is kept for the life of the process and rerun's exit hook is turned off (qcontrol
+        closes its own recordings itself), so that the process can end."""
+        import ctypes
+
+        import rerun as rr
+
+        stream, self._stream = self._stream, None
+        self._given_up = why
+        self._flush_error = None  # the timeouts that led here: the file (or the warning) says why
+        ctypes.pythonapi.Py_IncRef(ctypes.py_object(stream))  # never released: releasing it would hang
+        rr.unregister_shutdown()
 
     # -- static content -------------------------------------------------------------------
 

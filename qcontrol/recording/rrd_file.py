@@ -49,6 +49,10 @@ def _space_left(folder: Path) -> bool:
         return True
 
 
+def _folder(path: Path) -> Path:
+    return path.parent if str(path.parent) else Path(".")
+
+
 class RrdFile:
     """One recording's file: ``temporary`` is what rerun writes to."""
 
@@ -58,21 +62,34 @@ class RrdFile:
         self._file.release()  # rerun opens it by name
         self.temporary = self._file.temporary
 
-    def finish(self, complete: bool) -> Path | None:
-        """Once rerun closed the file: a complete run's verified file replaces ``path``; an
-        interrupted one is kept as the partial name (a warning says where) and ``path`` is left as
-        it was. A complete run whose file does not read back is a :class:`QcontrolOutputError`
-        (what was written is kept as the partial name). Returns where the data is, if anywhere."""
+    def written(self) -> int:
+        """The bytes rerun wrote so far (-1 if the file cannot be read): a writer's progress."""
+        try:
+            return os.stat(self.temporary).st_size
+        except OSError:
+            return -1
+
+    def space_left(self) -> bool:
+        """Whether the file's disk has space left (True when that cannot be told)."""
+        return _space_left(_folder(self.path))
+
+    def finish(self, complete: bool, cause: str | None = None) -> Path | None:
+        """Once rerun closed the file (or gave up on it): a complete run's verified file replaces
+        ``path``; an interrupted one is kept as the partial name (a warning says where) and
+        ``path`` is left as it was. A complete run whose file does not read back is a
+        :class:`QcontrolOutputError` (what was written is kept as the partial name), its cause a
+        full disk, ``cause`` (why the file was given up on), or what is wrong with the file.
+        Returns where the data is, if anywhere."""
         problem = rrd_problem(self.temporary)
-        if complete and problem is None:
+        if complete and problem is None and cause is None:
             return finish(self._file)
-        folder = self.path.parent if str(self.path.parent) else Path(".")
+        folder = _folder(self.path)
         kept = self._file.keep_partial()
         where = (f"kept what was recorded as {shown(kept)}" if kept is not None
                  else "nothing was kept")
         if complete:
             full = not _space_left(folder)
-            cause = "no space left on the device" if full else problem
+            cause = "no space left on the device" if full else cause or problem
             fix = "free some space or write elsewhere" if full else "check the disk or write elsewhere"
             raise QcontrolOutputError(errno.ENOSPC if full else errno.EIO,
                                       f"{shown(self.path)}: cannot write the recording ({cause}); {where}, "

@@ -122,6 +122,9 @@ class RunStreamer:
         if start >= stop:
             return
         self.recording.flush()  # the previous rows are on disk (written while the run went on)
+        stream = self.recording.stream
+        if stream is None:  # that flush gave the stream up (its sink stopped answering)
+            return
         rows = slice(start, stop)
         first = self.series is None
         if first:
