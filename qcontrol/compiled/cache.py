@@ -73,5 +73,6 @@ def shared(kind: str, source: str) -> str:
     then linked into each generated module that imports them instead of compiled again in each.
     Its name is the hash of its text, so an importer's text (and its cache entry) changes with it."""
     names = re.findall(r"^def (\w+)\(", source, flags=re.MULTILINE)
-    module = generated_module(kind, f"import math\n\nimport numba\nimport numpy as np\n\n{source}")
+    module = generated_module(kind, "import math\n\nimport numba\nimport numpy as np\n\n"
+                                    f"from qcontrol.compiled.pointers import opaque\n\n{source}")
     return f"from {module.__name__} import {', '.join(names)}"

@@ -27,10 +27,11 @@ in the array form (:class:`Redo`).
 Functions: the compiled code's ``math.exp``, ``expm1``, ``log``, ``tanh``, ... are libm's, as
 Python's ``math`` that a run alone and a batch's Python loop evaluate per copy: a batch whose law
 holds exactly (expm1) or whose terms take exponentials is compiled, each copy its run alone to the
-last bit. Not ``math.pow``: LLVM rewrites ``pow(x, 0.5)`` with a constant exponent as
-``sqrt(x)`` (and ``pow(x, -1.0)`` as ``1 / x``), which libm's pow does not always equal (1745 of 2
-million values of ``x ** 0.5`` differ in the last bit); a batch whose code calls a function
-outside :data:`SAME_AS_MATH` keeps the Python loop.
+last bit. ``math.pow`` too: its exponent reaches it through ``opaque``
+(:func:`qcontrol.expr.source.float_source`), else LLVM would rewrite ``pow(x, 0.5)`` with a
+constant exponent as ``sqrt(x)``, which libm's pow does not always equal (1745 of 2 million values
+of ``x ** 0.5`` differ in the last bit). A batch whose code calls a function outside
+:data:`SAME_AS_MATH` keeps the Python loop.
 
 Same fallback rules as the single compiled loop (:func:`compiled_batch`): the built-in laws only,
 the uniform quantizer only, no input quantizer, input gain b = 1, no terms in t, the sensors'
@@ -68,10 +69,10 @@ from .retention import MetricsRecord
 from .spec import RunSpec
 
 # the functions whose compiled form gives Python's math numbers (numba 0.68, SVML off: 1.6 million
-# values each, special ones included, equal to the last bit), the module docstring says why not pow
+# values each, special ones included, equal to the last bit; pow with its exponent opaque to LLVM)
 SAME_AS_MATH = frozenset({"math.sin", "math.cos", "math.tan", "math.sqrt", "math.exp", "math.expm1",
                           "math.log", "math.tanh", "math.fabs", "math.isfinite", "math.isinf", "math.nan",
-                          "np.floor", "np.cbrt"})
+                          "math.pow", "np.floor", "np.cbrt"})
 _CALLS = re.compile(r"\b(?:math|np)\.\w+")
 
 

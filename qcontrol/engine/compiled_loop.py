@@ -211,7 +211,7 @@ def module_source(plant: NativeStepper, functions: list[str]) -> str:
         '"""qcontrol\'s compiled loop (generated): see KEY."""',  # (user text only as a repr literal)
         "import math", "", "import numba", "import numpy as np", "",
         f"KEY = {plant.key!r}", "",
-        "from qcontrol.compiled.pointers import as_pointer, carray", "",
+        "from qcontrol.compiled.pointers import as_pointer, carray, opaque", "",
         shared("step", plant.helpers), "", *functions, "",
     ])
 

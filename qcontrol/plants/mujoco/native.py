@@ -103,7 +103,7 @@ import numba
 import numpy as np
 from numba import types
 
-from qcontrol.compiled.pointers import as_address, as_pointer, carray
+from qcontrol.compiled.pointers import as_address, as_pointer, carray, opaque
 
 TAG = {tag!r}
 TERMS = {shown!r}
