@@ -5,9 +5,8 @@ import struct
 
 import numpy as np
 import pytest
-from conftest import QUICK_REPRODUCE
+from conftest import FULL_REPRODUCE, QUICK_REPRODUCE
 
-from qcontrol.cli import main
 from qcontrol.paper import PAPER_TABLE1
 from qcontrol.plots import FIG_HEIGHT_PX, FIG_WIDTH_PX
 
@@ -22,9 +21,11 @@ OMEGAS = ["0.100", "0.125", "0.150", "0.175", "0.200"]
 
 
 @pytest.fixture(scope="module")
-def reproduction(tmp_path_factory):
-    out = tmp_path_factory.mktemp("reproduce") / "results"
-    assert main(["reproduce", "--out", str(out), "--duration", "0.5", "-q"]) == 0
+def reproduction(full_reproduction):
+    """``reproduce --out FOLDER --duration 0.5 -q`` (the session's shared run, conftest.py)."""
+    out, status, _ = full_reproduction
+    assert FULL_REPRODUCE == ["reproduce", "--out", "results/", "--duration", "0.5", "-q"]
+    assert status == 0
     return out
 
 
