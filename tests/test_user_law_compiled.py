@@ -113,10 +113,13 @@ def test_a_short_run_steps_on_the_traced_calls_and_equals_its_python(monkeypatch
 
 
 def test_a_batch_compiles_with_a_parameter_per_copy_and_equals_its_python_copy_by_copy(monkeypatch) -> None:
-    offsets = [2.0, 3.0, 4.5]
-    loop = _loop(offsets, 2.0, monkeypatch, compiled=True)  # 3 x 2001 rows: enough for a batch
+    offsets = [2.0, 2.0, 3.0, 3.0, 4.5]  # equal copies side by side take one trace, the others their own
+    loop = _loop(offsets, 2.0, monkeypatch, compiled=True)  # 5 x 2001 rows: enough for a batch
     assert isinstance(loop.compiled, CompiledUserBatch)
-    assert loop.compiled.parts.constants.shape[0] == 3  # one row of constants per copy
+    constants = loop.compiled.parts.constants
+    assert constants.shape[0] == 5  # one row of constants per copy
+    assert constants[0].tobytes() == constants[1].tobytes() != constants[2].tobytes()
+    assert constants[2].tobytes() == constants[3].tobytes() != constants[4].tobytes()
     records = loop.run()
     assert loop.handover is None  # every row compiled, none redone
     _same_records(records, _loop(offsets, 2.0, monkeypatch, compiled=False).run())
