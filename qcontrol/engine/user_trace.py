@@ -159,8 +159,7 @@ def unchanged(a: Any, b: Any, depth: int = 0) -> bool:
     if isinstance(a, Symbol) or isinstance(b, Symbol) or type(a) is not type(b):
         return False
     if isinstance(a, float | np.floating):
-        return bool(np.array_equal(np.array(a), np.array(b), equal_nan=True)) and math.copysign(1, a) == \
-            math.copysign(1, b)
+        return bool(a == b or (a != a and b != b)) and math.copysign(1, a) == math.copysign(1, b)  # NaN: NaN
     if isinstance(a, np.ndarray):
         return a.dtype == b.dtype and a.shape == b.shape and (
             all(unchanged(x, y, depth + 1) for x, y in zip(a.ravel(), b.ravel(), strict=True))
