@@ -20,7 +20,7 @@ from qcontrol.engine import RunSpec
 from qcontrol.engine.compiled_loop import TracedParts
 from qcontrol.engine.compiled_user import CompiledUserBatch, CompiledUserLoop, column_parts
 from qcontrol.engine.loop import ClosedLoop
-from qcontrol.engine.user_trace import explain
+from qcontrol.engine.user_trace import explain, unchanged
 from qcontrol.timegrid import TimeGrid
 
 pytest.importorskip("numba")  # the compiled form is numba's; a run alone pays for it once numba is loaded
@@ -113,10 +113,13 @@ def test_a_short_run_steps_on_the_traced_calls_and_equals_its_python(monkeypatch
 
 
 def test_a_batch_compiles_with_a_parameter_per_copy_and_equals_its_python_copy_by_copy(monkeypatch) -> None:
-    offsets = [2.0, 3.0, 4.5]
-    loop = _loop(offsets, 2.0, monkeypatch, compiled=True)  # 3 x 2001 rows: enough for a batch
+    offsets = [2.0, 2.0, 3.0, 3.0, 4.5]  # equal copies side by side take one trace, the others their own
+    loop = _loop(offsets, 2.0, monkeypatch, compiled=True)  # 5 x 2001 rows: enough for a batch
     assert isinstance(loop.compiled, CompiledUserBatch)
-    assert loop.compiled.parts.constants.shape[0] == 3  # one row of constants per copy
+    constants = loop.compiled.parts.constants
+    assert constants.shape[0] == 5  # one row of constants per copy
+    assert constants[0].tobytes() == constants[1].tobytes() != constants[2].tobytes()
+    assert constants[2].tobytes() == constants[3].tobytes() != constants[4].tobytes()
     records = loop.run()
     assert loop.handover is None  # every row compiled, none redone
     _same_records(records, _loop(offsets, 2.0, monkeypatch, compiled=False).run())
@@ -193,3 +196,12 @@ def test_a_column_form_law_is_traced_and_checked_against_its_float_form() -> Non
     counting = build_law([base.with_overrides(chosen | {"controller.kind": "counting-columns"})])
     assert "changes its own attributes" in column_parts(build_quantizer(sc), counting, 2, 1e-3)
     assert not hasattr(counting, "calls")  # traced on copies of it
+
+
+@pytest.mark.parametrize(("a", "b", "same"), [
+    (1.0, 1.0, True), (0.0, -0.0, False), (float("nan"), float("nan"), True), (float("nan"), 1.0, False),
+    (1.0, float(np.nextafter(1.0, 2.0)), False), (np.float64(-np.nan), np.float64(np.nan), False),
+])
+def test_a_number_of_a_law_is_unchanged_only_to_the_bit(a, b, same) -> None:
+    """What decides that a law kept no state, and that a batch's copy traces as the copy before it."""
+    assert unchanged({"k": a}, {"k": b}) is same

@@ -159,8 +159,7 @@ def unchanged(a: Any, b: Any, depth: int = 0) -> bool:
     if isinstance(a, Symbol) or isinstance(b, Symbol) or type(a) is not type(b):
         return False
     if isinstance(a, float | np.floating):
-        return bool(np.array_equal(np.array(a), np.array(b), equal_nan=True)) and math.copysign(1, a) == \
-            math.copysign(1, b)
+        return bool(a == b or (a != a and b != b)) and math.copysign(1, a) == math.copysign(1, b)  # NaN: NaN
     if isinstance(a, np.ndarray):
         return a.dtype == b.dtype and a.shape == b.shape and (
             all(unchanged(x, y, depth + 1) for x, y in zip(a.ravel(), b.ravel(), strict=True))
@@ -309,14 +308,31 @@ def trace_one(law: Any, user: UserLaw, dt: float, slots: Sequence[float], first:
     return one if why is None else why
 
 
+def same_law(a: Any, b: Any) -> bool:
+    """Whether copy ``b`` is copy ``a`` again: the same class with the same attributes
+    (:func:`unchanged`: numbers to the bit), so that it traces to the same lines and constants."""
+    if a is b:
+        return True
+    try:
+        return type(a) is type(b) and unchanged(vars(a), vars(b))
+    except TypeError:  # no attributes to compare (slots): traced on its own
+        return False
+
+
 def trace_law(law: UserLaw, n: int, dt: float, slots: Sequence[float] = ()
               ) -> tuple[list[CopyTrace], None] | tuple[None, str]:
-    """Each copy's :class:`CopyTrace` (one for the one law of every copy), checked; or why not."""
+    """Each copy's :class:`CopyTrace` (one for the one law of every copy), checked; or why not.
+    A copy equal to the copy before it (:func:`same_law`) takes that copy's trace: tracing is a
+    function of the law's class and attributes (the first copy of a class is traced twice and
+    must stay as it was and record the same lines), so it would record the same lines again."""
     traces: list[CopyTrace] = []
     user = UserLaw(law.laws[:1], law.c, law.max_error, law.state_name, law.kind)  # the engine's calls
     user._checked.update(["control()", "advance()", "state_rate()"])  # (first-call checks: the run's)
     classes: set[type] = set()
-    for copy_law in law.laws:
+    for i, copy_law in enumerate(law.laws):
+        if traces and same_law(law.laws[i - 1], copy_law):
+            traces.append(traces[-1])
+            continue
         one = trace_one(copy_law, user, dt, slots, type(copy_law) not in classes)
         if isinstance(one, str):
             return None, one
