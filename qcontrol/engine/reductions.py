@@ -94,10 +94,14 @@ class Reduction:
         raise NotImplementedError
 
     def value(self, b: int) -> Any:
-        raise NotImplementedError
+        """Copy ``b``'s value: a reduction defines this or :meth:`every_value` (where making every
+        copy's at once costs less), and the other follows from it."""
+        if type(self).every_value is Reduction.every_value:
+            raise NotImplementedError
+        return self.every_value()[b]
 
     def every_value(self) -> list[Any]:
-        """:meth:`value` of every copy in turn (made at once where that costs less)."""
+        """:meth:`value` of every copy in turn."""
         return [self.value(b) for b in range(self.batch)]
 
     def row_values(self, values: Any) -> list[Any]:
@@ -147,9 +151,6 @@ class LargestAbs(Reduction):
         counted = np.isfinite(size) if chunk.everyone else chunk.valid & np.isfinite(size)
         np.maximum(self.largest, np.where(counted, size, -np.inf).max(axis=0), out=self.largest)
 
-    def value(self, b: int) -> float:
-        return _finite_or_nan(float(self.largest[b]))
-
     def every_value(self) -> list[float]:
         return _each_finite_or_nan(self.largest)
 
@@ -194,9 +195,6 @@ class SaturatedFraction(Reduction):
             counted &= chunk.valid[samples]
         self.samples += counted.sum(axis=0)
         self.clipped += np.where(counted, at, 0.0).sum(axis=0)
-
-    def value(self, b: int) -> float:
-        return float(self.clipped[b] / self.samples[b]) if self.samples[b] else math.nan
 
     def every_value(self) -> list[float]:
         with np.errstate(all="ignore"):
@@ -317,9 +315,6 @@ class LastHalfLargestAbs(Reduction):
         late = chunk.valid & (chunk.t >= self.half)[:, None] & np.isfinite(z1)
         np.maximum(self.largest, np.where(late, np.abs(z1), -np.inf).max(axis=0), out=self.largest)
 
-    def value(self, b: int) -> float:
-        return _finite_or_nan(float(self.largest[b]))
-
     def every_value(self) -> list[float]:
         return _each_finite_or_nan(self.largest)
 
@@ -402,10 +397,6 @@ class DiagnosticValues(Reduction):
         latest = at.shape[0] - 1 - np.argmax(counted[::-1], axis=0)
         picked = np.take_along_axis(at, latest[None], axis=0)[0]
         self.last = np.where(seen, picked, self.last)
-
-    def value(self, b: int) -> dict[str, np.ndarray]:
-        largest = np.where(np.isfinite(self.largest[b]), self.largest[b], np.nan)
-        return {"max": largest, "last": self.last[b].copy()}
 
     def every_value(self) -> list[dict[str, np.ndarray]]:
         largest, last = np.where(np.isfinite(self.largest), self.largest, np.nan), self.last.copy()
