@@ -150,13 +150,17 @@ def for_workers(chunks: list[list[int]], workers: int) -> list[list[int]]:
     total = sum(len(ids) for ids in chunks)
     size = _chunk_size(total, workers)
     if workers <= 1:  # (in this process: the chunks in input order)
-        return [piece for ids in chunks for piece in (_even(ids, size) if len(ids) > size else [ids])]
+        return _cut(chunks, size)
     while True:
-        cut = sorted((piece for ids in chunks for piece in (_even(ids, size) if len(ids) > size else [ids])),
-                     key=len, reverse=True)
+        cut = sorted(_cut(chunks, size), key=len, reverse=True)
         if size <= MIN_BATCH or _busiest(cut, workers) <= BALANCE * total / workers:
             return cut
         size = max(MIN_BATCH, size * 9 // 10)
+
+
+def _cut(chunks: list[list[int]], size: int) -> list[list[int]]:
+    """``chunks`` in order, each longer than ``size`` cut into even pieces of at most ``size``."""
+    return [piece for ids in chunks for piece in (_even(ids, size) if len(ids) > size else [ids])]
 
 
 def _busiest(chunks: list[list[int]], workers: int) -> int:
