@@ -17,6 +17,7 @@ import qcontrol
 from qcontrol.assembly import build_law, build_plant, build_quantizer, build_reference
 from qcontrol.controller.user import UserLaw
 from qcontrol.engine import RunSpec
+from qcontrol.engine.compiled_batch import CompiledBatch
 from qcontrol.engine.compiled_loop import TracedParts
 from qcontrol.engine.compiled_user import CompiledUserBatch, CompiledUserLoop, column_parts
 from qcontrol.engine.loop import ClosedLoop
@@ -196,6 +197,41 @@ def test_a_column_form_law_is_traced_and_checked_against_its_float_form() -> Non
     counting = build_law([base.with_overrides(chosen | {"controller.kind": "counting-columns"})])
     assert "changes its own attributes" in column_parts(build_quantizer(sc), counting, 2, 1e-3)
     assert not hasattr(counting, "calls")  # traced on copies of it
+
+
+def _columns_loop(starts: list, record: str, monkeypatch: pytest.MonkeyPatch, compiled: bool = True
+                   ) -> ClosedLoop:
+    """The closed loop of Example 2 (ODE, 2 s) with the paper's law written as a column-form class
+    (tools/laws_by_hand.py), one copy per start."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import laws_by_hand
+
+    laws_by_hand.register()
+    monkeypatch.setenv("QCONTROL_COMPILE", "1" if compiled else "0")
+    base = qcontrol.load_scenario("example2", {"simulation.duration": 2.0})
+    scs = [base.with_overrides(laws_by_hand.overrides(base, "columns") | {"plant.x0": x0}) for x0 in starts]
+    sc, batch = scs[0], len(scs)
+    return ClosedLoop(RunSpec(plant=build_plant(sc, "ode", batch=batch), law=build_law(scs),
+                              quantizer=build_quantizer(sc), reference=build_reference(sc),
+                              x0=[s.x0 for s in scs] if batch > 1 else sc.x0,
+                              grid=TimeGrid.of(sc.simulation.duration, sc.simulation.dt), record=record))
+
+
+@pytest.mark.parametrize("record", ["full", "metrics"])
+def test_a_column_form_law_s_batch_is_compiled_and_each_copy_is_its_run_alone(record, monkeypatch) -> None:
+    """A batch of a column-form law runs its one checked trace for every copy in the compiled
+    batch (before, its array form): each copy's record is its run alone's and the array form's, bit
+    for bit, a copy that diverges included."""
+    starts = [[0.3, -0.2], [-0.5, 0.4], [2.5, 2.5], [0.1, 0.0], [0.3, -0.2]]  # 5 x 2001 copy-rows
+    loop = _columns_loop(starts, record, monkeypatch)
+    assert type(loop.compiled) is CompiledBatch  # the built-in laws' batch, the law's lines in it
+    constants = loop.compiled.parts.constants
+    assert constants.shape[0] == 5 and len({row.tobytes() for row in constants}) == 1  # one trace
+    records = loop.run()
+    assert loop.handover is None and [r.diverged for r in records] == [False, False, True, False, False]
+    _same_records(records, _columns_loop(starts, record, monkeypatch, compiled=False).run())
+    for x0, copy in zip(starts, records, strict=True):
+        _same_records([copy], _columns_loop([x0], record, monkeypatch).run())
 
 
 @pytest.mark.parametrize(("a", "b", "same"), [

@@ -71,7 +71,7 @@ def compiled_form(sc: Scenario) -> str:
     if isinstance(law, UserLaw):
         return explain(law, law.n, sc.simulation.dt) or "compiled"
     parts = column_parts(build_quantizer(sc), law, law.n, sc.simulation.dt)
-    return "compiled (single runs; a batch runs its array form)" if not isinstance(parts, str) else parts
+    return "compiled" if not isinstance(parts, str) else parts
 
 
 def timed(made: dict[str, list[Scenario]], repeat: int, warm: bool = True

@@ -6,16 +6,19 @@ body, with its lines in place of the built-in law's and the sample its update ho
 ``yd``, ``t``) in the loop's ``held`` array; a batch of them with each copy's numbers in its row
 of the constants. A column-form law of the user's (a class outside the package written over
 columns) is traced as the built-in laws are, on a copy of it, and its lines checked against its
-float form, for a single run. The runs that take this path follow the compiled loop's and the
-compiled batch's rules (:func:`compiled_user`), a batch of a ``Law`` from 5000 copy-rows (its
-Python costs a call per copy). The compiled run hands over to the Python loop where a traced
-expression refuses (as a built-in law does); a run whose first input or first state update is
-not finite is done again in Python, which checks them (:class:`~.compiled_batch.Redo`).
+float form (a single run's); a batch of it, one law object for every copy, runs those lines for
+each copy, the one trace's constants in every copy's row, as a batch of equal ``Law`` copies
+does. The runs that take this path follow the compiled loop's and the compiled batch's rules
+(:func:`compiled_user`), a batch from 5000 copy-rows (a ``Law``'s Python costs a call per copy).
+The compiled run hands over to the Python loop where a traced expression refuses (as a built-in
+law does); a run of a ``Law`` whose first input or first state update is not finite is done again
+in Python, which checks them (:class:`~.compiled_batch.Redo`).
 """
 
 from __future__ import annotations
 
 import copy
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -62,12 +65,17 @@ def user_parts(quantizer: UniformQuantizer, law: UserLaw, n: int, dt: float,
     if form.batch == 1:  # the Python loop's calls too, where it runs (a short run, a hand-over)
         law.fast = python_calls(first, n, law.state_size)
     start = [*[f"sq{i} = {q}" for i, q in enumerate(q_text)], f"st = k * {dt!r}"]
-    if form.batch == 1:
-        constants = np.array(first.constants, dtype=float)
-    else:
-        rows = [tr.constants for tr in traces] * (form.batch if len(traces) == 1 else 1)
-        constants = np.array(rows, dtype=float).reshape(form.batch, len(first.constants))
+    constants = (np.array(first.constants, dtype=float) if form.batch == 1
+                 else per_copy([tr.constants for tr in traces], form.batch))
     return TracedParts(quantize, q_text, start + first.control, first.advance, constants, 0.0)
+
+
+def per_copy(rows: Sequence[Sequence[float]], batch: int) -> np.ndarray:
+    """The constants of a batch, ``(batch, slots)``: each copy's trace's row, or the one trace's
+    in every row where the copies share one (a batch of equal laws, or a column-form law's one
+    object for every copy)."""
+    rows = list(rows) * (batch if len(rows) == 1 else 1)
+    return np.array(rows, dtype=float).reshape(batch, len(rows[0]))
 
 
 def column_checked(parts: TracedParts, law: Any, quantizer: UniformQuantizer, n: int,
@@ -209,17 +217,17 @@ def own_column_law(law: Any) -> bool:
         and not isinstance(law, (UserLaw, *COMPILED_LAWS)) and law.copies in (None, 1)
 
 
-def compiled_user(spec: RunSpec) -> CompiledLoop | CompiledUserLoop | CompiledUserBatch | None:
+def compiled_user(spec: RunSpec) -> CompiledLoop | CompiledBatch | None:
     """The compiled form of a run or batch of a user's law, or None (for any other law, and where
     the law keeps the Python loop). The runs it takes are the compiled loop's and the compiled
     batch's (uniform quantizer, the sensors' velocity, no input quantizer; a batch of ODE copies
-    without an observer), from :data:`~.compiled_loop.MIN_ROWS` rows, for a batch of a ``Law``
-    from as many copy-rows."""
+    without an observer), from :data:`~.compiled_loop.MIN_ROWS` rows, for a batch from as many
+    copy-rows."""
     law, plant, rows = spec.law, spec.plant, spec.grid.rows
     batch, user = plant.batch, isinstance(spec.law, UserLaw)
     if user:
         law.fast = None  # traced afresh for this run's step (a law object may serve several runs)
-    if not (user or (own_column_law(law) and batch == 1)) or spec.velocity_source != "sensor" \
+    if not (user or own_column_law(law)) or spec.velocity_source != "sensor" \
             or type(spec.quantizer) is not UniformQuantizer or spec.input_quantizer is not None:
         return None
     if batch == 1 and (rows < MIN_ROWS or not numba_pays(rows, 1)):
@@ -234,7 +242,14 @@ def compiled_user(spec: RunSpec) -> CompiledLoop | CompiledUserLoop | CompiledUs
     n, dt = plant.n, spec.grid.dt
     if not user:
         parts = column_parts(spec.quantizer, law, n, dt)
-        return None if isinstance(parts, str) else CompiledLoop(parts, n, law.state_size)
+        if isinstance(parts, str):
+            return None
+        if batch == 1:
+            return CompiledLoop(parts, n, law.state_size)
+        # one law object steps every copy (a class kind's batch shares its settings): its one trace,
+        # checked, in every copy's row of the constants, so each copy runs its run alone's lines
+        shared = parts._replace(constants=per_copy([parts.constants.tolist()], batch))
+        return CompiledBatch(shared, TracedForm(batch), n, law.state_size, law)
     form = TRACED if batch == 1 else TracedForm(batch)
     parts = user_parts(spec.quantizer, law, n, dt, form)
     if parts is None:
