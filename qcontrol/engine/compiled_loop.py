@@ -40,7 +40,7 @@ import numpy as np
 from .. import compiled as compiled_paths
 from ..compiled import JIT
 from ..compiled.traced import TRACED, Symbol, Trace, TracedForm, recording
-from ..controller.backstepping import ControlOutput, output
+from ..controller.backstepping import BacksteppingLaw, ControlOutput, output
 from ..controller.comparison import ComparisonLaw
 from ..controller.law import BatchLaw
 from ..controller.linear import LinearLaw
@@ -282,21 +282,20 @@ class CompiledLoop:
             start, step_first = stop + 1, True
 
 
-# the laws whose objects say when their code is their class's
+# the built-in laws with a compiled form (declared ``compiled=True``), whose subclasses' objects
+# say when their code is their class's (:attr:`~.BacksteppingLaw.has_compiled_equivalent`)
 COMPILED_LAWS = (PaperLaw, ComparisonLaw, LinearLaw)
 
 
 def compilable(law: BatchLaw, copies: int = 1) -> bool:
     """Whether the law's own code may be traced for the compiled loop of ``copies`` copies (1: a
-    run; more: :mod:`.compiled_batch`): an object of a built-in law class whose
-    ``has_compiled_equivalent`` (the built-in class's definition: a subclass's own property is
+    run; more: :mod:`.compiled_batch`): an object of a built-in law class with a compiled form
+    whose ``has_compiled_equivalent`` (the base class's definition: a subclass's own property is
     itself a change) says it runs its class's code, with its parameters shared or one per copy.
     Anything else (a user law, a subclass with code of its own that may keep state or draw
     numbers) keeps the Python loop."""
-    for base in COMPILED_LAWS:
-        if isinstance(law, base):
-            return base.has_compiled_equivalent.fget(law) and law.copies in (None, copies)
-    return False
+    return isinstance(law, BacksteppingLaw) and BacksteppingLaw.has_compiled_equivalent.fget(law) \
+        and law.copies in (None, copies)
 
 
 def numba_pays(rows: int, batch: int) -> bool:
