@@ -35,7 +35,8 @@ from typing import Any
 import numpy as np
 
 from ..expr import Expression, combine
-from ..expr.source import FLAG, Statements, float_source
+from ..expr.calculus import Program
+from ..expr.source import FLAG, Statements, float_source, operation_source
 
 Value = Any  # a Symbol, or a plain number
 
@@ -260,6 +261,34 @@ def evaluate(expression: Expression, columns: Sequence[Value]) -> Symbol:
     return trace.assign(value)
 
 
+def evaluate_program(program: Program, values: Sequence[Value]) -> list[Value]:
+    """A :class:`~qcontrol.expr.calculus.Program` (trees sharing subtrees) on traced ``values``,
+    recorded step by step in its order (each shared node once), every step the float
+    evaluation's operation (:func:`~qcontrol.expr.source.operation_source`); where ``math`` would
+    refuse some step (the float evaluation then takes numpy's answer for the whole program), the
+    refusal."""
+    trace = current()
+    body = Statements(trace.name("p") + "_")
+    texts: list[str] = []
+    for step in program.steps:
+        kind = step[0]
+        if kind == "var":
+            texts.append(trace.text(values[step[1]]))
+        elif kind == "const":
+            texts.append(trace.constant(step[1]))
+        elif kind == "square":
+            a = texts[step[2][0]]
+            texts.append(body.temporary(f"{a} * {a}"))
+        else:
+            texts.append(operation_source(step[1], [texts[i] for i in step[2]], body))
+    if any(FLAG in line for line in body.lines):  # math may refuse: the flag and its test
+        trace.lines += [f"{FLAG} = False", *body.lines]
+        trace.refuse_if(FLAG)
+    else:
+        trace.lines += body.lines
+    return [Symbol(texts[i]) for i in program.outputs]
+
+
 def _expm1(x: Value) -> Value:
     """``exp(x) - 1``; where ``math.expm1`` raises (an infinite result of a finite argument), the
     refusal."""
@@ -313,6 +342,9 @@ class TracedForm:
 
     def terms(self, expressions: Sequence[Expression]) -> TracedTerms:
         return TracedTerms(expressions)
+
+    def program(self, program: Program) -> Callable[[Sequence[Value]], list[Value]]:
+        return partial(evaluate_program, program)
 
     def combination(self, expressions: Sequence[Expression], coefficients: Sequence[Any]
                     ) -> Callable[[Sequence[Value]], Value]:
