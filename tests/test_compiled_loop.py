@@ -17,6 +17,7 @@ from qcontrol.engine import ClosedLoop, RunSpec
 from qcontrol.expr import compile_expression
 from qcontrol.plants.ode import ChainPlant
 from qcontrol.quantizer import UniformQuantizer
+from qcontrol.quantizers import HysteresisQuantizer
 from qcontrol.reference import Constant
 from qcontrol.scenario import load_scenario
 from qcontrol.timegrid import TimeGrid
@@ -103,6 +104,39 @@ def test_the_tuning_law_is_compiled_and_hands_over_where_math_refuses(monkeypatc
     sc = _scenario("example2", ["controller.kind=\"tuning\"", f"plant.phi={phi}", f"plant.x0={x0}"])
     (loop, compiled), (_, python) = _both(monkeypatch, sc, "ode")
     assert (loop.handover is None) == (handover is None)
+    _assert_identical(compiled, python)
+
+
+@pytest.mark.parametrize("backend", ["ode", "mujoco"])
+@pytest.mark.parametrize("keys", [
+    ['quantizer.kind="hysteresis"', "quantizer.delta=[0.0015, 0.05]"],  # levels kept row to row
+    ["quantizer.delta=[0.0015, 0.05]", "quantizer.input.delta=0.5"],  # the plant stepped with q_u(u)
+    ["quantizer.delta=0.01", "quantizer.input.delta=0.5", "simulation.control_period=0.005"],
+])
+def test_hysteresis_and_an_input_quantizer_are_compiled(monkeypatch, backend: str, keys: list[str]) -> None:
+    sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=0.4", *keys],
+                       unset=["controller.delta"])
+    (loop, compiled), (_, python) = _both(monkeypatch, sc, backend)
+    assert loop.handover is None
+    _assert_identical(compiled, python)
+
+
+@pytest.mark.parametrize("input_delta", [None, 0.5])
+def test_hysteresis_levels_and_the_input_quantizer_carry_over_a_hand_over(monkeypatch,
+                                                                          input_delta: float | None) -> None:
+    """The bounding function overflows math part of the way: the Python loop takes over with the
+    levels the compiled loop kept (a row read again keeps its level) and steps with q_u(u)."""
+    def spec() -> RunSpec:
+        base = _refusing_run("0", "1 + exp(q1 / 2)", [0.0, 2000.0])
+        law = PaperLaw([1.0, 1.0], (0.01, 0.01), kappa=3.0, gamma=1.0, sigma=1.0, r=base.law.r)
+        applied = None if input_delta is None else UniformQuantizer(input_delta)
+        return dataclasses.replace(base, law=law, quantizer=HysteresisQuantizer(0.01, 2),
+                                   input_quantizer=applied)
+    loop = ClosedLoop(spec())
+    compiled = loop.run()[0]
+    monkeypatch.setenv("QCONTROL_COMPILE", "0")
+    python = ClosedLoop(spec()).run()[0]
+    assert loop.handover is not None and loop.handover > 0
     _assert_identical(compiled, python)
 
 

@@ -196,6 +196,14 @@ class Symbol:
     def __neg__(self) -> Symbol:
         return current().assign(f"-{self.text}")
 
+    def __abs__(self) -> Symbol:
+        return current().assign(f"abs({self.text})")
+
+    def __lt__(self, other: Value) -> Symbol:
+        """A comparison, as a bool local (False where either side is NaN, as numpy's): only for
+        the form's ``where``; it has no truth value of its own."""
+        return _binary("<", self, other)
+
     def evaluated(self, expression: Expression, columns: Sequence[Value]) -> Symbol:
         """``expression`` on traced ``columns`` (this one among them), recorded: how an expression's
         ``on_floats`` meets a symbol (:func:`evaluate`)."""
@@ -308,6 +316,15 @@ def _floor(x: Value) -> Value:
     return current().assign(f"np.floor({x.text})")
 
 
+def _where(condition: Value, a: Value, b: Value) -> Value:
+    """numpy's ``where(condition, a, b)`` on a traced condition (:meth:`Symbol.__lt__`) or plain
+    values."""
+    if not isinstance(condition, Symbol):
+        return a if condition else b
+    trace = current()
+    return trace.assign(f"{trace.text(a)} if {condition.text} else {trace.text(b)}")
+
+
 def _clip(x: Value, low: float, high: float) -> Value:
     """numpy's ``minimum(maximum(x, low), high)`` (NaN stays NaN), on a symbol or a number."""
     if not isinstance(x, Symbol):
@@ -324,6 +341,7 @@ class TracedForm:
     expm1: Callable[[Value], Value] = staticmethod(_expm1)
     floor: Callable[[Value], Value] = staticmethod(_floor)
     clip: Callable[[Value, float, float], Value] = staticmethod(_clip)
+    where: Callable[[Value, Value, Value], Value] = staticmethod(_where)
 
     def __init__(self, batch: int = 1) -> None:
         self.batch = batch
