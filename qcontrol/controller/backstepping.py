@@ -17,7 +17,8 @@ the same lines step a batch of 1000 copies and a single run in whatever form the
 from __future__ import annotations
 
 from collections.abc import Callable, Collection, Sequence
-from functools import partial, wraps
+from functools import partial, update_wrapper
+from types import MethodType
 from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
@@ -259,7 +260,7 @@ class BacksteppingLaw(Backstepping):
         super().__init_subclass__(**kwargs)
         if compiled:
             cls.compiled_class = cls
-            cls.__init__ = _noting_built_attributes(cls.__init__)
+            cls.__init__ = _NotingInit(cls.__init__)
 
     @property
     def has_compiled_equivalent(self) -> bool:
@@ -304,16 +305,21 @@ class BacksteppingLaw(Backstepping):
 BUILT_ATTRIBUTES = "_built_attributes"  # the instance attributes a built-in law's __init__ set
 
 
-def _noting_built_attributes(init: Callable[..., None]) -> Callable[..., None]:
-    """``init`` followed by noting the instance attributes it set (what
-    :attr:`~BacksteppingLaw.has_compiled_equivalent` allows)."""
+class _NotingInit:
+    """A built-in law's ``__init__``, followed by noting the instance attributes it set (what
+    :attr:`~BacksteppingLaw.has_compiled_equivalent` allows): a method of the class, as the
+    ``__init__`` it wraps."""
 
-    @wraps(init)
-    def built(self: BacksteppingLaw, *args: Any, **kwargs: Any) -> None:
-        init(self, *args, **kwargs)
-        setattr(self, BUILT_ATTRIBUTES, frozenset(vars(self)) | {BUILT_ATTRIBUTES})
+    def __init__(self, init: Callable[..., None]) -> None:
+        self.init = init
+        update_wrapper(self, init)
 
-    return built
+    def __get__(self, law: Any, owner: type | None = None) -> Any:
+        return self if law is None else MethodType(self, law)
+
+    def __call__(self, law: BacksteppingLaw, *args: Any, **kwargs: Any) -> None:
+        self.init(law, *args, **kwargs)
+        setattr(law, BUILT_ATTRIBUTES, frozenset(vars(law)) | {BUILT_ATTRIBUTES})
 
 
 # What every class body holds without defining anything of a law: a docstring, and the names
