@@ -22,6 +22,7 @@ from typing import Protocol
 import numpy as np
 
 from .expr import Expression, combine
+from .expr.calculus import Program
 
 Column = float | np.ndarray  # one value per copy: a (batch,) array in the array form
 Columns = tuple  # of Column: q_1 .. q_n, or the adaptive estimates
@@ -45,6 +46,10 @@ class ColumnForm(Protocol):
     def terms(self, expressions: Sequence[Expression]) -> Terms:
         """``f(columns) -> [e(columns) for e in expressions]``: the expressions evaluated on columns
         of this form (``columns[i]`` the values of the expressions' ``variables[i]``)."""
+
+    def program(self, program: Program) -> Callable[[Sequence[Column]], list[Column]]:
+        """``f(columns) -> [value of each tree]``: a :class:`~qcontrol.expr.calculus.Program`
+        (trees sharing subtrees, each node evaluated once) on columns of this form."""
 
     def combination(self, expressions: Sequence[Expression], coefficients: Sequence[Parameter | None]
                     ) -> Callable[[Sequence[Column]], Column]:
@@ -99,6 +104,9 @@ class ArrayForm:
 
     def terms(self, expressions: Sequence[Expression]) -> Terms:
         return ColumnTerms(expressions)
+
+    def program(self, program: Program) -> Callable[[Sequence[Column]], list[Column]]:
+        return program  # (numpy's functions on the columns)
 
     def combination(self, expressions: Sequence[Expression], coefficients: Sequence[Parameter | None]
                     ) -> Combination:

@@ -156,15 +156,28 @@ class HysteresisQuantizer:
         if self.level is None or self.level.shape != x.shape:
             self.level = nearest
         else:
-            keep = np.abs(x - self.level) < self.delta
-            self.level = np.where(keep, self.level, nearest)
+            self.level = held_level(x, self.level, nearest, self.delta, np.where)
         return self.level.copy()
+
+    def apply_channel(self, i: int, x: Any, level: Any, form: Any) -> Any:
+        """Channel ``i`` (from 0) of :meth:`__call__` on one column of ``form`` (its ``floor`` and
+        ``where``), given the channel's level before the reading (NaN before a run's first
+        reading, whose level is then the nearest one, as :meth:`__call__` gives it): the level
+        after it, which is the reading (the compiled loop's quantizer, which keeps the levels)."""
+        delta = float(self.delta[i])
+        return held_level(x, level, uniform(x, delta, form.floor), delta, form.where)
 
     def saturated(self, x: np.ndarray) -> np.ndarray:
         return np.asarray(x, dtype=float)[..., 0] * 0.0
 
     def __repr__(self) -> str:
         return f"HysteresisQuantizer(delta={self.delta.tolist()!r})"
+
+
+def held_level(x: Any, level: Any, nearest: Any, delta: Any, where: Callable[[Any, Any, Any], Any]) -> Any:
+    """The hysteresis quantizer's level after reading ``x``: ``level`` kept while
+    ``|x - level| < delta``, else ``nearest`` (``where``: the form's select, numpy's for arrays)."""
+    return where(abs(x - level) < delta, level, nearest)
 
 
 class LogarithmicQuantizer:

@@ -17,6 +17,7 @@ from qcontrol.engine import ClosedLoop, RunSpec
 from qcontrol.expr import compile_expression
 from qcontrol.plants.ode import ChainPlant
 from qcontrol.quantizer import UniformQuantizer
+from qcontrol.quantizers import HysteresisQuantizer
 from qcontrol.reference import Constant
 from qcontrol.scenario import load_scenario
 from qcontrol.timegrid import TimeGrid
@@ -32,7 +33,7 @@ def _compile_short_runs(monkeypatch) -> None:
 
 
 LAWS = {"exact hold": ["controller.hold=\"exact\""], "comparison law": ["controller.kind=\"comparison\""],
-        "linear law": ["controller.kind=\"linear\""]}
+        "linear law": ["controller.kind=\"linear\""], "tuning law": ["controller.kind=\"tuning\""]}
 
 
 def _loop(sc, backend: str, record: str = "full", law=None) -> tuple[ClosedLoop, object]:
@@ -67,10 +68,12 @@ def test_compiled_and_python_loops_agree_on_every_shipped_scenario(monkeypatch, 
     sc = _scenario(name)
     (loop, compiled), (python_loop, python) = _both(monkeypatch, sc, backend)
     assert python_loop.handover == 0  # QCONTROL_COMPILE=0: all of it in Python
-    # terms in t are evaluated at each stage's time in Python: the Python loop; a law without a
-    # compiled form (the tuning-function law) runs in Python; sensor noise (the realistic
-    # scenarios) is compiled: drawn ahead, the same values
-    python_only = sc.terms.timed or not compiled_loop.compilable(build_controller(sc))
+    # terms in t are evaluated at each stage's time in Python: the Python loop; so are the
+    # strict-feedback plants (the ODE's regressors before the last equation, MuJoCo's order 3,
+    # which the tuning-function law drives); sensor noise (the realistic scenarios) is compiled:
+    # drawn ahead, the same values
+    strict = bool(sc.terms.rows)  # (regressor rows before the last equation: order 3 on MuJoCo, too)
+    python_only = sc.terms.timed or strict or not compiled_loop.compilable(build_controller(sc))
     assert loop.handover == (0 if python_only else None)
     _assert_identical(compiled, python)
 
@@ -78,9 +81,9 @@ def test_compiled_and_python_loops_agree_on_every_shipped_scenario(monkeypatch, 
 # the comparison law adds psi and phi to its u (eq. (46)): on Example 1 (psi only) and Example 2 (phi
 # only); the exact hold changes how the law's own constants hold u (no plant term): on Example 2, as
 # each plant's lines are checked with the default law above (each further plant is one more module
-# to compile)
+# to compile); the tuning law's design (its program of shared trees) on Example 2's sin and cos
 LAW_CASES = [("exact hold", "example2"), ("comparison law", "example1"), ("comparison law", "example2"),
-             ("linear law", "example2")]
+             ("linear law", "example2"), ("tuning law", "example2")]
 
 
 @pytest.mark.parametrize("backend", ["ode", "mujoco"])
@@ -89,6 +92,51 @@ def test_compiled_and_python_loops_agree_for_each_built_in_law(monkeypatch, back
                                                                name: str) -> None:
     (loop, compiled), (_, python) = _both(monkeypatch, _scenario(name, LAWS[law]), backend)
     assert loop.handover is None
+    _assert_identical(compiled, python)
+
+
+@pytest.mark.parametrize(("phi", "x0", "handover"), [
+    ('["x2", "exp(x1)*x2", "tanh(x1)"]', "[0.5, 0.0]", None),  # math's exp, tanh (numpy's round otherwise)
+    ('["x2", "exp(x1)", "sin(x1)"]', "[709.0, 0.0]", "some row"),  # exp overflows: Python from there
+])
+def test_the_tuning_law_is_compiled_and_hands_over_where_math_refuses(monkeypatch, phi: str, x0: str,
+                                                                    handover: str | None) -> None:
+    sc = _scenario("example2", ["controller.kind=\"tuning\"", f"plant.phi={phi}", f"plant.x0={x0}"])
+    (loop, compiled), (_, python) = _both(monkeypatch, sc, "ode")
+    assert (loop.handover is None) == (handover is None)
+    _assert_identical(compiled, python)
+
+
+@pytest.mark.parametrize("backend", ["ode", "mujoco"])
+@pytest.mark.parametrize("keys", [
+    ['quantizer.kind="hysteresis"', "quantizer.delta=[0.0015, 0.05]"],  # levels kept row to row
+    ["quantizer.delta=[0.0015, 0.05]", "quantizer.input.delta=0.5"],  # the plant stepped with q_u(u)
+    ["quantizer.delta=0.01", "quantizer.input.delta=0.5", "simulation.control_period=0.005"],
+])
+def test_hysteresis_and_an_input_quantizer_are_compiled(monkeypatch, backend: str, keys: list[str]) -> None:
+    sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=0.4", *keys],
+                       unset=["controller.delta"])
+    (loop, compiled), (_, python) = _both(monkeypatch, sc, backend)
+    assert loop.handover is None
+    _assert_identical(compiled, python)
+
+
+@pytest.mark.parametrize("input_delta", [None, 0.5])
+def test_hysteresis_levels_and_the_input_quantizer_carry_over_a_hand_over(monkeypatch,
+                                                                          input_delta: float | None) -> None:
+    """The bounding function overflows math part of the way: the Python loop takes over with the
+    levels the compiled loop kept (a row read again keeps its level) and steps with q_u(u)."""
+    def spec() -> RunSpec:
+        base = _refusing_run("0", "1 + exp(q1 / 2)", [0.0, 2000.0])
+        law = PaperLaw([1.0, 1.0], (0.01, 0.01), kappa=3.0, gamma=1.0, sigma=1.0, r=base.law.r)
+        applied = None if input_delta is None else UniformQuantizer(input_delta)
+        return dataclasses.replace(base, law=law, quantizer=HysteresisQuantizer(0.01, 2),
+                                   input_quantizer=applied)
+    loop = ClosedLoop(spec())
+    compiled = loop.run()[0]
+    monkeypatch.setenv("QCONTROL_COMPILE", "0")
+    python = ClosedLoop(spec()).run()[0]
+    assert loop.handover is not None and loop.handover > 0
     _assert_identical(compiled, python)
 
 

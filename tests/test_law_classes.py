@@ -330,3 +330,19 @@ def test_a_law_that_wraps_the_paper_law_runs_its_numbers_or_clips_them(u_max: fl
             assert np.array_equal(getattr(wrapped, name), getattr(builtin, name)), name
     else:
         assert np.max(np.abs(wrapped.u)) <= 5.0 < np.max(np.abs(builtin.u))
+
+
+def test_has_compiled_equivalent_is_one_mechanism_of_the_base_class() -> None:
+    """Declared once (``compiled=True``): a law without a compiled form is never equivalent, a
+    built-in object stops being so once it holds an attribute of its own."""
+    from qcontrol.controller.backstepping import BacksteppingLaw
+    from qcontrol.controller.linear import LinearLaw
+
+    class Own(BacksteppingLaw):
+        pass
+
+    assert Own.compiled_class is None and not Own([1.0, 2.0], 0.005).has_compiled_equivalent
+    linear = LinearLaw([1.0, 2.0], 0.005)
+    assert LinearLaw.compiled_class is LinearLaw and linear.has_compiled_equivalent
+    linear.extra = 1.0
+    assert not linear.has_compiled_equivalent

@@ -190,7 +190,8 @@ def test_the_region_study_compares_the_three_laws_at_two_rates(reproduction):
 
 def test_the_robustness_study_batches_each_rows_seeds(monkeypatch, tmp_path):
     """Each row's sensor-noise seeds share everything else: one job per row (8 of the study's
-    rows), every other run alone. A run asked for twice is planned once: the seed the scenario
+    rows); the other runs alone, in jobs of one scenario file and backend each, at most
+    ALONE_PER_JOB runs a job. A run asked for twice is planned once: the seed the scenario
     file has already (1) is the row's run without the override, and the disturbance cases' quiet
     runs (the ideal and the realistic arm, each law, each backend) are rows' runs."""
     from pathlib import Path
@@ -201,6 +202,7 @@ def test_the_robustness_study_batches_each_rows_seeds(monkeypatch, tmp_path):
 
     def capture(tasks, full, pool):
         planned["batches"] = study.batches(tasks)
+        planned["files"] = [{(tasks[i].path, tasks[i].backend) for i in b} for b in planned["batches"]]
         seed = lambda task: next((o for o in task.overrides if o.startswith(study.SEED_OVERRIDE)), "own")  # noqa: E731
         planned["seeds"] = [{seed(tasks[i]) for i in b} for b in planned["batches"][:8]]
         planned["shared"] = [t for t in full if t in set(tasks)]
@@ -211,7 +213,8 @@ def test_the_robustness_study_batches_each_rows_seeds(monkeypatch, tmp_path):
         scenarios = Path(__file__).resolve().parent.parent / "scenarios"
         study.robustness_study(scenarios, 0.5, 1, log=lambda _: None)
     sizes = sorted((len(b) for b in planned["batches"]), reverse=True)
-    assert sizes[:8] == [len(study.SEEDS)] * 8 and set(sizes[8:]) == {1}
+    assert sizes[:8] == [len(study.SEEDS)] * 8 and max(sizes[8:]) == study.ALONE_PER_JOB
+    assert all(len(files) == 1 for files in planned["files"])  # one file and backend a job
     every = {f"plant.mujoco.noise_seed={s}" for s in study.SEEDS}
     own = {"own", *(f"plant.mujoco.noise_seed={s}" for s in study.SEEDS[1:])}  # the realistic files' rows
     matched = [seeds == own for seeds in planned["seeds"] if seeds in (every, own)]

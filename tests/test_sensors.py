@@ -225,9 +225,10 @@ def test_a_sweep_over_per_channel_steps() -> None:
     assert len(rows) == 2 and all(r["lemma2_max_ratio"] <= 1 + LEMMA2_TOLERANCE for r in rows)
 
 
-@pytest.mark.parametrize("keys", [
-    {"quantizer.kind": "hysteresis", "quantizer.delta": 0.01},
-    {"quantizer.delta": 0.01, "quantizer.input.delta": 0.5},
+@pytest.mark.parametrize("keys", [  # (hysteresis and a uniform input quantizer are compiled)
+    {"quantizer.kind": "logarithmic", "quantizer.rho": 0.9, "quantizer.u_min": 0.001},
+    {"quantizer.delta": 0.01, "quantizer.input.kind": "logarithmic", "quantizer.input.rho": 0.9,
+     "quantizer.input.u_min": 0.001},
     {"quantizer.delta": 0.01, "plant.input_gain": 2.0},
 ])
 def test_the_compiled_loop_declines_what_it_does_not_know(keys: dict) -> None:

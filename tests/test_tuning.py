@@ -75,6 +75,26 @@ def _law(rows: list[list[str]], c: list[float], gamma: float = 1.0, sigma: float
     return TuningLaw(c, 1e-12, compiled, gamma=gamma, sigma=sigma)
 
 
+def test_a_program_on_copies_is_each_copys_float_evaluation() -> None:
+    """What a batch of copies computes (numpy's own exp, tanh, log may round otherwise): each
+    copy's values are the float evaluation's of that copy alone, also where math refuses one copy
+    (log of a negative number: that copy takes numpy's answer, NaN, the others keep math's)."""
+    e = expression("exp(x1)*tanh(x2) + log(1 + x1**2)*x3 + sqrt(x3)", XY)
+    program = Program([e._tree, differentiate(e._tree, 0, {})])
+    rng = np.random.default_rng(3)
+    columns = [rng.uniform(-2.0, 2.0, 50), rng.uniform(-2.0, 2.0, 50), rng.uniform(0.0, 2.0, 50)]
+    refusing = [columns[0], columns[1], np.where(np.arange(50) == 7, -1.0, columns[2])]
+    for cols in (columns, refusing):
+        copies = program.on_copies(cols)
+        for b in range(50):
+            alone = program([float(c[b]) for c in cols])
+            assert np.array([v[b] for v in copies]).tobytes() == np.array(alone).tobytes()
+    first = program.on_copies(refusing)[0]
+    assert np.isnan(first[7]) and np.isfinite(first).sum() == 49
+    numpy = program(columns)[0]  # numpy's exp and tanh: not every copy's float value
+    assert not np.array_equal(numpy, program.on_copies(columns)[0])
+
+
 def test_n2_design_equals_the_law_written_by_hand() -> None:
     """x1' = x2 + theta x1^2, x2' = u: the tuning-function law of the textbook, term by term."""
     c1, c2, g = 2.0, 3.0, 0.7
@@ -238,3 +258,28 @@ def test_the_plant_class_in_the_law_context() -> None:
     assert chain.first_nonzero_row is None
     assert [[e.source for e in row] for row in chain.regressor_rows] == [["0", "0"], ["0", "0"],
                                                                          ["x2**3", "sin(x1)"]]
+
+
+def test_a_batch_of_the_tuning_law_is_compiled_and_each_copy_is_its_run_alone(monkeypatch) -> None:
+    """The design's program with exp and tanh (numpy's round otherwise): the compiled batch, the
+    Python batch and each copy's run alone give the same numbers to the last bit."""
+    import qcontrol.engine.compiled_loop as compiled_loop
+    from qcontrol.assembly import assemble
+    from qcontrol.engine import ClosedLoop
+
+    monkeypatch.setattr(compiled_loop, "MIN_ROWS", 0)
+    monkeypatch.setattr(compiled_loop, "COLD_MIN_ROWS", 0)
+    keys = ['controller.kind="tuning"', 'plant.phi=["x2", "exp(x1)*x2", "tanh(x1)"]',
+            "simulation.duration=0.3"]
+    scs = [qcontrol.load_scenario(SCENARIOS / "example2.toml", [*keys, f"plant.x0=[{a!r}, 0.0]"])
+           for a in (-1.5, -0.5, 0.25, 1.0, 2.0)]
+    loop = ClosedLoop(assemble(scs, "ode").spec)
+    compiled = loop.run()
+    assert loop.handover is None  # compiled from row 0 to the end
+    monkeypatch.setenv("QCONTROL_COMPILE", "0")
+    python = assemble(scs, "ode").run()
+    alone = [assemble([sc], "ode").run()[0] for sc in scs]
+    for a, b, c in zip(compiled, python, alone, strict=True):
+        for name in ("x", "x_q", "u", "adaptive"):
+            values = np.asarray(a.signals[name]).tobytes()
+            assert values == np.asarray(b.signals[name]).tobytes() == np.asarray(c.signals[name]).tobytes()

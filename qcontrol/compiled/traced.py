@@ -35,7 +35,8 @@ from typing import Any
 import numpy as np
 
 from ..expr import Expression, combine
-from ..expr.source import FLAG, Statements, float_source
+from ..expr.calculus import Program
+from ..expr.source import FLAG, Statements, float_source, operation_source
 
 Value = Any  # a Symbol, or a plain number
 
@@ -195,6 +196,14 @@ class Symbol:
     def __neg__(self) -> Symbol:
         return current().assign(f"-{self.text}")
 
+    def __abs__(self) -> Symbol:
+        return current().assign(f"abs({self.text})")
+
+    def __lt__(self, other: Value) -> Symbol:
+        """A comparison, as a bool local (False where either side is NaN, as numpy's): only for
+        the form's ``where``; it has no truth value of its own."""
+        return _binary("<", self, other)
+
     def evaluated(self, expression: Expression, columns: Sequence[Value]) -> Symbol:
         """``expression`` on traced ``columns`` (this one among them), recorded: how an expression's
         ``on_floats`` meets a symbol (:func:`evaluate`)."""
@@ -260,6 +269,34 @@ def evaluate(expression: Expression, columns: Sequence[Value]) -> Symbol:
     return trace.assign(value)
 
 
+def evaluate_program(program: Program, values: Sequence[Value]) -> list[Value]:
+    """A :class:`~qcontrol.expr.calculus.Program` (trees sharing subtrees) on traced ``values``,
+    recorded step by step in its order (each shared node once), every step the float
+    evaluation's operation (:func:`~qcontrol.expr.source.operation_source`); where ``math`` would
+    refuse some step (the float evaluation then takes numpy's answer for the whole program), the
+    refusal."""
+    trace = current()
+    body = Statements(trace.name("p") + "_")
+    texts: list[str] = []
+    for step in program.steps:
+        kind = step[0]
+        if kind == "var":
+            texts.append(trace.text(values[step[1]]))
+        elif kind == "const":
+            texts.append(trace.constant(step[1]))
+        elif kind == "square":
+            a = texts[step[2][0]]
+            texts.append(body.temporary(f"{a} * {a}"))
+        else:
+            texts.append(operation_source(step[1], [texts[i] for i in step[2]], body))
+    if any(FLAG in line for line in body.lines):  # math may refuse: the flag and its test
+        trace.lines += [f"{FLAG} = False", *body.lines]
+        trace.refuse_if(FLAG)
+    else:
+        trace.lines += body.lines
+    return [Symbol(texts[i]) for i in program.outputs]
+
+
 def _expm1(x: Value) -> Value:
     """``exp(x) - 1``; where ``math.expm1`` raises (an infinite result of a finite argument), the
     refusal."""
@@ -279,6 +316,15 @@ def _floor(x: Value) -> Value:
     return current().assign(f"np.floor({x.text})")
 
 
+def _where(condition: Value, a: Value, b: Value) -> Value:
+    """numpy's ``where(condition, a, b)`` on a traced condition (:meth:`Symbol.__lt__`) or plain
+    values."""
+    if not isinstance(condition, Symbol):
+        return a if condition else b
+    trace = current()
+    return trace.assign(f"{trace.text(a)} if {condition.text} else {trace.text(b)}")
+
+
 def _clip(x: Value, low: float, high: float) -> Value:
     """numpy's ``minimum(maximum(x, low), high)`` (NaN stays NaN), on a symbol or a number."""
     if not isinstance(x, Symbol):
@@ -295,6 +341,7 @@ class TracedForm:
     expm1: Callable[[Value], Value] = staticmethod(_expm1)
     floor: Callable[[Value], Value] = staticmethod(_floor)
     clip: Callable[[Value, float, float], Value] = staticmethod(_clip)
+    where: Callable[[Value, Value, Value], Value] = staticmethod(_where)
 
     def __init__(self, batch: int = 1) -> None:
         self.batch = batch
@@ -313,6 +360,9 @@ class TracedForm:
 
     def terms(self, expressions: Sequence[Expression]) -> TracedTerms:
         return TracedTerms(expressions)
+
+    def program(self, program: Program) -> Callable[[Sequence[Value]], list[Value]]:
+        return partial(evaluate_program, program)
 
     def combination(self, expressions: Sequence[Expression], coefficients: Sequence[Any]
                     ) -> Callable[[Sequence[Value]], Value]:

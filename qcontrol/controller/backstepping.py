@@ -16,9 +16,10 @@ the same lines step a batch of 1000 copies and a single run in whatever form the
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from functools import partial
-from typing import Any, NamedTuple
+from collections.abc import Callable, Collection, Sequence
+from functools import partial, update_wrapper
+from types import MethodType
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
@@ -248,6 +249,29 @@ class BacksteppingLaw(Backstepping):
     state_name = "state"  # names the state in outputs (the summary's final_<state_name>)
     state_size = 0
     copies: int | None = None  # the batch size per-copy parameters fix, or None
+    # the built-in class with a compiled form this class is or derives from (None: no compiled
+    # form); a built-in law declares itself with ``class PaperLaw(BacksteppingLaw, compiled=True)``
+    compiled_class: ClassVar[type | None] = None
+
+    def __init_subclass__(cls, compiled: bool = False, **kwargs: Any) -> None:
+        """``compiled=True`` (the built-in laws with a compiled form): the class is its objects'
+        :attr:`compiled_class`, and its ``__init__`` notes, once it is done, the instance
+        attributes it set (what :attr:`has_compiled_equivalent` allows an object to hold)."""
+        super().__init_subclass__(**kwargs)
+        if compiled:
+            cls.compiled_class = cls
+            cls.__init__ = _NotingInit(cls.__init__)
+
+    @property
+    def has_compiled_equivalent(self) -> bool:
+        """True only when the compiled form of the built-in law (:attr:`compiled_class`) may stand
+        in for this object: it is an object of that class, or of a subclass whose class body
+        defines nothing but a docstring, and holds no instance attribute that the class's
+        ``__init__`` did not set (:func:`unchanged_from`). A subclass that defines any method or
+        attribute of its own (``robust_gain``, a helper, ``from_context`` adding an attribute),
+        and every law without a compiled form, is False and runs its own Python."""
+        builtin = type(self).compiled_class
+        return builtin is not None and unchanged_from(self, builtin, vars(self).get(BUILT_ATTRIBUTES, ()))
 
     @classmethod
     def from_context(cls, context: Any) -> BacksteppingLaw:
@@ -276,3 +300,50 @@ class BacksteppingLaw(Backstepping):
     def constants(self) -> dict[str, Any]:
         """The law's constants as a recording shows them: none unless overridden."""
         return {}
+
+
+BUILT_ATTRIBUTES = "_built_attributes"  # the instance attributes a built-in law's __init__ set
+
+
+class _NotingInit:
+    """A built-in law's ``__init__``, followed by noting the instance attributes it set (what
+    :attr:`~BacksteppingLaw.has_compiled_equivalent` allows): a method of the class, as the
+    ``__init__`` it wraps."""
+
+    def __init__(self, init: Callable[..., None]) -> None:
+        self.init = init
+        update_wrapper(self, init)
+
+    def __get__(self, law: Any, owner: type | None = None) -> Any:
+        return self if law is None else MethodType(self, law)
+
+    def __call__(self, law: BacksteppingLaw, *args: Any, **kwargs: Any) -> None:
+        self.init(law, *args, **kwargs)
+        setattr(law, BUILT_ATTRIBUTES, frozenset(vars(law)) | {BUILT_ATTRIBUTES})
+
+
+# What every class body holds without defining anything of a law: a docstring, and the names
+# Python itself puts there (an empty ``__annotations__`` too: Python 3.10+ adds one to a class
+# the first time anything reads its annotations).
+CLASS_BOOKKEEPING = frozenset({"__module__", "__doc__", "__qualname__", "__firstlineno__",
+                               "__static_attributes__", "__dict__", "__weakref__"})
+
+
+def defines_anything(cls: type) -> bool:
+    """True when the body of ``cls`` defines something beyond :data:`CLASS_BOOKKEEPING`: a method,
+    a property, a class attribute, an annotation."""
+    own = vars(cls)
+    empty = set() if own.get("__annotations__") else {"__annotations__"}
+    return bool(set(own) - CLASS_BOOKKEEPING - empty)
+
+
+def unchanged_from(law: object, builtin: type, attributes: Collection[str]) -> bool:
+    """True when ``law`` computes exactly what the built-in class ``builtin`` computes, so that the
+    compiled form of the built-in law may stand in for it: ``law`` is a ``builtin``; no class of
+    its type's method resolution order that is not one of ``builtin``'s defines anything
+    (:func:`defines_anything`: whatever it defines may change the numbers, so anything counts);
+    and it holds no instance attribute beyond ``attributes``, the ones ``builtin.__init__`` set."""
+    if not isinstance(law, builtin):
+        return False
+    own = [c for c in type(law).__mro__ if c not in builtin.__mro__ and defines_anything(c)]
+    return not own and set(vars(law)) <= set(attributes)

@@ -22,10 +22,10 @@ from ..expr import Expression
 from ..quantizer import QuantizedReading
 from ..schema import Key, KindKeys, Table, number, read_keys, string
 from .backstepping import Advance, BacksteppingLaw, Columns, ControlOutput, output
-from .law import LawContext, LawKeys, unchanged_from
+from .law import LawContext, LawKeys
 
 
-class ComparisonLaw(BacksteppingLaw):
+class ComparisonLaw(BacksteppingLaw, compiled=True):
     """Comparison law of reference [20], eq. (46), with our reconstructed adaptive law.
 
     ``u = alphabar_n - psi(x_q) - theta_hat^T phi(x_q)`` with
@@ -52,14 +52,6 @@ class ComparisonLaw(BacksteppingLaw):
         return cls(context.c, context.max_error, context.psi, context.phi, adaptation_gain=s.gain,
                    known_theta=context.theta if s.theta == "known" else None)
 
-    @property
-    def has_compiled_equivalent(self) -> bool:
-        """True only when a compiled form of law (46) may stand in for this object: it is a
-        :class:`ComparisonLaw`, or of a subclass whose class body defines nothing but a docstring,
-        and holds no instance attribute that :meth:`__init__` did not set
-        (:func:`~.law.unchanged_from`)."""
-        return unchanged_from(self, ComparisonLaw, vars(self).get("_built_attributes", ()))
-
     def __init__(
         self,
         c: Sequence[float],
@@ -81,7 +73,6 @@ class ComparisonLaw(BacksteppingLaw):
         self.known_theta = None if known_theta is None else np.asarray(known_theta, dtype=float)
         self.state_size = len(self.phi)
         self._terms: dict[ColumnForm, Terms] = {}  # (terms_in)
-        self._built_attributes = frozenset(vars(self)) | {"_built_attributes"}  # (has_compiled_equivalent)
 
     def initial_state(self, batch: int) -> np.ndarray:
         """``theta_hat(0) = 0``, or the true theta in the known-parameter case."""

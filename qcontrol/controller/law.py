@@ -10,7 +10,7 @@ and the documentation is made from) and builds a :class:`BatchLaw` for a batch o
 from __future__ import annotations
 
 import re
-from collections.abc import Callable, Collection, Hashable, Mapping, Sequence
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, Protocol, runtime_checkable
@@ -330,30 +330,3 @@ def check_plant_class(kind: str, ctx: LawContext, where: str) -> None:
 def law_kind(name: str) -> LawKind:
     """The registered kind ``name`` (the scenario loader has checked that it exists)."""
     return LAW_KINDS[name]
-
-
-# What every class body holds without defining anything of a law: a docstring, and the names
-# Python itself puts there (an empty ``__annotations__`` too: Python 3.10+ adds one to a class
-# the first time anything reads its annotations).
-CLASS_BOOKKEEPING = frozenset({"__module__", "__doc__", "__qualname__", "__firstlineno__",
-                               "__static_attributes__", "__dict__", "__weakref__"})
-
-
-def defines_anything(cls: type) -> bool:
-    """True when the body of ``cls`` defines something beyond :data:`CLASS_BOOKKEEPING`: a method,
-    a property, a class attribute, an annotation."""
-    own = vars(cls)
-    empty = set() if own.get("__annotations__") else {"__annotations__"}
-    return bool(set(own) - CLASS_BOOKKEEPING - empty)
-
-
-def unchanged_from(law: object, builtin: type, attributes: Collection[str]) -> bool:
-    """True when ``law`` computes exactly what the built-in class ``builtin`` computes, so that the
-    compiled form of the built-in law may stand in for it: ``law`` is a ``builtin``; no class of
-    its type's method resolution order that is not one of ``builtin``'s defines anything
-    (:func:`defines_anything`: whatever it defines may change the numbers, so anything counts);
-    and it holds no instance attribute beyond ``attributes``, the ones ``builtin.__init__`` set."""
-    if not isinstance(law, builtin):
-        return False
-    own = [c for c in type(law).__mro__ if c not in builtin.__mro__ and defines_anything(c)]
-    return not own and set(vars(law)) <= set(attributes)

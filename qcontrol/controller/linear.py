@@ -19,27 +19,16 @@ from dataclasses import dataclass
 from ..quantizer import QuantizedReading
 from ..schema import KindKeys, Table, read_keys
 from .backstepping import Advance, BacksteppingLaw, Columns, ControlOutput, output
-from .law import LawContext, LawKeys, unchanged_from
+from .law import LawContext, LawKeys
 
 
-class LinearLaw(BacksteppingLaw):
+class LinearLaw(BacksteppingLaw, compiled=True):
     """``u = alphabar_n`` (module docstring), computed by the recursion (31)-(34) every law shares
     (:meth:`~.backstepping.Backstepping.recursion`); no adaptive state. Supports the chain of
     eq. (1) only, like the paper's law: its alphabar_n is that chain's."""
 
     state_name = "none"
     copies = None
-
-    def __init__(self, c: Sequence[float], max_error: float | Sequence[float]) -> None:
-        super().__init__(c, max_error)
-        self._built_attributes = frozenset(vars(self)) | {"_built_attributes"}  # (has_compiled_equivalent)
-
-    @property
-    def has_compiled_equivalent(self) -> bool:
-        """True only when the compiled form of law (L) may stand in for this object: a
-        :class:`LinearLaw`, or of a subclass that defines nothing of its own and holds no instance
-        attribute :meth:`__init__` did not set (:func:`~.law.unchanged_from`)."""
-        return unchanged_from(self, LinearLaw, vars(self).get("_built_attributes", ()))
 
     @classmethod
     def from_context(cls, context: LawContext) -> LinearLaw:

@@ -32,7 +32,7 @@ from .backstepping import (
     output,
     parameter,
 )
-from .law import Diagnostic, LawContext, LawKeys, unchanged_from
+from .law import Diagnostic, LawContext, LawKeys
 
 HOLDS = ("paper", "exact")  # how law (44) is held over a control period (see PaperLaw)
 
@@ -52,7 +52,7 @@ class LawConstants(NamedTuple):
     expm1: Any  # the form's exp(x) - 1 (the exact hold's 1 - exp(-K T))
 
 
-class PaperLaw(BacksteppingLaw):
+class PaperLaw(BacksteppingLaw, compiled=True):
     """The paper's quantized adaptive controller, control law (44) and adaptive law (45).
 
     ``s = zbar_n^2 / kappa + L``,
@@ -93,15 +93,6 @@ class PaperLaw(BacksteppingLaw):
         return cls(context.c, context.max_error, kappa=s.kappa, gamma=s.gamma, sigma=s.sigma, r=s.r_expr,
                    r_scale=s.r_scale, expected_terms=context.uncertain_terms, hold=s.hold,
                    period=context.control_period)
-
-    @property
-    def has_compiled_equivalent(self) -> bool:
-        """True only when a compiled form of law (44)-(45) may stand in for this object: it is a
-        :class:`PaperLaw`, or of a subclass whose class body defines nothing but a docstring, and
-        holds no instance attribute that :meth:`__init__` did not set (:func:`~.law.unchanged_from`).
-        A subclass that defines any method or attribute of its own (``robust_gain``, a helper,
-        ``from_context`` adding an attribute) is False and always runs its own Python."""
-        return unchanged_from(self, PaperLaw, vars(self).get("_built_attributes", ()))
 
     def __init__(
         self,
@@ -150,7 +141,6 @@ class PaperLaw(BacksteppingLaw):
         self.r = tuple(r)
         self.state_size = len(self.r)
         self._constants: dict[ColumnForm, LawConstants] = {}  # (constants_in)
-        self._built_attributes = frozenset(vars(self)) | {"_built_attributes"}  # (has_compiled_equivalent)
 
     def constants_in(self, form: ColumnForm) -> LawConstants:
         """The constants of the column formulas in ``form``, computed once per form: eq. (45)'s

@@ -27,13 +27,13 @@ the trees are evaluated at the quantized reading x_q (:class:`~qcontrol.expr.cal
 from __future__ import annotations
 
 import math
-from collections.abc import Hashable, Sequence
+from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from ..columns import stack
+from ..columns import ColumnForm, stack
 from ..errors import QcontrolInputError
 from ..expr import Expression
 from ..expr.calculus import Program, add, differentiate, dot, mul, neg, number, sub, total
@@ -96,7 +96,7 @@ class Derivatives:
         return differentiate(tree, variable.index, self.memo)
 
 
-class TuningLaw(BacksteppingLaw):
+class TuningLaw(BacksteppingLaw, compiled=True):
     """The tuning-function law (module docstring) for a plant of ``rows`` (n rows of l
     regressors), gains ``c``, ``Gamma = gamma I`` and the sigma-modification ``sigma >= 0``
     (0: Krstic, Kanellakopoulos and Kokotovic's law). Its adaptive state is ``theta_hat``, 0 at
@@ -123,6 +123,7 @@ class TuningLaw(BacksteppingLaw):
         self.state_size = len(self.rows[0])
         self.design = Design.of([[e._tree for e in row] for row in self.rows], self.c, self.gamma)
         self.program = Program([self.design.u, *self.design.tau, *self.design.z])
+        self._programs: dict[ColumnForm, Callable] = {}  # the program in each form (values)
         self.z_program = Program(list(self.design.z))
         self.diagnostics = (Diagnostic("z_tuning", self.n, "state", "last", "the tuning design's errors "
                                        "z_1..z_n at the quantized reading", self._errors,
@@ -131,9 +132,16 @@ class TuningLaw(BacksteppingLaw):
     def constants(self) -> dict[str, Any]:
         return {"tuning_gamma": self.gamma, "tuning_sigma": self.sigma}
 
-    def values(self, q: Columns, state: Columns, yd: Sequence[Any]) -> list[Any]:
-        """``[u, tau_1..tau_l, z_1..z_n]`` at the reading ``q``, the estimate ``state`` and ``yd``."""
-        return self.program([*q, *state, *yd])
+    def values(self, q: Columns, state: Columns, yd: Sequence[Any], form: ColumnForm | None = None
+               ) -> list[Any]:
+        """``[u, tau_1..tau_l, z_1..z_n]`` at the reading ``q``, the estimate ``state`` and ``yd``,
+        in the column form ``form`` (None: numpy's arrays, or plain floats)."""
+        if form is None:
+            return self.program([*q, *state, *yd])
+        evaluate = self._programs.get(form)
+        if evaluate is None:
+            evaluate = self._programs[form] = form.program(self.program)
+        return evaluate([*q, *state, *yd])
 
     def control(self, reading: QuantizedReading, yd: Sequence[float], theta_hat: np.ndarray | Columns,
                 t: float = 0.0) -> ControlOutput:
@@ -145,8 +153,7 @@ class TuningLaw(BacksteppingLaw):
             out = self.control(QuantizedReading(reading.values, reading.max_error), yd, tuple(theta_hat.T))
             batch = len(theta_hat)
             return ControlOutput(out.u, stack(out.zbar, batch), stack(out.target, batch), out.rate)
-        q = reading.columns
-        values = self.values(q, theta_hat, [float(v) for v in yd])
+        values = self.values(reading.columns, theta_hat, yd, reading.form)
         u, tau, z = values[0], values[1:1 + self.state_size], values[1 + self.state_size:]
         if self.sigma > 0:  # theta_hat' = gamma sigma (tau / sigma - theta_hat): decays to tau / sigma
             target = tuple(t / self.sigma for t in tau)

@@ -40,14 +40,14 @@ import numpy as np
 from .. import compiled as compiled_paths
 from ..compiled import JIT
 from ..compiled.traced import TRACED, Symbol, Trace, TracedForm, recording
-from ..controller.backstepping import ControlOutput, output
+from ..controller.backstepping import BacksteppingLaw, ControlOutput, output
 from ..controller.comparison import ComparisonLaw
 from ..controller.law import BatchLaw
 from ..controller.linear import LinearLaw
 from ..controller.proposed import PaperLaw
 from ..plants.base import NativeStepper, NativeStepping, Plant
 from ..quantizer import QuantizedReading, UniformQuantizer
-from ..quantizers import ChannelQuantizer
+from ..quantizers import ChannelQuantizer, HysteresisQuantizer
 from . import velocity
 from .reference_rows import ReferenceRows
 from .spec import RunSpec
@@ -100,7 +100,10 @@ class TracedParts(NamedTuple):
     on symbols (:mod:`qcontrol.compiled.traced`): ``quantize`` (``m1 .. mn`` -> ``q``, the names
     or constants of ``q_1 .. q_n``), ``control`` (at a sample: fills ``held`` with u, the targets
     and zbar), ``advance`` (every step), the constants ``lp`` they read, and the output's rate;
-    ``keep``: lines after the row's control (a differenced velocity keeping the position)."""
+    ``keep``: lines after the row's control (a differenced velocity keeping the position);
+    ``memory``: the hysteresis quantizer whose level per channel the loop keeps in ``lv`` (NaN
+    before the first reading), else None; ``applied``: with an input quantizer, the lines that set
+    the plant's input ``u`` to q_u of the held ``held[0]`` (the record keeps ``held[0]``)."""
 
     quantize: list[str]
     q: list[str]
@@ -109,19 +112,34 @@ class TracedParts(NamedTuple):
     constants: np.ndarray
     rate: Any  # a number, or per copy a (batch,) array
     keep: tuple[str, ...] = ()
+    memory: Any = None  # a quantizer whose levels the loop keeps in ``lv`` (hysteresis), or None
+    applied: tuple[str, ...] = ()  # lines setting the plant's input u from held[0] (an input quantizer)
+
+
+def _quantized(quantizer: Any, n: int, trace: Trace) -> list:
+    """The traced readings q_1 .. q_n of ``quantizer`` (each channel's own formula); a hysteresis
+    quantizer's levels read from and kept in ``lv``."""
+    if isinstance(quantizer, UniformQuantizer):
+        return [quantizer.apply(Symbol(f"m{i}"), TRACED.floor) for i in range(1, n + 1)]
+    if isinstance(quantizer, HysteresisQuantizer):
+        q = [quantizer.apply_channel(i, Symbol(f"m{i + 1}"), Symbol(f"lv[{i}]"), TRACED) for i in range(n)]
+        trace.lines += [f"lv[{i}] = {trace.text(qi)}" for i, qi in enumerate(q)]
+        return q
+    return [quantizer.apply_channel(i - 1, Symbol(f"m{i}"), TRACED) for i in range(1, n + 1)]
 
 
 def traced_parts(quantizer: UniformQuantizer, law: BatchLaw, n: int, dt: float,
-                 form: TracedForm = TRACED, period: float | None = None) -> TracedParts:
+                 form: TracedForm = TRACED, period: float | None = None,
+                 input_quantizer: UniformQuantizer | None = None) -> TracedParts:
     """:meth:`UniformQuantizer.apply`, ``law.control`` and ``law.advancer_in`` run on the traced
     form (``form``: :data:`TRACED`, or ``TracedForm(batch)`` for a batch of copies, whose
     constants then have a row per copy); raises TypeError where a formula cannot be traced (the
     run keeps the Python loop). ``period``: x2 differenced from the position over this many
-    seconds (the control period, ``hold`` rows; :func:`differenced_velocity`)."""
+    seconds (the control period, ``hold`` rows; :func:`differenced_velocity`); ``input_quantizer``:
+    the plant is stepped with q_u(u) (:meth:`UniformQuantizer.apply` on the held u)."""
     m, trace = law.state_size, Trace()
     with recording(trace):
-        q = [quantizer.apply(Symbol(f"m{i}"), TRACED.floor) if isinstance(quantizer, UniformQuantizer)
-             else quantizer.apply_channel(i - 1, Symbol(f"m{i}"), TRACED) for i in range(1, n + 1)]
+        q = _quantized(quantizer, n, trace)
         keep: list[str] = []
         if period is not None:
             q, keep = differenced_velocity(trace, q, period)
@@ -145,9 +163,14 @@ def traced_parts(quantizer: UniformQuantizer, law: BatchLaw, n: int, dt: float,
         texts = [trace.text(v) for v in advanced]
         trace.lines += [f"adaptive[{i}] = {text}" for i, text in enumerate(texts)]
         advance = trace.taken()
+        applied: tuple[str, ...] = ()
+        if input_quantizer is not None:
+            text = trace.text(input_quantizer.apply(Symbol("held[0]"), TRACED.floor))
+            applied = (*trace.taken(), f"u = {text}")
     rate = out.rate if isinstance(out.rate, np.ndarray) else float(out.rate)
     constants = trace.table(None if form.batch == 1 else form.batch)
-    return TracedParts(quantize, q_text, control, advance, constants, rate, tuple(keep))
+    memory = quantizer if isinstance(quantizer, HysteresisQuantizer) else None
+    return TracedParts(quantize, q_text, control, advance, constants, rate, tuple(keep), memory, applied)
 
 
 def differenced_velocity(trace: Trace, q: list, period: float) -> tuple[list, list[str]]:
@@ -175,11 +198,13 @@ def loop_body(parts: TracedParts, plant: NativeStepper, n: int, m: int, at: str 
     record = ([f"xb[{at}, {i - 1}] = x{i}" for i in range(1, n + 1)]
               + [f"mb[{at}, {i - 1}] = m{i}" for i in range(1, n + 1)]
               + [f"qb[{at}, {i}] = {q}" for i, q in enumerate(parts.q)]
-              + [f"ub[{at}] = u"] + [f"ab[{at}, {i}] = adaptive[{i}]" for i in range(m)]
+              + [f"ub[{at}] = {'held[0]' if parts.applied else 'u'}"]
+              + [f"ab[{at}, {i}] = adaptive[{i}]" for i in range(m)]
               + list(parts.keep))
+    take = list(parts.applied) or ["u = held[0]"]  # the plant's input: the held u, or q_u of it
     return [
         *plant.setup,
-        "u = held[0]",
+        *take,
         "if step_first:",
         "    k = start - 1",
         *_indented(plant.step + parts.advance, 1),
@@ -189,7 +214,7 @@ def loop_body(parts: TracedParts, plant: NativeStepper, n: int, m: int, at: str 
         *_indented(plant.observe + parts.quantize + list(test), 1),
         "    if phase == 0:",
         *_indented(parts.control, 2),
-        "        u = held[0]",
+        *_indented(take, 2),
         "    j = k - base",
         *_indented(record, 1),
         *_indented(list(fold), 1),
@@ -221,7 +246,7 @@ def loop_source(parts: TracedParts, plant: NativeStepper, n: int, m: int) -> str
     return module_source(plant, [
         JIT,
         "def rows(start, stop, step_first, hold, base, yd, xb, mb, qb, ub, ab, adaptive, held, lp, pf, pi,"
-        f" xs{', vb' if parts.keep else ''}):",
+        f" xs{', vb' if parts.keep else ''}{', lv' if parts.memory is not None else ''}):",
         *_indented(loop_body(parts, plant, n, m), 1),
     ])
 
@@ -260,6 +285,8 @@ class CompiledLoop:
         state, held = np.array(adaptive, dtype=float), np.zeros(self.held_width)
         hold = loop.grid.hold
         positions = (np.zeros(hold),) if self.parts.keep else ()  # a differenced velocity's
+        memory = self.parts.memory  # a hysteresis quantizer: its levels, NaN before the first reading
+        levels = (np.full(self.n, np.nan),) if memory is not None else ()
         arrays = loop.record.buffer.arrays
         buffers = (arrays["x"], arrays["x_meas"], arrays["x_q"], arrays["u"], arrays["adaptive"])
         start, step_first = 0, False
@@ -269,11 +296,13 @@ class CompiledLoop:
             stepper.sync_in()
             status, row = rows(start, stop, step_first, hold, loop.record.buffer.base, yd, *buffers, state,
                                held, self.parts.constants, stepper.floats, stepper.ints, stepper.state,
-                               *positions)
+                               *positions, *levels)
             stepper.sync_out()
             if status in (CONTROL_REFUSED, STEP_REFUSED):
                 after = status == STEP_REFUSED  # the row's step and advance still to do
                 resume = row + after
+                if memory is not None and resume:  # (a row read again: the same level, held_level)
+                    memory.level = levels[0].reshape(1, self.n).copy()
                 past = tuple(np.roll(positions[0], -resume).tolist()) if positions and resume else ()
                 return Resume(resume, after, tuple(state.tolist()), self.held_output(held) if after else None,
                               past)
@@ -282,21 +311,20 @@ class CompiledLoop:
             start, step_first = stop + 1, True
 
 
-# the laws whose objects say when their code is their class's
+# the built-in laws with a compiled form (declared ``compiled=True``), whose subclasses' objects
+# say when their code is their class's (:attr:`~.BacksteppingLaw.has_compiled_equivalent`)
 COMPILED_LAWS = (PaperLaw, ComparisonLaw, LinearLaw)
 
 
 def compilable(law: BatchLaw, copies: int = 1) -> bool:
     """Whether the law's own code may be traced for the compiled loop of ``copies`` copies (1: a
-    run; more: :mod:`.compiled_batch`): an object of a built-in law class whose
-    ``has_compiled_equivalent`` (the built-in class's definition: a subclass's own property is
+    run; more: :mod:`.compiled_batch`): an object of a built-in law class with a compiled form
+    whose ``has_compiled_equivalent`` (the base class's definition: a subclass's own property is
     itself a change) says it runs its class's code, with its parameters shared or one per copy.
     Anything else (a user law, a subclass with code of its own that may keep state or draw
     numbers) keeps the Python loop."""
-    for base in COMPILED_LAWS:
-        if isinstance(law, base):
-            return base.has_compiled_equivalent.fget(law) and law.copies in (None, copies)
-    return False
+    return isinstance(law, BacksteppingLaw) and BacksteppingLaw.has_compiled_equivalent.fget(law) \
+        and law.copies in (None, copies)
 
 
 def numba_pays(rows: int, batch: int) -> bool:
@@ -321,14 +349,17 @@ def compiled_loop(spec: RunSpec) -> CompiledLoop | None:
         period = spec.grid.hold * spec.grid.dt
     if not numba_pays(rows, 1):  # (before enabled(), which imports it)
         return None
-    if type(spec.quantizer) not in (UniformQuantizer, ChannelQuantizer):  # (a subclass: its own way)
+    if type(spec.quantizer) not in (UniformQuantizer, ChannelQuantizer, HysteresisQuantizer):
+        return None  # (a subclass: its own way)
+    if spec.input_quantizer is not None and type(spec.input_quantizer) is not UniformQuantizer:
         return None
     if not compiled_paths.enabled():
         return None
     if not compilable(spec.law):
         return None
     try:
-        parts = traced_parts(spec.quantizer, spec.law, spec.plant.n, spec.grid.dt, period=period)
+        parts = traced_parts(spec.quantizer, spec.law, spec.plant.n, spec.grid.dt, period=period,
+                             input_quantizer=spec.input_quantizer)
     except TypeError:  # a formula that cannot be traced: the Python loop
         return None
     return CompiledLoop(parts, spec.plant.n, spec.law.state_size)

@@ -48,6 +48,7 @@ from ..columns import ArrayForm, Column, Combination, Parameter
 from ..controller.backstepping import Advance, Columns
 from ..controller.law import AnyColumnForm, BatchLaw
 from ..expr import FLOAT_REFUSED, Expression, FloatCombination, FloatTerms
+from ..expr.calculus import Program
 from ..expr.generators import elementwise
 from ..plants.base import ColumnIO, ColumnStepping, Plant
 from ..quantizer import QuantizedReading, Quantizer, UniformQuantizer
@@ -79,6 +80,9 @@ class FloatForm:
     def terms(self, expressions: Sequence[Expression]) -> FloatTerms:
         return FloatTerms(expressions)
 
+    def program(self, program: Program) -> Callable[[Sequence[Any]], list[float]]:
+        return partial(float_program, program)
+
     def combination(self, expressions: Sequence[Expression], coefficients: Sequence[Parameter | None]
                     ) -> FloatCombination:
         return FloatCombination(expressions, [None if c is None else self.column(c) for c in coefficients])
@@ -97,6 +101,12 @@ class FloatForm:
 
 
 FLOATS = FloatForm()
+
+
+def float_program(program: Program, values: Sequence[Any]) -> list[float]:
+    """``program`` on one copy's values as plain floats (``math``; numpy's answer where it
+    refuses, :class:`~qcontrol.expr.calculus.Program`)."""
+    return program([float(v) for v in values])
 
 
 class FloatQuantize:
@@ -291,6 +301,9 @@ class CopiesForm(ArrayForm):
 
     def terms(self, expressions: Sequence[Expression]) -> CopiesTerms:
         return CopiesTerms(expressions)
+
+    def program(self, program: Program) -> Callable[[Sequence[Column]], list[Column]]:
+        return program.on_copies
 
     def combination(self, expressions: Sequence[Expression], coefficients: Sequence[Parameter | None]
                     ) -> Combination:

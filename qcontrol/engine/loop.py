@@ -100,9 +100,9 @@ class ClosedLoop:
         self.progress = ProgressReports(spec.progress, grid.rows)
         self.loads = Loads(plant, spec.loads)
         self.input_quantizer = spec.input_quantizer
-        # None: the Python loop (see .compiled_loop); an input quantizer keeps it too
-        self.compiled = (compiled_user(spec) or compiled_loop(spec)) if spec.input_quantizer is None \
-            and compiled else None  # (a user's law: its code traced and checked, see .compiled_user)
+        # None: the Python loop (see .compiled_loop; a user's law: its code traced and checked,
+        # see .compiled_user, which, as a batch, leaves an input quantizer to the Python loop)
+        self.compiled = (compiled_user(spec) or compiled_loop(spec)) if compiled else None
         self.handover: int | None = None  # the row the Python loop took over from (None: none)
 
     def next_event(self, k: int) -> int:

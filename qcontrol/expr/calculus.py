@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import QcontrolInputError
+from .generators import elementwise
 from .operations import FLOAT_REFUSED, NAMED, OPERATIONS, OPERATORS, POWER, Operation
 from .tree import Apply, Number, Tree, Variable
 
@@ -274,7 +275,26 @@ class Program:
                     return [float(v) for v in self._run([np.float64(v) for v in values], floats=False)]
         return self._run(values, floats=False)
 
-    def _run(self, values: Sequence[Any], floats: bool) -> list[Any]:
+    def on_copies(self, values: Sequence[Any]) -> list[Any]:
+        """Evaluate on ``(batch,)`` columns (numbers shared by every copy beside them), each
+        element what the float evaluation gives that copy's values (as
+        :meth:`~qcontrol.expr.Expression.on_copies`): the rows that are ``same_on_arrays`` on
+        whole columns, every other row's ``on_floats`` element by element. Where ``math``
+        refuses some copy's value, every copy is evaluated alone (numpy's answer where it
+        refuses)."""
+        try:
+            return self._run(values, floats=False, copies=True)
+        except FLOAT_REFUSED:
+            pass
+        arrays = [v for v in values if isinstance(v, np.ndarray) and v.ndim]
+        if not arrays:
+            return self([float(v) for v in values])
+        shape = np.broadcast_shapes(*(a.shape for a in arrays))
+        each = [np.broadcast_to(v, shape).ravel().tolist() for v in values]
+        rows = [self(list(copy)) for copy in zip(*each, strict=True)]
+        return [np.array(column, dtype=float).reshape(shape) for column in zip(*rows, strict=True)]
+
+    def _run(self, values: Sequence[Any], floats: bool, copies: bool = False) -> list[Any]:
         out: list[Any] = []
         push = out.append
         for step in self.steps:
@@ -288,7 +308,7 @@ class Program:
                 push(a * a)
             else:
                 row, args = step[1], step[2]
-                fn = row.on_floats if floats else row.on_arrays
+                fn = row.on_floats if floats else _ELEMENTWISE[row] if copies else row.on_arrays
                 if row.arity is None:
                     result = out[args[0]]
                     for i in args[1:]:
@@ -297,3 +317,9 @@ class Program:
                 else:
                     push(fn(*[out[i] for i in args]))
         return [out[i] for i in self.outputs]
+
+
+# each row as the copies' evaluation applies it (:meth:`Program.on_copies`): numpy's where it is
+# the float row's on every element, else the float row element by element
+_ELEMENTWISE = {row: row.on_arrays if row.same_on_arrays else elementwise(row.on_floats)
+                for row in OPERATIONS}

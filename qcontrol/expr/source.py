@@ -44,6 +44,19 @@ def float_source(tree: Tree, variables: list[str], out: Statements) -> str:
     return text
 
 
+def operation_source(row: Operation, operands: list[str], out: Statements) -> str:
+    """``row`` (not a constant) on operands given as source (names or temporaries, never folded),
+    written as :func:`float_source` writes it: the float evaluation's operations, flagged where
+    they would raise. A program of shared trees is written step by step with it
+    (:func:`qcontrol.compiled.traced.evaluate_program`)."""
+    parts = [(text, None) for text in operands]
+    if row.arity == 1:
+        return _unary(row, parts[0], out)[0]
+    if row.arity == 2:
+        return _binary(row, parts[0], parts[1], out)[0]
+    return _variadic(row, operands, out)
+
+
 def _literal(value: float) -> tuple[str, float]:
     return (f"({value!r})" if math.isfinite(value) else f"float({str(value)!r})"), value
 

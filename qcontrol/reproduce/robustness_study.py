@@ -43,6 +43,7 @@ from ..timegrid import TimeGrid
 from ..workers import worker_count, worker_pool
 
 SEEDS = tuple(range(1, 21))  # sensor-noise seeds of every row with noise on
+ALONE_PER_JOB = 8  # runs of one file alone (no noise) in a worker's job: small jobs keep the end balanced
 SEED_OVERRIDE = "plant.mujoco.noise_seed="
 StudyLaw = tuple[str, tuple[str, ...]]  # a law of the study: its name and the overrides that select it
 LAWS: tuple[StudyLaw, ...] = (("proposed", ()), ("comparison", ("controller.kind=comparison",)))
@@ -94,15 +95,20 @@ class StudyJob:
 def _summaries(tasks: Sequence[StudyJob]) -> list[Summary]:
     """Worker entry point: the summaries (metrics only) of a job's runs (:func:`batches`): each run
     alone where a single run takes the compiled loop (its sensor noise included; a process running
-    many pays for numba's start once), else stepped as one batch (short runs, or no compiled
-    paths). A run's numbers are its own either way."""
+    many pays for numba's start once), else a row's seeds stepped as one batch (short runs, or no
+    compiled paths). A run's numbers are its own either way."""
     _compiled_paths()
     with sharing():  # (what the runs' scenarios and plants share is checked once)
         scenarios = [load_scenario(t.path, list(t.overrides)) for t in tasks]
         backend = tasks[0].backend
-        if len(tasks) > 1 and not runs_alone(scenarios[0]):
+        if len({_row(t) for t in tasks}) == 1 and len(tasks) > 1 and not runs_alone(scenarios[0]):
             return run_batch(scenarios, backend)
         return [run_batch([sc], backend)[0] for sc in scenarios]
+
+
+def _row(task: StudyJob) -> tuple:
+    """What the runs of one row share: all but the sensor-noise seed."""
+    return task.backend, task.path, tuple(o for o in task.overrides if not o.startswith(SEED_OVERRIDE))
 
 
 def runs_alone(sc: Scenario) -> bool:
@@ -123,13 +129,19 @@ def _compiled_paths() -> None:
 
 def batches(tasks: Sequence[StudyJob]) -> list[list[int]]:
     """The tasks' indices in jobs for the workers: a row's sensor-noise seeds together (runs that
-    differ in the seed alone, so they share :func:`~qcontrol.assembly.batch_structure`), every
-    other run alone; the largest first, so that workers start on the longest work."""
-    groups: dict[tuple, list[int]] = {}
+    differ in the seed alone, so they share :func:`~qcontrol.assembly.batch_structure`), the other
+    runs by scenario file and backend, at most :data:`ALONE_PER_JOB` a job (loaded and built
+    together, :func:`~qcontrol.sharing.sharing`: what they share is checked once, about a tenth of
+    their CPU time); the largest first, so that workers start on the longest work."""
+    rows: dict[tuple, list[int]] = {}
     for i, task in enumerate(tasks):
-        rest = tuple(o for o in task.overrides if not o.startswith(SEED_OVERRIDE))
-        groups.setdefault((task.backend, task.path, rest), []).append(i)
-    return sorted(groups.values(), key=len, reverse=True)
+        rows.setdefault(_row(task), []).append(i)
+    files: dict[tuple, list[int]] = {}
+    for row in rows.values():
+        if len(row) == 1:
+            files.setdefault((tasks[row[0]].backend, tasks[row[0]].path), []).append(row[0])
+    alone = [ids[j:j + ALONE_PER_JOB] for ids in files.values() for j in range(0, len(ids), ALONE_PER_JOB)]
+    return sorted([row for row in rows.values() if len(row) > 1] + alone, key=len, reverse=True)
 
 
 @dataclass(frozen=True)
@@ -406,12 +418,13 @@ def _execute(tasks: list[StudyJob], full: list[StudyJob],
         def done() -> tuple[list[list[Summary]], list[list[tuple[Errors, Summary | None]]]]:
             return [_summaries(job) for job in jobs], [_errors(f) for f in fulls]
     else:
-        batched = [pool.apply_async(_summaries, (job,)) for job in jobs if len(job) > 1]
+        # the rows' seeds first (the longest jobs), then the full runs, then the runs alone
+        batched = [pool.apply_async(_summaries, (job,)) for job in jobs if len(job) > ALONE_PER_JOB]
         pending = [pool.apply_async(_errors, (f,)) for f in fulls]
-        single = [pool.apply_async(_summaries, (job,)) for job in jobs if len(job) == 1]
+        alone = [pool.apply_async(_summaries, (job,)) for job in jobs if len(job) <= ALONE_PER_JOB]
 
         def done() -> tuple[list[list[Summary]], list[list[tuple[Errors, Summary | None]]]]:
-            return [r.get() for r in batched + single], [e.get() for e in pending]
+            return [r.get() for r in batched + alone], [e.get() for e in pending]
 
     def results() -> tuple[list[Summary], list[Errors]]:
         summaries: list[Summary] = [None] * len(tasks)  # type: ignore[list-item]
