@@ -29,6 +29,7 @@ from ..controller.law import KIND_ALIASES
 from ..errors import QcontrolInputError
 from ..metrics import LEMMA2_TOLERANCE
 from ..scenario import Scenario, load_scenario
+from ..sharing import sharing
 from ..summary import Summary
 from ..sweep.grid import MAX_RUNS
 from ..sweep.runs import RunsDone, chunks_of, sweep_summaries
@@ -349,6 +350,14 @@ def measure_region(scenario: str | Path, grid: RegionGrid, laws: Sequence[LawSpe
     (``workers > 1``, ``scheduler``) through the sweep's executors; the same batches either way, so
     the same numbers. Bad input (a law's settings, an override) raises
     :class:`QcontrolInputError` before any run."""
+    with sharing():  # (the file's tables read and checked once, for the scenario and every law)
+        return _measure(scenario, grid, laws, backend, overrides, unset, workers, scheduler, progress)
+
+
+def _measure(scenario: str | Path, grid: RegionGrid, laws: Sequence[LawSpec], backend: str,
+             overrides: Sequence[str], unset: Sequence[str], workers: int, scheduler: str | None,
+             progress: RunsDone | None) -> Region:
+    """:func:`measure_region`, loading inside :func:`qcontrol.sharing.sharing`."""
     base = load_scenario(scenario, list(overrides), list(unset))
     if not laws:
         raise QcontrolInputError("no law to measure: give --law KIND at least once")
