@@ -3,6 +3,7 @@
 import argparse
 import csv
 import json
+import os
 import struct
 from pathlib import Path
 
@@ -105,6 +106,38 @@ def test_local_workers_give_the_in_process_table(monkeypatch):
     monkeypatch.setattr(sweep, "SPREAD_MIN_WORK", {})  # workers however little the work
     local = sweep_summaries(EXAMPLE2, SETS)
     assert _comparable(sweep_summaries(EXAMPLE2, SETS, workers=2)) == _comparable(local)
+
+
+_COMMAND = os.getpid()  # (the process the tests run in: a sweep's workers are its forks)
+_RUN_CHUNK = sweep._run_chunk
+_HERE: list[list[int]] = []  # the chunks this process ran (a fork's appends stay in the fork)
+
+
+def _noting_this_process(*task):
+    if os.getpid() == _COMMAND:
+        _HERE.append(task[5])
+    return _RUN_CHUNK(*task)
+
+
+def _failing_in_a_fork(*task):
+    if os.getpid() != _COMMAND:
+        raise QcontrolInputError("failed in a fork")
+    return _RUN_CHUNK(*task)
+
+
+def test_this_process_is_one_of_the_workers(monkeypatch):
+    """Two workers: this process runs the first chunk, its one fork the second, the others go to
+    whichever is free; the table is this process's alone, and a fork's error reaches this process."""
+    monkeypatch.setattr(sweep, "CHUNK", 2)
+    monkeypatch.setattr(sweep, "SPREAD_MIN_WORK", {})
+    local = sweep_summaries(EXAMPLE2, SETS)
+    monkeypatch.setattr(sweep, "_run_chunk", _noting_this_process)
+    _HERE.clear()
+    assert _comparable(sweep_summaries(EXAMPLE2, SETS, workers=2)) == _comparable(local)
+    assert _HERE[0] == [0] and [1] not in _HERE  # (four runs, run by run: four chunks)
+    monkeypatch.setattr(sweep, "_run_chunk", _failing_in_a_fork)
+    with pytest.raises(QcontrolInputError, match="failed in a fork"):
+        sweep_summaries(EXAMPLE2, SETS, workers=2)
 
 
 def test_a_sweep_forks_workers_only_for_work_enough(monkeypatch):
