@@ -4,6 +4,7 @@ import argparse
 import csv
 import json
 import os
+import signal
 import struct
 from pathlib import Path
 
@@ -140,6 +141,29 @@ def test_this_process_is_one_of_the_workers(monkeypatch):
         sweep_summaries(EXAMPLE2, SETS, workers=2)
 
 
+def _square_and_where(i: int) -> tuple[int, int]:
+    return i * i, os.getpid()
+
+
+def _ending_in_a_fork(i: int) -> int:
+    if os.getpid() != _COMMAND:
+        os.kill(os.getpid(), signal.SIGKILL)
+    return i
+
+
+def test_share_runs_every_task_once_here_and_on_the_forks():
+    """workers.share: every index run once, its result handed to ``done`` in this process (task 0
+    run here, task 1 on the fork); a fork killed mid-task is an error here, not a wait forever."""
+    from qcontrol.workers import WorkerDied, share
+
+    got: dict[int, tuple[int, int]] = {}
+    share(2, 7, _square_and_where, got.__setitem__)
+    assert sorted(got) == list(range(7)) and all(got[i][0] == i * i for i in got)
+    assert got[0][1] == _COMMAND and got[1][1] != _COMMAND
+    with pytest.raises(WorkerDied):
+        share(2, 3, _ending_in_a_fork, lambda i, r: None)
+
+
 def test_a_sweep_forks_workers_only_for_work_enough(monkeypatch):
     """runs x rows against the backend's least work for workers: 49 runs of 10,001 rows on the
     ODE stay in this process, 50 go to workers (500,050 copy-steps), on MuJoCo 2 runs already; a
@@ -154,10 +178,10 @@ def test_a_sweep_forks_workers_only_for_work_enough(monkeypatch):
     assert not sweep.worth_spreading(variants(1), "mujoco") and sweep.worth_spreading(variants(2), "mujoco")
     assert sweep.worth_spreading(None, "ode")  # variants loaded elsewhere: as asked
 
-    def no_fork(workers: int) -> None:
+    def no_fork(*args: object) -> None:
         raise AssertionError("forked workers for a small sweep")
 
-    monkeypatch.setattr(sweep, "worker_pool", no_fork)
+    monkeypatch.setattr(sweep, "share", no_fork)
     here = sweep_summaries(EXAMPLE2, SETS)
     assert _comparable(sweep_summaries(EXAMPLE2, SETS, workers=2)) == _comparable(here)
 

@@ -37,8 +37,10 @@ workers are forked inside it): a plant checks its model against eq. (1) once per
 once per batch (about 8 ms of each MuJoCo batch of Example 2).
 
 Local workers. With W workers this process is one of them: it forks W - 1 copies of itself, and
-each of the W takes the next chunk (largest first) when it is free (:func:`_share`), rather than
-this process waiting on W forks: one process fewer to start, feed and stop, for the same chunks.
+each of the W takes the next chunk (largest first) when it is free
+(:func:`qcontrol.workers.share`), rather than this process waiting on a pool of W: one process
+fewer to start, feed and stop, and no pool (a fork finds its chunks in its memory; only the
+summaries come back pickled), for the same chunks.
 
 Small sweeps stay in this process. Workers are forked only when the work is worth it: at least
 :data:`SPREAD_MIN_WORK` copy-steps (runs x rows) on the backend (about 0.1 s of work on one core).
@@ -62,11 +64,9 @@ variants from the file and the override sets.
 from __future__ import annotations
 
 import heapq
-import queue
 import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
-from functools import partial
 from itertools import count, pairwise
 from pathlib import Path
 from typing import Any
@@ -81,7 +81,7 @@ from ..scenario.load import load_variants
 from ..sharing import sharing
 from ..summary import Summary
 from ..timegrid import TimeGrid
-from ..workers import worker_count, worker_pool
+from ..workers import share, worker_count
 
 CHUNK = 250  # runs per batch at most (fewer when there are more workers than chunks)
 # copy-steps (runs x rows) below which a sweep stays in this process whatever --workers says: about
@@ -327,67 +327,13 @@ def _start_numba(chunks: list[list[int]]) -> None:
 
 def _on_workers(workers: int, chunks: list[list[int]], tasks: list[ChunkJob],
                 store: Callable[[list[int], list[Summary]], None]) -> None:
-    """The chunks on ``workers`` local workers: this process and ``workers - 1`` forked copies of
-    it (registered laws included), each taking the next chunk (largest first) when it is free.
-    This process is one of them rather than waiting on all: a process fewer to fork, feed and
-    stop (some 10-20 ms each) for the same chunks, so the same numbers."""
-    if workers < 2:  # (one chunk: nothing to share)
-        _share(None, 0, chunks, tasks, store)
-        return
-    _start_numba(chunks)
-    pool = worker_pool(workers - 1)
-    try:
-        _share(pool, workers - 1, chunks, tasks, store)
-        pool.close()
-    finally:
-        pool.terminate()
-        pool.join()
-
-
-def _share(pool: Any, forked: int, chunks: list[list[int]], tasks: list[ChunkJob],
-           store: Callable[[list[int], list[Summary]], None]) -> None:
-    """Hand the chunks out in order: the first to this process, the next to each of the ``forked``
-    processes of ``pool``, then the next to whichever is free first (a worker's from the pool's
-    result thread, while this one computes); this process stores every result (a worker's once
-    it is done with its own chunk) and raises a worker's error."""
-    following, lock = iter(range(len(tasks))), threading.Lock()
-    finished: queue.SimpleQueue = queue.SimpleQueue()  # (chunk, its summaries or the error it raised)
-
-    def take() -> int | None:
-        with lock:
-            return next(following, None)
-
-    def hand_out() -> None:
-        i = take()
-        if i is not None:
-            done = partial(finish, i)
-            try:
-                pool.apply_async(_run_chunk, tasks[i], callback=done, error_callback=done)
-            except ValueError:  # the pool is stopping (this process raised): nothing more to run
-                pass
-
-    def finish(i: int, result: Any) -> None:
-        finished.put((i, result))
-        hand_out()
-
-    def collect(i: int, result: Any) -> None:
-        if isinstance(result, BaseException):
-            raise result
-        store(chunks[i], result)
-
-    mine = take()  # (the first and largest: this process starts it at once, a fork starts later)
-    for _ in range(forked):
-        hand_out()
-    stored = 0
-    while mine is not None:
-        store(chunks[mine], _run_chunk(*tasks[mine]))
-        stored += 1
-        while not finished.empty():
-            collect(*finished.get())
-            stored += 1
-        mine = take()
-    for _ in range(stored, len(tasks)):
-        collect(*finished.get())
+    """The chunks on ``workers`` local workers: this process and ``workers - 1`` forks of it
+    (registered laws included), each taking the next chunk (largest first) when it is free
+    (:func:`qcontrol.workers.share`); the same chunks, so the same numbers."""
+    if workers > 1:
+        _start_numba(chunks)
+    share(workers, len(tasks), lambda i: _run_chunk(*tasks[i]),
+          lambda i, summaries: store(chunks[i], summaries))
 
 
 def _connect(client_class: Any, address: str) -> Any:
