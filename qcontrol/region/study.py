@@ -329,17 +329,17 @@ def region_variants(path: str, runs: Sequence[tuple[LawSpec, tuple[float, ...]]]
     differs from it only there; a start's file read and checked again costs about as much as its
     1 kHz, 2 s ODE run in a batch), exactly what loading each override set of :func:`region_sets`
     would give."""
-    loaded: dict[str, Scenario] = {}
+    loaded: dict[str, tuple[Scenario, Hashable]] = {}
     groups: dict[Hashable, list[int]] = {}
     variants = []
     for i, (law, x) in enumerate(runs):
         if law.label not in loaded:
-            loaded[law.label] = load_scenario(path, [*overrides, *law.overrides()], list(unset))
-            runnable_backend(loaded[law.label], backend)
-        sc = loaded[law.label]
-        variant = replace(sc, x0=tuple(x), overrides=(*sc.overrides, _x0_text(x)))
-        groups.setdefault(batch_structure(variant, backend), []).append(i)
-        variants.append(variant)
+            sc = load_scenario(path, [*overrides, *law.overrides()], list(unset))
+            runnable_backend(sc, backend)
+            loaded[law.label] = sc, batch_structure(sc, backend)  # (x(0) is a copy's own: not in it)
+        sc, structure = loaded[law.label]
+        variants.append(replace(sc, x0=tuple(x), overrides=(*sc.overrides, _x0_text(x))))
+        groups.setdefault(structure, []).append(i)
     return variants, list(groups.values())
 
 
