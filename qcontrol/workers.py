@@ -147,8 +147,7 @@ def _forks(count: int, run: Callable[[int], Any], take: Callable[[], int | None]
     """``count`` forks of this process serving :func:`share`, fed by a helper thread
     (:func:`_feed`); on leaving, those still running are ended (SIGTERM), every fork is waited
     for and the helper thread with them (it ends as the last fork's connection closes)."""
-    sys.stdout.flush()  # (what this process has buffered is not written again by a fork)
-    sys.stderr.flush()
+    _flush()  # (what this process has buffered is not written again by a fork)
     forks: list[tuple[int, Connection]] = []
     feeder = None
     try:
@@ -197,12 +196,17 @@ def _serve(parent: int, conn: Connection, run: Callable[[int], Any]) -> None:
     except BaseException:
         code = 1
     finally:
-        for stream in (sys.stdout, sys.stderr):
-            try:
-                stream.flush()
-            except BaseException:  # (a closed stream: nothing to write)
-                pass
+        _flush()
         os._exit(code)
+
+
+def _flush() -> None:
+    """Write out what standard output and error hold (a closed or missing stream: nothing)."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (AttributeError, ValueError, OSError):
+            pass
 
 
 @contextmanager
