@@ -454,10 +454,10 @@ def test_workers_die_with_their_parent(tmp_path, sig):
     try:
         deadline = time.monotonic() + 60
         workers: list[int] = []
-        while len(workers) < 2 and time.monotonic() < deadline:
+        while not workers and time.monotonic() < deadline:  # (two workers: this process and a fork)
             workers = _children(proc.pid)
             time.sleep(0.1)
-        assert len(workers) == 2, "the sweep did not start its two workers"
+        assert len(workers) == 1, "the sweep did not fork its second worker"
         time.sleep(0.5)
         proc.send_signal(sig)
         proc.wait(timeout=20)

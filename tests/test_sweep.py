@@ -3,6 +3,8 @@
 import argparse
 import csv
 import json
+import os
+import signal
 import struct
 from pathlib import Path
 
@@ -107,6 +109,61 @@ def test_local_workers_give_the_in_process_table(monkeypatch):
     assert _comparable(sweep_summaries(EXAMPLE2, SETS, workers=2)) == _comparable(local)
 
 
+_COMMAND = os.getpid()  # (the process the tests run in: a sweep's workers are its forks)
+_RUN_CHUNK = sweep._run_chunk
+_HERE: list[list[int]] = []  # the chunks this process ran (a fork's appends stay in the fork)
+
+
+def _noting_this_process(*task):
+    if os.getpid() == _COMMAND:
+        _HERE.append(task[5])
+    return _RUN_CHUNK(*task)
+
+
+def _failing_in_a_fork(*task):
+    if os.getpid() != _COMMAND:
+        raise QcontrolInputError("failed in a fork")
+    return _RUN_CHUNK(*task)
+
+
+def test_this_process_is_one_of_the_workers(monkeypatch):
+    """Two workers: this process runs the first chunk, its one fork the second, the others go to
+    whichever is free; the table is this process's alone, and a fork's error reaches this process."""
+    monkeypatch.setattr(sweep, "CHUNK", 2)
+    monkeypatch.setattr(sweep, "SPREAD_MIN_WORK", {})
+    local = sweep_summaries(EXAMPLE2, SETS)
+    monkeypatch.setattr(sweep, "_run_chunk", _noting_this_process)
+    _HERE.clear()
+    assert _comparable(sweep_summaries(EXAMPLE2, SETS, workers=2)) == _comparable(local)
+    assert _HERE[0] == [0] and [1] not in _HERE  # (four runs, run by run: four chunks)
+    monkeypatch.setattr(sweep, "_run_chunk", _failing_in_a_fork)
+    with pytest.raises(QcontrolInputError, match="failed in a fork"):
+        sweep_summaries(EXAMPLE2, SETS, workers=2)
+
+
+def _square_and_where(i: int) -> tuple[int, int]:
+    return i * i, os.getpid()
+
+
+def _ending_in_a_fork(i: int) -> int:
+    if os.getpid() != _COMMAND:
+        os.kill(os.getpid(), signal.SIGKILL)
+    return i
+
+
+def test_share_runs_every_task_once_here_and_on_the_forks():
+    """workers.share: every index run once, its result handed to ``done`` in this process (task 0
+    run here, task 1 on the fork); a fork killed mid-task is an error here, not a wait forever."""
+    from qcontrol.workers import WorkerDied, share
+
+    got: dict[int, tuple[int, int]] = {}
+    share(2, 7, _square_and_where, got.__setitem__)
+    assert sorted(got) == list(range(7)) and all(got[i][0] == i * i for i in got)
+    assert got[0][1] == _COMMAND and got[1][1] != _COMMAND
+    with pytest.raises(WorkerDied):
+        share(2, 3, _ending_in_a_fork, lambda i, r: None)
+
+
 def test_a_sweep_forks_workers_only_for_work_enough(monkeypatch):
     """runs x rows against the backend's least work for workers: 49 runs of 10,001 rows on the
     ODE stay in this process, 50 go to workers (500,050 copy-steps), on MuJoCo 2 runs already; a
@@ -121,10 +178,10 @@ def test_a_sweep_forks_workers_only_for_work_enough(monkeypatch):
     assert not sweep.worth_spreading(variants(1), "mujoco") and sweep.worth_spreading(variants(2), "mujoco")
     assert sweep.worth_spreading(None, "ode")  # variants loaded elsewhere: as asked
 
-    def no_fork(workers: int) -> None:
+    def no_fork(*args: object) -> None:
         raise AssertionError("forked workers for a small sweep")
 
-    monkeypatch.setattr(sweep, "worker_pool", no_fork)
+    monkeypatch.setattr(sweep, "share", no_fork)
     here = sweep_summaries(EXAMPLE2, SETS)
     assert _comparable(sweep_summaries(EXAMPLE2, SETS, workers=2)) == _comparable(here)
 

@@ -29,6 +29,7 @@ from ..controller.law import KIND_ALIASES
 from ..errors import QcontrolInputError
 from ..metrics import LEMMA2_TOLERANCE
 from ..scenario import Scenario, load_scenario
+from ..sharing import sharing
 from ..summary import Summary
 from ..sweep.grid import MAX_RUNS
 from ..sweep.runs import RunsDone, chunks_of, sweep_summaries
@@ -328,17 +329,17 @@ def region_variants(path: str, runs: Sequence[tuple[LawSpec, tuple[float, ...]]]
     differs from it only there; a start's file read and checked again costs about as much as its
     1 kHz, 2 s ODE run in a batch), exactly what loading each override set of :func:`region_sets`
     would give."""
-    loaded: dict[str, Scenario] = {}
+    loaded: dict[str, tuple[Scenario, Hashable]] = {}
     groups: dict[Hashable, list[int]] = {}
     variants = []
     for i, (law, x) in enumerate(runs):
         if law.label not in loaded:
-            loaded[law.label] = load_scenario(path, [*overrides, *law.overrides()], list(unset))
-            runnable_backend(loaded[law.label], backend)
-        sc = loaded[law.label]
-        variant = replace(sc, x0=tuple(x), overrides=(*sc.overrides, _x0_text(x)))
-        groups.setdefault(batch_structure(variant, backend), []).append(i)
-        variants.append(variant)
+            sc = load_scenario(path, [*overrides, *law.overrides()], list(unset))
+            runnable_backend(sc, backend)
+            loaded[law.label] = sc, batch_structure(sc, backend)  # (x(0) is a copy's own: not in it)
+        sc, structure = loaded[law.label]
+        variants.append(replace(sc, x0=tuple(x), overrides=(*sc.overrides, _x0_text(x))))
+        groups.setdefault(structure, []).append(i)
     return variants, list(groups.values())
 
 
@@ -349,6 +350,14 @@ def measure_region(scenario: str | Path, grid: RegionGrid, laws: Sequence[LawSpe
     (``workers > 1``, ``scheduler``) through the sweep's executors; the same batches either way, so
     the same numbers. Bad input (a law's settings, an override) raises
     :class:`QcontrolInputError` before any run."""
+    with sharing():  # (the file's tables read and checked once, for the scenario and every law)
+        return _measure(scenario, grid, laws, backend, overrides, unset, workers, scheduler, progress)
+
+
+def _measure(scenario: str | Path, grid: RegionGrid, laws: Sequence[LawSpec], backend: str,
+             overrides: Sequence[str], unset: Sequence[str], workers: int, scheduler: str | None,
+             progress: RunsDone | None) -> Region:
+    """:func:`measure_region`, loading inside :func:`qcontrol.sharing.sharing`."""
     base = load_scenario(scenario, list(overrides), list(unset))
     if not laws:
         raise QcontrolInputError("no law to measure: give --law KIND at least once")

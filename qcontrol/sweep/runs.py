@@ -36,6 +36,12 @@ The runs take place inside :func:`qcontrol.sharing.sharing`, as the variants' lo
 workers are forked inside it): a plant checks its model against eq. (1) once per process, not
 once per batch (about 8 ms of each MuJoCo batch of Example 2).
 
+Local workers. With W workers this process is one of them: it forks W - 1 copies of itself, and
+each of the W takes the next chunk (largest first) when it is free
+(:func:`qcontrol.workers.share`), rather than this process waiting on a pool of W: one process
+fewer to start, feed and stop, and no pool (a fork finds its chunks in its memory; only the
+summaries come back pickled), for the same chunks.
+
 Small sweeps stay in this process. Workers are forked only when the work is worth it: at least
 :data:`SPREAD_MIN_WORK` copy-steps (runs x rows) on the backend (about 0.1 s of work on one core).
 Below that, starting the processes costs more than the half of the work they take (and a batch in
@@ -75,7 +81,7 @@ from ..scenario.load import load_variants
 from ..sharing import sharing
 from ..summary import Summary
 from ..timegrid import TimeGrid
-from ..workers import worker_count, worker_pool
+from ..workers import share, worker_count
 
 CHUNK = 250  # runs per batch at most (fewer when there are more workers than chunks)
 # copy-steps (runs x rows) below which a sweep stays in this process whatever --workers says: about
@@ -321,17 +327,13 @@ def _start_numba(chunks: list[list[int]]) -> None:
 
 def _on_workers(workers: int, chunks: list[list[int]], tasks: list[ChunkJob],
                 store: Callable[[list[int], list[Summary]], None]) -> None:
-    """The chunks on local worker processes (copies of this one: registered laws included)."""
-    _start_numba(chunks)
-    pool = worker_pool(workers)
-    try:
-        pending = [pool.apply_async(_run_chunk, task) for task in tasks]
-        for ids, result in zip(chunks, pending, strict=True):
-            store(ids, result.get())
-        pool.close()
-    finally:
-        pool.terminate()
-        pool.join()
+    """The chunks on ``workers`` local workers: this process and ``workers - 1`` forks of it
+    (registered laws included), each taking the next chunk (largest first) when it is free
+    (:func:`qcontrol.workers.share`); the same chunks, so the same numbers."""
+    if workers > 1:
+        _start_numba(chunks)
+    share(workers, len(tasks), lambda i: _run_chunk(*tasks[i]),
+          lambda i, summaries: store(chunks[i], summaries))
 
 
 def _connect(client_class: Any, address: str) -> Any:
