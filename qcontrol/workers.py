@@ -76,6 +76,10 @@ class WorkerDied(RuntimeError):
     """A forked worker ended before it sent the result of its task (killed from outside)."""
 
 
+WORKER_DIED = ("a worker process ended before it finished its runs (killed from outside, e.g. by "
+               "the system when memory ran out); run again, with fewer --workers if memory is short")
+
+
 def share(workers: int, count: int, run: Callable[[int], Any], done: Callable[[int, Any], None]) -> None:
     """``run(i)`` for each ``i`` of ``range(count)`` on ``workers`` workers: this process and
     ``workers - 1`` forks of it (which find ``run`` and what it reads in their memory: nothing is
@@ -124,8 +128,7 @@ def _feed(forks: list[Connection], firsts: list[int | None], take: Callable[[], 
             try:
                 finished.put(conn.recv())
             except (EOFError, OSError):  # the fork ended (killed, or this process is stopping it)
-                finished.put((busy[conn], False, WorkerDied("a worker process ended before it finished "
-                                                           "its runs")))
+                finished.put((busy[conn], False, WorkerDied(WORKER_DIED)))
                 waiting.remove(conn)
                 continue
             busy[conn] = _give(conn, take())

@@ -350,3 +350,29 @@ def test_a_batched_copy_has_its_single_runs_summary_key_for_key(backend):
     alone = [_comparable(sweep.run_batch([sc], backend))[0] for sc in scs]
     assert all(s["bound_constants"] for s in alone)
     assert batched == alone
+
+
+def test_a_worker_killed_from_outside_ends_the_command_with_one_line(monkeypatch, tmp_path, capsys):
+    """A fork of the sweep killed mid-run (the system's out-of-memory killer, a kill -9) is one line
+    naming it and the fix, exit status 1, no traceback; this process's own runs are not waited for
+    forever."""
+    from qcontrol.cli.dispatch import main
+
+    real_share, parent = sweep.share, os.getpid()
+
+    def killed_in_the_fork(workers, count, run, done):
+        def run_or_die(i):
+            if os.getpid() != parent:
+                os.kill(os.getpid(), signal.SIGKILL)
+            return run(i)
+        real_share(workers, count, run_or_die, done)
+
+    monkeypatch.setattr(sweep, "share", killed_in_the_fork)
+    status = main(["sweep", str(EXAMPLE2), "--backend", "mujoco", "--set", "simulation.duration=10.0",
+                   "--random-initial", "2", "--seed", "1", "--workers", "2", "-q",
+                   "--out", str(tmp_path / "s")])
+    err = capsys.readouterr().err
+    assert status == 1 and "Traceback" not in err, err
+    assert err.strip().splitlines() == ["qcontrol: error: a worker process ended before it finished its runs "
+                                        "(killed from outside, e.g. by the system when memory ran out); run "
+                                        "again, with fewer --workers if memory is short"]

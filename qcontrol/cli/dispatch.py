@@ -26,8 +26,10 @@ from .._version import __version__
 from ..controller.plugins import load_law_module, load_law_plugins
 from ..errors import QcontrolInputError, QcontrolLawFailure, QcontrolOutputError, Terminated
 from ..provenance import command_line
+from ..workers import WorkerDied
 from .arguments import (
     EXIT_BAD_INPUT,
+    EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_LAW_FAILED,
     EXIT_STATUS,
@@ -118,6 +120,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except QcontrolLawFailure as exc:
         print(f"qcontrol: error: the law failed: {exc}", file=sys.stderr)
         return EXIT_LAW_FAILED
+    except WorkerDied as exc:
+        print(f"qcontrol: error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
     except KeyboardInterrupt as exc:
         how = "terminated" if isinstance(exc, Terminated) else "interrupted"
         print(f"\nqcontrol: {how} after {time.perf_counter() - started:.1f} s", file=sys.stderr)

@@ -1,9 +1,10 @@
 """``qcontrol region SCENARIO``: the region of attraction of one or more laws on a grid of initial
 states, written as DIR/region.csv, DIR/region.json (with provenance) and DIR/region.png.
 
-Exit status: 0 when every run finished (diverged points are results, not failures); 2 for bad
-input (everything is checked before any run, and the output folder is made only when the results
-are written); 130 when interrupted, 143 when terminated (SIGTERM) (nothing is written either way).
+Exit status: 0 when every run finished (diverged points are results, not failures); 1 when a worker
+process was killed from outside (one line says so); 2 for bad input (everything is checked before
+any run, and the output folder is made only when the results are written); 130 when interrupted, 143
+when terminated (SIGTERM) (nothing is written either way).
 """
 
 from __future__ import annotations
@@ -40,7 +41,8 @@ def add_region_parser(subparsers: argparse._SubParsersAction) -> None:
         "diverged (and when) or Lemma 2 violated, with the largest K T of the run. Writes DIR/region.csv "
         "(one row per run), DIR/region.json (counts per law, the points failing in the box |x_i| <= "
         f"{BOX:g}, the largest working scale per direction, provenance) and DIR/region.png (a map per law). "
-        "Exit status: 0 ok, 2 bad input, 3 a write error, 130 interrupted, 143 terminated.",
+        "Exit status: 0 ok, 1 a worker process was killed from outside, 2 bad input, "
+        "3 a write error, 130 interrupted, 143 terminated.",
     )
     add_scenario_options(p, scenario_help="scenario file (TOML) or a shipped scenario's name",
                          set_help="a fixed override for every run, e.g. simulation.control_period=0.005",

@@ -1,10 +1,10 @@
 """``qcontrol sweep``: validate every variant, run them (batched), write the table, the record and
 the figure; Ctrl-C keeps the finished rows.
 
-Exit status: 0 when every run finished (diverged runs are results, in the table, not failures);
-2 for bad input (every variant is validated before anything runs, and the output folder is made
-only when the results are written: bad input creates nothing); 130 when interrupted (the finished
-rows are written).
+Exit status: 0 when every run finished (diverged runs are results, in the table, not failures); 1
+when a worker process was killed from outside (one line says so); 2 for bad input (every variant is
+validated before anything runs, and the output folder is made only when the results are written: bad
+input creates nothing); 130 when interrupted (the finished rows are written).
 """
 
 from __future__ import annotations
@@ -47,7 +47,8 @@ def add_sweep_parser(subparsers: argparse._SubParsersAction) -> None:
         "multiples for more). Diverged runs are rows with diverged=True. With no --grid, --random-initial N "
         "runs N initial states of the scenario (one of them is needed). Ctrl-C writes the finished rows to "
         "DIR/sweep.partial.csv and sweep.partial.json, leaving a complete sweep's files as they were. "
-        "Exit status: 0 ok, 2 bad input, 3 an output could not be written, 130 interrupted, 143 terminated.",
+        "Exit status: 0 ok, 1 a worker process was killed from outside, 2 bad input, "
+        "3 an output could not be written, 130 interrupted, 143 terminated.",
     )
     add_scenario_options(p, timing=False, scenario_help="scenario file (TOML) or a shipped scenario's name",
                          set_help="a fixed override for every run, e.g. simulation.duration=2.0",
