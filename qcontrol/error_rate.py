@@ -122,13 +122,16 @@ class ErrorRateStream:
     def every_rate(self, omegas: Sequence[float] = TABLE1_OMEGAS, runs: np.ndarray | None = None
                    ) -> list[dict[str, float]]:
         """:meth:`rates` of each run of ``runs`` (default: all), counted for all of them at once."""
+        # (runs, samples): a run's instants together, as stored (every run: a view, no copy)
+        values = self.values.T if runs is None else self.values.T[runs]
         runs = np.arange(self.values.shape[1]) if runs is None else runs
-        values = self.values.T[runs]  # (runs, samples): a run's instants together, as stored (a copy)
         ended = np.isfinite(self.last_t[runs])  # as np.interp does just past the last row: its value
         stop = np.searchsorted(self.instants, self.last_t[runs] + END_TOLERANCE, side="right")
-        index = np.arange(values.shape[1])
-        tail = ended[:, None] & (index >= self.done[runs][:, None]) & (index < stop[:, None])
-        values = np.where(tail, self.last_z[runs][:, None], values)
+        tailed = np.flatnonzero(ended & (self.done[runs] < stop))  # (the runs with instants to fill)
+        if len(tailed):
+            values = values.copy()
+            for r in tailed.tolist():
+                values[r, self.done[runs[r]]:stop[r]] = self.last_z[runs[r]]
         samples = values.shape[1]
         counts = [np.count_nonzero(values > w, axis=1).tolist() for w in omegas]
         keys = [omega_key(w) for w in omegas]
