@@ -2,7 +2,13 @@
 a reader that closes the pipe early (``qcontrol run ... | head``) ends the command quietly, and
 once the command has returned its exit status, a Ctrl-C that arrives while the interpreter exits
 (or one still pending from the Ctrl-C the command answered) no longer turns that status into
-death by SIGINT."""
+death by SIGINT.
+
+CPython remembers a ``KeyboardInterrupt`` that left code evaluated from a string (``exec`` or
+``eval`` of text: ``collections.namedtuple``, ``dataclasses`` and numba's generated code do it,
+while modules import or functions compile) even when a caller caught it, and ``python -m`` then
+ends the process by SIGINT whatever status the command returned. Evaluating a string clears that
+memory: done once the status is decided, so the command's 130 is the process's."""
 
 import os
 import signal
@@ -14,6 +20,7 @@ def main() -> int:
         return _command()
     finally:
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # the status is decided
+        eval("None")  # clears CPython's memory of a caught KeyboardInterrupt (module docstring)
 
 
 def _command() -> int:
