@@ -41,10 +41,7 @@ from .. import compiled as compiled_paths
 from ..compiled import JIT
 from ..compiled.traced import TRACED, Symbol, Trace, TracedForm, recording
 from ..controller.backstepping import BacksteppingLaw, ControlOutput, output
-from ..controller.comparison import ComparisonLaw
 from ..controller.law import BatchLaw
-from ..controller.linear import LinearLaw
-from ..controller.proposed import PaperLaw
 from ..plants.base import NativeStepper, NativeStepping, Plant
 from ..quantizer import QuantizedReading, UniformQuantizer
 from ..quantizers import ChannelQuantizer, HysteresisQuantizer
@@ -309,11 +306,6 @@ class CompiledLoop:
             if loop.rare_work(stop):
                 return None
             start, step_first = stop + 1, True
-
-
-# the built-in laws with a compiled form (declared ``compiled=True``), whose subclasses' objects
-# say when their code is their class's (:attr:`~.BacksteppingLaw.has_compiled_equivalent`)
-COMPILED_LAWS = (PaperLaw, ComparisonLaw, LinearLaw)
 
 
 def compilable(law: BatchLaw, copies: int = 1) -> bool:

@@ -30,7 +30,7 @@ from ..controller.user import UserLaw, sample
 from ..plants.ode import ChainPlant
 from ..quantizer import UniformQuantizer
 from .compiled_batch import CompiledBatch, Redo
-from .compiled_loop import COMPILED_LAWS, MIN_ROWS, CompiledLoop, TracedParts, numba_pays, traced_parts
+from .compiled_loop import MIN_ROWS, CompiledLoop, TracedParts, numba_pays, traced_parts
 from .fastpath import single_copy, single_copy_quantizer
 from .spec import RunSpec
 from .user_numpy import compiled_fma, same_bits
@@ -211,10 +211,11 @@ class FirstChecked:
 
 def own_column_law(law: Any) -> bool:
     """A column-form law of the user's: a class defined outside the package, written over columns,
-    that is not a subclass of a built-in law (whose subclasses with code of their own run their
-    own Python, docs/laws.md section 5)."""
+    that is not a subclass of a built-in law with a compiled form (``compiled_class``: whose
+    subclasses with code of their own run their own Python, docs/laws.md section 5)."""
     return type(law).__module__.partition(".")[0] != "qcontrol" and isinstance(law, AnyColumnForm) \
-        and not isinstance(law, (UserLaw, *COMPILED_LAWS)) and law.copies in (None, 1)
+        and not isinstance(law, UserLaw) and getattr(type(law), "compiled_class", None) is None \
+        and law.copies in (None, 1)
 
 
 def compiled_user(spec: RunSpec) -> CompiledLoop | CompiledBatch | None:
