@@ -419,12 +419,13 @@ def _execute(tasks: list[StudyJob], full: list[StudyJob],
             return [_summaries(job) for job in jobs], [_errors(f) for f in fulls]
     else:
         # the rows' seeds first (the longest jobs), then the full runs, then the runs alone
-        batched = [pool.apply_async(_summaries, (job,)) for job in jobs if len(job) > ALONE_PER_JOB]
+        seeds = {j: pool.apply_async(_summaries, (job,)) for j, job in enumerate(jobs)
+                 if len(job) > ALONE_PER_JOB}
         pending = [pool.apply_async(_errors, (f,)) for f in fulls]
-        alone = [pool.apply_async(_summaries, (job,)) for job in jobs if len(job) <= ALONE_PER_JOB]
+        alone = {j: pool.apply_async(_summaries, (job,)) for j, job in enumerate(jobs) if j not in seeds}
 
         def done() -> tuple[list[list[Summary]], list[list[tuple[Errors, Summary | None]]]]:
-            return [r.get() for r in batched + alone], [e.get() for e in pending]
+            return [(seeds.get(j) or alone[j]).get() for j in range(len(jobs))], [e.get() for e in pending]
 
     def results() -> tuple[list[Summary], list[Errors]]:
         summaries: list[Summary] = [None] * len(tasks)  # type: ignore[list-item]
