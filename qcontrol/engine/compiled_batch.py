@@ -103,11 +103,11 @@ class Redo(Exception):
 
 
 # ODE copies run two at a time from PAIRS_MIN_ROWS copy-rows (docs/performance.md, 'The compiled
-# batch'): a pair's function costs about 3.5 s more CPU to compile (once per structure, then cached,
-# and loaded as fast), and saves about 15 ns of a copy-step of Example 2 (10-20%) at any batch size;
-# from 2 million copy-rows (200 copies of a 10 s run) that is 30 ms a run, the compile paid back in
-# about a hundred runs: the large batches (a sweep's full chunks, 1000 copies), not a test's or a
-# small batch's, which compile the one-copy function only.
+# batch: copies two at a time'): a pair's function costs about 3.5 s more CPU to compile (once per
+# structure, then cached, and loaded as fast), and saves about 13-15 ns of a copy-step of Example 2
+# (10-15 %) at any batch size; from 2 million copy-rows (200 copies of a 10 s run) that is about
+# 30 ms a run, the compile paid back in about a hundred runs: the large batches (a sweep's full
+# chunks, 1000 copies), not a test's or a small batch's, which compile the one-copy function only.
 PAIRS_MIN_ROWS = 2_000_000
 _ASSIGNED = re.compile(r"^\s*(\w+(?:\s*,\s*\w+)*)\s*=[^=]")
 _RETURN = re.compile(r"^(\s*)return (.+)$")
