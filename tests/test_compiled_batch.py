@@ -108,8 +108,39 @@ def test_one_module_serves_every_batch_size(monkeypatch) -> None:
         assert loop.handover is None and len(done) == len(copies)
         runs.append(done)
     assert len(texts) == 2 and texts[0] == texts[1]
+    assert "def pair_rows" not in texts[0]  # (fewer copy-rows than PAIRS_MIN_ROWS: one copy at a time)
     for a, b in zip(runs[0], runs[1], strict=False):
         _same(a, b)
+
+
+def test_paired_copies_are_each_their_run_alone_wherever_one_stops(monkeypatch) -> None:
+    """A large batch's ODE copies run two at a time in lockstep (here from 2 copies on); where math
+    refuses one's step (copies that diverge), the other goes on alone from where it was, also
+    where the refused step opens a block of rows (blocks of 1 and 3 rows), and an odd batch's
+    last copy runs beside a twin of itself: every copy's numbers are still the array form's and
+    its run alone's, to the last bit."""
+    import qcontrol.compiled.cache as cache
+    import qcontrol.engine.compiled_batch as compiled_batch
+    import qcontrol.engine.retention as retention
+
+    texts, generated = [], cache.generated_module
+    monkeypatch.setattr(cache, "generated_module", lambda kind, source: (
+        texts.append(source) if kind == "batch" else None, generated(kind, source))[1])
+    monkeypatch.setattr(compiled_batch, "PAIRS_MIN_ROWS", 2)
+    scs = _variants("example2")[:23]
+    _, array = _run(_spec(scs, "metrics"), monkeypatch, compiled=False)
+    monkeypatch.setenv("QCONTROL_COMPILE", "0")
+    alone = [assemble([sc], "ode").run(record="metrics")[0] for sc in scs]
+    monkeypatch.delenv("QCONTROL_COMPILE")
+    for rows in (1, 3):
+        for name in ("METRICS_CHUNK", "METRICS_MIN_CHUNK", "METRICS_BUFFER_ELEMENTS"):
+            monkeypatch.setattr(retention, name, rows)
+        loop, compiled = _run(_spec(scs, "metrics"), monkeypatch)
+        assert loop.handover is None and "def pair_rows" in texts[-1]
+        assert 0 < sum(r.diverged for r in compiled) < len(scs)
+        for a, b, c in zip(compiled, array, alone, strict=True):
+            _same(a, b)
+            _same(a, c)
 
 def _refusing(x1: list[float]) -> RunSpec:
     """A batch whose plant term sqrt(x1) math refuses (numpy answers NaN) where x1 < 0."""

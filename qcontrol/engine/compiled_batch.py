@@ -12,9 +12,15 @@ quantizer's :meth:`~qcontrol.quantizer.UniformQuantizer.apply`, the law's ``cont
 The generated function loops over the copies and, for each, over the rows between two of the
 engine's scheduled rows: the single run's loop body (:func:`.compiled_loop.loop_body`) writing
 column ``b`` of the run's buffer. So every copy's numbers are its run alone, to the last bit, and
-the record (metrics, divergence, reductions) is the array form's, at the same rows. A batch of
-MuJoCo copies runs the same way, each copy's own ``MjData`` stepped by the plant's copy step
-(:class:`~qcontrol.plants.mujoco.native_step.MujocoNativeForm`, a row of pointers per copy).
+the record (metrics, divergence, reductions) is the array form's, at the same rows. A large
+batch's ODE copies (:func:`paired`) run two at a time, in lockstep (:func:`pair_lines`): a copy's
+row depends on its row before, a chain of dependent operations the processor cannot overlap, but
+two copies' chains it can (Example 2, 1000 copies: 10-15 % less time per copy-step); each copy's
+operations are still its own loop's, in its order. A smaller batch compiles the one-copy function
+only (the pair's costs more to compile). A batch of MuJoCo copies runs one copy at a time, each
+copy's own ``MjData``
+stepped by the plant's copy step (:class:`~qcontrol.plants.mujoco.native_step.MujocoNativeForm`,
+a row of pointers per copy).
 
 Divergence: the loop marks each row at which some copy's state or adaptive estimate fails the
 array form's quick test (non-finite, or ``|x_i|`` beyond the bound), and only those rows are
@@ -42,6 +48,7 @@ observer; the rest runs the array form. The text is cached on disk (:mod:`qcontr
 from __future__ import annotations
 
 import re
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -50,18 +57,21 @@ from .. import compiled as compiled_paths
 from ..compiled import CALLED, JIT
 from ..compiled.traced import TracedForm
 from ..plants.base import NativeStepper, NativeStepping
+from ..plants.ode import ChainPlant
 from ..quantizer import UniformQuantizer
 from . import compiled_loop
 from .compiled_folds import NO_VALUES, Folds, helpers
 from .compiled_loop import (
     CONTROL_REFUSED,
     START,
+    LoopParts,
     Resume,
     Schedule,
     TracedParts,
     _indented,
     compilable,
     loop_body,
+    loop_parts,
     module_source,
     traced_parts,
 )
@@ -92,41 +102,169 @@ class Redo(Exception):
     form."""
 
 
-def batch_source(parts: TracedParts, plant: NativeStepper, n: int, m: int, fold: list[str] = (),
-                 enter: list[str] = (), leave: list[str] = ()) -> str:
-    """The module text: ``copy_rows`` (one copy's rows, the single run's loop body on column b,
-    with the quick divergence test and the reductions' folds, ``enter`` before the rows and
-    ``leave`` before every return) and ``rows`` (every copy in turn)."""
-    finite = ([f"abs(x{i}) <= bound" for i in range(1, n + 1)]
-              + [f"math.isfinite(adaptive[{i}])" for i in range(m)])
-    test = [f"if not ({' and '.join(finite)}):", "    suspect[k - start] = True"]
-    body = [*enter]
-    for line in loop_body(parts, plant, n, m, "b, j", test, fold):  # (buffers stored copy after copy)
-        if line.lstrip().startswith("return "):
-            body += [line[: len(line) - len(line.lstrip())] + text for text in leave]
-        body.append(line)
-    arguments = "start, stop, step_first, hold, base, bound, yd, xb, mb, qb, ub, ab"
-    folds = "odd, e_instants, e_values, e_done, e_last"
-    return module_source(plant, [
-        helpers(), "",
-        CALLED,
-        f"def copy_rows(b, {arguments}, adaptive, held, lp, pf, pi, xs, suspect, fp, lf, {folds}):",
-        *_indented(body, 1),
-        "",
+# ODE copies run two at a time from PAIRS_MIN_ROWS copy-rows (docs/performance.md, 'The compiled
+# batch: copies two at a time'): a pair's function costs about 3.5 s more CPU to compile (once per
+# structure, then cached, and loaded as fast), and saves about 13-15 ns of a copy-step of Example 2
+# (10-15 %) at any batch size; from 2 million copy-rows (200 copies of a 10 s run) that is about
+# 30 ms a run, the compile paid back in about a hundred runs: the large batches (a sweep's full
+# chunks, 1000 copies), not a test's or a small batch's, which compile the one-copy function only.
+PAIRS_MIN_ROWS = 2_000_000
+_ASSIGNED = re.compile(r"^\s*(\w+(?:\s*,\s*\w+)*)\s*=[^=]")
+_RETURN = re.compile(r"^(\s*)return (.+)$")
+# the second copy's own arguments (its locals are named in the lines), renamed in a pair's lines
+COPY_ARGUMENTS = ("b", "adaptive", "held", "lp", "pf", "xs", "fp", "lf")
+
+
+def copy_names(lines: list[str]) -> set[str]:
+    """A copy's own names in its loop's ``lines``: the locals they assign and
+    :data:`COPY_ARGUMENTS` (not the row's ``k``, ``r``, ``j``, ``phase``, shared by a pair)."""
+    names = set(COPY_ARGUMENTS)
+    for line in lines:
+        match = _ASSIGNED.match(line)
+        if match:
+            names.update(name.strip() for name in match.group(1).split(","))
+    return names - {"k", "r", "j", "phase"}
+
+
+def second_copy(lines: list[str], names: set[str]) -> list[str]:
+    """``lines`` of one copy as the second copy of a pair's: each of ``names`` (:func:`copy_names`)
+    renamed ``name_c`` (comments dropped); the shared arrays and the row's indices are the pair's."""
+    pattern = re.compile(r"(?<![\w.])(" + "|".join(sorted(names, key=len, reverse=True)) + r")\b")
+    return [pattern.sub(r"\1_c", line.split("  #")[0]) for line in lines]
+
+
+def _returning(lines: list[str], leave: list[str], who: int, resume: str, first: str) -> list[str]:
+    """``lines`` with each ``return status, k`` of copy ``who`` (0 or 1) of a pair as the pair's
+    return (``who, status, k``, and where the other copy resumes: its first row and step_first),
+    both copies' ``leave`` before it."""
+    out = []
+    for line in lines:
+        match = _RETURN.match(line)
+        if match:
+            indent = match.group(1)
+            out += [indent + text for text in leave]
+            line = f"{indent}return {who}, {match.group(2)}, {resume}, {first}"
+        out.append(line)
+    return out
+
+
+def pair_lines(pieces: LoopParts, enter: list[str], leave: list[str]) -> list[str]:
+    """The body of ``pair_rows``: the rows of two copies (the second's names :func:`second_copy`'s)
+    in lockstep, each copy's operations those of its own loop (``copy_rows``) in the same order,
+    so each copy's numbers are its own, to the last bit: two independent chains of dependent
+    operations, which the processor overlaps (a copy's row waits on its row before). Where a copy
+    stops (a refusal), both copies' state is written back and the pair returns which one stopped,
+    its status and row, and where the other resumes alone: at row k if it has only read (and
+    controlled) row k, which it does again with the same numbers, at k + 1 with its step first
+    if it has written row k."""
+    names = copy_names([*enter, *(line for part in pieces for line in part)])
+    both = [*leave, *second_copy(leave, names)]
+    second = LoopParts(*(second_copy(part, names) for part in pieces))
+    row = _returning(pieces.row, both, 0, "k", "False") + _returning(second.row, both, 1, "k", "False")
+    step = (_returning(pieces.step, both, 0, "k + 1", "True")
+            + _returning(second.step, both, 1, "k + 1", "False"))
+    return [
+        *enter, *second_copy(enter, names),
+        *_returning(pieces.entry, both, 0, "start", "step_first"),
+        *_returning(second.entry, both, 1, "start", "False"),
+        "phase = start % hold",
+        "for k in range(start, stop + 1):",
+        "    r = k - origin",
+        *_indented(row, 1),
+        "    j = k - base",
+        *_indented(pieces.keep + second.keep, 1),
+        "    if k == stop:",
+        *_indented(both, 2),
+        "        return -1, 0, k, 0, False",
+        *_indented(step, 1),
+        "    phase = 0 if phase + 1 == hold else phase + 1",
+        *both,
+        "return -1, 0, stop, 0, False",
+    ]
+
+
+@lru_cache(maxsize=32)
+def _paired(pieces: tuple[tuple[str, ...], ...], enter: tuple[str, ...], leave: tuple[str, ...]
+            ) -> tuple[str, ...]:
+    """:func:`pair_lines` of the same lines made once (each run and chunk asks again)."""
+    return tuple(pair_lines(LoopParts(*(list(part) for part in pieces)), list(enter), list(leave)))
+
+
+ARGUMENTS = "hold, base, bound, yd, xb, mb, qb, ub, ab"  # (the generated functions' shared arguments)
+FOLDS = "odd, e_instants, e_values, e_done, e_last"
+
+
+def rows_lines(pairs: bool) -> list[str]:
+    """``rows``: every copy not stopped in turn, by ``copy_rows``; with ``pairs``, by ``pair_rows``,
+    two at a time where both run, and a copy alone (the last of an odd batch; where one copy of a
+    pair stopped, the other from where it was) paired with a scratch twin of itself: the same
+    numbers written twice to its rows, its own state kept (two calls: neither copied into
+    ``rows``, compiled once)."""
+    alone = ("c, c, start, first, stop, step, {0}, adaptives[c], {1}, helds[c], {2}, lps[c], lps[c], pfs[c],"
+             " pfs[c], xss[c], {3}, suspect, fps[c], {4}, lfs[c], lfs[c], pi, {5}")
+    twin = [f"{name}[c].copy()" for name in ("adaptives", "helds", "xss", "fps")]
+    each = ", ".join(f"{name}[b], {name}[b + 1]" for name in ("adaptives", "helds", "lps", "pfs", "xss"))
+    return [
         JIT,
-        f"def rows({arguments}, adaptives, helds, lps, pfs, pi, xss, suspect, status, at, fps, lfs,"
-        f" {folds}):",
-        "    for b in range(xss.shape[0]):",
+        f"def rows(start, stop, step_first, {ARGUMENTS}, adaptives, helds, lps, pfs, pi, xss, suspect,"
+        f" status, at, fps, lfs, {FOLDS}):",
+        "    count, paired = xss.shape[0], -1",
+        "    for b in range(count):",
+        "        if b == paired:  # (run with the copy before it)",
+        "            continue",
         "        if status[b] != 0:  # stopped computing: every row marked",
         "            suspect[:] = True",
         "            continue",
-        f"        s, k = copy_rows(b, {arguments}, adaptives[b], helds[b], lps[b], pfs[b], pi, xss[b],"
-        f" suspect, fps[b], lfs[b], {folds})",
+        *_indented([
+            "if b + 1 < count and status[b + 1] == 0:",
+            f"    w, s, k, first, step = pair_rows(b, b + 1, start, start, stop, step_first, {ARGUMENTS},"
+            f" {each}, suspect, fps[b], fps[b + 1], lfs[b], lfs[b + 1], pi, {FOLDS})",
+            "    paired = b + 1",
+            "    if w < 0:",
+            "        continue",
+            "    status[b + w], at[b + w] = s, k  # one copy stopped: the other runs on alone",
+            "    suspect[max(k + 1 - start, 0):] = True",
+            "    c = b + 1 - w",
+            "else:",
+            "    c, first, step = b, start, step_first",
+            f"_, s, k, _, _ = pair_rows({alone.format(ARGUMENTS, *twin, FOLDS)})",
+        ] if pairs else [
+            "c, first, step = b, start, step_first",
+            f"s, k = copy_rows(c, start, first, stop, step, {ARGUMENTS}, adaptives[c], helds[c], lps[c],"
+            f" pfs[c], pi, xss[c], suspect, fps[c], lfs[c], {FOLDS})",
+        ], 2),
         "        if s != 0:",
-        "            status[b], at[b] = s, k",
+        "            status[c], at[c] = s, k",
         "            suspect[max(k + 1 - start, 0):] = True",
-        "",
-    ])
+    ]
+
+
+def batch_source(parts: TracedParts, plant: NativeStepper, n: int, m: int, fold: list[str] = (),
+                 enter: list[str] = (), leave: list[str] = (), pairs: bool = False) -> str:
+    """The module text: ``copy_rows`` (one copy's rows from ``start``, the single run's loop body
+    on column b, with the quick divergence test and the reductions' folds, ``enter`` before the
+    rows and ``leave`` before every return; ``yd``'s first line is row ``origin``'s), or with
+    ``pairs`` ``pair_rows`` (two copies in lockstep: :func:`pair_lines`), and ``rows``."""
+    finite = ([f"abs(x{i}) <= bound" for i in range(1, n + 1)]
+              + [f"math.isfinite(adaptive[{i}])" for i in range(m)])
+    test = [f"if not ({' and '.join(finite)}):", "    suspect[k - origin] = True"]
+    pieces = loop_parts(parts, plant, n, m, "b, j", test, fold)  # (buffers stored copy after copy)
+    pairs = pairs and not any(_RETURN.match(line) for line in pieces.keep)  # (returns only where known)
+    if pairs:
+        function = [f"def pair_rows(b, b_c, origin, start, stop, step_first, {ARGUMENTS}, adaptive,"
+                    " adaptive_c, held, held_c, lp, lp_c, pf, pf_c, xs, xs_c, suspect, fp, fp_c, lf, lf_c,"
+                    f" pi, {FOLDS}):",
+                    *_indented(_paired(tuple(map(tuple, pieces)), tuple(enter), tuple(leave)), 1)]
+    else:
+        body = [*enter]
+        for line in loop_body(parts, plant, n, m, "b, j", test, fold, "origin"):
+            if line.lstrip().startswith("return "):
+                body += [line[: len(line) - len(line.lstrip())] + text for text in leave]
+            body.append(line)
+        function = [f"def copy_rows(b, origin, start, stop, step_first, {ARGUMENTS}, adaptive, held, lp, pf,"
+                    f" pi, xs, suspect, fp, lf, {FOLDS}):", *_indented(body, 1)]
+    # (a pair's steps inline the ODE's: about 4 ns less a copy-step of Example 2, 2 s more to compile)
+    return module_source(plant, [helpers(), "", CALLED, *function, "", *rows_lines(pairs), ""], pairs)
 
 
 class CompiledBatch:
@@ -136,11 +274,11 @@ class CompiledBatch:
         self.parts, self.form, self.n, self.m, self.law = parts, form, n, m, law
         self.held_width = 1 + m + n  # u, the targets, zbar (a user law's: u and its sample)
 
-    def function(self, plant: NativeStepper, folds: Folds | None = None):  # noqa: ANN201 (a numba dispatcher)
+    def function(self, plant: NativeStepper, folds: Folds | None = None, pairs: bool = False):  # noqa: ANN201 (a numba dispatcher)
         from ..compiled.cache import generated_module
 
         fold, enter, leave = ([], [], []) if folds is None else (folds.lines(), folds.enter, folds.leave)
-        source = batch_source(self.parts, plant, self.n, self.m, fold, enter, leave)
+        source = batch_source(self.parts, plant, self.n, self.m, fold, enter, leave, pairs)
         return generated_module("batch", source).rows
 
     def folds(self, loop: Schedule) -> Folds | None:
@@ -162,7 +300,7 @@ class CompiledBatch:
                                                *parts.advance, *fold):
             return START._replace(adaptive=adaptive)
         try:
-            rows = self.function(stepper, folds)
+            rows = self.function(stepper, folds, paired(plant, loop.grid.rows))
         except Exception as exc:  # numba refusing a construct: the array form, said once
             compiled_paths.fallback("the batch of copies", f"{type(exc).__name__}: {exc}")
             return START._replace(adaptive=adaptive)
@@ -217,6 +355,12 @@ class CompiledBatch:
             last = at[b] - 1 if status[b] == CONTROL_REFUSED else at[b]
             if kept[b] - 1 > last:
                 raise Redo(f"copy {b} at row {at[b]}")
+
+
+def paired(plant: Any, rows: int) -> bool:
+    """Whether a batch of ``plant``'s copies of ``rows`` rows runs its copies two at a time: ODE
+    copies of at least :data:`PAIRS_MIN_ROWS` copy-rows."""
+    return isinstance(plant, ChainPlant) and plant.batch * rows >= PAIRS_MIN_ROWS
 
 
 def compiled_batch(spec: RunSpec) -> CompiledBatch | None:

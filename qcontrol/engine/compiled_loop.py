@@ -38,7 +38,7 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 
 from .. import compiled as compiled_paths
-from ..compiled import JIT
+from ..compiled import CALLED, JIT
 from ..compiled.traced import TRACED, Symbol, Trace, TracedForm, recording
 from ..controller.backstepping import BacksteppingLaw, ControlOutput, output
 from ..controller.law import BatchLaw
@@ -184,14 +184,22 @@ def differenced_velocity(trace: Trace, q: list, period: float) -> tuple[list, li
     return [q[0], rate, *q[2:]], [f"vb[phase] = {position}"]
 
 
-def loop_body(parts: TracedParts, plant: NativeStepper, n: int, m: int, at: str = "j, 0",
-              test: list[str] = (), fold: list[str] = ()) -> list[str]:
-    """The lines of the loop over rows ``[start, stop]`` of one copy, returning ``(status, row)``;
-    ``at`` indexes the row (``j``) of the copy in the buffers (``"j, 0"``: buffers stored row
-    after row; a batch's, stored copy after copy: ``"b, j"``); ``test`` runs after the row is read
-    (a batch's quick divergence test), ``fold`` after it is written (a batch's reductions).
-    ``phase`` is ``k % hold`` (a control sample at 0), counted rather than divided (no integer
-    division a row)."""
+class LoopParts(NamedTuple):
+    """The pieces of one copy's loop (:func:`loop_body`): ``entry`` before the rows (the plant's
+    setup, the held u, the step and advance from the row before when ``step_first``), ``row``
+    (row k read, quantized, tested, controlled at a sample), ``keep`` (the row written into the
+    buffers, then folded) and ``step`` (the step and advance to row k + 1). ``entry`` and
+    ``step`` may ``return 2, k``, ``row`` ``return 1, k``."""
+
+    entry: list[str]
+    row: list[str]
+    keep: list[str]
+    step: list[str]
+
+
+def loop_parts(parts: TracedParts, plant: NativeStepper, n: int, m: int, at: str = "j, 0",
+               test: list[str] = (), fold: list[str] = ()) -> LoopParts:
+    """The pieces of :func:`loop_body` (its arguments)."""
     record = ([f"xb[{at}, {i - 1}] = x{i}" for i in range(1, n + 1)]
               + [f"mb[{at}, {i - 1}] = m{i}" for i in range(1, n + 1)]
               + [f"qb[{at}, {i}] = {q}" for i, q in enumerate(parts.q)]
@@ -199,42 +207,54 @@ def loop_body(parts: TracedParts, plant: NativeStepper, n: int, m: int, at: str 
               + [f"ab[{at}, {i}] = adaptive[{i}]" for i in range(m)]
               + list(parts.keep))
     take = list(parts.applied) or ["u = held[0]"]  # the plant's input: the held u, or q_u of it
+    entry = [*plant.setup, *take, "if step_first:", "    k = start - 1",
+             *_indented(plant.step + parts.advance, 1)]
+    row = [*plant.observe, *parts.quantize, *test, "if phase == 0:", *_indented(parts.control, 1),
+           *_indented(take, 1)]
+    return LoopParts(entry, row, [*record, *fold], [*plant.step, *parts.advance])
+
+
+def loop_body(parts: TracedParts, plant: NativeStepper, n: int, m: int, at: str = "j, 0",
+              test: list[str] = (), fold: list[str] = (), origin: str = "start") -> list[str]:
+    """The lines of the loop over rows ``[start, stop]`` of one copy, returning ``(status, row)``;
+    ``at`` indexes the row (``j``) of the copy in the buffers (``"j, 0"``: buffers stored row
+    after row; a batch's, stored copy after copy: ``"b, j"``); ``test`` runs after the row is read
+    (a batch's quick divergence test), ``fold`` after it is written (a batch's reductions);
+    ``origin`` names the row of ``yd``'s first line (``r = k - origin``).
+    ``phase`` is ``k % hold`` (a control sample at 0), counted rather than divided (no integer
+    division a row)."""
+    pieces = loop_parts(parts, plant, n, m, at, test, fold)
     return [
-        *plant.setup,
-        *take,
-        "if step_first:",
-        "    k = start - 1",
-        *_indented(plant.step + parts.advance, 1),
+        *pieces.entry,
         "phase = start % hold",
         "for k in range(start, stop + 1):",
-        "    r = k - start",
-        *_indented(plant.observe + parts.quantize + list(test), 1),
-        "    if phase == 0:",
-        *_indented(parts.control, 2),
-        *_indented(take, 2),
+        f"    r = k - {origin}",
+        *_indented(pieces.row, 1),
         "    j = k - base",
-        *_indented(record, 1),
-        *_indented(list(fold), 1),
+        *_indented(pieces.keep, 1),
         "    if k == stop:",
         "        return 0, k",
-        *_indented(plant.step + parts.advance, 1),
+        *_indented(pieces.step, 1),
         "    phase = 0 if phase + 1 == hold else phase + 1",
         "return 0, stop",
     ]
 
 
-def module_source(plant: NativeStepper, functions: list[str]) -> str:
+def module_source(plant: NativeStepper, functions: list[str], inlined: bool = False) -> str:
     """A generated module: its imports, the plant's helpers (from a module of their own, compiled
-    once for every loop and batch of the plant: :func:`~qcontrol.compiled.cache.shared`), then
-    ``functions``' lines."""
+    once for every loop and batch of the plant: :func:`~qcontrol.compiled.cache.shared`; with
+    ``inlined``, in the module, its called functions inlined where they are called: a larger
+    compilation, a faster loop), then ``functions``' lines."""
     from ..compiled.cache import shared
 
+    helpers = (plant.helpers.replace(CALLED, CALLED[:-1] + ', inline="always")') if inlined
+               else shared("step", plant.helpers))
     return "\n".join([
         '"""qcontrol\'s compiled loop (generated): see KEY."""',  # (user text only as a repr literal)
         "import math", "", "import numba", "import numpy as np", "",
         f"KEY = {plant.key!r}", "",
         "from qcontrol.compiled.pointers import as_pointer, carray, opaque", "",
-        shared("step", plant.helpers), "", *functions, "",
+        helpers, "", *functions, "",
     ])
 
 
