@@ -106,15 +106,16 @@ class ChannelQuantizer:
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         q = uniform(np.asarray(x, dtype=float), self.delta)
-        if self.range is not None:
-            q = np.minimum(np.maximum(q, self.low), self.high)
-        return q
+        return q if self.range is None else within_range(q, self.low, self.high)
 
     def apply_channel(self, i: int, x: Any, form: Any) -> Any:
-        """Channel ``i`` (from 0) of :meth:`__call__` on one column of ``form`` (its ``floor`` and
-        ``clip``): the same operations, channel by channel (the compiled loop's quantizer)."""
+        """Channel ``i`` (from 0) of :meth:`__call__` on one column of ``form`` (its ``floor``,
+        ``minimum`` and ``maximum``): the same operations, channel by channel (the compiled loop's
+        quantizer)."""
         q = uniform(x, float(self.delta[i]), form.floor)
-        return q if self.range is None else form.clip(q, float(self.low[i]), float(self.high[i]))
+        if self.range is None:
+            return q
+        return within_range(q, float(self.low[i]), float(self.high[i]), form.minimum, form.maximum)
 
     def saturated(self, x: np.ndarray) -> np.ndarray:
         """Where a reading ``x`` (``(..., n)``) lies beyond its channel's range: 1 where any
@@ -129,6 +130,15 @@ class ChannelQuantizer:
     def __repr__(self) -> str:
         limits = None if self.range is None else self.range.tolist()
         return f"ChannelQuantizer(delta={self.delta.tolist()!r}, range={limits!r})"
+
+
+def within_range(q: Any, low: Any, high: Any, minimum: Callable[[Any, Any], Any] = np.minimum,
+                 maximum: Callable[[Any, Any], Any] = np.maximum) -> Any:
+    """A channel's reading with a finite range: its level ``q`` of eq. (3) held in ``[low, high]``,
+    the levels ``q(-R_i)`` and ``q(R_i)``, as ``minimum(maximum(q, low), high)`` (NaN stays NaN).
+    The one definition of the range, on arrays (``low``, ``high`` per channel, numpy's functions)
+    or on one column of any form with that form's ``minimum`` and ``maximum``."""
+    return minimum(maximum(q, low), high)
 
 
 class HysteresisQuantizer:

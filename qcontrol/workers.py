@@ -28,6 +28,8 @@ from contextlib import contextmanager
 from multiprocessing.connection import Connection, Pipe, wait
 from typing import Any
 
+from .interrupts import Held
+
 _PR_SET_PDEATHSIG = 1
 WATCH_PERIOD = 0.5  # s between a worker's checks that its parent is alive
 
@@ -63,12 +65,14 @@ def worker_pool(workers: int) -> multiprocessing.pool.Pool:
     ``terminate()`` on every exit path (a ``finally``), so an error, Ctrl-C or SIGTERM stops the
     workers at once."""
     context = multiprocessing.get_context("fork")
-    with _signals_after_forking() as caught, _frozen_heap():
-        pool = context.Pool(workers, initializer=_worker_start, initargs=(os.getpid(),))
-    if caught:  # the command was asked to stop while the workers forked: they are not left running
-        pool.terminate()
-        for signum in caught:
-            signal.raise_signal(signum)
+    pool = None
+    try:
+        with Held(), _frozen_heap():  # (a stop asked for while the workers fork: acted on once forked)
+            pool = context.Pool(workers, initializer=_worker_start, initargs=(os.getpid(),))
+    except BaseException:  # the command was asked to stop: the workers are not left running
+        if pool is not None:
+            pool.terminate()
+        raise
     return pool
 
 
@@ -154,7 +158,7 @@ def _forks(count: int, run: Callable[[int], Any], take: Callable[[], int | None]
     forks: list[tuple[int, Connection]] = []
     feeder = None
     try:
-        with _signals_after_forking() as caught, _frozen_heap():
+        with Held(), _frozen_heap():  # (as worker_pool: the forks are ended below)
             parent = os.getpid()
             for _ in range(count):
                 mine, its = Pipe()
@@ -163,8 +167,6 @@ def _forks(count: int, run: Callable[[int], Any], take: Callable[[], int | None]
                     _serve(parent, its, run)
                 its.close()
                 forks.append((pid, mine))
-        for signum in caught:  # (as worker_pool: the forks are ended below)
-            signal.raise_signal(signum)
         firsts = [take() for _ in forks]  # (taken here: this thread takes the next only after)
         feeder = threading.Thread(target=_feed, args=([c for _, c in forks], firsts, take, finished),
                                   daemon=True, name="qcontrol-feed-workers")
@@ -226,36 +228,3 @@ def _frozen_heap() -> Iterator[None]:
         yield
     finally:
         gc.unfreeze()
-
-
-@contextmanager
-def _signals_after_forking() -> Iterator[list[int]]:
-    """Ctrl-C or SIGTERM arriving while the pool forks its workers is held, and given (the list
-    yielded) for :func:`worker_pool` to act on once they are forked. Python runs a signal's handler
-    at the next line of Python, which may be one of the hooks run around a fork (logging's lock),
-    and it ignores an exception raised there: the command's "stop now" would be printed as
-    "Exception ignored" and lost, and the command would run on. A child forked meanwhile ends on
-    the signal as it would without a handler. If forking fails, a held signal is acted on here."""
-    if threading.current_thread() is not threading.main_thread():
-        yield []
-        return
-    parent, caught = os.getpid(), []
-
-    def hold(signum: int, frame: object) -> None:
-        if os.getpid() != parent:  # a worker, before its start: the signal's default action
-            signal.signal(signum, signal.SIG_DFL)
-            os.kill(os.getpid(), signum)
-            return
-        caught.append(signum)
-
-    previous = {signum: signal.signal(signum, hold) for signum in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield caught
-    except BaseException:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
-        for signum in caught:
-            signal.raise_signal(signum)
-        raise
-    for signum, handler in previous.items():
-        signal.signal(signum, handler)

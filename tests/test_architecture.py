@@ -45,7 +45,7 @@ from qcontrol.scenario import load_scenario
 LAYERS = [
     {"_version", "errors", "schema", "sharing", "timegrid", "expr", "progress", "outputs", "error_rate",
      "resources",
-     "provenance", "compiled", "workers"},
+     "provenance", "interrupts", "compiled", "workers"},
     {"columns"},
     {"quantizer", "quantizers", "reference", "disturbance"},
     {"controller"},

@@ -14,6 +14,7 @@ from conftest import SCENARIOS
 import qcontrol.engine.compiled_loop as compiled_loop
 import qcontrol.engine.velocity as velocity
 import qcontrol.plants.ode as ode
+import qcontrol.quantizers as quantizers
 from qcontrol.assembly import (
     assemble,
     build_controller,
@@ -77,9 +78,15 @@ def _quantizer(self, x, floor):  # noqa: ANN001, ANN202
     return self.delta * floor(x / self.delta + 0.25)  # levels shifted by delta / 4
 
 
+def _half_range(q, low, high, minimum=np.minimum, maximum=np.maximum):  # noqa: ANN001, ANN202
+    return minimum(maximum(q, 0.5 * low), 0.5 * high)  # readings held in half the range
+
+
 # (what is changed, in its one place) -> (object, attribute, replacement, scenario overrides, backend)
 CHANGES = {
     "quantizer (3)": (UniformQuantizer, "apply", _quantizer, [], "ode"),
+    "quantizer's range": (quantizers, "within_range", _half_range,
+                          ["quantizer.delta=[0.01, 0.01]", "quantizer.range=[0.2, 20.0]"], "ode"),  # x1 ~ 0.3
     "law (44), paper hold": (PaperLaw, "robust_term", _wrapped(PaperLaw, "robust_term", lambda v: 2.0 * v),
                              [], "ode"),
     "law (44), exact hold": (PaperLaw, "robust_term", _wrapped(PaperLaw, "robust_term", lambda v: 2.0 * v),
@@ -145,7 +152,9 @@ def test_a_formula_changed_in_its_one_place_changes_every_form(monkeypatch, chan
     owner, name, replacement, overrides, backend = CHANGES[change]
     monkeypatch.setattr(compiled_loop, "MIN_ROWS", 0)  # short runs compiled too
     monkeypatch.setattr(compiled_loop, "COLD_MIN_ROWS", 0)
-    sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=0.3", *overrides])
+    quantizer_table = any(o.startswith("quantizer.") for o in overrides)  # (the step given there)
+    sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=0.3", *overrides],
+                       unset=["controller.delta"] if quantizer_table else [])
     batched = change in COMPILED_BATCH
     before = _runs(monkeypatch, sc, backend, batched)
     monkeypatch.setattr(owner, name, replacement)

@@ -20,6 +20,7 @@ import select
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -33,6 +34,7 @@ from qcontrol.assembly import build_plant, run_scenario
 from qcontrol.cli import main
 from qcontrol.engine import Trajectory
 from qcontrol.errors import QcontrolInputError, QcontrolOutputError
+from qcontrol.interrupts import HELD, Held
 from qcontrol.outputs import atomic_path, partial_path, write_json
 from qcontrol.scenario import load_scenario
 
@@ -301,30 +303,114 @@ def test_ctrl_c_keeps_the_recording(tmp_path: Path) -> None:
     assert not rrd.exists() and partial_path(rrd).stat().st_size > 0
 
 
-# Ctrl-C handled where Python cannot simply raise it: law modules that receive it there, at once
-CTRL_C_IN_A_STRING = 'import signal\n\nexec("signal.raise_signal(signal.SIGINT)")\n'
-CTRL_C_IN_A_CALLBACK = (  # then waits: a Ctrl-C lost there would leave the command running
-    "import ctypes\nimport signal\nimport time\n\n"
-    "ctypes.CFUNCTYPE(None)(lambda: signal.raise_signal(signal.SIGINT))()\ntime.sleep(60)\n"
-)
+def test_held_signals_are_given_back_as_the_block_ends() -> None:
+    """A Ctrl-C in a Held block is noted, not raised, and raised as the block ends (the handler
+    put back first); a handler that runs no Python (SIGTERM's default action here, a worker's
+    ignored Ctrl-C) is left as it is; in another thread nothing is held (only the main thread runs
+    the handlers and may change them)."""
+    terminate = signal.signal(signal.SIGTERM, signal.SIG_DFL)  # (a handler that runs no Python)
+    try:
+        _held_in_the_main_thread_only()
+    finally:
+        signal.signal(signal.SIGTERM, terminate)
 
 
-@pytest.mark.parametrize("law", [CTRL_C_IN_A_STRING, CTRL_C_IN_A_CALLBACK], ids=["string", "callback"])
-def test_ctrl_c_wherever_python_handles_it_exits_130(tmp_path: Path, law: str) -> None:
-    """Python handles a signal at the next line of Python it runs. In code evaluated from a string
-    (namedtuple, dataclasses, numba's generated code, while modules import or functions compile),
-    a Ctrl-C caught by the command used to end ``python -m qcontrol.cli`` by SIGINT (status -2)
-    all the same; in a function C code calls (llvmlite's callback as LLVM returns from compiling)
-    it was printed as "Exception ignored" and lost, and the command ran to its end (status 0)."""
+def _held_in_the_main_thread_only() -> None:
+    before = {signum: signal.getsignal(signum) for signum in HELD}
+    assert callable(before[signal.SIGINT]) and before[signal.SIGTERM] == signal.SIG_DFL
+    with pytest.raises(KeyboardInterrupt), Held() as block:
+        signal.raise_signal(signal.SIGINT)
+        noted = list(block.caught)
+        inside = {signum: signal.getsignal(signum) for signum in HELD}
+    assert noted == [signal.SIGINT] and inside[signal.SIGINT] != before[signal.SIGINT]
+    assert inside[signal.SIGTERM] == signal.SIG_DFL
+    assert {signum: signal.getsignal(signum) for signum in HELD} == before
+    elsewhere = []
+    thread = threading.Thread(target=lambda: elsewhere.append(_inside_a_block()))
+    thread.start()
+    thread.join()
+    assert elsewhere == [before]
+
+
+def _inside_a_block() -> dict:
+    with Held():
+        return {signum: signal.getsignal(signum) for signum in HELD}
+
+
+def _stopped(tmp_path: Path, law: str, argv: list[str], environment: dict[str, str] | None = None
+             ) -> subprocess.CompletedProcess:
+    """``qcontrol argv`` with the law module ``law`` (which sends the process Ctrl-C at a moment of
+    its choosing), SIGINT at its default; what the command did. Its CPU seconds are bounded (a
+    run that went on instead of stopping is killed, failing the exit status); the wall-clock
+    timeout is only for a hang."""
     (tmp_path / "law.py").write_text(law)
-    proc = subprocess.run(
-        [sys.executable, "-m", "qcontrol.cli", "run", str(EX2), "--law-module", "law.py", "--backend", "ode",
-         "--duration", "0.05", "-q"],
-        cwd=tmp_path, capture_output=True, text=True, timeout=120, env={**os.environ, "HOME": str(tmp_path)},
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    return subprocess.run(
+        [sys.executable, "-m", "qcontrol.cli", *argv, "--law-module", "law.py"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=600,
+        env={**os.environ, "HOME": str(tmp_path), **(environment or {})}, preexec_fn=_ctrl_c_and_cpu_bound,
     )
+
+
+def _ctrl_c_and_cpu_bound() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)  # not inherited as ignored
+    resource.setrlimit(resource.RLIMIT_CPU, (60, 60))
+
+
+# Ctrl-C in code evaluated from a string: a law module that receives it there, at once
+CTRL_C_IN_A_STRING = 'import signal\n\nexec("signal.raise_signal(signal.SIGINT)")\n'
+
+
+def test_ctrl_c_in_code_evaluated_from_a_string_exits_130(tmp_path: Path) -> None:
+    """Python handles a signal at the next line of Python it runs. In code evaluated from a string
+    (namedtuple, dataclasses, numba's generated code, while modules import), a Ctrl-C caught by
+    the command used to end ``python -m qcontrol.cli`` by SIGINT (status -2) all the same."""
+    argv = ["run", str(EX2), "--backend", "ode", "--duration", "0.05", "-q"]
+    proc = _stopped(tmp_path, CTRL_C_IN_A_STRING, argv)
     assert proc.returncode == 130, proc.stderr
     assert "interrupted" in proc.stderr and "Traceback" not in proc.stderr and "ignored" not in proc.stderr
+
+
+# a law module that sends Ctrl-C as llvmlite's LLVMPY_LinkModules returns (at the release of the
+# lock llvmlite takes around each call into LLVM, which numba's event API reports), the first time
+CTRL_C_AS_LLVM_LINKS = """import signal
+import sys
+
+from numba.core import event
+
+
+class AfterLinking(event.Listener):
+    sent = False
+
+    def on_start(self, occurrence):
+        pass
+
+    def on_end(self, occurrence):
+        frame = sys._getframe()
+        while frame is not None and frame.f_code.co_name != "link_modules":
+            frame = frame.f_back
+        if frame is not None and not self.sent:
+            self.sent = True
+            signal.raise_signal(signal.SIGINT)
+
+
+event.register("numba:llvm_lock", AfterLinking())
+"""
+
+
+def test_ctrl_c_while_numba_compiles_stops_once_it_has_compiled(tmp_path: Path) -> None:
+    """Ctrl-C while numba compiles the loop (an empty cache: a 100 s run is compiled) is held
+    until the compile returns, then stops the run: exit 130, "interrupted", the compiled loop
+    stored in the cache. Raised inside the compile as the signal came, right after llvmlite's
+    LLVMPY_LinkModules, it left Python owning a module LLVM had destroyed: "interrupted" was
+    printed, then the process died of a segmentation fault (status -11) freeing it; raised in
+    llvmlite's callbacks, it was lost ("Exception ignored") and the run went on."""
+    cache = tmp_path / "cache"
+    argv = ["run", str(EX2), "--backend", "ode", "--duration", "100", "-q"]
+    proc = _stopped(tmp_path, CTRL_C_AS_LLVM_LINKS, argv, {"QCONTROL_CACHE_DIR": str(cache),
+                                                           "QCONTROL_COMPILE": "1"})
+    assert proc.returncode == 130, proc.stderr
+    assert "interrupted" in proc.stderr and "Traceback" not in proc.stderr and "ignored" not in proc.stderr
+    assert list((cache / "__pycache__").glob("qcontrol_loop_*.nbi"))  # compiled to the end, kept
 
 
 # --------------------------------------------------------------------------------------------

@@ -100,35 +100,6 @@ def _terminate(signum: int, frame: object) -> None:
     raise Terminated
 
 
-def _redeliver(previous: Callable[[object], object]) -> Callable[[object], None]:
-    """The unraisable hook while a command runs: a Ctrl-C (or SIGTERM) whose exception Python
-    could not raise where the signal was handled is delivered again to the main thread a moment
-    later (:data:`REDELIVER_AFTER`), and the command stops. Python handles a signal at the next
-    line of Python it runs, which may be a function that C code calls (numba's compiler: a signal
-    that came while LLVM compiled is handled in llvmlite's callback as LLVM returns) or a
-    ``__del__``; there it prints the exception as "Exception ignored" and goes on, and the command
-    ran to its end. The delivery waits until this hook has returned (raised in the hook, the
-    exception would be lost again); one that lands in such a function again comes back here.
-    Other exceptions are ``previous``'s."""
-
-    def deliver(signum: int) -> None:
-        if sys.unraisablehook is hook:  # the command still runs
-            signal.pthread_kill(threading.main_thread().ident, signum)  # as the first one came
-
-    def hook(unraisable: object) -> None:
-        exc = getattr(unraisable, "exc_value", None)
-        if isinstance(exc, KeyboardInterrupt):
-            signum = signal.SIGTERM if isinstance(exc, Terminated) else signal.SIGINT
-            threading.Timer(REDELIVER_AFTER, deliver, (signum,)).start()
-        else:
-            previous(unraisable)
-
-    return hook
-
-
-REDELIVER_AFTER = 0.02  # s: a lost Ctrl-C is delivered again this long after Python reported it
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -137,9 +108,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
     main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _terminate) if main_thread else None
-    unraisable = sys.unraisablehook
-    if main_thread:
-        sys.unraisablehook = _redeliver(unraisable)
     try:
         load_laws(args.law_modules)
         return COMMANDS[args.command][1](args)
@@ -162,4 +130,3 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         if main_thread:
             signal.signal(signal.SIGTERM, previous)
-            sys.unraisablehook = unraisable

@@ -8,6 +8,9 @@ without fast-math contraction, with numpy's error model). It is on by default;
 
 Generated code is kept on disk in the user's cache folder (:mod:`.cache`), so a process compiles a
 callback once and later processes (worker processes included) load it in a fraction of a second.
+
+Ctrl-C (or SIGTERM) while numba compiles or loads code stops the command once numba has finished
+(:mod:`.compiling`): raised inside numba's work, it would leave llvmlite's objects half updated.
 """
 
 from __future__ import annotations
@@ -58,13 +61,17 @@ def numba_missing() -> str | None:
 
 
 def enabled() -> bool:
-    """Compiled paths are on: requested and numba importable (a warning, once, when it is not)."""
+    """Compiled paths are on: requested and numba importable (a warning, once, when it is not);
+    then numba's compiles hold Ctrl-C (:func:`.compiling.hold_while_compiling`)."""
     if not requested():
         return False
     missing = numba_missing()
     if missing is not None:
         fallback("compiled paths", missing)
         return False
+    from .compiling import hold_while_compiling
+
+    hold_while_compiling()
     return True
 
 

@@ -325,12 +325,21 @@ def _where(condition: Value, a: Value, b: Value) -> Value:
     return trace.assign(f"{trace.text(a)} if {condition.text} else {trace.text(b)}")
 
 
-def _clip(x: Value, low: float, high: float) -> Value:
-    """numpy's ``minimum(maximum(x, low), high)`` (NaN stays NaN), on a symbol or a number."""
-    if not isinstance(x, Symbol):
-        return float(np.minimum(np.maximum(x, low), high))
+def _minimum(a: Value, b: Value) -> Value:
+    """numpy's ``minimum(a, b)`` (NaN if either is NaN), on symbols or numbers."""
+    return _numpy_of_two("minimum", a, b)
+
+
+def _maximum(a: Value, b: Value) -> Value:
+    """numpy's ``maximum(a, b)`` (NaN if either is NaN), on symbols or numbers."""
+    return _numpy_of_two("maximum", a, b)
+
+
+def _numpy_of_two(name: str, a: Value, b: Value) -> Value:
+    if not isinstance(a, Symbol) and not isinstance(b, Symbol):
+        return float(getattr(np, name)(a, b))
     trace = current()
-    return trace.assign(f"np.minimum(np.maximum({x.text}, {trace.text(low)}), {trace.text(high)})")
+    return trace.assign(f"np.{name}({trace.text(a)}, {trace.text(b)})")
 
 
 class TracedForm:
@@ -340,7 +349,8 @@ class TracedForm:
 
     expm1: Callable[[Value], Value] = staticmethod(_expm1)
     floor: Callable[[Value], Value] = staticmethod(_floor)
-    clip: Callable[[Value, float, float], Value] = staticmethod(_clip)
+    minimum: Callable[[Value, Value], Value] = staticmethod(_minimum)
+    maximum: Callable[[Value, Value], Value] = staticmethod(_maximum)
     where: Callable[[Value, Value, Value], Value] = staticmethod(_where)
 
     def __init__(self, batch: int = 1) -> None:
