@@ -325,6 +325,16 @@ def _where(condition: Value, a: Value, b: Value) -> Value:
     return trace.assign(f"{trace.text(a)} if {condition.text} else {trace.text(b)}")
 
 
+def _maximum(a: Value, b: Value) -> Value:
+    """numpy's ``maximum(a, b)`` (NaN where either is NaN), written as numpy's own loop decides
+    (``a if a >= b or a is NaN else b``), on symbols or numbers."""
+    if not isinstance(a, Symbol) and not isinstance(b, Symbol):
+        return float(np.maximum(a, b))
+    trace = current()
+    ta, tb = trace.text(a), trace.text(b)
+    return trace.assign(f"{ta} if ({ta} >= {tb} or {ta} != {ta}) else {tb}")
+
+
 def _clip(x: Value, low: float, high: float) -> Value:
     """numpy's ``minimum(maximum(x, low), high)`` (NaN stays NaN), on a symbol or a number."""
     if not isinstance(x, Symbol):
@@ -342,6 +352,7 @@ class TracedForm:
     floor: Callable[[Value], Value] = staticmethod(_floor)
     clip: Callable[[Value, float, float], Value] = staticmethod(_clip)
     where: Callable[[Value, Value, Value], Value] = staticmethod(_where)
+    maximum: Callable[[Value, Value], Value] = staticmethod(_maximum)
 
     def __init__(self, batch: int = 1) -> None:
         self.batch = batch
