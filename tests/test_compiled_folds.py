@@ -156,17 +156,3 @@ def test_a_term_whose_numpy_value_may_differ_is_reduced_by_the_array_form(monkey
         assert "max_abs_u" in names and not {"bound_constants", "smallest_r"} & names
     assert {"sin", "cos", "sqrt", "abs"} >= signals.same_functions() >= {"sqrt", "abs"}
 
-
-def test_the_traced_maximum_is_numpys() -> None:
-    """TracedForm.maximum's text gives numpy's maximum, NaN where either side is NaN."""
-    from qcontrol.compiled.traced import Symbol, Trace, TracedForm, recording
-
-    trace = Trace()
-    with recording(trace):
-        result = TracedForm().maximum(Symbol("a"), Symbol("b"))
-    values = [0.0, 1.0, -2.0, np.inf, -np.inf, np.nan]
-    for a in values:
-        for b in values:
-            scope = {"a": a, "b": b}
-            exec("\n".join(trace.lines), scope)  # noqa: S102 (the traced line)
-            np.testing.assert_array_equal(scope[result.text], np.maximum(a, b))

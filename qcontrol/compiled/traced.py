@@ -326,13 +326,11 @@ def _where(condition: Value, a: Value, b: Value) -> Value:
 
 
 def _maximum(a: Value, b: Value) -> Value:
-    """numpy's ``maximum(a, b)`` (NaN where either is NaN), written as numpy's own loop decides
-    (``a if a >= b or a is NaN else b``), on symbols or numbers."""
+    """numpy's ``maximum(a, b)`` (NaN if either is NaN), on symbols or numbers."""
     if not isinstance(a, Symbol) and not isinstance(b, Symbol):
         return float(np.maximum(a, b))
     trace = current()
-    ta, tb = trace.text(a), trace.text(b)
-    return trace.assign(f"{ta} if ({ta} >= {tb} or {ta} != {ta}) else {tb}")
+    return trace.assign(f"np.maximum({trace.text(a)}, {trace.text(b)})")
 
 
 def _clip(x: Value, low: float, high: float) -> Value:
