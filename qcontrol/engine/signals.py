@@ -191,18 +191,15 @@ def _bound_ratio(block: Block, ctx: SignalContext) -> np.ndarray:
     return _side_by_side(ratios, x, ctx.terms)
 
 
-# the functions (besides + - * / and squares) whose value numpy's on_columns and the traced
-# form's math (libm) give alike (correctly rounded, or the same libm: see same_functions)
-_ALIKE = ("sin", "cos", "sqrt", "abs")
-
-
 @cache
 def same_functions() -> frozenset[str]:
-    """Those of :data:`_ALIKE` whose numpy value equals ``math``'s on a probe of this machine's
-    libraries (a numpy built with its own vectorised sine would differ in the last bit on some
-    percent of values: then it is left out)."""
+    """The functions (besides + - * / and squares) whose value numpy's ``on_columns`` and the
+    traced form's ``math`` (libm) give alike: abs and sqrt (correctly rounded by both), and sin
+    and cos where a probe finds numpy's equal to libm's on this machine (a numpy with its own
+    vectorised sine would differ in the last bit on some percent of values: then they are left
+    out, and the separation keeps the array form)."""
     probe = np.linspace(-40.0, 40.0, 4001)
-    alike = {"sqrt", "abs"}  # correctly rounded by both
+    alike = {"sqrt", "abs"}
     for name in ("sin", "cos"):
         ours = np.array([getattr(math, name)(v) for v in probe.tolist()])
         if np.array_equal(getattr(np, name)(probe), ours):
