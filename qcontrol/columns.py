@@ -38,6 +38,7 @@ class ColumnForm(Protocol):
     """
 
     expm1: Callable[[Column], Column]  # exp(x) - 1, elementwise
+    maximum: Callable[[Column, Column], Column]  # numpy's maximum (NaN where either is), elementwise
 
     def column(self, values: Parameter | list[float]) -> Column:
         """A parameter, one number for every copy or per-copy values (a ``(batch,)`` array or a
@@ -98,6 +99,7 @@ class ArrayForm:
     stays a number, which numpy broadcasts)."""
 
     expm1 = staticmethod(np.expm1)
+    maximum = staticmethod(np.maximum)
 
     def column(self, values: Parameter | list[float]) -> Column:
         return np.array(values, dtype=float) if type(values) is list else values

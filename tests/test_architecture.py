@@ -224,8 +224,9 @@ def _members(protocol: type) -> set[str]:
     (NativeStepping, {"native_stepper"}),
     (Quantizer, {"max_error", "__call__"}),
     (ColumnIO, {"observe", "step"}),
-    # (program: a program of shared trees in the form, the tuning-function law's design)
-    (ColumnForm, {"expm1", "column", "terms", "program", "combination", "columns", "array"}),
+    # (program: a program of shared trees in the form, the tuning-function law's design; maximum:
+    # the bound ratios of (37)-(43), traced into a compiled batch's folds)
+    (ColumnForm, {"expm1", "maximum", "column", "terms", "program", "combination", "columns", "array"}),
     (BatchLaw, {"state_name", "state_size", "copies", "coordinates", "initial_state", "control", "advancer",
                 "constants", "diagnostics"}),
     (AnyColumnForm, {"advancer_in"}),

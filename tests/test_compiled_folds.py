@@ -16,7 +16,7 @@ import qcontrol.engine.retention as retention
 from qcontrol import error_rate
 from qcontrol.assembly import assemble
 from qcontrol.controller.proposed import PaperLaw
-from qcontrol.engine import ClosedLoop, compiled_folds, reductions
+from qcontrol.engine import ClosedLoop, compiled_folds, reductions, signals
 from qcontrol.scenario import load_scenario
 
 
@@ -109,3 +109,50 @@ def test_folded_values_change_with_their_one_definition(monkeypatch) -> None:
         assert new["max_abs_z1_last_half"] == 1.5 * old["max_abs_z1_last_half"]
         assert new["diagnostics"]["max"][0] == pytest.approx(3.0 * old["diagnostics"]["max"][0], rel=1e-12)
     assert any(after[i].values["error_rate"] != before[i].values["error_rate"] for i in kept)
+
+
+def _folded_names(scs: list, monkeypatch) -> set[str]:
+    """The reductions the compiled batch folded in its loop."""
+    names: set[str] = set()
+    merge = compiled_folds.Folds.merge
+
+    def spy(self, *args):  # noqa: ANN001, ANN202
+        names.update(fold.name for fold, _ in self.folded)
+        return merge(self, *args)
+
+    monkeypatch.setattr(compiled_folds.Folds, "merge", spy)
+    ClosedLoop(dataclasses.replace(assemble(scs, "ode").spec, record="metrics")).run()
+    monkeypatch.setattr(compiled_folds.Folds, "merge", merge)
+    return names
+
+
+def test_the_separation_is_folded_from_its_one_definition(monkeypatch) -> None:
+    """The bound ratios and the smallest r of (37)-(43) are folded in the loop (Example 2's terms:
+    squares, sin, cos), traced from the one definition the array form evaluates: changed there,
+    both change alike."""
+    scs = _variants("example2")
+    assert {"bound_constants", "smallest_r"} <= _folded_names(scs, monkeypatch)
+    before, _ = _metrics(scs, monkeypatch, compiled=True)
+    ratios, bounds = signals.bound_ratios, signals.bounds
+    monkeypatch.setattr(signals, "bound_ratios", lambda *a: [v * 2.0 for v in ratios(*a)])
+    monkeypatch.setattr(signals, "bounds", lambda *a: [v + 0.5 for v in bounds(*a)])
+    merged = _same_metrics(scs, monkeypatch)
+    assert any(merged)
+    after, _ = _metrics(scs, monkeypatch, compiled=True)
+    kept = [i for i, run in enumerate(after) if not run.diverged]
+    assert kept
+    for i in kept:
+        old, new = before[i].values, after[i].values
+        np.testing.assert_array_equal(new["smallest_r"], old["smallest_r"] + 0.5)
+        assert not np.array_equal(new["bound_constants"], old["bound_constants"])
+
+
+def test_a_term_whose_numpy_value_may_differ_is_reduced_by_the_array_form(monkeypatch) -> None:
+    """A cube (numpy's power and libm's pow differ in the last bit on some values) or a
+    hyperbolic tangent: the separation stays the array form's, the other reductions are folded."""
+    for term in ("x1**3", "tanh(x1)"):
+        scs = _variants("example2", (f'plant.phi=["x2", "x2**2*cos(x1)", "{term}"]',))
+        names = _folded_names(scs, monkeypatch)
+        assert "max_abs_u" in names and not {"bound_constants", "smallest_r"} & names
+    assert {"sin", "cos", "sqrt", "abs"} >= signals.same_functions() >= {"sqrt", "abs"}
+

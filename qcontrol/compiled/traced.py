@@ -336,6 +336,8 @@ def _maximum(a: Value, b: Value) -> Value:
 
 
 def _numpy_of_two(name: str, a: Value, b: Value) -> Value:
+    """numpy's function ``name`` of two values: its number where neither is a symbol, else its
+    call written in the trace."""
     if not isinstance(a, Symbol) and not isinstance(b, Symbol):
         return float(getattr(np, name)(a, b))
     trace = current()

@@ -79,10 +79,11 @@ from .retention import MetricsRecord
 from .spec import RunSpec
 
 # the functions whose compiled form gives Python's math numbers (numba 0.68, SVML off: 1.6 million
-# values each, special ones included, equal to the last bit; pow with its exponent opaque to LLVM)
+# values each, special ones included, equal to the last bit; pow with its exponent opaque to LLVM;
+# np.maximum: exact, NaN where either side is, as numpy's)
 SAME_AS_MATH = frozenset({"math.sin", "math.cos", "math.tan", "math.sqrt", "math.exp", "math.expm1",
                           "math.log", "math.tanh", "math.fabs", "math.isfinite", "math.isinf", "math.nan",
-                          "math.pow", "np.floor", "np.cbrt"})
+                          "math.pow", "np.floor", "np.cbrt", "np.maximum"})
 _CALLS = re.compile(r"\b(?:math|np)\.\w+")
 
 

@@ -17,6 +17,11 @@ rows or had stopped before it; a block in which some copy stops (or in which a t
 a refusal, where the array form takes numpy's answer) is reduced by the array form, as before,
 for every copy (the compiled partials are dropped). A reduction whose values cannot be traced
 (a derivation with numpy calls: an actuator's clipping; ...) is always reduced by the array form.
+The separation's bounding functions and bound ratios (37)-(43) are traced from the functions the
+array form evaluates them with (:func:`~.signals.bounds`, :func:`~.signals.bound_ratios`), where
+the traced evaluation (``math``) gives numpy's numbers to the last bit: sums, products, quotients,
+squares, abs, sqrt, sin and cos (:func:`~.signals.traced_separation`; a cube, an exponential keep
+the array form, whose numpy power and exp differ from libm's in the last bit on some values).
 The Lemma 2 errors' matrix products, which numpy hands to BLAS, are not traced: their own fold
 (:class:`~.lemma2.Lemma2Largest`) evaluates them by the recursion (31)-(34) and notes the
 rows that may hold a copy's largest, which the merge recomputes as the copy's run alone does.
@@ -33,8 +38,8 @@ from .. import error_rate
 from ..compiled import JIT
 from ..compiled.traced import Row, Symbol, Trace, TracedForm, recording
 from .lemma2 import Lemma2Largest
-from .reductions import DiagnosticValues, ErrorRate, Reduction
-from .signals import SignalContext, derive, needed
+from .reductions import BoundConstants, DiagnosticValues, ErrorRate, Reduction, SmallestBound
+from .signals import SignalContext, derive, needed, traced_separation
 
 # the error rate's values where nothing is folded: of the layout of ErrorRateStream.values (stored
 # run after run), so that the generated loop is compiled for one type of arrays
@@ -72,6 +77,7 @@ class Folds:
         self.enter: list[str] = []  # lines before a copy's rows, and before the loop returns
         self.leave: list[str] = []
         start: list[float] = []
+        self.separation: dict[str, list[Any]] | None = None  # r and the bound ratios of a row, traced
         with recording(trace), trace.refusing("odd[b] = True"):
             t = trace.assign(f"k * {trace.constant(dt)}").text  # the row's instant, as TimeGrid's
             self.every += trace.taken()
@@ -101,8 +107,7 @@ class Folds:
         self.others = [f for f in reductions if all(f is not g for g, _ in self.folded)]
         self.reset()
 
-    @staticmethod
-    def traced(fold: Reduction, context: SignalContext, law: Any, form: TracedForm, n: int, m: int,
+    def traced(self, fold: Reduction, context: SignalContext, law: Any, form: TracedForm, n: int, m: int,
                q: list[str]) -> list[Any]:
         """The values ``fold`` folds at a row, recorded from their own definitions."""
         block = row_block(n, m, q)
@@ -114,6 +119,10 @@ class Folds:
             return fold.row_values(values)
         if isinstance(fold, Lemma2Largest):
             return fold.traced_values(block, context.coordinates)
+        if isinstance(fold, BoundConstants | SmallestBound):  # (r traced once for both: the first's lines)
+            if self.separation is None:
+                self.separation = traced_separation(block, context, form)
+            return fold.row_values(self.separation[fold.signal])
         derive(block, context, needed(fold.needs()))
         values = fold.row_values(fold.values(block))
         if not all(isinstance(v, Symbol | float) for v in values):

@@ -18,7 +18,7 @@ from .reductions import Chunk, Constant, MetricSettings, Reduction
 # computes them: every value not recomputed is within SLACK * s of that rows' exact value, with s the
 # row's largest |reading|, |q|, |y_d^(j)| times the coordinates' coefficient size (lemma2_slack).
 SLACK = 2.0 ** -40  # a bound on the rounding of either evaluation, relative to s (about 2^13 times it)
-CANDIDATES = 64  # rows a compiled fold notes per copy and block; past it the block is the array form's
+CANDIDATES = 256  # rows a compiled fold notes per copy and block; past it the block is the array form's
 
 
 def lemma2_slack(coordinates: Any) -> float:

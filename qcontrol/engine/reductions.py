@@ -370,6 +370,25 @@ class BoundConstants(Reduction):
     def value(self, b: int) -> np.ndarray:
         return self.largest[b].copy()
 
+    # per term its largest ratio (a value not finite counts as Inf); the values are the ratios
+    # traced from their own definition (qcontrol.engine.signals.traced_separation)
+    @property
+    def partials(self) -> tuple[float, ...]:  # type: ignore[override]
+        return (-math.inf,) * self.largest.shape[1]
+
+    def row_values(self, values: Any) -> list[Any]:
+        return list(values)
+
+    def fold_lines(self, values: list[str], slot: int, t: str, constant: Constant) -> list[str]:
+        lines = []
+        for i, value in enumerate(values):
+            lines += [f"if not {value} - {value} == 0.0:", f"    fp[{slot + i}] = {constant(math.inf)}",
+                      f"elif {value} > fp[{slot + i}]:", f"    fp[{slot + i}] = {value}"]
+        return lines
+
+    def merge(self, copies: np.ndarray, partials: np.ndarray) -> None:
+        self.largest[copies] = np.maximum(self.largest[copies], partials[copies])
+
 
 class DiagnosticValues(Reduction):
     """A law's diagnostics over its control samples before a divergence: per column the largest
@@ -447,3 +466,21 @@ class SmallestBound(Reduction):
 
     def value(self, b: int) -> np.ndarray:
         return self.smallest[b].copy()
+
+    # per term its smallest value (NaN skipped: never smaller); the values are the bounding
+    # functions traced from their own definition (qcontrol.engine.signals.traced_separation)
+    @property
+    def partials(self) -> tuple[float, ...]:  # type: ignore[override]
+        return (math.inf,) * self.smallest.shape[1]
+
+    def row_values(self, values: Any) -> list[Any]:
+        return list(values)
+
+    def fold_lines(self, values: list[str], slot: int, t: str, constant: Constant) -> list[str]:
+        lines = []
+        for i, value in enumerate(values):
+            lines += [f"if {value} < fp[{slot + i}]:", f"    fp[{slot + i}] = {value}"]
+        return lines
+
+    def merge(self, copies: np.ndarray, partials: np.ndarray) -> None:
+        self.smallest[copies] = np.minimum(self.smallest[copies], partials[copies])

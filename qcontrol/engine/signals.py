@@ -15,15 +15,19 @@ signals above it in the table.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+import math
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from functools import cache
 from typing import Any
 
 import numpy as np
 
+from ..columns import ARRAYS, ColumnForm
 from ..controller.backstepping import Backstepping
 from ..controller.law import Diagnostic
 from ..expr import Expression
+from ..expr.operations import POWER
 from ..plants.base import applied_as_commanded
 from ..quantizers import SensorQuantizer
 from .lemma2 import Lemma2Largest
@@ -144,30 +148,90 @@ def _e_z(block: Block, ctx: SignalContext) -> np.ndarray:
     return np.abs(ctx.coordinates.errors(block["x_meas"], block["yd"]) - block["zbar"])
 
 
-def _r(block: Block, ctx: SignalContext) -> np.ndarray:
-    """The bounding functions ``r_i(x_q)`` of (37)-(43) at the quantized reading."""
-    x_q = block["x_q"]
-    out = np.empty(x_q.shape[:-1] + (ctx.terms,))
-    if ctx.separation is None:
-        return out
-    at_q = tuple(np.moveaxis(x_q, -1, 0))
-    for i, r in enumerate(ctx.separation.r):
-        out[..., i] = r.on_columns(at_q)
+def bounds(separation: Separation, form: ColumnForm, at_q: Sequence[Any]) -> list[Any]:
+    """The bounding functions ``r_i(x_q)`` of (37)-(43), one column each, from the columns of the
+    quantized reading (any form: arrays for a block of rows, symbols for the compiled folds)."""
+    return form.terms(separation.r)(at_q)
+
+
+def bound_ratios(separation: Separation, form: ColumnForm, at_x: Sequence[Any], at_q: Sequence[Any],
+                 r: Sequence[Any]) -> list[Any]:
+    """``|term_i| / r_i(x_q)`` with the term at the true state and at x_q (the centre of the
+    quantization cell (37)-(43) must bound), whichever is larger; NaN or Inf where either is."""
+    terms = form.terms(separation.terms)
+    return [form.maximum(abs(a), abs(b)) / ri for a, b, ri in zip(terms(at_x), terms(at_q), r, strict=True)]
+
+
+def _side_by_side(columns: list[Any], like: np.ndarray, width: int) -> np.ndarray:
+    """Columns as the last axis of an array shaped as ``like``'s rows and copies."""
+    out = np.empty(like.shape[:-1] + (width,))
+    for i, column in enumerate(columns):
+        out[..., i] = column
     return out
+
+
+def _columns(values: np.ndarray) -> tuple[np.ndarray, ...]:
+    return tuple(np.moveaxis(values, -1, 0))
+
+
+def _r(block: Block, ctx: SignalContext) -> np.ndarray:
+    """The bounding functions ``r_i(x_q)`` of (37)-(43) at the quantized reading (:func:`bounds`)."""
+    x_q = block["x_q"]
+    if ctx.separation is None:
+        return _side_by_side([], x_q, ctx.terms)
+    return _side_by_side(bounds(ctx.separation, ARRAYS, _columns(x_q)), x_q, ctx.terms)
 
 
 def _bound_ratio(block: Block, ctx: SignalContext) -> np.ndarray:
-    """``|term_i| / r_i(x_q)`` with the term at the true state and at x_q (the centre of the
-    quantization cell (37)-(43) must bound), whichever is larger; NaN or Inf where either is."""
-    x, x_q, r = block["x"], block["x_q"], block["r"]
-    out = np.empty(x.shape[:-1] + (ctx.terms,))
+    """The ratios of :func:`bound_ratios` at every row."""
+    x = block["x"]
     if ctx.separation is None:
-        return out
-    at_x, at_q = tuple(np.moveaxis(x, -1, 0)), tuple(np.moveaxis(x_q, -1, 0))
-    for i, term in enumerate(ctx.separation.terms):
-        size = np.maximum(np.abs(term.on_columns(at_x)), np.abs(term.on_columns(at_q)))
-        out[..., i] = size / r[..., i]
-    return out
+        return _side_by_side([], x, ctx.terms)
+    ratios = bound_ratios(ctx.separation, ARRAYS, _columns(x), _columns(block["x_q"]), _columns(block["r"]))
+    return _side_by_side(ratios, x, ctx.terms)
+
+
+@cache
+def same_functions() -> frozenset[str]:
+    """The functions (besides + - * / and squares) whose value numpy's ``on_columns`` and the
+    traced form's ``math`` (libm) give alike: abs and sqrt (correctly rounded by both), and sin
+    and cos where a probe finds numpy's equal to libm's on this machine (a numpy with its own
+    vectorised sine would differ in the last bit on some percent of values: then they are left
+    out, and the separation keeps the array form)."""
+    probe = np.linspace(-40.0, 40.0, 4001)
+    alike = {"sqrt", "abs"}
+    for name in ("sin", "cos"):
+        ours = np.array([getattr(math, name)(v) for v in probe.tolist()])
+        if np.array_equal(getattr(np, name)(probe), ours):
+            alike.add(name)
+    return frozenset(alike)
+
+
+def _traced_alike(node: Any) -> bool:
+    """Whether the tree's traced evaluation (math) gives numpy's value (:meth:`Expression.on_columns`)."""
+    operation = getattr(node, "operation", None)
+    if operation is None:  # a number or a variable
+        return True
+    if operation is POWER:  # numpy squares a power 2 (np.square); other powers differ from math.pow
+        exponent_two = node.operands[1].constant == 2.0
+        return exponent_two and _traced_alike(node.operands[0])
+    if not operation.is_operator and operation.arity != 0 and operation.name not in same_functions():
+        return False
+    return all(_traced_alike(operand) for operand in node.operands)
+
+
+def traced_separation(block: Mapping[str, Any], ctx: SignalContext, form: ColumnForm) -> dict[str, list[Any]]:
+    """The signals ``r`` and ``bound_ratio`` of one row of one copy in ``form`` (the compiled
+    folds trace them: :mod:`.compiled_folds`), by :func:`bounds` and :func:`bound_ratios`. Raises
+    TypeError where the traced evaluation might not give numpy's numbers to the last bit (a
+    power other than a square, exp, log, ...)."""
+    if ctx.separation is None:
+        return {"r": [], "bound_ratio": []}
+    if not all(_traced_alike(e._tree) for e in (*ctx.separation.terms, *ctx.separation.r)):
+        raise TypeError("a separation term whose numpy value may differ from math's")
+    at_x, at_q = tuple(block["x"]), tuple(block["x_q"])
+    r = bounds(ctx.separation, form, at_q)
+    return {"r": r, "bound_ratio": bound_ratios(ctx.separation, form, at_x, at_q, r)}
 
 
 def _quantization_error(block: Block, ctx: SignalContext) -> np.ndarray:
