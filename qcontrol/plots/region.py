@@ -1,7 +1,6 @@
 """The region-of-attraction maps: one panel per law (columns) and per measured region (rows: a
 scenario at a control period), on the same axes, the scenario's x(0) and the box |x_i| <= 10
-marked. The maps come as plain data (:class:`~qcontrol.region.study.RegionMap`), made by
-:mod:`qcontrol.region`."""
+marked. The maps come as plain data (:class:`RegionMap`), made by :mod:`qcontrol.region`."""
 
 from __future__ import annotations
 
@@ -9,6 +8,7 @@ import os
 import re
 import textwrap
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -16,12 +16,29 @@ from matplotlib.colors import BoundaryNorm, ListedColormap
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch, Rectangle
 
-from ..region.study import RegionMap
 from .common import new_figure, save
 
 OUTCOME_COLORS = {"bounded": "#BFE6D5", "diverged": "#D55E00", "lemma2": "#E69F00"}  # Okabe-Ito based
 PANEL_CHARACTERS = 96  # characters of an 8-point title across the figure's width: a panel's share of them
 OUTCOME_LABELS = {"bounded": "bounded, Lemma 2 holds", "diverged": "diverged", "lemma2": "Lemma 2 violated"}
+
+
+@dataclass(frozen=True)
+class RegionMap:
+    """One panel: the grid values of its two axes, each start's outcome index into ``outcomes``
+    (shape ``(len(ys), len(xs))``), the largest K T of each run (same shape; NaN where the law
+    declares none), the scenario's x(0) on these axes, the half-width of the box drawn, its title
+    and labels."""
+
+    xs: np.ndarray
+    ys: np.ndarray
+    codes: np.ndarray
+    gains: np.ndarray
+    marker: tuple[float, float]
+    box: float
+    title: str
+    xlabel: str
+    ylabel: str
 
 
 def _edges(values: np.ndarray) -> np.ndarray:

@@ -19,7 +19,7 @@ import tomllib
 from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -34,27 +34,12 @@ from ..summary import Summary
 from ..sweep.grid import MAX_RUNS
 from ..sweep.runs import RunsDone, chunks_of, sweep_summaries
 
+if TYPE_CHECKING:
+    from ..plots.region import RegionMap
+
 OUTCOMES = ("bounded", "diverged", "lemma2")  # how a run from one point ended (see classify)
 BOX = 10.0  # the box |x_i(0)| <= BOX the study reports on (the paper's examples start well inside)
 DIRECTIONS = ((1, 0), (0, 1), (1, 1), (1, -1), (-1, 0), (0, -1), (-1, -1), (-1, 1))
-
-
-@dataclass(frozen=True)
-class RegionMap:
-    """One panel: the grid values of its two axes, each start's outcome index into ``outcomes``
-    (shape ``(len(ys), len(xs))``), the largest K T of each run (same shape; NaN where the law
-    declares none), the scenario's x(0) on these axes, the half-width of the box drawn, its title
-    and labels."""
-
-    xs: np.ndarray
-    ys: np.ndarray
-    codes: np.ndarray
-    gains: np.ndarray
-    marker: tuple[float, float]
-    box: float
-    title: str
-    xlabel: str
-    ylabel: str
 
 
 @dataclass(frozen=True)
@@ -276,7 +261,9 @@ class Region:
         return out
 
     def maps(self) -> list[RegionMap]:
-        """A map per law for :func:`qcontrol.plots.region.fig_region` (plain data: no matplotlib)."""
+        """A map per law for :func:`qcontrol.plots.region.fig_region`."""
+        from ..plots.region import RegionMap  # matplotlib: imported only when a figure is drawn
+
         g = self.grid
         a, b = g.axes
         period = self.scenario.simulation.period

@@ -16,6 +16,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from ..plots.region import fig_region
 from ..region import BOX, OUTCOMES, LawSpec, Region, RegionGrid, measure_region, parse_law
 from ..summary import Summary
 from ..sweep import sweep_summaries
@@ -91,8 +92,6 @@ def write_region_study(maps: Sequence[Sequence[Any]], path: Path) -> Path:
     :meth:`~qcontrol.region.Region.maps`), a map per law."""
     title = (f"Region study: {RESOLUTION} x {RESOLUTION} starts in |x_i(0)| <= {BOX:g} per map (coarse; "
              "qcontrol region draws finer maps), ODE")
-    from ..plots.region import fig_region  # matplotlib: imported only when a figure is drawn
-
     return fig_region(maps, OUTCOMES, path, title)
 
 

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import plots
 from ..api import observer_for, recording_for
 from ..assembly import Assembly, assemble, runnable_backend
 from ..controller import lemma2_L
@@ -56,6 +57,7 @@ from .report import (
     table1,
     table1_markdown,
 )
+from .robustness_figures import fig_margins, fig_robustness
 from .robustness_study import EXAMPLES, LAWS, Running, default_workers, runs_alone, study_law
 from .robustness_study import started as robustness_started
 from .sensor_study import fig_sensors, log_rows, sensor_markdown, sensor_record, sensor_runs, sensor_study
@@ -204,19 +206,9 @@ def _write_all(rep: Reproduction, o: Path, command: str, workers: int | None, qu
                                    side))
     forked = (workers or default_workers()) > 1  # (figures drawn apart too, by forked workers)
     with hardware as running, Apart(o, forked) as apart:
-        _load_figures()
         table = _write_runs(rep, o, command, running, apart)
         apart.wait()
         return table
-
-
-def _load_figures() -> None:
-    """matplotlib and the figures' modules, loaded here once the study's workers are forked: they
-    never draw, so the load (about a third of a second of CPU) runs beside their first runs rather
-    than before them, and the figure workers :class:`~.drawing.Apart` forks later find it loaded."""
-    from .. import plots  # noqa: F401
-    from ..plots import region, tradeoff  # noqa: F401
-    from . import robustness_figures  # noqa: F401
 
 
 def _write_runs(rep: Reproduction, o: Path, command: str, running: Running | None, apart: Apart) -> dict:
@@ -272,7 +264,6 @@ def _table1(o: Path, backend: str, ex2: Run, ex2_twin: Run | None, base: Run, ba
     Markdown as entries not from the paper (:func:`~.report.beyond_the_paper`); table1.png stays
     the paper's two methods. Runs of another horizon than the paper's (``duration``) are not
     compared with it: no difference in the json and the Markdown, no paper bars in the figure."""
-    from .. import plots
     ours = {backend: {"proposed": ex2.summary.error_rate, "comparison": base.summary.error_rate}}
     if ex2_twin is not None and base_twin is not None:
         ours["ode"] = {"proposed": ex2_twin.summary.error_rate, "comparison": base_twin.summary.error_rate}
@@ -318,8 +309,6 @@ def _robustness(o: Path, rep: Reproduction, result: Callable[[], dict], apart: A
     """The robustness study on realistic hardware (``result`` waits for the started study):
     robustness.json and its two figures (the margins' drawn by ``apart`` meanwhile: the study's
     workers are done, a core is free)."""
-    from .robustness_figures import fig_robustness
-
     robustness = result()
     rep.log(f"study: robustness done ({time.perf_counter() - rep.started:.1f} s elapsed)")
     apart.draw(partial(_margins_figure, robustness=robustness))
@@ -332,8 +321,6 @@ def _robustness(o: Path, rep: Reproduction, result: Callable[[], dict], apart: A
 
 def _margins_figure(o: Path, robustness: dict) -> None:
     """The robustness study's margins figure into ``o``."""
-    from .robustness_figures import fig_margins
-
     fig_margins(robustness, o / "study_margins.png")
 
 
@@ -379,8 +366,6 @@ def _example_figures(o: Path, ex1: tuple[Run, Run | None], ex2: tuple[Run, Run |
 
 
 def _example1_figures(o: Path, run: Run, twin: Run | None) -> None:
-    from .. import plots
-
     u = plots.EXAMPLE1_UNITS
     t = plots.PAPER_TITLES
     plots.fig_output(run.traj, o / "fig1_output.png", t[1], u)
@@ -393,8 +378,6 @@ def _example1_figures(o: Path, run: Run, twin: Run | None) -> None:
 
 
 def _example2_figures(o: Path, run: Run, twin: Run | None, base: Run) -> None:
-    from .. import plots
-
     u = plots.EXAMPLE2_UNITS
     t = plots.PAPER_TITLES
     plots.fig_compare_output(run.traj, base.traj, o / "fig5_outputs.png", t[5], u)
@@ -450,8 +433,6 @@ def _studies(rep: Reproduction, apart: Apart) -> dict:
 
 def _study_figures(o: Path, kappa: list[Summary], scale: list[Summary], variants: dict[str, list]) -> None:
     """The sensitivity studies' figures into ``o``."""
-    from .. import plots
-
     plots.fig_sensitivity(
         KAPPA_MARGINS, _rates(kappa), r"$\kappa - L$", o / "study_kappa.png",
         "Study: Example 2 error rate vs kappa - L (proposed law, ODE)",

@@ -23,6 +23,7 @@ import numpy as np
 from ..assembly import run_scenario
 from ..engine import Trajectory
 from ..metrics import LEMMA2_TOLERANCE, run_summary
+from ..plots.common import COLORS, new_figure, save
 from ..scenario import load_scenario
 from ..summary import Summary
 
@@ -142,8 +143,6 @@ def sensor_markdown(study: Mapping) -> list[str]:
 
 def fig_sensors(study: Mapping, path: str | Path) -> Path:
     """z1(t) of every row (top) and the quantization error of the angle channel (bottom)."""
-    from ..plots.common import COLORS, new_figure, save  # matplotlib: imported only when drawn
-
     fig, axes = new_figure(2, 1, sharex=True)
     top, bottom = axes[0, 0], axes[1, 0]
     for i, (row, traces) in enumerate(zip(study["rows"], study["traces"], strict=True)):
