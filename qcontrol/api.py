@@ -353,7 +353,7 @@ def video(result: Result, path: str | Path, *, fps: float = 30.0, camera: str | 
     first), ``size`` (width, height) pixels (None: 640 x 480 for MP4, 400 x 300 for GIF), with
     t, q(x1) and u overlaid; ``twin`` (a comparison's ODE run) is drawn as a
     translucent ghost. Only reads the trajectories: the runs' numbers do not change."""
-    from .render import write_video
+    from .render.video import write_video
 
     asm = result.assembly if result.assembly is not None else assemble(result.scenario, result.backend)
     request = check_video(asm, path, fps, camera, size)

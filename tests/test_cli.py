@@ -171,11 +171,16 @@ def test_compare_rrd_holds_both_runs(tmp_path, capsys):
     np.testing.assert_array_equal(dy, np.log10(np.maximum(np.abs(y - y_ode), 1e-16)))  # as log10, floored
 
 
-def test_run_without_rrd_does_not_import_rerun():
-    code = (f"import sys; from qcontrol.cli import main; main(['run', {str(EX2)!r}, '--duration', '0.01', "
-            "'-q']); print('rerun' in sys.modules)")
+def test_a_run_imports_neither_rerun_nor_mujoco_before_it_needs_them():
+    """Nor does a command import MuJoCo before a scenario with a MuJoCo model asks for it: not the
+    parser (--video's options), not a run of a scenario without one."""
+    chain3 = ROOT / "scenarios" / "chain3.toml"
+    code = (f"import sys; from qcontrol.cli import main; main(['run', {str(chain3)!r}, '--duration', '0.01', "
+            f"'-q']); print('mujoco imported', 'mujoco' in sys.modules); main(['run', {str(EX2)!r}, "
+            "'--duration', '0.01', '-q']); print('rerun imported', 'rerun' in sys.modules)")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert proc.stdout.strip().splitlines()[-1] == "False", proc.stdout + proc.stderr
+    said = [line for line in proc.stdout.splitlines() if " imported " in line]
+    assert proc.returncode == 0 and said == ["mujoco imported False", "rerun imported False"], proc.stdout
 
 
 @pytest.mark.parametrize("backend", ["ode", "mujoco"])

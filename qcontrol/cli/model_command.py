@@ -16,13 +16,15 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from .. import api
 from ..errors import shown
 from ..outputs import check_output_file
-from ..plants.mujoco.equation import ModelEquation
-from ..plants.mujoco.model_scenario import scenario_problem
 from .arguments import EXIT_OK
+
+if TYPE_CHECKING:  # reading a model imports mujoco: only the command itself does, not every qcontrol command
+    from ..plants.mujoco.equation import ModelEquation
 
 
 def add_model_parser(sub: argparse._SubParsersAction) -> None:
@@ -45,6 +47,8 @@ def add_model_parser(sub: argparse._SubParsersAction) -> None:
 
 def cmd_model(args: argparse.Namespace) -> int:
     """Print the model's equation; with ``--scenario``, check and write its scenario."""
+    from ..plants.mujoco.model_scenario import scenario_problem
+
     if args.scenario is not None:
         check_output_file(args.scenario, "--scenario", "model.toml")
     eq = api.model_equation(args.model, args.joint)

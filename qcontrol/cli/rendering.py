@@ -12,13 +12,10 @@ from .. import api
 from ..assembly import Assembly
 from ..errors import QcontrolInputError
 from ..progress import ProgressLine
-from ..render import DEFAULT_FPS
-from ..render.video import FPS_RANGE, MAX_FRAMES
+from ..render.request import DEFAULT_FPS, FPS_RANGE, MAX_FRAMES, parse_size
 
 
 def _video_size(text: str) -> tuple[int, int]:
-    from ..render.video import parse_size
-
     try:
         return parse_size(text)
     except QcontrolInputError as exc:
