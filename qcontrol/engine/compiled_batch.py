@@ -36,7 +36,9 @@ of ``x ** 0.5`` differ in the last bit). A batch whose code calls a function out
 Same fallback rules as the single compiled loop (:func:`compiled_batch`): the built-in laws only,
 the uniform quantizer only, no input quantizer, input gain b = 1, no terms in t, the sensors'
 velocity, batches of at least :data:`~.compiled_loop.MIN_ROWS` copy-rows (as a user's law's), no
-observer; the rest runs the array form. The text is cached on disk (:mod:`qcontrol.compiled.cache`).
+observer; the rest runs the array form, and so do the batches of a structure not compiled
+before until their copy-rows reach :data:`~.compiled_loop.COLD_MIN_ROWS`
+(:func:`~.compiled_loop.compile_pays`). The text is cached on disk (:mod:`qcontrol.compiled.cache`).
 """
 
 from __future__ import annotations
@@ -136,12 +138,15 @@ class CompiledBatch:
         self.parts, self.form, self.n, self.m, self.law = parts, form, n, m, law
         self.held_width = 1 + m + n  # u, the targets, zbar (a user law's: u and its sample)
 
+    def source(self, plant: NativeStepper, folds: Folds | None = None) -> str:
+        """The text of the generated batch loop for this law and plant, with ``folds``."""
+        fold, enter, leave = ([], [], []) if folds is None else (folds.lines(), folds.enter, folds.leave)
+        return batch_source(self.parts, plant, self.n, self.m, fold, enter, leave)
+
     def function(self, plant: NativeStepper, folds: Folds | None = None):  # noqa: ANN201 (a numba dispatcher)
         from ..compiled.cache import generated_module
 
-        fold, enter, leave = ([], [], []) if folds is None else (folds.lines(), folds.enter, folds.leave)
-        source = batch_source(self.parts, plant, self.n, self.m, fold, enter, leave)
-        return generated_module("batch", source).rows
+        return generated_module("batch", self.source(plant, folds)).rows
 
     def folds(self, loop: Schedule) -> Folds | None:
         """The record's reductions folded in the loop (:mod:`.compiled_folds`): a metrics record's."""
@@ -161,6 +166,8 @@ class CompiledBatch:
         if stepper is None or not same_as_math(stepper.helpers, *parts.quantize, *parts.control,
                                                *parts.advance, *fold):
             return START._replace(adaptive=adaptive)
+        if not compiled_loop.compile_pays("batch", self.source(stepper, folds), loop.grid.rows * plant.batch):
+            return START._replace(adaptive=adaptive)  # (the array form: cheaper than a compile)
         try:
             rows = self.function(stepper, folds)
         except Exception as exc:  # numba refusing a construct: the array form, said once
