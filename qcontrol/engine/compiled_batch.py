@@ -37,8 +37,9 @@ Same fallback rules as the single compiled loop (:func:`compiled_batch`): the bu
 the uniform quantizer only, no input quantizer, input gain b = 1, no terms in t, the sensors'
 velocity, batches of at least :data:`~.compiled_loop.MIN_ROWS` copy-rows (as a user's law's), no
 observer; the rest runs the array form, and so do the batches of a structure not compiled
-before until their copy-rows reach :data:`~.compiled_loop.COLD_MIN_ROWS`
-(:func:`~.compiled_loop.compile_pays`). The text is cached on disk (:mod:`qcontrol.compiled.cache`).
+before until their cost reaches :data:`~.compiled_loop.COLD_MIN_ROWS` rows of a single run's
+Python loop (:func:`array_rows`, :func:`~.compiled_loop.compile_pays`). The text is cached on
+disk (:mod:`qcontrol.compiled.cache`).
 """
 
 from __future__ import annotations
@@ -52,6 +53,7 @@ from .. import compiled as compiled_paths
 from ..compiled import CALLED, JIT
 from ..compiled.traced import TracedForm
 from ..plants.base import NativeStepper, NativeStepping
+from ..plants.ode import ChainPlant
 from ..quantizer import UniformQuantizer
 from . import compiled_loop
 from .compiled_folds import NO_VALUES, Folds, helpers
@@ -87,6 +89,15 @@ def unfolded(batch: int) -> tuple:
     """The folds' arguments of a loop that folds nothing (a full record keeps every row)."""
     return (np.zeros((batch, 0)), np.zeros((batch, 0)), np.zeros(batch, dtype=np.bool_), np.zeros(1),
             NO_VALUES, np.zeros(1, dtype=np.intp), np.zeros((1, 2)))
+
+
+def array_rows(plant: Any, rows: int) -> int:
+    """What ``rows`` rows of ``plant``'s batch cost in the array form, counted in rows of a single
+    run's Python loop (about 20 us each; :func:`~.compiled_loop.compile_pays`): on the ODE about
+    0.1 ms a row and 1 us a copy-row (5 rows, and a row per 20 copies), on MuJoCo about 20 us a
+    copy-row (a row per copy)."""
+    copies = plant.batch
+    return rows * (5 + copies // 20) if isinstance(plant, ChainPlant) else rows * copies
 
 
 class Redo(Exception):
@@ -166,7 +177,8 @@ class CompiledBatch:
         if stepper is None or not same_as_math(stepper.helpers, *parts.quantize, *parts.control,
                                                *parts.advance, *fold):
             return START._replace(adaptive=adaptive)
-        if not compiled_loop.compile_pays("batch", self.source(stepper, folds), loop.grid.rows * plant.batch):
+        source = self.source(stepper, folds)
+        if not compiled_loop.compile_pays("batch", source, array_rows(plant, loop.grid.rows)):
             return START._replace(adaptive=adaptive)  # (the array form: cheaper than a compile)
         try:
             rows = self.function(stepper, folds)

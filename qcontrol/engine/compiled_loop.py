@@ -57,7 +57,7 @@ from .spec import RunSpec
 # that has not started numba yet (a run from the command line) only a single run of
 # COLD_MIN_ROWS rows pays for the start: there MuJoCo's passive callback stays in Python too.
 # A structure not compiled before compiles once its runs reach COLD_MIN_ROWS rows (a batch's
-# copy-rows), where Python has cost about what the compile does; until then they keep Python.
+# array form counted in such rows), where Python has cost about what the compile does.
 MIN_ROWS = 5000
 COLD_MIN_ROWS = 50_000
 DONE, CONTROL_REFUSED, STEP_REFUSED = 0, 1, 2  # what a call returns, with the row it stopped at
@@ -335,21 +335,22 @@ def numba_pays(rows: int, batch: int) -> bool:
     return batch != 1 or "numba" in sys.modules or rows >= COLD_MIN_ROWS
 
 
-def compile_pays(kind: str, source: str, copy_rows: int) -> bool:
-    """Whether a run of ``copy_rows`` rows (a batch's: rows times copies) takes the generated
-    module ``source`` of ``kind`` (:mod:`qcontrol.compiled.cache`): where it was compiled before
-    (loaded in a fraction of a second), or where the rows run without it so far, this run's
-    included, reach :data:`COLD_MIN_ROWS`, about as much Python (or array form) as a compile
-    costs. Else the run keeps Python, which costs less than the compile, and its rows are counted
-    in the cache folder: whatever the runs to come, a structure costs at most about twice what
+def compile_pays(kind: str, source: str, rows: int) -> bool:
+    """Whether a run of ``rows`` rows (a batch's cost in rows of a single run's Python loop:
+    :func:`~.compiled_batch.array_rows`) takes the generated module ``source`` of ``kind``
+    (:mod:`qcontrol.compiled.cache`): where it was compiled before (loaded in a fraction of a
+    second), or where the rows run without it so far, this run's included, reach
+    :data:`COLD_MIN_ROWS`, about as much Python (or array form) as a compile costs. Else the run
+    keeps Python, which costs less than the compile, and its rows are counted in the cache
+    folder: whatever the runs to come, a structure costs at most about twice what
     the best choice in hindsight would (docs/architecture.md, 'The compiled loop')."""
     from ..compiled import cache
 
     ran = cache.uncompiled_rows(kind, source)
-    if ran is None or ran + copy_rows >= COLD_MIN_ROWS:
+    if ran is None or ran + rows >= COLD_MIN_ROWS:
         return True
     try:
-        cache.count_uncompiled(kind, source, ran + copy_rows)
+        cache.count_uncompiled(kind, source, ran + rows)
     except OSError:  # a cache folder that cannot be written: compiling says why, once
         return True
     return False
