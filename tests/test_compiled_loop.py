@@ -205,6 +205,35 @@ def test_a_process_without_numba_compiles_only_long_runs(monkeypatch) -> None:
     assert compiled_loop.compiled_loop(dataclasses.replace(spec, grid=TimeGrid.of(50.0, 1e-3))) is not None
 
 
+def test_a_structure_not_compiled_before_compiles_once_its_runs_reach_cold_min_rows(monkeypatch,
+                                                                                    tmp_path) -> None:
+    """A structure not compiled before is compiled only once the rows run without it reach
+    COLD_MIN_ROWS (about a compile's cost in Python): a shorter run keeps Python, compiles nothing
+    and counts its rows in the cache folder; a structure compiled before is taken at once."""
+    import numba  # noqa: F401 (a process that has started numba: numba_pays lets short runs compile)
+
+    from qcontrol.compiled import cache
+
+    monkeypatch.setenv("QCONTROL_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(cache, "_LOADED", {k: v for k, v in cache._LOADED.items()  # no loop loaded here
+                                           if not k.startswith("qcontrol_loop_")})
+    monkeypatch.setattr(compiled_loop, "COLD_MIN_ROWS", 1000)
+    sc = _scenario("example2")  # 401 rows: the compiled loop's, were it compiled before
+    for _ in range(2):
+        loop, _ = _loop(sc, "ode")
+        assert loop.compiled is not None and loop.handover == 0  # all of it in Python
+    counts = list(tmp_path.glob("qcontrol_loop_*.rows"))
+    assert len(counts) == 1 and counts[0].read_text() == "802"
+    assert not list(tmp_path.glob("qcontrol_loop_*.py")) and not list(tmp_path.glob("__pycache__/*loop*"))
+    source = loop.compiled.source(loop.plant.native_stepper(loop.grid.dt, loop.grid.rows))
+    assert cache.uncompiled_rows("loop", source) == 802
+    assert not compiled_loop.compile_pays("loop", source, 197)  # 999 rows without it
+    assert compiled_loop.compile_pays("loop", source, 1)  # 1000: compiled
+    cache.generated_module("loop", source)  # compiled (numba compiles at the first call; taken from now on)
+    assert cache.uncompiled_rows("loop", source) is None and not counts[0].exists()
+    assert compiled_loop.compile_pays("loop", f"{source}# another\n", 1000)  # pays for its compile at once
+
+
 def test_a_metrics_run_reduces_the_same_rows(monkeypatch) -> None:
     sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=3.2"])
     (loop, compiled), (_, python) = _both(monkeypatch, sc, "mujoco", record="metrics")

@@ -16,7 +16,7 @@ from conftest import ROOT
 import qcontrol
 from qcontrol.assembly import build_law, build_plant, build_quantizer, build_reference
 from qcontrol.controller.user import UserLaw
-from qcontrol.engine import RunSpec
+from qcontrol.engine import RunSpec, compiled_loop
 from qcontrol.engine.compiled_batch import CompiledBatch
 from qcontrol.engine.compiled_loop import TracedParts
 from qcontrol.engine.compiled_user import CompiledUserBatch, CompiledUserLoop, column_parts
@@ -63,6 +63,7 @@ def _loop(offsets: list[float], duration: float, monkeypatch: pytest.MonkeyPatch
           compiled: bool) -> ClosedLoop:
     """The closed loop of Example 1 (ODE) with the law, one copy per offset, from spread starts."""
     monkeypatch.setenv("QCONTROL_COMPILE", "1" if compiled else "0")
+    monkeypatch.setattr(compiled_loop, "COLD_MIN_ROWS", 0)  # compiled even where the structure is new
     base = qcontrol.load_scenario("example1", {"controller.kind": "root-integral",
                                                "simulation.duration": duration})
     scs = [base.with_overrides({"controller.offset": o, "plant.x0": [0.3 - 0.1 * i, 0.2]})
@@ -208,6 +209,7 @@ def _columns_loop(starts: list, record: str, monkeypatch: pytest.MonkeyPatch, co
 
     laws_by_hand.register()
     monkeypatch.setenv("QCONTROL_COMPILE", "1" if compiled else "0")
+    monkeypatch.setattr(compiled_loop, "COLD_MIN_ROWS", 0)  # compiled even where the structure is new
     base = qcontrol.load_scenario("example2", {"simulation.duration": 2.0})
     scs = [base.with_overrides(laws_by_hand.overrides(base, "columns") | {"plant.x0": x0}) for x0 in starts]
     sc, batch = scs[0], len(scs)

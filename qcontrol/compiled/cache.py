@@ -46,25 +46,60 @@ def versions() -> str:
             f"mujoco {mujoco.__version__} qcontrol {__version__}")
 
 
+def _name(kind: str, source: str) -> str:
+    """The module name of ``source``: its kind and a hash of the text and the versions."""
+    key = hashlib.sha256(f"# {versions()}\n{source}".encode()).hexdigest()[:24]
+    return f"qcontrol_{kind}_{key}"
+
+
+def _atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` atomically: a concurrent process sees the old file or the new one."""
+    with tempfile.NamedTemporaryFile("w", dir=path.parent, suffix=".tmp", delete=False) as tmp:
+        tmp.write(text)
+    os.replace(tmp.name, path)
+
+
 def generated_module(kind: str, source: str) -> ModuleType:
     """The module of ``source`` (written to the cache folder once, then imported from there)."""
-    key = hashlib.sha256(f"# {versions()}\n{source}".encode()).hexdigest()[:24]
-    name = f"qcontrol_{kind}_{key}"
+    name = _name(kind, source)
     if name in _LOADED:
         return _LOADED[name]
     folder = cache_folder()
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{name}.py"
     if not path.is_file() or path.read_text() != source:
-        with tempfile.NamedTemporaryFile("w", dir=folder, suffix=".tmp", delete=False) as tmp:
-            tmp.write(source)
-        os.replace(tmp.name, path)  # atomic: a concurrent process sees the old file or the new one
+        _atomic(path, source)
+    (folder / f"{name}.rows").unlink(missing_ok=True)  # compiled from now on (uncompiled_rows)
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module  # numba's cache pickles references to the module by name
     spec.loader.exec_module(module)
     _LOADED[name] = module
     return module
+
+
+def uncompiled_rows(kind: str, source: str) -> int | None:
+    """The rows run so far without the module of ``source`` (0 when it was never met), kept in the
+    cache folder by :func:`count_uncompiled`; None where it was compiled before (loaded in this
+    process, or its text in the cache folder: numba's code beside it). Nothing is compiled or
+    imported to tell."""
+    name = _name(kind, source)
+    if name in _LOADED:
+        return None
+    folder = cache_folder()
+    try:
+        return int((folder / f"{name}.rows").read_text())
+    except FileNotFoundError:
+        return None if (folder / f"{name}.py").is_file() else 0
+    except ValueError:  # (not a count: counted afresh)
+        return 0
+
+
+def count_uncompiled(kind: str, source: str, rows: int) -> None:
+    """Keep ``rows``, the rows run so far without the module of ``source``, in the cache folder."""
+    folder = cache_folder()
+    folder.mkdir(parents=True, exist_ok=True)
+    _atomic(folder / f"{_name(kind, source)}.rows", str(rows))
 
 
 def shared(kind: str, source: str) -> str:

@@ -42,7 +42,10 @@ of ``x ** 0.5`` differ in the last bit). A batch whose code calls a function out
 Same fallback rules as the single compiled loop (:func:`compiled_batch`): the built-in laws only,
 the uniform quantizer only, no input quantizer, input gain b = 1, no terms in t, the sensors'
 velocity, batches of at least :data:`~.compiled_loop.MIN_ROWS` copy-rows (as a user's law's), no
-observer; the rest runs the array form. The text is cached on disk (:mod:`qcontrol.compiled.cache`).
+observer; the rest runs the array form, and so do the batches of a structure not compiled
+before until their cost reaches :data:`~.compiled_loop.COLD_MIN_ROWS` rows of a single run's
+Python loop (:func:`array_rows`, :func:`~.compiled_loop.compile_pays`). The text is cached on
+disk (:mod:`qcontrol.compiled.cache`).
 """
 
 from __future__ import annotations
@@ -96,6 +99,15 @@ def unfolded(batch: int) -> tuple:
     """The folds' arguments of a loop that folds nothing (a full record keeps every row)."""
     return (np.zeros((batch, 0)), np.zeros((batch, 0)), np.zeros(batch, dtype=np.bool_), np.zeros(1),
             NO_VALUES, np.zeros(1, dtype=np.intp), np.zeros((1, 2)))
+
+
+def array_rows(plant: Any, rows: int) -> int:
+    """What ``rows`` rows of ``plant``'s batch cost in the array form, counted in rows of a single
+    run's Python loop (about 20 us each; :func:`~.compiled_loop.compile_pays`): on the ODE about
+    0.1 ms a row and 1 us a copy-row (5 rows, and a row per 20 copies), on MuJoCo about 20 us a
+    copy-row (a row per copy)."""
+    copies = plant.batch
+    return rows * (5 + copies // 20) if isinstance(plant, ChainPlant) else rows * copies
 
 
 class Redo(Exception):
@@ -271,16 +283,22 @@ def batch_source(parts: TracedParts, plant: NativeStepper, n: int, m: int, fold:
 class CompiledBatch:
     """The compiled form of a batch's law and quantizer; :meth:`run` adds the ODE's step."""
 
+    pairs = True  # a large batch's copies two at a time (:func:`paired`)
+
     def __init__(self, parts: TracedParts, form: TracedForm, n: int, m: int, law: Any = None) -> None:
         self.parts, self.form, self.n, self.m, self.law = parts, form, n, m, law
         self.held_width = 1 + m + n  # u, the targets, zbar (a user law's: u and its sample)
 
+    def source(self, plant: NativeStepper, folds: Folds | None = None, pairs: bool = False) -> str:
+        """The text of the generated batch loop for this law and plant, with ``folds``, its copies
+        two at a time with ``pairs``."""
+        fold, enter, leave = ([], [], []) if folds is None else (folds.lines(), folds.enter, folds.leave)
+        return batch_source(self.parts, plant, self.n, self.m, fold, enter, leave, pairs)
+
     def function(self, plant: NativeStepper, folds: Folds | None = None, pairs: bool = False):  # noqa: ANN201 (a numba dispatcher)
         from ..compiled.cache import generated_module
 
-        fold, enter, leave = ([], [], []) if folds is None else (folds.lines(), folds.enter, folds.leave)
-        source = batch_source(self.parts, plant, self.n, self.m, fold, enter, leave, pairs)
-        return generated_module("batch", source).rows
+        return generated_module("batch", self.source(plant, folds, pairs)).rows
 
     def folds(self, loop: Schedule) -> Folds | None:
         """The record's reductions folded in the loop (:mod:`.compiled_folds`): a metrics record's."""
@@ -300,8 +318,12 @@ class CompiledBatch:
         if stepper is None or not same_as_math(stepper.helpers, *parts.quantize, *parts.control,
                                                *parts.advance, *fold):
             return START._replace(adaptive=adaptive)
+        pairs = self.pairs and paired(plant, loop.grid.rows)
+        source = self.source(stepper, folds, pairs)
+        if not compiled_loop.compile_pays("batch", source, array_rows(plant, loop.grid.rows)):
+            return START._replace(adaptive=adaptive)  # (the array form: cheaper than a compile)
         try:
-            rows = self.function(stepper, folds, paired(plant, loop.grid.rows))
+            rows = self.function(stepper, folds, pairs)
         except Exception as exc:  # numba refusing a construct: the array form, said once
             compiled_paths.fallback("the batch of copies", f"{type(exc).__name__}: {exc}")
             return START._replace(adaptive=adaptive)

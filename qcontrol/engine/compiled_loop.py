@@ -22,8 +22,9 @@ the Python form answers with numpy), it stops before the row (or the step) and t
 runs on from there (:class:`Resume`). Everything else runs in Python from the start: user laws
 and subclasses that change a built-in law, other
 quantizers, batches, runs shorter than :data:`MIN_ROWS` rows, single runs of fewer than
-:data:`COLD_MIN_ROWS` in a process that has not started numba (:func:`numba_pays`), and every
-run when ``QCONTROL_COMPILE=0`` or numba is missing.
+:data:`COLD_MIN_ROWS` in a process that has not started numba (:func:`numba_pays`), runs of
+a structure not compiled before until its runs reach :data:`COLD_MIN_ROWS` rows
+(:func:`compile_pays`), and every run when ``QCONTROL_COMPILE=0`` or numba is missing.
 
 The generated text is kept in the user's cache folder (:mod:`qcontrol.compiled.cache`), keyed by
 the text and the versions; the numbers (gains, theta, the step, addresses) are arguments, so one
@@ -55,6 +56,8 @@ from .spec import RunSpec
 # short run (a test, a quick check) would spend more on the compiler than it saves. In a process
 # that has not started numba yet (a run from the command line) only a single run of
 # COLD_MIN_ROWS rows pays for the start: there MuJoCo's passive callback stays in Python too.
+# A structure not compiled before compiles once its runs reach COLD_MIN_ROWS rows (a batch's
+# array form counted in such rows), where Python has cost about what the compile does.
 MIN_ROWS = 5000
 COLD_MIN_ROWS = 50_000
 DONE, CONTROL_REFUSED, STEP_REFUSED = 0, 1, 2  # what a call returns, with the row it stopped at
@@ -275,11 +278,15 @@ class CompiledLoop:
         self.parts, self.n, self.m = parts, n, m
         self.held_width = 1 + m + n  # u, the targets, zbar (a user law's: u and its sample)
 
+    def source(self, plant: NativeStepper) -> str:
+        """The text of the generated loop for this law and plant."""
+        return loop_source(self.parts, plant, self.n, self.m)
+
     def function(self, plant: NativeStepper):  # noqa: ANN201 (a numba dispatcher)
         """The generated loop for this law and plant, compiled or loaded from the disk cache."""
         from ..compiled.cache import generated_module
 
-        return generated_module("loop", loop_source(self.parts, plant, self.n, self.m)).rows
+        return generated_module("loop", self.source(plant)).rows
 
     def held_output(self, held: np.ndarray) -> ControlOutput:
         """``held`` (u, targets, zbar) as the output the Python loop continues with."""
@@ -292,7 +299,7 @@ class CompiledLoop:
         no compiled form for it)."""
         stepping = isinstance(plant, NativeStepping)
         stepper = plant.native_stepper(loop.grid.dt, loop.grid.rows) if stepping else None
-        if stepper is None:
+        if stepper is None or not compile_pays("loop", self.source(stepper), loop.grid.rows):
             return START._replace(adaptive=adaptive)
         try:
             rows = self.function(stepper)
@@ -346,6 +353,27 @@ def numba_pays(rows: int, batch: int) -> bool:
     pays for numba's start. A shorter single run in a fresh process (a 10 s run from the command
     line) is faster in Python, cold cache or warm (docs/architecture.md, 'The compiled loop')."""
     return batch != 1 or "numba" in sys.modules or rows >= COLD_MIN_ROWS
+
+
+def compile_pays(kind: str, source: str, rows: int) -> bool:
+    """Whether a run of ``rows`` rows (a batch's cost in rows of a single run's Python loop:
+    :func:`~.compiled_batch.array_rows`) takes the generated module ``source`` of ``kind``
+    (:mod:`qcontrol.compiled.cache`): where it was compiled before (loaded in a fraction of a
+    second), or where the rows run without it so far, this run's included, reach
+    :data:`COLD_MIN_ROWS`, about as much Python (or array form) as a compile costs. Else the run
+    keeps Python, which costs less than the compile, and its rows are counted in the cache
+    folder: whatever the runs to come, a structure costs at most about twice what
+    the best choice in hindsight would (docs/architecture.md, 'The compiled loop')."""
+    from ..compiled import cache
+
+    ran = cache.uncompiled_rows(kind, source)
+    if ran is None or ran + rows >= COLD_MIN_ROWS:
+        return True
+    try:
+        cache.count_uncompiled(kind, source, ran + rows)
+    except OSError:  # a cache folder that cannot be written: compiling says why, once
+        return True
+    return False
 
 
 def compiled_loop(spec: RunSpec) -> CompiledLoop | None:

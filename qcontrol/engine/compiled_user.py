@@ -166,10 +166,10 @@ class CompiledUserBatch(CompiledBatch):
         super().__init__(parts, form, n, m)
         self.held_width = Held(n).width
 
-    def function(self, plant: Any, folds: Any = None, pairs: bool = False) -> Any:
-        # one copy at a time, whatever the batch's size: a pair's renamed second copy is checked on
-        # the built-in laws' lines, not on a user law's traced ones
-        return with_fma(super().function(plant, folds, False))
+    pairs = False  # one copy at a time at any size: the pair's renaming is checked on built-in laws
+
+    def function(self, *args: Any, **kwargs: Any) -> Any:
+        return with_fma(super().function(*args, **kwargs))
 
     def run(self, loop: Any, plant: Any, adaptive: tuple) -> Any:
         return super().run(FirstChecked(loop, self.m), plant, adaptive)
