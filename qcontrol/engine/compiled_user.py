@@ -162,11 +162,11 @@ class CompiledUserLoop(CompiledLoop):
 class CompiledUserBatch(CompiledBatch):
     """A batch of traced user laws: the built-in's compiled batch with each copy's sample held."""
 
+    pairs = False  # one copy at a time at any size: the pair's renaming is checked on built-in laws
+
     def __init__(self, parts: TracedParts, form: TracedForm, n: int, m: int) -> None:
         super().__init__(parts, form, n, m)
         self.held_width = Held(n).width
-
-    pairs = False  # one copy at a time at any size: the pair's renaming is checked on built-in laws
 
     def function(self, *args: Any, **kwargs: Any) -> Any:
         return with_fma(super().function(*args, **kwargs))
