@@ -284,6 +284,7 @@ class CompiledBatch:
     """The compiled form of a batch's law and quantizer; :meth:`run` adds the ODE's step."""
 
     pairs = True  # a large batch's copies two at a time (:func:`paired`)
+    gated = True  # compiled once its array form's cost reaches a compile's (compile_pays, array_rows)
 
     def __init__(self, parts: TracedParts, form: TracedForm, n: int, m: int, law: Any = None) -> None:
         self.parts, self.form, self.n, self.m, self.law = parts, form, n, m, law
@@ -320,7 +321,7 @@ class CompiledBatch:
             return START._replace(adaptive=adaptive)
         pairs = self.pairs and paired(plant, loop.grid.rows)
         source = self.source(stepper, folds, pairs)
-        if not compiled_loop.compile_pays("batch", source, array_rows(plant, loop.grid.rows)):
+        if self.gated and not compiled_loop.compile_pays("batch", source, array_rows(plant, loop.grid.rows)):
             return START._replace(adaptive=adaptive)  # (the array form: cheaper than a compile)
         try:
             rows = self.function(stepper, folds, pairs)
