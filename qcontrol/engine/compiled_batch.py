@@ -296,10 +296,11 @@ class CompiledBatch:
         fold, enter, leave = ([], [], []) if folds is None else (folds.lines(), folds.enter, folds.leave)
         return batch_source(self.parts, plant, self.n, self.m, fold, enter, leave, pairs)
 
-    def function(self, plant: NativeStepper, folds: Folds | None = None, pairs: bool = False):  # noqa: ANN201 (a numba dispatcher)
+    def function(self, source: str):  # noqa: ANN201 (a numba dispatcher)
+        """The generated batch loop of ``source`` (:meth:`source`), compiled or loaded from the cache."""
         from ..compiled.cache import generated_module
 
-        return generated_module("batch", self.source(plant, folds, pairs)).rows
+        return generated_module("batch", source).rows
 
     def folds(self, loop: Schedule) -> Folds | None:
         """The record's reductions folded in the loop (:mod:`.compiled_folds`): a metrics record's."""
@@ -324,7 +325,7 @@ class CompiledBatch:
         if self.gated and not compiled_loop.compile_pays("batch", source, array_rows(plant, loop.grid.rows)):
             return START._replace(adaptive=adaptive)  # (the array form: cheaper than a compile)
         try:
-            rows = self.function(stepper, folds, pairs)
+            rows = self.function(source)  # (the text the gate counted: one module named)
         except Exception as exc:  # numba refusing a construct: the array form, said once
             compiled_paths.fallback("the batch of copies", f"{type(exc).__name__}: {exc}")
             return START._replace(adaptive=adaptive)

@@ -282,11 +282,11 @@ class CompiledLoop:
         """The text of the generated loop for this law and plant."""
         return loop_source(self.parts, plant, self.n, self.m)
 
-    def function(self, plant: NativeStepper):  # noqa: ANN201 (a numba dispatcher)
-        """The generated loop for this law and plant, compiled or loaded from the disk cache."""
+    def function(self, source: str):  # noqa: ANN201 (a numba dispatcher)
+        """The generated loop of ``source`` (:meth:`source`), compiled or loaded from the disk cache."""
         from ..compiled.cache import generated_module
 
-        return generated_module("loop", self.source(plant)).rows
+        return generated_module("loop", source).rows
 
     def held_output(self, held: np.ndarray) -> ControlOutput:
         """``held`` (u, targets, zbar) as the output the Python loop continues with."""
@@ -299,10 +299,11 @@ class CompiledLoop:
         no compiled form for it)."""
         stepping = isinstance(plant, NativeStepping)
         stepper = plant.native_stepper(loop.grid.dt, loop.grid.rows) if stepping else None
-        if stepper is None or not compile_pays("loop", self.source(stepper), loop.grid.rows):
+        source = None if stepper is None else self.source(stepper)
+        if source is None or not compile_pays("loop", source, loop.grid.rows):
             return START._replace(adaptive=adaptive)
         try:
-            rows = self.function(stepper)
+            rows = self.function(source)  # (the text the gate counted: one module named)
         except Exception as exc:  # numba refusing a construct: the Python loop, said once
             compiled_paths.fallback("the closed loop", f"{type(exc).__name__}: {exc}")
             return START._replace(adaptive=adaptive)

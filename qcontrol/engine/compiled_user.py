@@ -141,8 +141,8 @@ class CompiledUserLoop(CompiledLoop):
         super().__init__(parts, n, law.state_size)
         self.law, self.held_width = law, Held(n).width
 
-    def function(self, *args: Any, **kwargs: Any) -> Any:
-        return with_fma(super().function(*args, **kwargs))
+    def function(self, source: str) -> Any:
+        return with_fma(super().function(source))
 
     def held_output(self, held: np.ndarray) -> Any:
         """``held`` (u, x_q, yd, t) as the sample the Python loop continues with."""
@@ -171,8 +171,8 @@ class CompiledUserBatch(CompiledBatch):
         super().__init__(parts, form, n, m)
         self.held_width = Held(n).width
 
-    def function(self, *args: Any, **kwargs: Any) -> Any:
-        return with_fma(super().function(*args, **kwargs))
+    def function(self, source: str) -> Any:
+        return with_fma(super().function(source))
 
     def run(self, loop: Any, plant: Any, adaptive: tuple) -> Any:
         return super().run(FirstChecked(loop, self.m), plant, adaptive)
