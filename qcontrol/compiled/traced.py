@@ -27,6 +27,7 @@ a load known to be nonzero in the branch being traced).
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable, Sequence
 from contextlib import contextmanager
 from functools import partial
@@ -51,6 +52,7 @@ class Trace:
         self.constants: list[float | np.ndarray] = []  # a number, or a (batch,) column per copy
         self.refusal: str | None = None  # the statement where Python would raise; None: untraceable
         self.deferred = False  # refusals gathered into REFUSED, tested at the end (:meth:`deferring`)
+        self._deferred = 0  # the refusals gathered into REFUSED so far
         self._count = 0
 
     def name(self, prefix: str = "") -> str:
@@ -100,6 +102,7 @@ class Trace:
         if self.refusal is None:
             raise TypeError("a traced formula may raise where no hand-over to Python is possible")
         if self.deferred:
+            self._deferred += 1
             self.lines.append(f"{REFUSED} = {REFUSED} | ({condition})")
         else:
             self.lines += [f"if {condition}:", f"    {self.refusal}"]
@@ -123,12 +126,16 @@ class Trace:
         one test replaces a branch per refusal, which kept the compiler from interleaving the
         step's arithmetic."""
         before, self.refusal, self.deferred = (self.refusal, self.deferred), statement, True
+        lines, first, gathered = self.lines, len(self.lines), self._deferred
         self.lines.append(f"{REFUSED} = False")
         try:
             yield self
         finally:
             self.refusal, self.deferred = before
-        self.lines += [f"if {REFUSED}:", f"    {statement}"]
+        if self._deferred > gathered or self.lines is not lines:
+            self.lines += [f"if {REFUSED}:", f"    {statement}"]
+        else:  # nothing refuses: neither the flag nor its test (a branch never taken, compiled all the same)
+            del lines[first]
 
 
 REFUSED = "refused"  # the flag of :meth:`Trace.deferring` (a bool local of the generated code)
@@ -266,7 +273,13 @@ def evaluate(expression: Expression, columns: Sequence[Value]) -> Symbol:
         trace.refuse_if(FLAG)
     else:
         trace.lines += body.lines
+    if _NAME_OR_LITERAL.fullmatch(value):  # a local or a literal: itself, not a copy (one variable less)
+        return Symbol(value)
     return trace.assign(value)
+
+
+# a local's name, or a finite float literal as float_source writes one: (1.0), (-2.5e-07)
+_NAME_OR_LITERAL = re.compile(r"[A-Za-z_]\w*|\(-?[0-9][0-9.]*(?:e[-+]?[0-9]+)?\)")
 
 
 def evaluate_program(program: Program, values: Sequence[Value]) -> list[Value]:

@@ -65,6 +65,7 @@ from ..quantizer import UniformQuantizer
 from . import compiled_loop
 from .compiled_folds import NO_VALUES, Folds, helpers
 from .compiled_loop import (
+    COLD,
     CONTROL_REFUSED,
     START,
     LoopParts,
@@ -258,12 +259,15 @@ def batch_source(parts: TracedParts, plant: NativeStepper, n: int, m: int, fold:
     on column b, with the quick divergence test and the reductions' folds, ``enter`` before the
     rows and ``leave`` before every return; ``yd``'s first line is row ``origin``'s), or with
     ``pairs`` ``pair_rows`` (two copies in lockstep: :func:`pair_lines`), and ``rows``."""
-    finite = ([f"abs(x{i}) <= bound" for i in range(1, n + 1)]
+    # (every test evaluated, joined by &: no branch per test, fewer blocks for numba to compile)
+    finite = ([f"(abs(x{i}) <= bound)" for i in range(1, n + 1)]
               + [f"math.isfinite(adaptive[{i}])" for i in range(m)])
-    test = [f"if not ({' and '.join(finite)}):", "    suspect[k - origin] = True"]
+    test = [f"if not ({' & '.join(finite)}):", "    suspect[k - origin] = True"]
     pieces = loop_parts(parts, plant, n, m, "b, j", test, fold)  # (buffers stored copy after copy)
     pairs = pairs and not any(_RETURN.match(line) for line in pieces.keep)  # (returns only where known)
+    inlined = False
     if pairs:
+        pieces, inlined = pair_steps(pieces, plant)
         function = [f"def pair_rows(b, b_c, origin, start, stop, step_first, {ARGUMENTS}, adaptive,"
                     " adaptive_c, held, held_c, lp, lp_c, pf, pf_c, xs, xs_c, suspect, fp, fp_c, lf, lf_c,"
                     f" pi, {FOLDS}):",
@@ -276,8 +280,44 @@ def batch_source(parts: TracedParts, plant: NativeStepper, n: int, m: int, fold:
             body.append(line)
         function = [f"def copy_rows(b, origin, start, stop, step_first, {ARGUMENTS}, adaptive, held, lp, pf,"
                     f" pi, xs, suspect, fp, lf, {FOLDS}):", *_indented(body, 1)]
-    # (a pair's steps inline the ODE's: about 4 ns less a copy-step of Example 2, 2 s more to compile)
-    return module_source(plant, [helpers(), "", CALLED, *function, "", *rows_lines(pairs), ""], pairs)
+    return module_source(plant, [helpers(), "", CALLED, *function, "", *rows_lines(pairs), ""], inlined)
+
+
+def pair_steps(pieces: LoopParts, plant: NativeStepper) -> tuple[LoopParts, bool]:
+    """A pair's pieces with the plant's step in the loop inlined (about 4 ns less a copy-step of
+    Example 2), and whether the module must inline the plant's helpers for it: the ODE's step is
+    written out in the loop (:func:`written_step`: numba's own inlining runs its passes on the
+    helper again at each call, about 0.6 s of CPU more to compile a pair); another plant's helpers
+    are inlined by numba. The entry's step, once a call, calls the helpers, not inlined."""
+    step = written_step(plant)
+    if step is not None:
+        return pieces._replace(step=[*step, *pieces.step[len(plant.step):]]), False
+    called = re.compile(r"\b(" + "|".join(re.findall(r"^def (\w+)\(", plant.helpers, re.MULTILINE)) + r")\(")
+    return pieces._replace(entry=[called.sub(rf"\1{COLD}(", line) for line in pieces.entry]), True
+
+
+_ODE_STEP = ("if plant_step(u, xs, pf):", "    return 2, k")  # the ODE's step in the loop (ChainNativeForm)
+
+
+def written_step(plant: NativeStepper) -> list[str] | None:
+    """The ODE's step as lines of the loop: the body of its one helper ``plant_step(u, xs, pf)``
+    (the same statements, so the same operations in the same order), its ``return True`` (refused)
+    the loop's ``return 2, k`` and its final ``return False`` dropped; None for another plant's."""
+    header, helpers = "def plant_step(u, xs, pf):", plant.helpers.rstrip("\n").split("\n")
+    if tuple(plant.step) != _ODE_STEP or helpers.count(header) != 1 or plant.helpers.count("\ndef ") != 1:
+        return None
+    body = helpers[helpers.index(header) + 1:]
+    if not body or body[-1] != "    return False" or not all(line.startswith("    ") for line in body):
+        return None
+    lines = []
+    for line in (line[4:] for line in body[:-1]):
+        statement = line.lstrip()
+        if statement.startswith("return") or "plant_step" in statement:
+            if statement != "return True":
+                return None
+            line = line[: len(line) - len(statement)] + "return 2, k"
+        lines.append(line)
+    return lines
 
 
 class CompiledBatch:

@@ -243,15 +243,20 @@ def loop_body(parts: TracedParts, plant: NativeStepper, n: int, m: int, at: str 
     ]
 
 
+COLD = "_cold"  # the suffix of the plant's helpers called, not inlined, where ``inlined`` (module_source)
+
+
 def module_source(plant: NativeStepper, functions: list[str], inlined: bool = False) -> str:
     """A generated module: its imports, the plant's helpers (from a module of their own, compiled
     once for every loop and batch of the plant: :func:`~qcontrol.compiled.cache.shared`; with
     ``inlined``, in the module, its called functions inlined where they are called: a larger
-    compilation, a faster loop), then ``functions``' lines."""
+    compilation, a faster loop; and the shared ones too, named with :data:`COLD`'s suffix, for the
+    calls that run once a call, where inlining would cost compile time for nothing), then
+    ``functions``' lines."""
     from ..compiled.cache import shared
 
-    helpers = (plant.helpers.replace(CALLED, CALLED[:-1] + ', inline="always")') if inlined
-               else shared("step", plant.helpers))
+    helpers = (plant.helpers.replace(CALLED, CALLED[:-1] + ', inline="always")') + "\n"
+               + shared("step", plant.helpers, COLD) if inlined else shared("step", plant.helpers))
     return "\n".join([
         '"""qcontrol\'s compiled loop (generated): see KEY."""',  # (user text only as a repr literal)
         "import math", "", "import numba", "import numpy as np", "",
