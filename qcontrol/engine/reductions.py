@@ -371,7 +371,7 @@ class BoundConstants(Reduction):
         return self.largest[b].copy()
 
     # per term its largest ratio (a value not finite counts as Inf); the values are the ratios
-    # traced from their own definition (qcontrol.engine.signals.traced_separation)
+    # traced from their own derivation (qcontrol.engine.signals.bound_ratios)
     @property
     def partials(self) -> tuple[float, ...]:  # type: ignore[override]
         return (-math.inf,) * self.largest.shape[1]
@@ -468,7 +468,7 @@ class SmallestBound(Reduction):
         return self.smallest[b].copy()
 
     # per term its smallest value (NaN skipped: never smaller); the values are the bounding
-    # functions traced from their own definition (qcontrol.engine.signals.traced_separation)
+    # functions traced from their own derivation (qcontrol.engine.signals.bounds)
     @property
     def partials(self) -> tuple[float, ...]:  # type: ignore[override]
         return (math.inf,) * self.smallest.shape[1]
