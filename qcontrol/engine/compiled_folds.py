@@ -33,6 +33,9 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import re
+from collections import Counter
+from functools import partial
 from operator import attrgetter
 from typing import Any
 
@@ -64,6 +67,66 @@ def row_block(n: int, m: int, q: list[str]) -> dict[str, Any]:
             "x_q": Row(Symbol(text) for text in q), "u": Symbol("u"),
             "adaptive": Row(Symbol(f"adaptive[{i}]") for i in range(m)),
             "yd": Row(Symbol(f"yd[r, {j}]") for j in range(n + 1))}
+
+
+# The trace's locals (Trace("lf", "f"): f12, its expressions' temporaries fe12_0 and fp12_0), each
+# assigned once, by a line of its own, from an expression that has no effect but its value
+_LOCAL = re.compile(r"\bf(?:[ep]\d+_)?\d+\b")
+_DEFINITION = re.compile(r"(f(?:[ep]\d+_)?\d+) = (.+)")
+_ASSIGNED = re.compile(r" *(?!(?:if|elif|else|for|while|return)\b)([^=(]+?) [-+*/]?= ")
+_NAME = re.compile(r"\b[A-Za-z_]\w*\b")
+_ATOM = re.compile(r"[A-Za-z_]\w*(?:\[[\w, ]+\])?|\(-?[\d.]+(?:e[-+]?\d+)?\)|float\('-?(?:inf|nan)'\)")
+
+
+def _renamed(aliases: dict[str, str], match: re.Match) -> str:
+    return aliases.get(match.group(0), match.group(0))
+
+
+def compact(every: list[str], samples: list[str]) -> tuple[list[str], list[str]]:
+    """The fold's lines of every row and of the control samples (which run after them), with
+    each local that copies a value (a local, a number, an input of the row) replaced by that
+    value, each one that recomputes an expression of an earlier one by the earlier one, and each
+    that nothing reads left out: the same operations on the values that are used, in fewer
+    statements (each costs numba's compile of every batch module)."""
+    lines = [(False, line) for line in every] + [(True, line) for line in samples]
+    assigned = {name for _, line in lines if not _DEFINITION.fullmatch(line.lstrip())
+                for target in _ASSIGNED.findall(line) for name in _NAME.findall(target)}
+    aliases: dict[str, str] = {}
+    earlier: dict[str, str] = {}  # an expression -> the local holding it
+    kept: list[tuple[bool, str]] = []
+    for section, line in lines:
+        line = _LOCAL.sub(partial(_renamed, aliases), line)
+        definition = _DEFINITION.fullmatch(line.lstrip())
+        if definition and not assigned.intersection(_NAME.findall(definition.group(2))):
+            name, value = definition.groups()
+            if _ATOM.fullmatch(value) or value in earlier:
+                aliases[name] = earlier.get(value, value)
+                continue
+            earlier[value] = name
+        kept.append((section, line))
+    return _live(kept)
+
+
+def _live(lines: list[tuple[bool, str]]) -> tuple[list[str], list[str]]:
+    """The lines but the definitions of locals that nothing reads, split by section."""
+    defined: dict[str, int] = {}
+    reads: Counter = Counter()
+    for i, (_, line) in enumerate(lines):
+        definition = _DEFINITION.fullmatch(line.lstrip())
+        if definition:
+            defined[definition.group(1)] = i
+        reads.update(_LOCAL.findall(definition.group(2) if definition else line))
+    unread = [name for name, i in defined.items() if not reads[name]]
+    dropped = set()
+    while unread:
+        i = defined[unread.pop()]
+        dropped.add(i)
+        for name in _LOCAL.findall(_DEFINITION.fullmatch(lines[i][1].lstrip()).group(2)):
+            reads[name] -= 1
+            if not reads[name] and name in defined:
+                unread.append(name)
+    kept = [(section, line) for i, (section, line) in enumerate(lines) if i not in dropped]
+    return [line for section, line in kept if not section], [line for section, line in kept if section]
 
 
 class Folds:
@@ -104,6 +167,7 @@ class Folds:
                 self.leave += fold.leave
                 start += partials
                 self.folded.append((fold, slice(slot, slot + len(partials))))
+        self.every, self.samples = compact(self.every, self.samples)
         self.start = np.array(start, dtype=float)
         self.partials = np.empty((batch, len(start)))
         self.constants = trace.table(batch)
