@@ -177,8 +177,7 @@ def _saturated(block: Block, ctx: SignalContext) -> np.ndarray:
 
 def _e_z(block: Block, ctx: SignalContext) -> np.ndarray:
     """Lemma 2's errors ``|z(x_meas) - zbar|``: the errors of the very reading the quantizer saw."""
-    z = _errors(block["x_meas"], block["yd"], ctx)
-    return _side_by_side([abs(a - b) for a, b in zip(_columns(z), _columns(block["zbar"]), strict=True)], z)
+    return abs(_errors(block["x_meas"], block["yd"], ctx) - block["zbar"])
 
 
 def bounds(separation: Separation | None, form: ColumnForm, at_q: Sequence[Any]) -> list[Any]:
