@@ -156,3 +156,15 @@ def test_a_term_whose_numpy_value_may_differ_is_reduced_by_the_array_form(monkey
         assert "max_abs_u" in names and not {"bound_constants", "smallest_r"} & names
     assert {"sin", "cos", "sqrt", "abs"} >= signals.same_functions() >= {"sqrt", "abs"}
 
+
+
+def test_compacting_the_fold_keeps_every_value_it_reads() -> None:
+    """A local copying a value is replaced by it, one recomputing an earlier expression by the
+    earlier one, one nothing reads left out; a value the fold writes (the partials) is not taken
+    for a copy, nor an expression reading it for a recomputation."""
+    every = ["f1 = x1", "f2 = f1 * f1", "f3 = x1 * x1", "f4 = f3 + lf[0]", "f5 = fp[0]", "fp[0] = f2",
+             "f6 = fp[0]", "f7 = f5 + f6", "if f7 > fp[1]:", "    fp[1] = f7"]
+    samples = ["f8 = x1 * x1", "fp[2] += f8"]
+    assert compiled_folds.compact(every, samples) == (
+        ["f2 = x1 * x1", "f5 = fp[0]", "fp[0] = f2", "f6 = fp[0]", "f7 = f5 + f6", "if f7 > fp[1]:",
+         "    fp[1] = f7"], ["fp[2] += f2"])

@@ -250,6 +250,9 @@ class Row(tuple):
     def __mul__(self, other: Any) -> Row:
         return self._each(other, lambda a, b: a * b)
 
+    def __abs__(self) -> Row:
+        return Row(abs(a) for a in self)
+
 
 class TracedTerms:
     """Expressions evaluated on symbols: their trees as source (:func:`float_source`), refusing

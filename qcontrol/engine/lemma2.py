@@ -28,11 +28,11 @@ def lemma2_slack(coordinates: Any) -> float:
     return SLACK * (A.shape[0] + 1) * (1.0 + float(np.abs(A).sum()) + float(np.abs(B).sum()))
 
 
-def row_scale(block: Mapping[str, np.ndarray]) -> np.ndarray:
+def row_scale(x_meas: np.ndarray, x_q: np.ndarray, yd: np.ndarray) -> np.ndarray:
     """``(rows, batch)``: the largest |x_meas|, |x_q|, |y_d^(j)| of each row of each copy (NaN
     where one is NaN)."""
-    largest = np.maximum(np.abs(block["x_meas"]).max(axis=-1), np.abs(block["x_q"]).max(axis=-1))
-    return np.maximum(largest, np.abs(block["yd"]).max(axis=-1))
+    largest = np.maximum(np.abs(x_meas).max(axis=-1), np.abs(x_q).max(axis=-1))
+    return np.maximum(largest, np.abs(yd).max(axis=-1))
 
 
 class Lemma2Largest(Reduction):
@@ -44,10 +44,10 @@ class Lemma2Largest(Reduction):
     derived as each copy's run alone derives them) the largest is taken over the values of a run
     alone: the rows whose batch value is within the slack of the largest are recomputed (the
     comment above :data:`SLACK`), so each copy's figure is its run alone's to the last bit. The
-    compiled fold computes the errors by the recursion (31)-(34), applied to the reading for z
-    (eqs. (7)-(8)) and to q for zbar, and notes the rows to recompute."""
+    compiled fold folds the errors of a traced row (derived by the recursion (31)-(34) itself,
+    applied to the reading for z (eqs. (7)-(8)) and to q for zbar) and notes the rows to recompute."""
 
-    name, signal = "e_z_max", "e_z"
+    name, signal, reads = "e_z_max", "e_z", ("e_z", "x_meas", "x_q", "yd")
 
     def __init__(self, batch: int, width: int, duration: float, settings: MetricSettings) -> None:
         super().__init__(batch, width, duration, settings)
@@ -55,16 +55,17 @@ class Lemma2Largest(Reduction):
         self.alone: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
         self.slack = 0.0
 
-    def values(self, block: Mapping[str, np.ndarray]) -> np.ndarray:
-        """e_z; in a batch, each row's slack beside it (its last column)."""
+    def values(self, block: Mapping[str, Any]) -> Any:
+        """e_z; in a batch, beside it what each row's slack is made of (:func:`row_scale`)."""
         if self.alone is None:
             return block["e_z"]
-        return np.concatenate([block["e_z"], (row_scale(block) * self.slack)[..., None]], axis=-1)
+        return block["e_z"], block["x_meas"], block["x_q"], block["yd"]
 
-    def add(self, chunk: Chunk, values: np.ndarray) -> None:
+    def add(self, chunk: Chunk, values: Any) -> None:
         counted = None if chunk.everyone else chunk.before_divergence[..., None]
         if self.alone is not None:
-            values = self._as_alone(chunk, values[..., :-1], values[..., -1:], counted)
+            values, *scaled = values
+            values = self._as_alone(chunk, values, (row_scale(*scaled) * self.slack)[..., None], counted)
         checked = np.isfinite(values)
         if counted is not None:
             checked &= counted
@@ -95,24 +96,21 @@ class Lemma2Largest(Reduction):
         the count of rows noted, and the rows."""
         return (-math.inf,) * self.largest.shape[1] + (0.0,) + (math.nan,) * CANDIDATES
 
-    def traced_values(self, block: Mapping[str, Any], coordinates: Any) -> list[Any]:
-        """A row's signed errors ``z_i - zbar_i`` by the recursion, then the inputs of its slack."""
+    def row_values(self, values: Any) -> list[Any]:
+        """A traced row's errors, then the values its slack is made of."""
         if self.alone is None:
             raise TypeError("Lemma 2's errors of a run alone: nothing to recompute")
-        yd = tuple(block["yd"])
-        z, _ = coordinates.recursion(tuple(block["x_meas"]), yd)
-        zbar, _ = coordinates.recursion(tuple(block["x_q"]), yd)
-        return [a - b for a, b in zip(z, zbar, strict=True)] + [*block["x_meas"], *block["x_q"], *yd]
+        return [value for signal in values for value in signal]
 
     def fold_lines(self, values: list[str], slot: int, t: str, constant: Constant) -> list[str]:
         n = self.largest.shape[1]
         count = f"fp[{slot + n}]"
         lines = [f"l2_s = max({', '.join(f'abs({v})' for v in values[n:])}) * {constant(self.slack)}",
                  "l2_new = False"]
-        for i, difference in enumerate(values[:n]):
+        for i, error in enumerate(values[:n]):
             floor = f"fp[{slot + i}]"
-            lines += [f"l2_e = abs({difference})", f"if l2_e - l2_s > {floor}:", f"    {floor} = l2_e - l2_s",
-                      f"if not l2_e + l2_s < {floor}:", "    l2_new = True"]
+            lines += [f"if {error} - l2_s > {floor}:", f"    {floor} = {error} - l2_s",
+                      f"if not {error} + l2_s < {floor}:", "    l2_new = True"]
         return [*lines, "if l2_new:", f"    l2_c = int({count})", f"    if l2_c < {CANDIDATES}:",
                 f"        fp[{slot + n + 1} + l2_c] = k", f"        {count} = l2_c + 1.0",
                 "    else:  # too many: the block is the array form's", "        odd[b] = True"]

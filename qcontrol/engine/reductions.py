@@ -156,8 +156,11 @@ class LargestAbs(Reduction):
 
     partials = (-math.inf,)
 
+    def row_values(self, values: Any) -> list[Any]:
+        return [abs(values)]
+
     def fold_lines(self, values: list[str], slot: int, t: str, constant: Constant) -> list[str]:
-        size = f"abs({values[0]})"
+        size = values[0]
         return [f"if {size} > fp[{slot}] and {size} - {size} == 0.0:", f"    fp[{slot}] = {size}"]
 
     def merge(self, copies: np.ndarray, partials: np.ndarray) -> None:
@@ -267,11 +270,10 @@ class ErrorRate(Reduction):
     partials = ()
 
     def row_values(self, values: Any) -> list[Any]:
-        return [values[..., 0]]
+        return [abs(values[..., 0])]
 
     def fold_lines(self, values: list[str], slot: int, t: str, constant: Constant) -> list[str]:
-        return [f"e_ta, e_za, e_i = follow_row({t}, abs({values[0]}), e_instants, e_values, b, e_ta, e_za,"
-                " e_i)"]
+        return [f"e_ta, e_za, e_i = follow_row({t}, {values[0]}, e_instants, e_values, b, e_ta, e_za, e_i)"]
 
     # the run's progress in the loop's locals: read when a copy's rows start, written back whenever
     # they stop (the compiled batch: qcontrol.engine.compiled_folds)
@@ -321,10 +323,10 @@ class LastHalfLargestAbs(Reduction):
     partials = (-math.inf,)
 
     def row_values(self, values: Any) -> list[Any]:
-        return [values[..., 0]]
+        return [abs(values[..., 0])]
 
     def fold_lines(self, values: list[str], slot: int, t: str, constant: Constant) -> list[str]:
-        size = f"abs({values[0]})"
+        size = values[0]
         return [f"if {t} >= {constant(self.half)} and {size} > fp[{slot}] and {size} - {size} == 0.0:",
                 f"    fp[{slot}] = {size}"]
 
@@ -371,7 +373,7 @@ class BoundConstants(Reduction):
         return self.largest[b].copy()
 
     # per term its largest ratio (a value not finite counts as Inf); the values are the ratios
-    # traced from their own definition (qcontrol.engine.signals.traced_separation)
+    # traced from their own derivation (qcontrol.engine.signals.bound_ratios)
     @property
     def partials(self) -> tuple[float, ...]:  # type: ignore[override]
         return (-math.inf,) * self.largest.shape[1]
@@ -468,7 +470,7 @@ class SmallestBound(Reduction):
         return self.smallest[b].copy()
 
     # per term its smallest value (NaN skipped: never smaller); the values are the bounding
-    # functions traced from their own definition (qcontrol.engine.signals.traced_separation)
+    # functions traced from their own derivation (qcontrol.engine.signals.bounds)
     @property
     def partials(self) -> tuple[float, ...]:  # type: ignore[override]
         return (math.inf,) * self.smallest.shape[1]

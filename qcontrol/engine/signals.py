@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..columns import ARRAYS, ColumnForm
+from ..compiled.traced import Row, TracedForm
 from ..controller.backstepping import Backstepping
 from ..controller.law import Diagnostic
 from ..expr import Expression
@@ -77,6 +78,9 @@ class SignalContext:
     quantizer: Any = None  # the state's quantizer (its ``saturated`` readings, if it has a range)
     input_quantizer: Any = None  # the input's quantizer q_u of [quantizer.input] (None: u as computed)
     chain: bool = True  # the plant is the chain of eq. (1) (Lemma 2 applies to it)
+    # the form of the block's columns: arrays for a block of rows, the traced form for one row of
+    # one copy (a :class:`~qcontrol.compiled.traced.Row` per signal) in a compiled batch's folds
+    form: ColumnForm = ARRAYS
 
     @property
     def terms(self) -> int:
@@ -90,14 +94,42 @@ class SignalContext:
 Derive = Callable[[Block, SignalContext], np.ndarray]
 
 
+def _columns(values: Any) -> list[Any]:
+    """A signal's values as columns (its last axis): ``(rows, batch)`` views of a block's array, the
+    symbols of a traced row."""
+    return [values[..., i] for i in range(np.shape(values)[-1])]
+
+
+def _side_by_side(columns: list[Any], like: Any) -> Any:
+    """Columns as the last axis of a signal's values shaped as ``like``'s rows and copies: a traced
+    row of them (a :class:`~qcontrol.compiled.traced.Row`), else an array."""
+    if isinstance(like, Row):
+        return Row(columns)
+    out = np.empty(like.shape[:-1] + (len(columns),))
+    for i, column in enumerate(columns):
+        out[..., i] = column
+    return out
+
+
+def _errors(values: Any, yd: Any, ctx: SignalContext, quantized: bool = False) -> Any:
+    """The errors of eqs. (7)-(8) of a state, or with ``quantized`` of eqs. (31)-(33) of a quantized
+    reading: of a block of rows by the coordinates' matrix products (derived from the recursion
+    (31)-(34)), of a traced row by that recursion itself."""
+    if isinstance(values, Row):
+        return Row(ctx.coordinates.recursion(tuple(values), tuple(yd))[0])
+    if quantized:
+        return ctx.coordinates.quantized_errors(values, yd)[0]
+    return ctx.coordinates.errors(values, yd)
+
+
 def _z(block: Block, ctx: SignalContext) -> np.ndarray:
     """The true errors (7)-(8) from the true state."""
-    return ctx.coordinates.errors(block["x"], block["yd"])
+    return _errors(block["x"], block["yd"], ctx)
 
 
 def _zbar(block: Block, ctx: SignalContext) -> np.ndarray:
     """The quantized errors (31)-(33) from the quantized reading (what the controller computed)."""
-    return ctx.coordinates.quantized_errors(block["x_q"], block["yd"])[0]
+    return _errors(block["x_q"], block["yd"], ctx, quantized=True)
 
 
 def _u_quantized(block: Block, ctx: SignalContext) -> np.ndarray:
@@ -145,50 +177,35 @@ def _saturated(block: Block, ctx: SignalContext) -> np.ndarray:
 
 def _e_z(block: Block, ctx: SignalContext) -> np.ndarray:
     """Lemma 2's errors ``|z(x_meas) - zbar|``: the errors of the very reading the quantizer saw."""
-    return np.abs(ctx.coordinates.errors(block["x_meas"], block["yd"]) - block["zbar"])
+    return abs(_errors(block["x_meas"], block["yd"], ctx) - block["zbar"])
 
 
-def bounds(separation: Separation, form: ColumnForm, at_q: Sequence[Any]) -> list[Any]:
+def bounds(separation: Separation | None, form: ColumnForm, at_q: Sequence[Any]) -> list[Any]:
     """The bounding functions ``r_i(x_q)`` of (37)-(43), one column each, from the columns of the
     quantized reading (any form: arrays for a block of rows, symbols for the compiled folds)."""
-    return form.terms(separation.r)(at_q)
+    return [] if separation is None else form.terms(separation.r)(at_q)
 
 
-def bound_ratios(separation: Separation, form: ColumnForm, at_x: Sequence[Any], at_q: Sequence[Any],
+def bound_ratios(separation: Separation | None, form: ColumnForm, at_x: Sequence[Any], at_q: Sequence[Any],
                  r: Sequence[Any]) -> list[Any]:
     """``|term_i| / r_i(x_q)`` with the term at the true state and at x_q (the centre of the
     quantization cell (37)-(43) must bound), whichever is larger; NaN or Inf where either is."""
+    if separation is None:
+        return []
     terms = form.terms(separation.terms)
     return [form.maximum(abs(a), abs(b)) / ri for a, b, ri in zip(terms(at_x), terms(at_q), r, strict=True)]
-
-
-def _side_by_side(columns: list[Any], like: np.ndarray, width: int) -> np.ndarray:
-    """Columns as the last axis of an array shaped as ``like``'s rows and copies."""
-    out = np.empty(like.shape[:-1] + (width,))
-    for i, column in enumerate(columns):
-        out[..., i] = column
-    return out
-
-
-def _columns(values: np.ndarray) -> tuple[np.ndarray, ...]:
-    return tuple(np.moveaxis(values, -1, 0))
 
 
 def _r(block: Block, ctx: SignalContext) -> np.ndarray:
     """The bounding functions ``r_i(x_q)`` of (37)-(43) at the quantized reading (:func:`bounds`)."""
     x_q = block["x_q"]
-    if ctx.separation is None:
-        return _side_by_side([], x_q, ctx.terms)
-    return _side_by_side(bounds(ctx.separation, ARRAYS, _columns(x_q)), x_q, ctx.terms)
+    return _side_by_side(bounds(_separation(ctx), ctx.form, _columns(x_q)), x_q)
 
 
 def _bound_ratio(block: Block, ctx: SignalContext) -> np.ndarray:
     """The ratios of :func:`bound_ratios` at every row."""
-    x = block["x"]
-    if ctx.separation is None:
-        return _side_by_side([], x, ctx.terms)
-    ratios = bound_ratios(ctx.separation, ARRAYS, _columns(x), _columns(block["x_q"]), _columns(block["r"]))
-    return _side_by_side(ratios, x, ctx.terms)
+    x, x_q, r = (_columns(block[name]) for name in ("x", "x_q", "r"))
+    return _side_by_side(bound_ratios(_separation(ctx), ctx.form, x, x_q, r), block["x"])
 
 
 @cache
@@ -220,18 +237,16 @@ def _traced_alike(node: Any) -> bool:
     return all(_traced_alike(operand) for operand in node.operands)
 
 
-def traced_separation(block: Mapping[str, Any], ctx: SignalContext, form: ColumnForm) -> dict[str, list[Any]]:
-    """The signals ``r`` and ``bound_ratio`` of one row of one copy in ``form`` (the compiled
-    folds trace them: :mod:`.compiled_folds`), by :func:`bounds` and :func:`bound_ratios`. Raises
-    TypeError where the traced evaluation might not give numpy's numbers to the last bit (a
-    power other than a square, exp, log, ...)."""
-    if ctx.separation is None:
-        return {"r": [], "bound_ratio": []}
-    if not all(_traced_alike(e._tree) for e in (*ctx.separation.terms, *ctx.separation.r)):
+def _separation(ctx: SignalContext) -> Separation | None:
+    """The separation, to evaluate in ``ctx.form``. The traced form evaluates it by ``math`` (the
+    compiled folds), which must give the array form's numbers to the last bit: a term where it
+    might not (a power other than a square, exp, log, ...) raises TypeError there (its signals
+    are then the array form's)."""
+    separation = ctx.separation
+    if separation is not None and isinstance(ctx.form, TracedForm) and not all(
+            _traced_alike(e._tree) for e in (*separation.terms, *separation.r)):
         raise TypeError("a separation term whose numpy value may differ from math's")
-    at_x, at_q = tuple(block["x"]), tuple(block["x_q"])
-    r = bounds(ctx.separation, form, at_q)
-    return {"r": r, "bound_ratio": bound_ratios(ctx.separation, form, at_x, at_q, r)}
+    return separation
 
 
 def _quantization_error(block: Block, ctx: SignalContext) -> np.ndarray:
