@@ -92,25 +92,6 @@ def interpolated(ta, za, tc, zc, x):  # noqa: ANN001, ANN201 (the changed formul
     return slope * (x - ta) * 0.5 + za
 
 
-def test_folded_values_change_with_their_one_definition(monkeypatch) -> None:
-    scs = _variants("example2", ("metrics.omega=[0.001, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0, 3.0]",))
-    before, _ = _metrics(scs, monkeypatch, compiled=True)
-    for owner in (reductions.ErrorRate, reductions.LastHalfLargestAbs):
-        monkeypatch.setattr(owner, "values", staticmethod(_late_error))
-    monkeypatch.setattr(error_rate, "interpolated", interpolated)
-    gain = PaperLaw.robust_gain
-    monkeypatch.setattr(PaperLaw, "robust_gain", lambda self, *a, **k: gain(self, *a, **k) * 3.0)
-    merged = _same_metrics(scs, monkeypatch)
-    assert any(merged)
-    after, _ = _metrics(scs, monkeypatch, compiled=True)
-    kept = [i for i, run in enumerate(after) if not run.diverged]
-    for i in kept:
-        old, new = before[i].values, after[i].values
-        assert new["max_abs_z1_last_half"] == 1.5 * old["max_abs_z1_last_half"]
-        assert new["diagnostics"]["max"][0] == pytest.approx(3.0 * old["diagnostics"]["max"][0], rel=1e-12)
-    assert any(after[i].values["error_rate"] != before[i].values["error_rate"] for i in kept)
-
-
 def _folded_names(scs: list, monkeypatch) -> set[str]:
     """The reductions the compiled batch folded in its loop."""
     names: set[str] = set()
@@ -126,13 +107,20 @@ def _folded_names(scs: list, monkeypatch) -> set[str]:
     return names
 
 
-def test_the_separation_is_folded_from_its_one_definition(monkeypatch) -> None:
-    """The bound ratios and the smallest r of (37)-(43) are folded in the loop (Example 2's terms:
-    squares, sin, cos), traced from the one definition the array form evaluates: changed there,
-    both change alike."""
-    scs = _variants("example2")
+def test_folded_values_change_with_their_one_definition(monkeypatch) -> None:
+    """The tracking error, the error rate's interpolation, the law's diagnostic and the bound
+    ratios and smallest r of (37)-(43) (folded in the loop: Example 2's terms are squares, sin and
+    cos), each changed in its one place: the compiled batch and the array form change alike. The
+    changes are made at once (one changed module to compile, not one per change): none of them
+    changes the closed loop, and each is checked on the value it alone changes."""
+    scs = _variants("example2", ("metrics.omega=[0.001, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0, 3.0]",))
     assert {"bound_constants", "smallest_r"} <= _folded_names(scs, monkeypatch)
     before, _ = _metrics(scs, monkeypatch, compiled=True)
+    for owner in (reductions.ErrorRate, reductions.LastHalfLargestAbs):
+        monkeypatch.setattr(owner, "values", staticmethod(_late_error))
+    monkeypatch.setattr(error_rate, "interpolated", interpolated)
+    gain = PaperLaw.robust_gain
+    monkeypatch.setattr(PaperLaw, "robust_gain", lambda self, *a, **k: gain(self, *a, **k) * 3.0)
     ratios, bounds = signals.bound_ratios, signals.bounds
     monkeypatch.setattr(signals, "bound_ratios", lambda *a: [v * 2.0 for v in ratios(*a)])
     monkeypatch.setattr(signals, "bounds", lambda *a: [v + 0.5 for v in bounds(*a)])
@@ -143,8 +131,11 @@ def test_the_separation_is_folded_from_its_one_definition(monkeypatch) -> None:
     assert kept
     for i in kept:
         old, new = before[i].values, after[i].values
+        assert new["max_abs_z1_last_half"] == 1.5 * old["max_abs_z1_last_half"]
+        assert new["diagnostics"]["max"][0] == pytest.approx(3.0 * old["diagnostics"]["max"][0], rel=1e-12)
         np.testing.assert_array_equal(new["smallest_r"], old["smallest_r"] + 0.5)
         assert not np.array_equal(new["bound_constants"], old["bound_constants"])
+    assert any(after[i].values["error_rate"] != before[i].values["error_rate"] for i in kept)
 
 
 def test_a_term_whose_numpy_value_may_differ_is_reduced_by_the_array_form(monkeypatch) -> None:

@@ -139,25 +139,25 @@ def _closed_loop_identity(n: int, h: float = 5e-4, duration: float = 4.0) -> tup
     phi = [[compile_expression(t, names) for t in row] for row in rows]
     theta, m = np.array(theta), len(theta)
 
-    def rate(t: float, s: np.ndarray) -> np.ndarray:
+    def rate(t: float, s: np.ndarray) -> tuple[np.ndarray, list[float]]:
+        """The closed loop's s' at (t, s), and the law's values there (u, tau, z)."""
         x, th = s[:n], s[n:]
-        u, *rest = law.values([float(v) for v in x], [float(v) for v in th], _reference(t, n))
-        tau = np.array(rest[:m])
+        values = law.values([float(v) for v in x], [float(v) for v in th], _reference(t, n))
+        u, tau = values[0], np.array(values[1:1 + m])
         dx = np.array([(x[i + 1] if i < n - 1 else u) + sum(theta[j] * float(phi[i][j](x)) for j in range(m))
                        for i in range(n)])
-        return np.concatenate([dx, law.gamma * tau])
+        return np.concatenate([dx, law.gamma * tau]), values
 
     s, t, states = np.array([*x0, *np.zeros(m)], dtype=float), 0.0, []
     for _ in range(int(round(duration / h)) + 1):
-        states.append((t, s.copy()))
-        k1 = rate(t, s)
-        k2 = rate(t + h / 2, s + h / 2 * k1)
-        k3 = rate(t + h / 2, s + h / 2 * k2)
-        k4 = rate(t + h, s + h * k3)
+        k1, values = rate(t, s)  # (z at the state: V's, below)
+        states.append((t, s.copy(), values[1 + m:]))
+        k2 = rate(t + h / 2, s + h / 2 * k1)[0]
+        k3 = rate(t + h / 2, s + h / 2 * k2)[0]
+        k4 = rate(t + h, s + h * k3)[0]
         s, t = s + h / 6 * (k1 + 2 * (k2 + k3) + k4), t + h
     V, dissipation, z1 = [], [], []
-    for t, s in states:
-        z = law.values([float(v) for v in s[:n]], [float(v) for v in s[n:]], _reference(t, n))[1 + m:]
+    for _, s, z in states:
         V.append(0.5 * sum(zi * zi for zi in z) + float(np.sum((theta - s[n:]) ** 2)) / (2 * law.gamma))
         dissipation.append(sum(ci * zi * zi for ci, zi in zip(c, z, strict=True)))
         z1.append(z[0])
