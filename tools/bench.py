@@ -25,7 +25,9 @@
   RK4 on one core (target for 1000 runs <= 4); the same for ``qcontrol region`` (121 bounded starts
   of Example 2, both backends; <= 0.65 on MuJoCo, <= 4 on the ODE); on W workers the targets are
   2 / W times those; wall and CPU time (this process and its workers) per simulated second; the
-  bare steps' CPU time measured before and after (slow). ``--only-sweeps``: these figures alone.
+  bare steps' CPU time measured before and after (slow); each sweep or region timed again while
+  its timings take less than 2 s in all (the ODE region, about 0.2 s, some ten times): the figure
+  is the shortest, the median beside it. ``--only-sweeps``: these figures alone.
 
 Timings are best-of-N (the machine may be shared); ``--quick`` shortens every horizon.
 
