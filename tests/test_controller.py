@@ -192,3 +192,39 @@ def test_construction_errors(kwargs, message):
     args.update(kwargs)
     with pytest.raises(QcontrolInputError, match=message):
         PaperLaw(**args)
+
+
+def test_coordinates_of_the_same_gains_are_the_first_objects_numbers_in_arrays_of_their_own():
+    """A batch of user laws builds the same coordinates once per copy: later objects take the
+    first one's numbers (bit for bit, as computed), each in arrays of its own."""
+    c, bound, names = [1.5, 0.7, 2.2], 0.025, ("A", "B", "L_z", "L_alpha", "_Wq", "_Wy")
+    first = Backstepping(c, bound)
+    for name in names:
+        getattr(first, name)[...] = 7.0  # (what one object does to its arrays stays its own)
+    second, third = Backstepping(c, bound), Backstepping(np.array(c), np.float64(bound))
+    A, B = backstepping_coefficients(np.array(c))
+    L_z, L_alpha = lemma2_bounds(np.array(c), bound)
+    expected = {"A": A, "B": B, "L_z": L_z, "L_alpha": L_alpha}
+    for name in names:
+        ours, theirs = getattr(second, name), getattr(third, name)
+        assert ours is not theirs and ours.tobytes() == theirs.tobytes() and not np.any(ours == 7.0)
+        if name in expected:
+            assert ours.tobytes() == expected[name].tobytes()
+    assert second._steps == third._steps and second.L == float(L_z[-1])
+    q = np.array([[0.1, -0.2, 0.3]])
+    yd = np.array([[0.05, 0.4, -0.1, 0.2]])
+    by_recursion = second.recursion(tuple(q.T), tuple(yd.T))
+    zbar, alphabar = second.quantized_errors(q, yd)
+    assert np.allclose(zbar, np.column_stack(by_recursion[0]), rtol=0, atol=1e-15)
+    assert np.allclose(alphabar, np.column_stack(by_recursion[1]), rtol=0, atol=1e-15)
+
+
+def test_a_subclass_with_its_own_recursion_derives_its_coordinates_itself():
+    class Doubled(Backstepping):
+        def recursion(self, q, yd):
+            zbar, alphabar = super().recursion(q, yd)
+            return [2.0 * z for z in zbar], alphabar
+
+    plain, doubled = Backstepping([2.0, 3.0], 0.01), Doubled([2.0, 3.0], 0.01)
+    assert np.array_equal(doubled._Wq[:, :2], 2.0 * plain._Wq[:, :2])
+    assert np.array_equal(Backstepping([2.0, 3.0], 0.01)._Wq, plain._Wq)

@@ -246,3 +246,41 @@ def test_a_column_form_law_s_batch_is_compiled_and_each_copy_is_its_run_alone(re
 def test_a_number_of_a_law_is_unchanged_only_to_the_bit(a, b, same) -> None:
     """What decides that a law kept no state, and that a batch's copy traces as the copy before it."""
     assert unchanged({"k": a}, {"k": b}) is same
+
+
+def test_the_protocol_test_of_a_law_is_typings() -> None:
+    """The engine tests each copy's law against the protocols with their members listed once
+    (typing lists them at every test): the same answers as isinstance."""
+    from qcontrol.controller.law import conforms
+    from qcontrol.controller.user import Law, _Advancing, _FromContext
+    from qcontrol.controller.user_diagnostics import LawDiagnostics
+
+    class Rate:
+        state_size = 1
+
+        def initial_state(self):
+            return np.zeros(1)
+
+        def control(self, t, x_q, yd, state):
+            return 0.0
+
+        def state_rate(self, t, x_q, yd, state):
+            return state
+
+    class Stepped(Rate):
+        state_rate = None  # (typing's way to block a method)
+
+        def advance(self, t, x_q, yd, state, h):
+            return state
+
+    class Declared(Law):  # derives from the protocol, members missing: typing says yes
+        pass
+
+    class Unsized:  # no state_size, unless an object sets its own
+        initial_state, control, state_rate = Rate.initial_state, Rate.control, Rate.state_rate
+
+    sized = Unsized()
+    sized.state_size = 2
+    objects = [Rate(), Stepped(), Unsized(), sized, Declared(), object(), 3.0, Rate, qcontrol.PaperLaw]
+    for protocol in (Law, _Advancing, _FromContext, LawDiagnostics):
+        assert [conforms(o, protocol) for o in objects] == [isinstance(o, protocol) for o in objects]

@@ -15,7 +15,8 @@ Each law as it runs by default, the figure user law / built-in (target 2x), in t
   loop, a traced law through its traced calls;
 * ``QCONTROL_COMPILE=0``: every law's own Python (what a law without a compiled form pays).
 
-Timings are best of N (wall; CPU beside it for the session's figures).
+Timings are best of N (the batches in a session best of 3N), in rounds that run every law in turn
+(wall; the CPU ratio beside it for the session's figures: it spreads less with the load).
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from qcontrol.scenario import Scenario, load_scenario  # noqa: E402
 from qcontrol.timegrid import TimeGrid
 
 FORMS = laws_by_hand.FORMS
+BATCH_ROUNDS = 3  # rounds of the batches per --repeat
 
 
 def scenarios(duration: float, copies: int) -> dict[str, list[Scenario]]:
@@ -74,15 +76,20 @@ def compiled_form(sc: Scenario) -> str:
     return "compiled" if not isinstance(parts, str) else parts
 
 
-def timed(made: dict[str, list[Scenario]], repeat: int, warm: bool = True
+def timed(made: dict[str, list[Scenario]], rounds: int, warm: bool = True
           ) -> tuple[dict[str, float], dict[str, float]]:
-    """Best wall and best CPU time of each entry's run (``warm``: a first run outside the timing,
-    for numba's start, a compiled form's tracing and the compiled-code cache)."""
-    wall, cpu = {}, {}
-    for name, scs in made.items():
-        if warm:
+    """Best wall and best CPU time of each entry's run over ``rounds`` rounds, each running every
+    entry once, in turn (``warm``: a first run of each outside the timing, for numba's start, a
+    compiled form's tracing and the compiled-code cache): the entries meet the same load, which
+    on a shared machine changes from one second to the next."""
+    if warm:
+        for scs in made.values():
             run_batch(scs)
-        wall[name], cpu[name] = best_of_both(repeat, lambda scs=scs: run_batch(scs))
+    wall, cpu = dict.fromkeys(made, float("inf")), dict.fromkeys(made, float("inf"))
+    for _ in range(rounds):
+        for name, scs in made.items():
+            once = best_of_both(1, lambda scs=scs: run_batch(scs))
+            wall[name], cpu[name] = min(wall[name], once[0]), min(cpu[name], once[1])
     return wall, cpu
 
 
@@ -118,11 +125,13 @@ def measure(duration: float, batch_duration: float, copies: int, repeat: int) ->
     single, batched = scenarios(duration, 1), scenarios(batch_duration, copies)
     result["compiled_form"] = {f: compiled_form(single[f][0]) for f in FORMS}
     result["single_s"], result["single_cpu_s"] = timed(single, repeat)
-    result["batch_s"], result["batch_cpu_s"] = timed(batched, max(1, repeat - 1))
+    # (a batch of 50 takes 20-40 ms: its best of two, at a load of 5-8, spread 1.2-2.0x for the same code)
+    result["batch_s"], result["batch_cpu_s"] = timed(batched, BATCH_ROUNDS * repeat)
     with python_loop():
         result["single_python_s"] = timed(single, repeat, warm=False)[0]
         result["batch_python_s"] = timed(batched, max(1, repeat - 1), warm=False)[0]
-    for run in ("single", "batch", "single_fresh", "single_python", "batch_python"):
+    for run in ("single", "batch", "single_fresh", "single_python", "batch_python", "single_cpu",
+                "batch_cpu"):
         times = result[f"{run}_s"]
         result[f"{run}_ratio"] = {f: times[f] / times["built-in"] for f in FORMS}
     result.update(duration_s=duration, batch_duration_s=batch_duration, copies=copies, repeat=repeat)
@@ -143,7 +152,8 @@ def report(result: dict) -> None:
                      if run == "single" else "")
             times = result[f"{run}_s"]
             print(f"{label + ', ' + NAMES[form]:52s} {result[f'{run}_ratio'][form]:10.2f}  <= 2    "
-                  f"({times[form]:.3f} s vs {times['built-in']:.3f} s in a session; "
+                  f"({times[form]:.3f} s vs {times['built-in']:.3f} s in a session, CPU "
+                  f"{result[f'{run}_cpu_ratio'][form]:.2f}x; "
                   f"{fresh}QCONTROL_COMPILE=0 {result[f'{run}_python_ratio'][form]:.2f}x; "
                   f"compiled form: {result['compiled_form'][form]})")
 

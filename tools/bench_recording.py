@@ -6,6 +6,10 @@ Prints the median wall time of the bare run and of the recorded run (the recorde
 5000 rows, draws a hinge pendulum posed from x1 and a target marker at y_d), the overhead fraction
 (target: <= 0.25), the file size and the rows logged per entity. The one-off ``import rerun`` is
 timed separately: it is paid once per process, not per run.
+
+tools/bench.py takes its recording figure (:func:`recording_overhead`: ``qcontrol run`` of
+Example 2 on MuJoCo, the command's own path) and the peak memory of a 10 kHz run
+(:func:`peak_memory_mb`) from here.
 """
 
 from __future__ import annotations
@@ -15,13 +19,16 @@ import statistics
 import sys
 import tempfile
 import time
+import tracemalloc
 from collections import Counter
 from pathlib import Path
 
 import mujoco
 import numpy as np
+from bench_limits import scenario
 
 import qcontrol
+from qcontrol.assembly import run_scenario
 from qcontrol.controller import PaperLaw
 from qcontrol.engine import Observer, RunSpec, Trajectory, simulate
 from qcontrol.expr import compile_expression as C
@@ -140,6 +147,41 @@ def main(argv: list[str] | None = None) -> int:
         print(f"    {entity:40s} {count}")
     return 0 if overhead <= 0.25 else 1
 
+
+def recording_overhead(duration: float, repeat: int) -> dict:
+    """What ``--rrd`` adds to ``qcontrol run scenarios/example2.toml`` (MuJoCo, the command's own
+    path: ``qcontrol.run`` with and without ``rrd``), interleaved runs, best of ``repeat`` each:
+    the seconds the recording adds and their ratio to the run without it (the target is for the
+    ratio against the fastest run path there is, so the seconds are what a faster loop will meet)."""
+    import qcontrol
+
+    sc = scenario("example2", duration)
+    bare, recorded = [], []
+    with tempfile.TemporaryDirectory(prefix="qcontrol-bench-") as tmp:
+        # untimed: the one-off import of rerun and start of its machinery (about 0.4 s) belongs
+        # to the process, not to each run (it made --quick report 19x)
+        qcontrol.run(sc, "mujoco", rrd=Path(tmp) / "warm-up.rrd")
+        for _ in range(repeat):
+            started = time.perf_counter()
+            qcontrol.run(sc, "mujoco")
+            bare.append(time.perf_counter() - started)
+            started = time.perf_counter()
+            qcontrol.run(sc, "mujoco", rrd=Path(tmp) / "bench.rrd")
+            recorded.append(time.perf_counter() - started)
+        size = (Path(tmp) / "bench.rrd").stat().st_size
+    extra = min(recorded) - min(bare)
+    return {"ratio": extra / min(bare), "recording_s": extra, "run_s": min(bare), "file_mb": size / 2**20,
+            "ms_per_simulated_s": extra / duration * 1e3, "target": "<= 5 ms per simulated second",
+            "note": f"qcontrol run example2 --rrd, MuJoCo, {duration:g} s, best of {repeat}"}
+
+
+def peak_memory_mb(duration: float) -> float:
+    sc = scenario("example2", duration, dt=1e-4)
+    tracemalloc.start()
+    run_scenario(sc, "ode")
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    return peak / 2**20
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -40,7 +40,7 @@ from ..errors import QcontrolInputError
 from ..quantizer import QuantizedReading
 from ..schema import Table
 from .backstepping import Backstepping, Columns
-from .law import LawContext
+from .law import LawContext, conforms
 from .user_diagnostics import declared_diagnostics
 from .user_failure import describe, describe_call, returned
 
@@ -93,7 +93,7 @@ LawFactory = Callable[[dict, int], Law]  # (the [controller] table, the plant or
 
 def advances_itself(law: object) -> bool:
     """True when the law gives its own ``advance`` (used in place of RK4 of ``state_rate``)."""
-    return isinstance(law, _Advancing)
+    return conforms(law, _Advancing)
 
 
 class _Sample(NamedTuple):
@@ -349,7 +349,7 @@ class StateUpdate:
 
 
 def _state_size(law: object) -> int:
-    if not isinstance(law, Law | _Advancing):
+    if not (conforms(law, Law) or conforms(law, _Advancing)):
         raise QcontrolInputError(
             f"a user law must have state_size, initial_state(), control() and state_rate() or advance() "
             f"(the qcontrol.Law protocol); the factory returned {type(law).__name__}"
@@ -421,7 +421,7 @@ def _call(factory: LawFactory, settings: UserSettings, ctx: LawContext) -> Law:
     context's ``settings``: the law's own keys), else ``factory(table, n)``; its input errors
     become one line naming the file and the table."""
     try:
-        if isinstance(factory, _FromContext):
+        if conforms(factory, _FromContext):
             own = {k: v for k, v in settings.table.items() if k not in COMMON_KEYS}
             context = dataclasses.replace(ctx, settings=MappingProxyType(own), controller=None)
             law = factory.from_context(context)

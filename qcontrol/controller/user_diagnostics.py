@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import QcontrolInputError
 from .backstepping import Columns
-from .law import Diagnostic, Evaluate
+from .law import Diagnostic, Evaluate, conforms
 
 
 @runtime_checkable
@@ -67,7 +67,7 @@ def declared_diagnostics(laws: Sequence[object], kind: str) -> tuple[Diagnostic,
     for a law without :class:`LawDiagnostics`). Every copy must declare the same names, widths
     and reductions; each is evaluated with its own copy's declaration."""
     law = f"controller kind {kind!r}"
-    declared = [checked_declarations(copy.diagnostics, law) if isinstance(copy, LawDiagnostics) else ()
+    declared = [checked_declarations(copy.diagnostics, law) if conforms(copy, LawDiagnostics) else ()
                 for copy in laws]
     shapes = {tuple((d.name, d.width, d.reduce) for d in copy) for copy in declared}
     if len(shapes) != 1:

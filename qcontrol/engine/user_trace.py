@@ -153,21 +153,28 @@ def quietly() -> Any:
         random.setstate(python_state)
 
 
+_VALUES = frozenset({str, int, bool, type(None), bytes, complex})  # no attributes; == never raises
+
+
 def unchanged(a: Any, b: Any, depth: int = 0) -> bool:
     """Whether a law's attribute is unchanged (its copy before and after tracing): numbers to the
     bit, arrays, containers and plain objects entry by entry; a symbol anywhere is a change."""
-    if isinstance(a, Symbol) or isinstance(b, Symbol) or type(a) is not type(b):
+    kind = type(a)
+    if kind is not type(b):
         return False
-    if isinstance(a, float | np.floating):
+    if kind in _VALUES:  # (what the last line decides, without looking for attributes first)
+        return bool(a == b)
+    if kind is float or isinstance(a, float | np.floating):
         return bool(a == b or (a != a and b != b)) and math.copysign(1, a) == math.copysign(1, b)  # NaN: NaN
+    if isinstance(a, Symbol):
+        return False
     if isinstance(a, np.ndarray):
         return a.dtype == b.dtype and a.shape == b.shape and (
-            all(unchanged(x, y, depth + 1) for x, y in zip(a.ravel(), b.ravel(), strict=True))
-            if a.dtype == object else a.tobytes() == b.tobytes())
+            _all_unchanged(a.ravel(), b.ravel(), depth) if a.dtype == object else a.tobytes() == b.tobytes())
     if isinstance(a, list | tuple):
-        return len(a) == len(b) and all(unchanged(x, y, depth + 1) for x, y in zip(a, b, strict=True))
+        return len(a) == len(b) and _all_unchanged(a, b, depth)
     if isinstance(a, dict):
-        return a.keys() == b.keys() and all(unchanged(a[k], b[k], depth + 1) for k in a)
+        return a.keys() == b.keys() and _all_unchanged(a.values(), [b[k] for k in a], depth)
     if isinstance(a, np.random.Generator):
         return a.bit_generator.state == b.bit_generator.state
     if depth < 4 and not isinstance(a, type):
@@ -179,6 +186,14 @@ def unchanged(a: Any, b: Any, depth: int = 0) -> bool:
         return bool(a == b)
     except Exception:  # an object without a plain equality: unchanged only if it is the same one
         return a is b
+
+
+def _all_unchanged(a: Any, b: Any, depth: int) -> bool:
+    """:func:`unchanged` for each pair of entries of ``a`` and ``b`` (of the same length)."""
+    for x, y in zip(a, b):  # noqa: B905 (the same length)
+        if not unchanged(x, y, depth + 1):
+            return False
+    return True
 
 
 def check_points(n: int, m: int, state0: np.ndarray, seed: int) -> list[tuple]:
