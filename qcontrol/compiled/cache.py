@@ -102,13 +102,12 @@ def count_uncompiled(kind: str, source: str, rows: int) -> None:
     _atomic(folder / f"{_name(kind, source)}.rows", str(rows))
 
 
-def shared(kind: str, source: str, suffix: str = "") -> str:
+def shared(kind: str, source: str) -> str:
     """The line importing the functions of ``source`` (module-level text of decorated functions)
     from a generated module of their own, compiled once and kept in the cache like any other,
     then linked into each generated module that imports them instead of compiled again in each.
-    Its name is the hash of its text, so an importer's text (and its cache entry) changes with it.
-    ``suffix``: each function imported as its name + ``suffix``."""
+    Its name is the hash of its text, so an importer's text (and its cache entry) changes with it."""
     names = re.findall(r"^def (\w+)\(", source, flags=re.MULTILINE)
     module = generated_module(kind, "import math\n\nimport numba\nimport numpy as np\n\n"
                                     f"from qcontrol.compiled.pointers import opaque\n\n{source}")
-    return f"from {module.__name__} import {', '.join(f'{n} as {n}{suffix}' if suffix else n for n in names)}"
+    return f"from {module.__name__} import {', '.join(names)}"

@@ -65,7 +65,6 @@ from ..quantizer import UniformQuantizer
 from . import compiled_loop
 from .compiled_folds import NO_VALUES, Folds, helpers
 from .compiled_loop import (
-    COLD,
     CONTROL_REFUSED,
     START,
     LoopParts,
@@ -258,16 +257,20 @@ def batch_source(parts: TracedParts, plant: NativeStepper, n: int, m: int, fold:
     """The module text: ``copy_rows`` (one copy's rows from ``start``, the single run's loop body
     on column b, with the quick divergence test and the reductions' folds, ``enter`` before the
     rows and ``leave`` before every return; ``yd``'s first line is row ``origin``'s), or with
-    ``pairs`` ``pair_rows`` (two copies in lockstep: :func:`pair_lines`), and ``rows``."""
+    ``pairs`` ``pair_rows`` (two copies in lockstep: :func:`pair_lines`, the ODE's step written
+    out in the loop by :func:`written_step`, where numba's inlining of the step's helper ran its
+    passes again at each call; the entry's step, once a call, calls the shared helper), and
+    ``rows``."""
     # (every test evaluated, joined by &: no branch per test, fewer blocks for numba to compile)
     finite = ([f"(abs(x{i}) <= bound)" for i in range(1, n + 1)]
               + [f"math.isfinite(adaptive[{i}])" for i in range(m)])
     test = [f"if not ({' & '.join(finite)}):", "    suspect[k - origin] = True"]
     pieces = loop_parts(parts, plant, n, m, "b, j", test, fold)  # (buffers stored copy after copy)
-    pairs = pairs and not any(_RETURN.match(line) for line in pieces.keep)  # (returns only where known)
-    inlined = False
+    # (pairs where the plant's step is written out in the loop and the row keeps no return of its own)
+    step = written_step(plant) if pairs else None
+    pairs = step is not None and not any(_RETURN.match(line) for line in pieces.keep)
     if pairs:
-        pieces, inlined = pair_steps(pieces, plant)
+        pieces = pieces._replace(step=[*step, *pieces.step[len(plant.step):]])
         function = [f"def pair_rows(b, b_c, origin, start, stop, step_first, {ARGUMENTS}, adaptive,"
                     " adaptive_c, held, held_c, lp, lp_c, pf, pf_c, xs, xs_c, suspect, fp, fp_c, lf, lf_c,"
                     f" pi, {FOLDS}):",
@@ -280,20 +283,7 @@ def batch_source(parts: TracedParts, plant: NativeStepper, n: int, m: int, fold:
             body.append(line)
         function = [f"def copy_rows(b, origin, start, stop, step_first, {ARGUMENTS}, adaptive, held, lp, pf,"
                     f" pi, xs, suspect, fp, lf, {FOLDS}):", *_indented(body, 1)]
-    return module_source(plant, [helpers(), "", CALLED, *function, "", *rows_lines(pairs), ""], inlined)
-
-
-def pair_steps(pieces: LoopParts, plant: NativeStepper) -> tuple[LoopParts, bool]:
-    """A pair's pieces with the plant's step in the loop inlined (about 4 ns less a copy-step of
-    Example 2), and whether the module must inline the plant's helpers for it: the ODE's step is
-    written out in the loop (:func:`written_step`: numba's own inlining runs its passes on the
-    helper again at each call, about 0.6 s of CPU more to compile a pair); another plant's helpers
-    are inlined by numba. The entry's step, once a call, calls the helpers, not inlined."""
-    step = written_step(plant)
-    if step is not None:
-        return pieces._replace(step=[*step, *pieces.step[len(plant.step):]]), False
-    called = re.compile(r"\b(" + "|".join(re.findall(r"^def (\w+)\(", plant.helpers, re.MULTILINE)) + r")\(")
-    return pieces._replace(entry=[called.sub(rf"\1{COLD}(", line) for line in pieces.entry]), True
+    return module_source(plant, [helpers(), "", CALLED, *function, "", *rows_lines(pairs), ""])
 
 
 _ODE_STEP = ("if plant_step(u, xs, pf):", "    return 2, k")  # the ODE's step in the loop (ChainNativeForm)

@@ -39,7 +39,7 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 
 from .. import compiled as compiled_paths
-from ..compiled import CALLED, JIT
+from ..compiled import JIT
 from ..compiled.traced import TRACED, Symbol, Trace, TracedForm, recording
 from ..controller.backstepping import BacksteppingLaw, ControlOutput, output
 from ..controller.law import BatchLaw
@@ -243,26 +243,18 @@ def loop_body(parts: TracedParts, plant: NativeStepper, n: int, m: int, at: str 
     ]
 
 
-COLD = "_cold"  # the suffix of the plant's helpers called, not inlined, where ``inlined`` (module_source)
-
-
-def module_source(plant: NativeStepper, functions: list[str], inlined: bool = False) -> str:
+def module_source(plant: NativeStepper, functions: list[str]) -> str:
     """A generated module: its imports, the plant's helpers (from a module of their own, compiled
-    once for every loop and batch of the plant: :func:`~qcontrol.compiled.cache.shared`; with
-    ``inlined``, in the module, its called functions inlined where they are called: a larger
-    compilation, a faster loop; and the shared ones too, named with :data:`COLD`'s suffix, for the
-    calls that run once a call, where inlining would cost compile time for nothing), then
+    once for every loop and batch of the plant: :func:`~qcontrol.compiled.cache.shared`), then
     ``functions``' lines."""
     from ..compiled.cache import shared
 
-    helpers = (plant.helpers.replace(CALLED, CALLED[:-1] + ', inline="always")') + "\n"
-               + shared("step", plant.helpers, COLD) if inlined else shared("step", plant.helpers))
     return "\n".join([
         '"""qcontrol\'s compiled loop (generated): see KEY."""',  # (user text only as a repr literal)
         "import math", "", "import numba", "import numpy as np", "",
         f"KEY = {plant.key!r}", "",
         "from qcontrol.compiled.pointers import as_pointer, carray, opaque", "",
-        helpers, "", *functions, "",
+        shared("step", plant.helpers), "", *functions, "",
     ])
 
 
