@@ -308,10 +308,12 @@ def test_held_signals_are_given_back_as_the_block_ends() -> None:
     put back first); a handler that runs no Python (SIGTERM's default action here, a worker's
     ignored Ctrl-C) is left as it is; in another thread nothing is held (only the main thread runs
     the handlers and may change them)."""
-    terminate = signal.signal(signal.SIGTERM, signal.SIG_DFL)  # (a handler that runs no Python)
-    try:
+    interrupt = signal.signal(signal.SIGINT, signal.default_int_handler)  # (set here: a shell that
+    terminate = signal.signal(signal.SIGTERM, signal.SIG_DFL)  # starts pytest in the background
+    try:  # has it ignore Ctrl-C); SIGTERM's default action is a handler that runs no Python
         _held_in_the_main_thread_only()
     finally:
+        signal.signal(signal.SIGINT, interrupt)
         signal.signal(signal.SIGTERM, terminate)
 
 
