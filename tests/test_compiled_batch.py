@@ -115,11 +115,15 @@ def test_one_module_serves_every_batch_size(monkeypatch) -> None:
 
 def test_paired_copies_are_each_their_run_alone_wherever_one_stops(monkeypatch) -> None:
     """A large batch's ODE copies run two at a time in lockstep (here from 2 copies on); where math
-    refuses one's step (copies that diverge), the other goes on alone from where it was, also
-    where the refused step opens a block of rows (blocks of 1 and 3 rows), and an odd batch's
-    last copy runs beside a twin of itself: every copy's numbers are still the array form's and
-    its run alone's, to the last bit. (Example 2 with one term, x2^2 cos(x1), and one estimate: a
-    pair form about a quarter cheaper to compile than the full example's.)"""
+    refuses one's step or its control (copies that diverge), the other goes on alone from where it
+    was: at the row it had reached, with its step first or not. Each case arises with the refused
+    copy first and with it second in its pair: a step refused inside a block (the default blocks;
+    copy 5 in blocks of 3) or as a block's first step (blocks of 1 and 3 rows), a control refused
+    (r's cos(q2) once q2 is infinite: copy 18, twice, first in one pair and second in another).
+    An odd batch's last copy runs beside a twin of itself. Every copy's numbers are still the array
+    form's and its run alone's, to the last bit, and no copy is refused before it stopped (no batch
+    redone). (Example 2 with one term, x2^2 cos(x1), and one estimate: a pair form about a quarter
+    cheaper to compile than the full example's; one structure for every case.)"""
     import qcontrol.compiled.cache as cache
     import qcontrol.engine.compiled_batch as compiled_batch
     import qcontrol.engine.retention as retention
@@ -129,21 +133,25 @@ def test_paired_copies_are_each_their_run_alone_wherever_one_stops(monkeypatch) 
         texts.append(source) if kind == "batch" else None, generated(kind, source))[1])
     monkeypatch.setattr(compiled_batch, "PAIRS_MIN_ROWS", 2)
     one_term = ["plant.mujoco.native_terms=[]", 'plant.phi=["x2**2*cos(x1)"]', "plant.theta=[-3.5]",
-                'controller.r=["1 + 2*q2**2"]']
-    scs = _variants("example2", one_term)[:23]  # (stopping at rows 2, 3 and 6, copy 22 at 3)
+                'controller.r=["1 + 2*q2**2 + 1e-300*cos(q2)"]']
+    copies = _variants("example2", one_term)  # (stopping at rows 2, 3 and 6)
+    scs = [*copies[:17], copies[18], copies[17], copies[18], *copies[20:23]]
     _, array = _run(_spec(scs, "metrics"), monkeypatch, compiled=False)
     monkeypatch.setenv("QCONTROL_COMPILE", "0")
     alone = [assemble([sc], "ode").run(record="metrics")[0] for sc in scs]
     monkeypatch.delenv("QCONTROL_COMPILE")
-    for rows in (1, 3):
-        for name in ("METRICS_CHUNK", "METRICS_MIN_CHUNK", "METRICS_BUFFER_ELEMENTS"):
-            monkeypatch.setattr(retention, name, rows)
+    blocks = ("METRICS_CHUNK", "METRICS_MIN_CHUNK", "METRICS_BUFFER_ELEMENTS")
+    defaults = {name: getattr(retention, name) for name in blocks}
+    for rows in (1, 3, None):  # (None: the default blocks, longer than the run)
+        for name in blocks:
+            monkeypatch.setattr(retention, name, rows or defaults[name])
         loop, compiled = _run(_spec(scs, "metrics"), monkeypatch)
         assert loop.handover is None and "def pair_rows" in texts[-1]
         assert 0 < sum(r.diverged for r in compiled) < len(scs)
         for a, b, c in zip(compiled, array, alone, strict=True):
             _same(a, b)
             _same(a, c)
+    assert len(set(texts)) == 1
 
 def _refusing(x1: list[float]) -> RunSpec:
     """A batch whose plant term sqrt(x1) math refuses (numpy answers NaN) where x1 < 0."""

@@ -148,12 +148,15 @@ def test_on_floats_falls_back_to_numpys_answer() -> None:
 @pytest.mark.parametrize("record", ["full", "metrics"])
 @pytest.mark.parametrize("with_progress", [False, True])
 @pytest.mark.parametrize("bound", [0.5, 0.74, 1.1])
-def test_a_batch_of_one_stops_at_the_first_row_out_of_bounds(bound: float, with_progress: bool,
+def test_a_batch_of_one_stops_at_the_first_row_out_of_bounds(python_loop, bound: float, with_progress: bool,
                                                              record: str) -> None:
     """A batch of one tests its rows in blocks (when they are written), not every step; it must
     still stop at exactly the first row whose state leaves the bound, whether that row falls
     before, on or between the rows where progress, flushes and metric chunks happen, and agree
-    with a batch of two, which tests every row."""
+    with a batch of two, which tests every row: in the array form, always (``python_loop``: else
+    the batch of two would be compiled or not depending on the runs before it, through the
+    compile gate's count; the compiled batch's stops are the array form's in
+    tests/test_compiled_batch.py)."""
     sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=3.0"])
     free = simulate(RunSpec(plant=build_plant(sc, "ode"), law=build_controller(sc),
                             quantizer=build_quantizer(sc), reference=build_reference(sc), x0=sc.x0,
