@@ -4,14 +4,13 @@ that make, finish and save a figure atomically."""
 from __future__ import annotations
 
 import os
-import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from matplotlib.axes import Axes
-from matplotlib.backends.backend_agg import FigureCanvasAgg, RendererAgg
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from ..engine import Trajectory
@@ -69,37 +68,10 @@ EXAMPLE2_UNITS = Units(y="rad", u="rad/s$^2$")
 # --------------------------------------------------------------------------------------------
 
 
-_RENDERERS = threading.local()
-
-
-class SharedRendererCanvas(FigureCanvasAgg):
-    """An Agg canvas that draws with the one renderer of its thread for its size and dpi, cleared
-    before each drawing (as a canvas clears its own): the pixels are those of a renderer of its
-    own, and the text sizes measured for one figure (tick labels, formulas) are known to the
-    next. The renderer's pixels are the last drawn figure's: read them only right after drawing."""
-
-    def get_renderer(self) -> RendererAgg:
-        w, h = self.get_width_height(physical=True)
-        key = (w, h, self.figure.dpi)
-        shared = getattr(_RENDERERS, "by_size", None)
-        if shared is None:
-            shared = _RENDERERS.by_size = {}
-        if key not in shared:
-            shared[key] = RendererAgg(w, h, self.figure.dpi)
-        self.renderer, self._lastKey = shared[key], key
-        return self.renderer
-
-
-def empty_figure() -> Figure:
-    """A constrained-layout figure of the fixed size, on a :class:`SharedRendererCanvas`."""
-    fig = Figure(figsize=(FIG_WIDTH_PX / FIG_DPI, FIG_HEIGHT_PX / FIG_DPI), dpi=FIG_DPI, layout="constrained")
-    SharedRendererCanvas(fig)
-    return fig
-
-
 def new_figure(rows: int = 1, cols: int = 1, **subplot_kw) -> tuple[Figure, np.ndarray]:
-    """A constrained-layout figure of the fixed size (:func:`empty_figure`), with its axes array."""
-    fig = empty_figure()
+    """A constrained-layout figure of the fixed size on its own Agg canvas, with its axes array."""
+    fig = Figure(figsize=(FIG_WIDTH_PX / FIG_DPI, FIG_HEIGHT_PX / FIG_DPI), dpi=FIG_DPI, layout="constrained")
+    FigureCanvasAgg(fig)
     axes = fig.subplots(rows, cols, squeeze=False, **subplot_kw)
     return fig, axes
 

@@ -9,9 +9,11 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from .common import empty_figure, save
+from .common import FIG_DPI, FIG_HEIGHT_PX, FIG_WIDTH_PX, save
 from .region import RegionMap, draw_maps
 
 MARKERS = ("o", "s", "^", "D")  # one per example in the trade-off plane
@@ -27,7 +29,8 @@ def fig_tradeoff(maps: Sequence[Sequence[RegionMap]], rows: Sequence[Mapping[str
                  outcomes: Sequence[str], path: str | os.PathLike, title: str) -> Path:
     """``maps``: a list of maps per example (a map per law); ``rows``: the study's rows (``example``,
     ``name``, ``error_rate``, ``failing_in_box``, ``points_in_box``), the laws in the maps' order."""
-    fig = empty_figure()
+    fig = Figure(figsize=(FIG_WIDTH_PX / FIG_DPI, FIG_HEIGHT_PX / FIG_DPI), dpi=FIG_DPI, layout="constrained")
+    FigureCanvasAgg(fig)
     top, bottom = fig.subfigures(2, 1, height_ratios=(1.9, 1.3))
     draw_maps(top, top.subplots(len(maps), max(len(m) for m in maps), squeeze=False), maps, outcomes)
     examples = list(dict.fromkeys(r["example"] for r in rows))
