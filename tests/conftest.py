@@ -23,6 +23,9 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "qcontrol"
 # compiled code is cached beside pytest's own cache, so later sessions load it instead of compiling
 os.environ.setdefault("QCONTROL_CACHE_DIR", str(ROOT / ".pytest_cache" / "qcontrol-compiled"))
+# what tests/test_architecture.py reads from each module's syntax tree, kept by the module's text
+# (the copies of the repository tests/test_recipes.py makes are given the same folder)
+os.environ.setdefault("QCONTROL_TEST_FACTS_DIR", str(ROOT / ".pytest_cache" / "architecture-facts"))
 SCENARIOS = ROOT / "scenarios"
 MODELS = ROOT / "models"
 EX1 = SCENARIOS / "example1.toml"

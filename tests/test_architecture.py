@@ -7,9 +7,13 @@ from __future__ import annotations
 
 import ast
 import dataclasses
+import hashlib
 import inspect
+import json
+import os
 import subprocess
 import sys
+import tempfile
 from functools import cache
 from pathlib import Path
 
@@ -64,11 +68,57 @@ LAYERS = [
 ]
 
 
+def _facts_of(source: str) -> dict:
+    """What the tests below read from a module's syntax tree (``ast.walk``'s order): its ``from``
+    imports ``[level, module, names]``, its plain imports' names, every ``Name``/``Attribute``/
+    imported name it uses, and the lines of the functions or lambdas nested in a function or
+    lambda (once for each enclosing one), of its lambdas and of its ``hasattr`` calls."""
+    facts: dict = {"from": [], "import": [], "names": set(), "nested": [], "lambdas": [], "hasattr": []}
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Name):
+            facts["names"].add(node.id)
+        elif isinstance(node, ast.Attribute):
+            facts["names"].add(node.attr)
+        elif isinstance(node, ast.ImportFrom):
+            facts["from"].append([node.level, node.module, [alias.name for alias in node.names]])
+            facts["names"].update(alias.name for alias in node.names)
+        elif isinstance(node, ast.Import):
+            facts["import"] += [alias.name for alias in node.names]
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+            facts["nested"] += [inner.lineno for inner in ast.walk(node)
+                                if inner is not node and isinstance(inner, (ast.FunctionDef, ast.Lambda))]
+        if isinstance(node, ast.Lambda):
+            facts["lambdas"].append(node.lineno)
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "hasattr":
+            facts["hasattr"].append(node.lineno)
+    facts["names"] = sorted(facts["names"])
+    return facts
+
+
+# The facts of a module's text are kept by the hash of the text and of _facts_of's own source,
+# beside pytest's cache (conftest.py): a session's workers, and the copies of the repository that
+# tests/test_recipes.py runs this file in (they are given the same folder), parse a module only
+# when its text is new; a module a recipe edits is a new text.
+FACTS = Path(os.environ["QCONTROL_TEST_FACTS_DIR"])
+_FACTS_OF_SOURCE = inspect.getsource(_facts_of).encode()
+
+
 @cache
-def _nodes(path: Path) -> tuple[ast.AST, ...]:
-    """Every node of the module at ``path`` (``ast.walk``'s order), parsed once for all the tests
-    that read the package's source (the trees are not changed)."""
-    return tuple(ast.walk(ast.parse(path.read_text())))
+def _facts(path: Path) -> dict:
+    """:func:`_facts_of` the module at ``path``, read from the kept facts of its text if any."""
+    source = path.read_bytes()
+    key = hashlib.sha256(_FACTS_OF_SOURCE + b"\0" + source).hexdigest()
+    kept = FACTS / f"{key}.json"
+    try:
+        return json.loads(kept.read_text())
+    except (OSError, ValueError):
+        pass
+    facts = _facts_of(source.decode())
+    FACTS.mkdir(parents=True, exist_ok=True)
+    with tempfile.NamedTemporaryFile("w", dir=FACTS, suffix=".tmp", delete=False) as handle:
+        json.dump(facts, handle)
+    os.replace(handle.name, kept)  # whole or not there, for another worker reading it at once
+    return facts
 
 
 def _layer(module: str) -> int:
@@ -80,16 +130,16 @@ def _imports(path: Path) -> set[str]:
     """The qcontrol modules ``path`` imports (relative imports resolved to their top-level name)."""
     package = path.relative_to(PACKAGE).parts[:-1]
     found = set()
-    for node in _nodes(path):
-        if isinstance(node, ast.ImportFrom) and node.level:
-            base = list(package[: len(package) - node.level + 1])
-            target = [*base, *(node.module.split(".") if node.module else [])]
+    for level, module, names in _facts(path)["from"]:
+        if level:
+            base = list(package[: len(package) - level + 1])
+            target = [*base, *(module.split(".") if module else [])]
             if target:
                 found.add(target[0])
             else:  # "from . import x" at the package's top
-                found.update(alias.name for alias in node.names)
-        elif isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("qcontrol."):
-            found.add(node.module.split(".")[1])
+                found.update(names)
+        elif module and module.startswith("qcontrol."):
+            found.add(module.split(".")[1])
     return found
 
 
@@ -117,15 +167,12 @@ def _import_graph() -> dict[str, set[str]]:
     graph = {}
     for name, path in modules.items():
         package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
-        found = set()
-        for node in _nodes(path):
-            if isinstance(node, ast.ImportFrom):
-                base = package[: len(package) - node.level + 1] if node.level else []
-                target = ".".join([*base, *(node.module.split(".") if node.module else [])])
-                for alias in node.names:
-                    found.add(f"{target}.{alias.name}" if f"{target}.{alias.name}" in modules else target)
-            elif isinstance(node, ast.Import):
-                found.update(alias.name for alias in node.names)
+        found = set(_facts(path)["import"])
+        for level, module, names in _facts(path)["from"]:
+            base = package[: len(package) - level + 1] if level else []
+            target = ".".join([*base, *(module.split(".") if module else [])])
+            for alias in names:
+                found.add(f"{target}.{alias}" if f"{target}.{alias}" in modules else target)
         graph[name] = {m for m in found if m in modules and m != name and not name.startswith(m + ".")}
     return graph
 
@@ -186,18 +233,14 @@ def test_no_nested_functions_in_the_hot_packages() -> None:
     nested = []
     for package in HOT_PACKAGES:
         for path in sorted((PACKAGE / package).rglob("*.py")):
-            for node in _nodes(path):
-                if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
-                    nested += [f"{path.relative_to(ROOT)}:{inner.lineno}" for inner in ast.walk(node)
-                               if inner is not node and isinstance(inner, (ast.FunctionDef, ast.Lambda))]
+            nested += [f"{path.relative_to(ROOT)}:{line}" for line in _facts(path)["nested"]]
     assert not nested, nested
 
 
 def test_no_lambdas_at_all_in_the_hot_packages() -> None:
     """Not even at module or class level: a getter or a default is a named function or class."""
-    found = [f"{path.relative_to(ROOT)}:{node.lineno}" for package in HOT_PACKAGES
-             for path in sorted((PACKAGE / package).rglob("*.py"))
-             for node in _nodes(path) if isinstance(node, ast.Lambda)]
+    found = [f"{path.relative_to(ROOT)}:{line}" for package in HOT_PACKAGES
+             for path in sorted((PACKAGE / package).rglob("*.py")) for line in _facts(path)["lambdas"]]
     assert not found, found
 
 
@@ -266,15 +309,7 @@ PER_COPY_FLOATS = {"plants/mujoco/callbacks.py": {"FloatCombination"}}
 
 
 def _names(path: Path) -> set[str]:
-    names = set()
-    for node in _nodes(path):
-        if isinstance(node, ast.Name):
-            names.add(node.id)
-        elif isinstance(node, ast.Attribute):
-            names.add(node.attr)
-        elif isinstance(node, ast.ImportFrom):
-            names.update(alias.name for alias in node.names)
-    return names
+    return set(_facts(path)["names"])
 
 
 def test_the_float_form_is_known_in_one_module_besides_the_expression_compiler() -> None:
@@ -290,12 +325,8 @@ def test_the_float_form_is_known_in_one_module_besides_the_expression_compiler()
 
 
 def test_no_attribute_probing_in_the_package() -> None:
-    offenders = [
-        f"{path.relative_to(ROOT)}:{node.lineno}"
-        for path in PACKAGE.rglob("*.py")
-        for node in _nodes(path)
-        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "hasattr"
-    ]
+    offenders = [f"{path.relative_to(ROOT)}:{line}" for path in PACKAGE.rglob("*.py")
+                 for line in _facts(path)["hasattr"]]
     assert not offenders, offenders
 
 

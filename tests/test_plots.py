@@ -83,13 +83,9 @@ def assert_figure(path: Path, returned: Path) -> None:
     assert leftovers == [], f"temporary files left behind: {leftovers}"
 
 
-def _all_figures(proposed: Trajectory, base: Trajectory, out: Path) -> dict[str, Path]:
-    """Call every figure function once; name -> returned path."""
+def _run_figures(proposed: Trajectory, base: Trajectory, out: Path) -> dict[str, Path]:
+    """Call every figure function that draws trajectories once; name -> returned path."""
     U = P.EXAMPLE2_UNITS
-    table = {
-        "proposed": {"paper": PAPER_PROPOSED, "ODE": dict.fromkeys(OMEGAS, 0.5) | {"0.150": None}},
-        "comparison": {"paper": PAPER_COMPARISON, "ODE": dict.fromkeys(OMEGAS, float("nan"))},
-    }
     return {
         "fig1.png": P.fig_output(proposed, out / "fig1.png", P.PAPER_TITLES[1], P.EXAMPLE1_UNITS),
         "fig2.png": P.fig_tracking_error(proposed, out / "fig2.png", P.PAPER_TITLES[2], U, omega=0.1),
@@ -98,6 +94,19 @@ def _all_figures(proposed: Trajectory, base: Trajectory, out: Path) -> dict[str,
         "fig5.png": P.fig_compare_output(proposed, base, out / "fig5.png", P.PAPER_TITLES[5], U),
         "fig6.png": P.fig_compare_error(proposed, base, out / "fig6.png", P.PAPER_TITLES[6], U, omega=0.1),
         "overlay.png": P.fig_backend_overlay(proposed, base, out / "overlay.png", "MuJoCo vs ODE", U),
+    }
+
+
+def _all_figures(proposed: Trajectory, base: Trajectory, out: Path) -> dict[str, Path]:
+    """Call every figure function once; name -> returned path. The study and table figures draw
+    numbers, not trajectories (NaN and missing rates among them), so the tests of bad
+    trajectories draw :func:`_run_figures` only."""
+    table = {
+        "proposed": {"paper": PAPER_PROPOSED, "ODE": dict.fromkeys(OMEGAS, 0.5) | {"0.150": None}},
+        "comparison": {"paper": PAPER_COMPARISON, "ODE": dict.fromkeys(OMEGAS, float("nan"))},
+    }
+    return {
+        **_run_figures(proposed, base, out),
         "sens.png": P.fig_sensitivity(
             [0.1, 0.5, 1.1],
             {"0.100": [0.02, float("nan"), 0.9], "0.200": [0.01, None, 0.8]},
@@ -122,7 +131,7 @@ def test_every_figure_is_a_png_of_the_stated_size(runs, tmp_path):
 
 def test_figures_of_a_diverged_trajectory_with_nans(runs, diverged, tmp_path):
     _, base = runs
-    written = _all_figures(diverged, base, tmp_path)
+    written = _run_figures(diverged, base, tmp_path)
     for name, returned in written.items():
         assert_figure(tmp_path / name, returned)
 
@@ -135,7 +144,7 @@ def test_all_nan_trajectory_still_plots(runs, tmp_path):
         u=np.full_like(proposed.u, np.nan),
         adaptive=np.full_like(proposed.adaptive, np.nan),
     )
-    for name, returned in _all_figures(nan, nan, tmp_path).items():
+    for name, returned in _run_figures(nan, nan, tmp_path).items():
         assert_figure(tmp_path / name, returned)
 
 
