@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from matplotlib import rc_context
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
@@ -76,24 +77,30 @@ def new_figure(rows: int = 1, cols: int = 1, **subplot_kw) -> tuple[Figure, np.n
     return fig, axes
 
 
+_NO_LAYOUT = {"figure.autolayout": False, "figure.constrained_layout.use": False}  # settings: no engine
+
+
 def save(fig: Figure, path: str | os.PathLike) -> Path:
     """Write ``fig`` to ``path`` atomically, as PNG, PDF or SVG by its suffix (PNG for any other
     suffix; the command line refuses those before the run); missing folders are created. The
     figure is laid out once (twice where a title had to be wrapped, :func:`fit_titles`) and drawn
-    as laid out, not laid out again by the drawing."""
+    once, as laid out: while it is written it has no layout engine at all, since matplotlib draws
+    a figure that has one (even the "none" placeholder) once more, unseen, before drawing it
+    (about a sixth of a figure's CPU time, for the same pixels)."""
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
     fit_titles(fig)
     suffix = target.suffix.lower()
     kind = suffix[1:] if suffix in FIGURE_FORMATS else "png"
     engine = fig.get_layout_engine()
-    if engine is None:
-        return write_file(target, lambda handle: fig.savefig(handle, format=kind, dpi=FIG_DPI))
-    fig.set_layout_engine("none")  # (laid out by fit_titles)
+    if engine is not None:
+        with rc_context(_NO_LAYOUT):  # (no engine: not the one the settings would choose)
+            fig.set_layout_engine(None)
     try:
         return write_file(target, lambda handle: fig.savefig(handle, format=kind, dpi=FIG_DPI))
     finally:
-        fig.set_layout_engine(engine)
+        if engine is not None:
+            fig.set_layout_engine(engine)
 
 
 def fit_titles(fig: Figure, most_lines: int = 4) -> None:
