@@ -35,6 +35,7 @@ from typing import IO, Any
 import numpy as np
 
 from .errors import QcontrolInputError, QcontrolOutputError, shown
+from .interrupts import stop_if_asked
 
 MAX_NAME_BYTES = 255  # one path component, as Linux, macOS and Windows file systems take it
 MAX_PATH_BYTES = 4096
@@ -309,7 +310,14 @@ def _fsync_folder(folder: Path) -> None:
 
 
 def finish(file: AtomicFile) -> Path:
-    """Move a complete file into place now or, inside :func:`staged`, with the others at its end."""
+    """Move a complete file into place now or, inside :func:`staged`, with the others at its end;
+    once a stop was asked for whose exception was lost (:func:`~qcontrol.interrupts.stop_if_asked`)
+    the file is removed and the stop raised."""
+    try:
+        stop_if_asked()
+    except BaseException:
+        file.discard()
+        raise
     files = getattr(_STAGING, "files", None)
     if files is None:
         return file.commit()
@@ -321,7 +329,8 @@ def finish(file: AtomicFile) -> Path:
 def staged() -> Iterator[None]:
     """Write a set of files as one: every file finished inside the block keeps its temporary name
     until the block ends cleanly; then each final name is checked (a regular file or free) and
-    only then are all moved into place. On an exception (Ctrl-C included) every one is removed,
+    only then are all moved into place. On an exception (Ctrl-C included), or a stop asked for
+    whose exception was lost (:func:`~qcontrol.interrupts.stop_if_asked`), every one is removed,
     so the folder keeps its previous files, none mixed with new ones. Inside another
     :func:`staged` block the files join the outer set. The set is the calling thread's: another
     thread's files are its own."""
@@ -332,6 +341,7 @@ def staged() -> Iterator[None]:
     _STAGING.files = files
     try:
         yield
+        stop_if_asked()  # (a SIGTERM whose exception was lost: nothing put in place)
         _STAGING.files = None
         for file in files:
             kind = path_kind(file.path)

@@ -1,22 +1,29 @@
 """Local worker processes that never outlive the command that started them.
 
-Each worker is a fork of the command's process. It leaves Ctrl-C to the parent (which stops the
-pool), and dies with the parent however the parent ends: on Linux the kernel sends it SIGKILL when
-the parent exits (``PR_SET_PDEATHSIG``, also after a ``kill -9`` of the parent); everywhere a
-watchdog thread exits it within half a second of the parent's end. The number of workers is
-capped at the work there is and at the machine's cores (more only share the cores and memory).
+Each worker is a fork of the command's process. It leaves Ctrl-C to the parent (which ends the
+workers), and dies with the parent however the parent ends: on Linux the kernel sends it SIGKILL
+when the parent exits (``PR_SET_PDEATHSIG``, also after a ``kill -9`` of the parent); everywhere a
+watchdog thread exits it within half a second of the parent's end. A SIGTERM ends it at once (the
+default action: a SIGTERM sent to the command's whole process group, as a job scheduler,
+``timeout`` or a closing terminal sends it, ends the workers with the command). The number of
+workers is capped at the work there is and at the machine's cores (more only share the cores and
+memory).
 
-Two ways to use them: :func:`worker_pool`, a ``multiprocessing`` pool (tasks and results
-pickled), and :func:`share`, where this process is one of the workers and its forks find their
-tasks in their memory (a sweep's chunks: only the results come back pickled).
+A worker finds its tasks in its memory (``run(i)``, with what ``run`` reads, set before the fork):
+only the index goes to it and the result (or error) comes back pickled, over a pipe of its own that
+a helper thread of the parent watches. A worker that dies (killed from outside) closes its pipe:
+the task it held is a :class:`WorkerDied` error in the parent, never a wait forever; ending the
+workers is a SIGKILL to each and a wait for it, no lock shared with them. Two ways to use them:
+:class:`Forks`, workers that run a list of tasks while this process goes on (it waits for each
+result when it needs it), and :func:`share`, where this process is one of the workers (a sweep's
+chunks). Every wait for a worker acts on a stop asked for whose exception was lost
+(:func:`qcontrol.interrupts.stop_if_asked`).
 """
 
 from __future__ import annotations
 
 import ctypes
 import gc
-import multiprocessing
-import multiprocessing.pool
 import os
 import queue
 import signal
@@ -24,11 +31,11 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from multiprocessing.connection import Connection, Pipe, wait
 from typing import Any
 
-from .interrupts import Held
+from .interrupts import Held, stop_if_asked
 
 _PR_SET_PDEATHSIG = 1
 WATCH_PERIOD = 0.5  # s between a worker's checks that its parent is alive
@@ -60,22 +67,6 @@ def _worker_start(parent: int) -> None:
     threading.Thread(target=_watch, args=(parent,), daemon=True, name="qcontrol-parent-watch").start()
 
 
-def worker_pool(workers: int) -> multiprocessing.pool.Pool:
-    """A pool of ``workers`` forked processes that die with this one; its user ends it with
-    ``terminate()`` on every exit path (a ``finally``), so an error, Ctrl-C or SIGTERM stops the
-    workers at once."""
-    context = multiprocessing.get_context("fork")
-    pool = None
-    try:
-        with Held(), _frozen_heap():  # (a stop asked for while the workers fork: acted on once forked)
-            pool = context.Pool(workers, initializer=_worker_start, initargs=(os.getpid(),))
-    except BaseException:  # the command was asked to stop: the workers are not left running
-        if pool is not None:
-            pool.terminate()
-        raise
-    return pool
-
-
 class WorkerDied(RuntimeError):
     """A forked worker ended before it sent the result of its task (killed from outside)."""
 
@@ -89,16 +80,10 @@ def share(workers: int, count: int, run: Callable[[int], Any], done: Callable[[i
     ``workers - 1`` forks of it (which find ``run`` and what it reads in their memory: nothing is
     pickled but the results), each taking the next ``i`` when it is free. ``done(i, result)`` is
     called in this thread, for a fork's result once this process is between two of its own runs;
-    a fork's error is raised here. The forks end with the call, however it ends. Leaner than a
-    :func:`worker_pool` (no task pickled, one helper thread): a fork costs a few ms to start and
-    stop where a pool of one costs some 15-25 ms."""
-    following, lock = iter(range(count)), threading.Lock()
-
-    def take() -> int | None:
-        with lock:
-            return next(following, None)
-
-    mine, finished = take(), queue.SimpleQueue()
+    a fork's error is raised here. The forks end with the call, however it ends. A fork costs a
+    few ms to start and stop (a ``multiprocessing`` pool of one cost some 15-25 ms)."""
+    take, finished = _taker(count), queue.SimpleQueue()
+    mine = take()
     with _forks(max(0, min(workers, count) - 1), run, take, finished):
         stored = 0
         while mine is not None:
@@ -109,20 +94,72 @@ def share(workers: int, count: int, run: Callable[[int], Any], done: Callable[[i
                 stored += 1
             mine = take()
         for _ in range(stored, count):
+            stop_if_asked()
             _done(done, *finished.get())
+
+
+def _taker(count: int) -> Callable[[], int | None]:
+    """The next index of ``range(count)`` at each call (None: none left), from any thread."""
+    following, lock = iter(range(count)), threading.Lock()
+
+    def take() -> int | None:
+        with lock:
+            return next(following, None)
+
+    return take
 
 
 def _done(done: Callable[[int, Any], None], i: int, ok: bool, value: Any) -> None:
     if not ok:
+        stop_if_asked()  # (a fork ended by the SIGTERM sent to the whole group: the stop, not its end)
         raise value
     done(i, value)
 
 
+class Forks:
+    """``run(i)`` for each ``i`` of ``range(count)`` on ``workers`` forks of this process, started
+    now and running while this process goes on; each fork takes the next ``i`` when it is free (the
+    first tasks first). :meth:`result` waits for a task's result. A context manager: the forks end
+    with the block, however it ends (:meth:`close`)."""
+
+    def __init__(self, workers: int, count: int, run: Callable[[int], Any]) -> None:
+        self._finished: queue.SimpleQueue = queue.SimpleQueue()
+        self._got: dict[int, tuple[bool, Any]] = {}
+        self._stack = ExitStack()
+        self._stack.enter_context(_forks(min(max(workers, 1), count), run, _taker(count), self._finished))
+
+    def result(self, i: int) -> Any:
+        """Task ``i``'s result, once it is in (its error raised here): :class:`WorkerDied` as soon
+        as a fork has ended before it sent its task's result (the results cannot all come),
+        ``Terminated`` if this process was asked to stop (:func:`~.interrupts.stop_if_asked`)."""
+        while i not in self._got:
+            stop_if_asked()
+            j, ok, value = self._finished.get()
+            if isinstance(value, WorkerDied):
+                stop_if_asked()
+                raise value
+            self._got[j] = (ok, value)
+        ok, value = self._got[i]
+        if not ok:
+            raise value
+        return value
+
+    def close(self) -> None:
+        """End the forks still running (SIGKILL) and wait for each, and for the helper thread."""
+        self._stack.close()
+
+    def __enter__(self) -> Forks:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
 def _feed(forks: list[Connection], firsts: list[int | None], take: Callable[[], int | None],
           finished: queue.SimpleQueue) -> None:
-    """The helper thread of :func:`share`: its first task to each fork, then, as each sends a
-    result, the result to ``finished`` and the next task (None: none left, the fork ends) to that
-    fork."""
+    """The helper thread of :func:`share` and :class:`Forks`: its first task to each fork, then,
+    as each sends a result, the result to ``finished`` and the next task (None: none left, the fork
+    ends) to that fork."""
     busy = {}
     for conn, first in zip(forks, firsts, strict=True):
         busy[conn] = _give(conn, first)
@@ -151,14 +188,14 @@ def _give(conn: Connection, i: int | None) -> int | None:
 @contextmanager
 def _forks(count: int, run: Callable[[int], Any], take: Callable[[], int | None],
            finished: queue.SimpleQueue) -> Iterator[None]:
-    """``count`` forks of this process serving :func:`share`, fed by a helper thread
-    (:func:`_feed`); on leaving, those still running are ended (SIGTERM), every fork is waited
+    """``count`` forks of this process serving :func:`share` or :class:`Forks`, fed by a helper thread
+    (:func:`_feed`); on leaving, those still running are ended (SIGKILL), every fork is waited
     for and the helper thread with them (it ends as the last fork's connection closes)."""
     _flush()  # (what this process has buffered is not written again by a fork)
     forks: list[tuple[int, Connection]] = []
     feeder = None
     try:
-        with Held(), _frozen_heap():  # (as worker_pool: the forks are ended below)
+        with Held(), _frozen_heap():  # (a stop asked for while they fork: acted on once forked)
             parent = os.getpid()
             for _ in range(count):
                 mine, its = Pipe()
@@ -173,8 +210,9 @@ def _forks(count: int, run: Callable[[int], Any], take: Callable[[], int | None]
         feeder.start()
         yield
     finally:
-        for pid, _ in forks:
-            os.kill(pid, signal.SIGTERM)  # (a fork that has exited is a zombie until waited for)
+        for pid, _ in forks:  # (SIGKILL: a SIGTERM that reaches a fork before its first act, where
+            # it still has this process's handlers, is lost with them; an exited fork is a zombie)
+            os.kill(pid, signal.SIGKILL)
         for pid, _ in forks:
             os.waitpid(pid, 0)
         if feeder is not None:

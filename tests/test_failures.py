@@ -1,7 +1,8 @@
 """Failures on the newer surfaces, each one line with its documented exit status: sizes bounded
 before anything runs (a region's grid, the API's sweep and region), a region terminated by
-SIGTERM, a scheduler that never answers, files MuJoCo would block on, a user law that fails
-during a run, and the API refusing what the command line refuses."""
+SIGTERM, a reproduction whose whole process group is sent SIGTERM, a scheduler that never
+answers, files MuJoCo would block on, a user law that fails during a run, and the API refusing
+what the command line refuses."""
 
 from __future__ import annotations
 
@@ -84,8 +85,8 @@ def test_a_region_terminated_exits_143(tmp_path):
 
 
 _SIGNAL_WHILE_FORKING = """
-import multiprocessing, os, signal, sys
-from qcontrol.workers import worker_pool
+import os, signal, sys, time
+from qcontrol.workers import Forks
 
 class Stop(Exception):
     pass
@@ -103,23 +104,92 @@ def kill_once():  # the signal lands inside a hook run around the fork
 
 os.register_at_fork(before=kill_once)
 try:
-    pool = worker_pool(2)
+    forks = Forks(2, 2, lambda i: time.sleep(60))
 except Stop:
-    print("stopped", len(multiprocessing.active_children()))  # its workers ended, not left running
+    try:
+        os.waitpid(-1, os.WNOHANG)
+    except ChildProcessError:  # its workers ended and waited for, not left running
+        print("stopped", 0)
     sys.exit(0)
-pool.terminate()
+forks.close()
 print("ran on")
 """
 
 
-def test_a_signal_while_the_pool_forks_is_not_lost():
+def test_a_signal_while_the_workers_fork_is_not_lost():
     """SIGTERM arriving inside the hooks Python runs around a worker's fork (where an exception a
-    handler raises is ignored) still stops the command once the pool is made, and the workers forked
-    meanwhile end."""
+    handler raises is ignored) still stops the command once the workers are forked, and the workers
+    forked meanwhile end."""
     done = subprocess.run([sys.executable, "-c", _SIGNAL_WHILE_FORKING], capture_output=True, text=True,
                           timeout=60, cwd=ROOT)
     assert done.stdout.split() == ["stopped", "0"], done.stdout + done.stderr
     assert "Exception ignored" not in done.stderr
+
+
+_STOP_IN_A_FINALIZER = """
+import os, signal, sys
+from qcontrol.cli import main
+from qcontrol.reproduce import drawing
+
+class Finalized:
+    def __del__(self):  # the group's SIGTERM handled inside a finalizer: Python ignores its Terminated
+        os.killpg(0, signal.SIGTERM)
+
+draw, sent = drawing.Apart.draw, []
+
+def draw_then_stop(self, figures):  # once the first figures' worker is forked (and drawing)
+    draw(self, figures)
+    if not sent:
+        sent.append(1)
+        Finalized()
+
+drawing.Apart.draw = draw_then_stop
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process table from /proc")
+def test_sigterm_to_the_process_group_ends_reproduce(tmp_path):
+    """SIGTERM to a reproduction's whole process group (a job scheduler, ``timeout``, a closing
+    terminal) while a worker draws, its handler run inside a finalizer (where Python ignores the
+    ``Terminated`` it raises) and the worker ended by the same signal: the command still stops,
+    143, nothing written, no worker and no scratch folder left (it once waited forever for the
+    dead worker's figures)."""
+    out, scratch = tmp_path / "out", tmp_path / "tmp"
+    scratch.mkdir()
+    proc = subprocess.Popen([sys.executable, "-c", _STOP_IN_A_FINALIZER, "reproduce", "--quick", "--backend",
+                             "ode", "--workers", "2", "-q", "--out", str(out)], cwd=tmp_path,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, env={**os.environ, "HOME": str(tmp_path),
+                                                         "TMPDIR": str(scratch), "QCONTROL_COMPILE": "0"})
+    try:
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 143, err
+    assert "Exception ignored" in err and "terminated after" in err  # (the stop was lost, then acted on)
+    assert not _in_group(proc.pid), "a worker outlived the command"
+    assert not list(scratch.iterdir())
+    assert not out.exists() or not [p for p in out.iterdir() if ".partial." not in p.name]
+
+
+def _in_group(group: int) -> list[int]:
+    """The processes of process group ``group`` still alive 2 s on (asked until then)."""
+    deadline = time.monotonic() + 2.0
+    while True:
+        alive = []
+        for entry in Path("/proc").iterdir():
+            try:
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            except (OSError, IndexError):
+                continue
+            if fields[0] != "Z" and int(fields[2]) == group:
+                alive.append(int(entry.name))
+        if not alive or time.monotonic() > deadline:
+            return alive
+        time.sleep(0.05)
 
 
 def _has_children(pid: int) -> bool:

@@ -200,7 +200,7 @@ def test_the_robustness_study_batches_each_rows_seeds(monkeypatch, tmp_path):
 
     planned = {}
 
-    def capture(tasks, full, pool):
+    def capture(tasks, full):
         planned["batches"] = study.batches(tasks)
         planned["files"] = [{(tasks[i].path, tasks[i].backend) for i in b} for b in planned["batches"]]
         seed = lambda task: next((o for o in task.overrides if o.startswith(study.SEED_OVERRIDE)), "own")  # noqa: E731

@@ -14,17 +14,18 @@ module of this package with its parser and its handler; they share the scenario 
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import threading
 import time
 import warnings
 from collections.abc import Callable, Sequence
+from contextlib import nullcontext
 from pathlib import Path
 
 from .._version import __version__
 from ..controller.plugins import load_law_module, load_law_plugins
 from ..errors import QcontrolInputError, QcontrolLawFailure, QcontrolOutputError, Terminated
+from ..interrupts import stops_kept
 from ..provenance import command_line
 from ..workers import WorkerDied
 from .arguments import (
@@ -95,11 +96,6 @@ def load_laws(files: Sequence[Path]) -> None:
         load_law_module(file)
 
 
-def _terminate(signum: int, frame: object) -> None:
-    """SIGTERM: stop as Ctrl-C does (every output cleans up after itself), exit status 143."""
-    raise Terminated
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -107,7 +103,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     warnings.formatwarning = _one_line_warning
     started = time.perf_counter()
     main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGTERM, _terminate) if main_thread else None
+    with stops_kept() if main_thread else nullcontext():  # SIGTERM: Terminated, exit status 143
+        return _handled(args, started)
+
+
+def _handled(args: argparse.Namespace, started: float) -> int:
+    """The command run; its errors and interruptions as the exit status (module docstring)."""
     try:
         load_laws(args.law_modules)
         return COMMANDS[args.command][1](args)
@@ -123,10 +124,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except WorkerDied as exc:
         print(f"qcontrol: error: {exc}", file=sys.stderr)
         return EXIT_FAILED
-    except KeyboardInterrupt as exc:
-        how = "terminated" if isinstance(exc, Terminated) else "interrupted"
+    except KeyboardInterrupt as exc:  # (a SIGTERM in a study's sweep: its SweepInterrupted says so)
+        terminated = isinstance(exc, Terminated) or getattr(exc, "terminated", False) is True
+        how = "terminated" if terminated else "interrupted"
         print(f"\nqcontrol: {how} after {time.perf_counter() - started:.1f} s", file=sys.stderr)
-        return EXIT_TERMINATED if isinstance(exc, Terminated) else EXIT_INTERRUPTED
-    finally:
-        if main_thread:
-            signal.signal(signal.SIGTERM, previous)
+        return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED

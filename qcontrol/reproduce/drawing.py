@@ -2,35 +2,32 @@
 
 Drawing a figure (matplotlib's layout and PNG rendering) costs as much CPU time as many of the
 reproduction's runs, and it needs nothing but runs already made. :class:`Apart` forks a worker
-(:func:`qcontrol.workers.worker_pool`, which dies with this process) when a set of figures' data
+(:class:`qcontrol.workers.Forks`, which dies with this process) when a set of figures' data
 exist, so the worker finds the data in its memory and nothing is sent to it; the worker draws
-into a scratch folder and sends back the files' bytes, which :meth:`Apart.wait` writes into the
-output folder, staged with the reproduction's other files (:func:`qcontrol.outputs.staged`). The
-figures are the very ones drawn here: the same code on the same data, byte for byte.
+into a scratch folder this process made (and removes, however the worker ends), and
+:meth:`Apart.wait` writes the files' bytes into the output folder, staged with the reproduction's
+other files (:func:`qcontrol.outputs.staged`). The figures are the very ones drawn here: the same
+code on the same data, byte for byte.
 """
 
 from __future__ import annotations
 
+import shutil
 import tempfile
 from collections.abc import Callable
-from itertools import count
-from multiprocessing.pool import AsyncResult, Pool
 from pathlib import Path
 from types import TracebackType
 
 from ..outputs import unstaged, write_file
-from ..workers import worker_pool
+from ..workers import Forks
 
 Figures = Callable[[Path], object]  # draws its figures into the folder given
-_KEPT: dict[int, Figures] = {}  # the figures a forked worker draws, by key (set before the fork)
-_KEYS = count()
 
 
-def _drawn(key: int) -> dict[str, bytes]:
-    """Worker entry point: the files the figures of ``key`` draw, by name."""
-    with unstaged(), tempfile.TemporaryDirectory(prefix="qcontrol-figures-") as scratch:
-        _KEPT[key](Path(scratch))
-        return {path.name: path.read_bytes() for path in sorted(Path(scratch).iterdir())}
+def _drawn(figures: Figures, scratch: Path) -> None:
+    """Worker entry point: ``figures`` drawn into ``scratch``, each file put in place at once."""
+    with unstaged():
+        figures(scratch)
 
 
 class Apart:
@@ -39,36 +36,41 @@ class Apart:
 
     def __init__(self, out: Path, forked: bool) -> None:
         self.out, self.forked = out, forked
-        self.pending: list[tuple[Pool, AsyncResult, int]] = []
+        self.pending: list[tuple[Forks, Path]] = []
 
     def draw(self, figures: Figures) -> None:
         """Draw ``figures`` (into the folder it is given) apart, or here."""
         if not self.forked:
             figures(self.out)
             return
-        key = next(_KEYS)
-        _KEPT[key] = figures
-        pool = worker_pool(1)  # (forked now: it holds the figures' data)
-        self.pending.append((pool, pool.apply_async(_drawn, (key,)), key))
+        scratch = Path(tempfile.mkdtemp(prefix="qcontrol-figures-"))
+        try:  # (forked now: the worker holds the figures' data)
+            self.pending.append((Forks(1, 1, lambda _: _drawn(figures, scratch)), scratch))
+        except BaseException:
+            shutil.rmtree(scratch, ignore_errors=True)
+            raise
 
     def wait(self) -> None:
         """Wait for every set of figures drawn apart and write its files into ``out``."""
         while self.pending:
-            pool, result, key = self.pending[0]
-            for name, data in result.get().items():
-                write_file(self.out / name, lambda handle, data=data: handle.write(data))
-            pool.close()
-            pool.join()
-            self.pending.pop(0)
-            _KEPT.pop(key, None)
+            forks, scratch = self.pending[0]
+            forks.result(0)
+            for path in sorted(scratch.iterdir()):
+                data = path.read_bytes()
+                write_file(self.out / path.name, lambda handle, data=data: handle.write(data))
+            self._end(0)
+
+    def _end(self, k: int) -> None:
+        forks, scratch = self.pending.pop(k)
+        try:
+            forks.close()
+        finally:
+            shutil.rmtree(scratch, ignore_errors=True)
 
     def __enter__(self) -> Apart:
         return self
 
     def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,
                  trace: TracebackType | None) -> None:
-        for pool, _, key in self.pending:
-            pool.terminate()
-            pool.join()
-            _KEPT.pop(key, None)
-        self.pending.clear()
+        while self.pending:
+            self._end(0)

@@ -22,10 +22,8 @@ from __future__ import annotations
 
 import statistics
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
-from functools import partial
-from multiprocessing.pool import Pool
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -40,7 +38,7 @@ from ..sharing import sharing
 from ..summary import Summary
 from ..sweep import run_batch
 from ..timegrid import TimeGrid
-from ..workers import worker_count, worker_pool
+from ..workers import Forks, worker_count
 
 SEEDS = tuple(range(1, 21))  # sensor-noise seeds of every row with noise on
 ALONE_PER_JOB = 8  # runs of one file alone (no noise) in a worker's job: small jobs keep the end balanced
@@ -295,25 +293,24 @@ def started(scenarios: Path, duration: float | None, workers: int, log: Callable
             ) -> Iterator[Running]:
     """The study started on ``workers`` worker processes (more than one: they run while the
     caller does other work); yields its :class:`Running`. ``side``: other independent jobs
-    ``(function, arguments)`` of the caller's (picklable), given to the workers first (in this
-    process, when asked for, without workers). The workers end with the block."""
+    ``(function, arguments)`` of the caller's (their values picklable), given to the workers first
+    (in this process, when asked for, without workers). The workers end with the block."""
     study = _plan(scenarios, duration, laws)
     workers = worker_count(workers, len(study.plan.tasks))
     log(f"study: robustness: {len(study.plan.tasks)} runs, {len(study.disturbances)} disturbance cases, "
         f"on {workers} worker(s)")
     compiled_paths.started()  # (before the workers fork: they start with numba loaded and started)
-    pool = worker_pool(workers) if workers > 1 else None
-    try:
-        waits = [partial(function, *arguments) if pool is None else pool.apply_async(function, arguments).get
-                 for function, arguments in side]
-        results = _execute(study.plan.tasks, study.full.tasks, pool)
-        yield Running(lambda: _assembled(study, *results()), waits)
-        if pool is not None:
-            pool.close()
-    finally:
-        if pool is not None:
-            pool.terminate()
-            pool.join()
+    calls, results = _execute(study.plan.tasks, study.full.tasks)
+    calls = [*side, *calls]  # (in the order the workers take them)
+
+    def call(k: int) -> Any:
+        function, arguments = calls[k]
+        return function(*arguments)
+
+    with Forks(workers, len(calls), call) if workers > 1 else nullcontext() as forks:
+        answer = call if forks is None else forks.result
+        yield Running(lambda: _assembled(study, *results(lambda k: answer(len(side) + k))),
+                      [lambda k=k: answer(k) for k in range(len(side))])
 
 
 def _plan(scenarios: Path, duration: float | None, laws: Sequence[StudyLaw]) -> Study:
@@ -398,12 +395,14 @@ def _disturbance_cases(ideal_path: str, real_path: str, duration: float, extra: 
     return cases
 
 
-def _execute(tasks: list[StudyJob], full: list[StudyJob],
-             pool: Pool | None) -> Callable[[], tuple[list[Summary], list[Errors]]]:
-    """Every task's summary and every full run's tracking error, in order, as the function that
-    waits for them: the summaries in :func:`batches`, the full runs by file and backend (a task
-    that is also a full run takes its summary from it); on ``pool``'s workers (started here, running
-    while the caller goes on), else in this process when called."""
+def _execute(tasks: list[StudyJob], full: list[StudyJob]
+             ) -> tuple[list[tuple[Callable, tuple]], Callable[[Callable[[int], Any]], tuple[list, list]]]:
+    """The calls ``(function, arguments)`` that make every task's summary and every full run's
+    tracking error: the summaries in :func:`batches`, the full runs by file and backend (a task
+    that is also a full run takes its summary from it), in the order workers take them (the rows'
+    seeds first, the longest jobs, then the full runs, then the runs alone); and the function that
+    gives the summaries and errors, in order, from ``answer(k)``, the k-th call's value (waited
+    for, or made then when there are no workers)."""
     in_full = {task: i for i, task in enumerate(full)}
     own = [i for i, task in enumerate(tasks) if task not in in_full]
     chunks = [[own[j] for j in ids] for ids in batches([tasks[i] for i in own])]
@@ -414,22 +413,16 @@ def _execute(tasks: list[StudyJob], full: list[StudyJob],
         together.setdefault((task.path, task.backend), []).append(i)
     groups = list(together.values())
     fulls = [[(full[i], i in summarized) for i in ids] for ids in groups]
-    if pool is None:
-        def done() -> tuple[list[list[Summary]], list[list[tuple[Errors, Summary | None]]]]:
-            return [_summaries(job) for job in jobs], [_errors(f) for f in fulls]
-    else:
-        # the rows' seeds first (the longest jobs), then the full runs, then the runs alone
-        seeds = {j: pool.apply_async(_summaries, (job,)) for j, job in enumerate(jobs)
-                 if len(job) > ALONE_PER_JOB}
-        pending = [pool.apply_async(_errors, (f,)) for f in fulls]
-        alone = {j: pool.apply_async(_summaries, (job,)) for j, job in enumerate(jobs) if j not in seeds}
+    seeds = [j for j, job in enumerate(jobs) if len(job) > ALONE_PER_JOB]
+    alone = [j for j, job in enumerate(jobs) if len(job) <= ALONE_PER_JOB]
+    calls = [*((_summaries, (jobs[j],)) for j in seeds), *((_errors, (f,)) for f in fulls),
+             *((_summaries, (jobs[j],)) for j in alone)]
+    at = {j: k for k, j in enumerate(seeds)} | {j: len(seeds) + len(fulls) + k for k, j in enumerate(alone)}
 
-        def done() -> tuple[list[list[Summary]], list[list[tuple[Errors, Summary | None]]]]:
-            return [(seeds.get(j) or alone[j]).get() for j in range(len(jobs))], [e.get() for e in pending]
-
-    def results() -> tuple[list[Summary], list[Errors]]:
+    def results(answer: Callable[[int], Any]) -> tuple[list[Summary], list[Errors]]:
         summaries: list[Summary] = [None] * len(tasks)  # type: ignore[list-item]
-        ran, grouped = done()
+        ran = [answer(at[j]) for j in range(len(jobs))]
+        grouped = [answer(len(seeds) + k) for k in range(len(fulls))]
         for ids, job in zip(chunks, ran, strict=True):
             for i, s in zip(ids, job, strict=True):
                 summaries[i] = s
@@ -442,7 +435,7 @@ def _execute(tasks: list[StudyJob], full: list[StudyJob],
                 summaries[i] = runs[in_full[task]][1]
         return summaries, [errors for errors, _ in runs]
 
-    return results
+    return calls, results
 
 
 def default_workers() -> int:
