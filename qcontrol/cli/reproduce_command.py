@@ -32,7 +32,7 @@ def add_reproduce_parser(sub: argparse._SubParsersAction) -> None:
         "1 kHz, every law with Table 1's rates (about 2.5 s of CPU with its figure); (3) the robustness "
         "study: 248 MuJoCo runs of the realistic arm and cart (each imperfection alone, 20 noise seeds, "
         "margins beyond the hardware, disturbances; with (2b) and (2c) on the same two worker processes: "
-        "about 27 s of CPU; the whole command took 14.6-15.2 s on 2 idle cores (17 s and 32 s of CPU "
+        "about 24 s of CPU; the whole command took 13.0-13.3 s on 2 idle cores (17 s and 32 s of CPU "
         "before the region maps, the linear law and per-channel sensors were compiled); with an empty "
         "compile cache 17 s, and about 24 s for the later run that compiles what the first ran in "
         "Python; longer on a shared machine). --quick skips (2b), "
