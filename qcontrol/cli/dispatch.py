@@ -27,6 +27,7 @@ from ..controller.plugins import load_law_module, load_law_plugins
 from ..errors import QcontrolInputError, QcontrolLawFailure, QcontrolOutputError, Terminated
 from ..interrupts import stops_kept
 from ..provenance import command_line
+from ..sweep.runs import SweepInterrupted
 from ..workers import WorkerDied
 from .arguments import (
     EXIT_BAD_INPUT,
@@ -124,8 +125,8 @@ def _handled(args: argparse.Namespace, started: float) -> int:
     except WorkerDied as exc:
         print(f"qcontrol: error: {exc}", file=sys.stderr)
         return EXIT_FAILED
-    except KeyboardInterrupt as exc:  # (a SIGTERM in a study's sweep: its SweepInterrupted says so)
-        terminated = isinstance(exc, Terminated) or getattr(exc, "terminated", False) is True
+    except KeyboardInterrupt as exc:  # (a SIGTERM in a sweep: its SweepInterrupted says so)
+        terminated = isinstance(exc, Terminated) or (isinstance(exc, SweepInterrupted) and exc.terminated)
         how = "terminated" if terminated else "interrupted"
         print(f"\nqcontrol: {how} after {time.perf_counter() - started:.1f} s", file=sys.stderr)
         return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED

@@ -12,14 +12,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..errors import QcontrolInputError, Terminated
+from ..errors import QcontrolInputError
 from ..outputs import check_output_dir, check_output_file
 from ..progress import ProgressLine
 from ..provenance import command_line
 from ..region import BOX, check_region_size, default_laws, measure_region, parse_grid, parse_law, write_region
 from ..scenario import load_scenario
 from ..scenario.resolve import scenario_provenance
-from ..sweep.runs import SweepInterrupted
 from .arguments import (
     EXIT_OK,
     add_parallel_options,
@@ -78,11 +77,8 @@ def cmd_region(args: argparse.Namespace) -> int:
     laws = [parse_law(text) for text in args.laws] or default_laws(base)
     check_region_size(grid, len(laws))
     progress = ProgressLine("region", not args.quiet, "runs")
-    try:
-        region = measure_region(base.source, grid, laws, args.backend, overrides, args.unset, args.workers,
-                                args.scheduler, progress)
-    except SweepInterrupted as exc:
-        raise (Terminated if exc.terminated else KeyboardInterrupt)() from None
+    region = measure_region(base.source, grid, laws, args.backend, overrides, args.unset, args.workers,
+                            args.scheduler, progress)  # (interrupted: nothing written, as the module says)
     region.settings = {"fixed_overrides": overrides, "unset": list(args.unset)}
     write_region(region, args.out, scenario_provenance(base, args.command_line or command_line()))
     for law in region.laws:
