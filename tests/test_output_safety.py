@@ -10,6 +10,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import pty
 import signal
 import socket
 import stat
@@ -20,7 +21,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import EX2, ROOT
+from conftest import EX2, ROOT, drain_terminal, progress_past_zero
 
 import qcontrol
 from qcontrol import outputs
@@ -299,21 +300,28 @@ def test_exit_statuses_are_documented():
 # 3. an interrupted run never replaces a complete output
 
 
-def _interrupted(tmp_path: Path, argv: list[str], sig: int, started: str) -> subprocess.CompletedProcess:
+def _interrupted(tmp_path: Path, argv: list[str], sig: int) -> subprocess.CompletedProcess:
+    """``qcontrol argv`` sent ``sig`` once its loop runs (its progress, on a pseudo-terminal, past
+    0 %): its exit status and what it printed on stderr."""
+    master, terminal = pty.openpty()
     proc = subprocess.Popen([sys.executable, "-m", "qcontrol.cli", *argv], cwd=tmp_path, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            stdout=subprocess.DEVNULL, stderr=terminal,
                             # the Python loop: this is about the outputs, and a compiled 600 s ODE run can
                             # end before the signal lands (its own tests interrupt it)
                             env={**os.environ, "HOME": str(tmp_path), "QCONTROL_COMPILE": "0"},
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    deadline = time.monotonic() + 60
-    while not list(tmp_path.glob(started)) and time.monotonic() < deadline and proc.poll() is None:
-        time.sleep(0.05)
-    time.sleep(0.5)
-    assert proc.poll() is None, proc.communicate()
-    proc.send_signal(sig)
-    out, err = proc.communicate(timeout=20)
-    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
+    os.close(terminal)
+    try:
+        shown = progress_past_zero(master, proc)
+        assert proc.poll() is None, proc.communicate()
+        proc.send_signal(sig)
+        proc.wait(timeout=20)
+        return subprocess.CompletedProcess(proc.args, proc.returncode, "", shown + drain_terminal(master))
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        os.close(master)
 
 
 @pytest.mark.parametrize("sig, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
@@ -321,8 +329,8 @@ def test_an_interrupted_recording_keeps_the_complete_one(tmp_path, sig, status):
     rrd = tmp_path / "r.rrd"
     assert main(["run", str(EX2), *SHORT, "--rrd", str(rrd)]) == 0
     before = rrd.read_bytes()
-    argv = ["run", str(EX2), "--backend", "ode", "--duration", "600", "-q", "--rrd", str(rrd)]
-    proc = _interrupted(tmp_path, argv, sig, ".r.rrd.*.tmp")
+    argv = ["run", str(EX2), "--backend", "ode", "--duration", "600", "--rrd", str(rrd)]
+    proc = _interrupted(tmp_path, argv, sig)
     assert proc.returncode == status, proc.stderr
     assert "Traceback" not in proc.stderr and "r.partial.rrd" in proc.stderr
     assert rrd.read_bytes() == before
