@@ -225,6 +225,53 @@ def drain_terminal(master: int) -> str:
     return text
 
 
+def children_of(pid: int) -> list[int]:
+    """The processes whose parent is ``pid`` (read from /proc)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                found.append(int(entry.name))
+    return found
+
+
+def forks_of(pid: int) -> list[int]:
+    """The children of ``pid`` that are forks of it (the same command line): its workers, not a
+    helper program a library starts for a moment (importing MuJoCo runs ``python -c`` to ask
+    GLFW's version; matplotlib runs ``fc-list``)."""
+    try:
+        command = Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return []
+    found = []
+    for child in children_of(pid):
+        try:
+            if Path(f"/proc/{child}/cmdline").read_bytes() == command:
+                found.append(child)
+        except OSError:
+            continue
+    return found
+
+
+def busy(pid: int, seconds: float = 0.05, timeout: float = 60.0) -> bool:
+    """Whether process ``pid`` has used ``seconds`` of CPU (it is working on its runs), asked until
+    then, for at most ``timeout`` seconds (a bound on a worker that never runs, not a wait)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            return False
+        if int(fields[11]) + int(fields[12]) >= seconds * os.sysconf("SC_CLK_TCK"):  # utime, stime
+            return True
+        time.sleep(0.01)
+    return False
+
+
 @pytest.fixture
 def ex1() -> Path:
     """Example 1's scenario file (the cart of eq. (47))."""

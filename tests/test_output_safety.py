@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import EX2, ROOT, drain_terminal, progress_past_zero
+from conftest import EX2, ROOT, busy, children_of, drain_terminal, forks_of, progress_past_zero
 
 import qcontrol
 from qcontrol import outputs
@@ -429,37 +429,6 @@ def test_a_figure_is_written_in_the_format_its_name_says(tmp_path, suffix, magic
 # 5. workers die with their parent
 
 
-def _children(pid: int) -> list[int]:
-    found = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == pid:
-                found.append(int(entry.name))
-    return found
-
-
-def _forks(pid: int) -> list[int]:
-    """The children of ``pid`` that are forks of it (the same command line): its workers, not a
-    helper program a library starts for a moment (importing MuJoCo runs ``python -c`` to ask
-    GLFW's version; matplotlib runs ``fc-list``)."""
-    try:
-        command = Path(f"/proc/{pid}/cmdline").read_bytes()
-    except OSError:
-        return []
-    found = []
-    for child in _children(pid):
-        try:
-            if Path(f"/proc/{child}/cmdline").read_bytes() == command:
-                found.append(child)
-        except OSError:
-            continue
-    return found
-
-
 def _alive(pid: int) -> bool:
     try:
         state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
@@ -477,21 +446,6 @@ def _outliving(workers: list[int], seconds: float = 2.0) -> list[int]:
     return alive
 
 
-def _busy(pid: int, seconds: float = 0.05, timeout: float = 60.0) -> bool:
-    """Whether process ``pid`` has used ``seconds`` of CPU (it is working on its runs), asked until
-    then, for at most ``timeout`` seconds (a bound on a worker that never runs, not a wait)."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        try:
-            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            return False
-        if int(fields[11]) + int(fields[12]) >= seconds * os.sysconf("SC_CLK_TCK"):  # utime, stime
-            return True
-        time.sleep(0.01)
-    return False
-
-
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process table from /proc")
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL, signal.SIGINT])
 def test_workers_die_with_their_parent(tmp_path, sig):
@@ -505,10 +459,10 @@ def test_workers_die_with_their_parent(tmp_path, sig):
         deadline = time.monotonic() + 60
         workers: list[int] = []
         while not workers and time.monotonic() < deadline:  # (two workers: this process and a fork)
-            workers = _forks(proc.pid)
+            workers = forks_of(proc.pid)
             time.sleep(0.02)
         assert len(workers) == 1, "the sweep did not fork its second worker"
-        assert _busy(workers[0]), "the forked worker never ran"
+        assert busy(workers[0]), "the forked worker never ran"
         proc.send_signal(sig)
         proc.wait(timeout=20)
         assert not _outliving(workers), "a worker outlived its parent"
@@ -516,7 +470,7 @@ def test_workers_die_with_their_parent(tmp_path, sig):
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-        for w in _children(proc.pid):
+        for w in children_of(proc.pid):
             os.kill(w, signal.SIGKILL)
 
 
@@ -540,7 +494,7 @@ def test_reproduces_workers_die_with_it(tmp_path):
         deadline = time.monotonic() + 240
         while len(workers) < len(procs) and time.monotonic() < deadline:
             for sig, proc in procs.items():  # each signalled as soon as its two workers run
-                found = [] if sig in workers else _forks(proc.pid)
+                found = [] if sig in workers else forks_of(proc.pid)
                 if len(found) == 2:
                     workers[sig] = found
                     proc.send_signal(sig)
@@ -556,7 +510,7 @@ def test_reproduces_workers_die_with_it(tmp_path):
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
-            for w in _children(proc.pid):
+            for w in children_of(proc.pid):
                 os.kill(w, signal.SIGKILL)
 
 
