@@ -7,9 +7,12 @@ import fcntl
 import io
 import json
 import os
+import re
+import select
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import pytest
@@ -192,6 +195,81 @@ def run_forked(commands: list, cwd: Path, env: dict,
     results = [tuple(json.loads(line)) for line in done.stdout.splitlines()]
     assert done.returncode == 0 and len(results) == len(commands), done.stderr
     return results
+
+
+def progress_past_zero(master: int, proc: subprocess.Popen, timeout: float = 60.0) -> str:
+    """What command ``proc`` printed on its stderr, the pseudo-terminal whose other end is
+    ``master``, read until its progress line (``label:  42%``) is past 0 %: its loop is running, a
+    part of the run done and the next under way (its checks, a compile, a recording's set-up all
+    behind it). A condition to wait on before signalling a run, instead of a fixed sleep;
+    ``timeout`` bounds only a command that hangs or shows no progress (the test then fails)."""
+    deadline, shown = time.monotonic() + timeout, ""
+    while not re.search(r"[1-9]\d*%", shown) and proc.poll() is None and time.monotonic() < deadline:
+        if select.select([master], [], [], 0.05)[0]:
+            shown += os.read(master, 4096).decode(errors="replace")
+    assert re.search(r"[1-9]\d*%", shown), f"no progress past 0 % shown: {shown!r}"
+    return shown
+
+
+def drain_terminal(master: int) -> str:
+    """Everything left on a pseudo-terminal whose other end has closed."""
+    text = ""
+    while select.select([master], [], [], 0.5)[0]:
+        try:
+            chunk = os.read(master, 4096)
+        except OSError:  # EIO: the other end is closed
+            break
+        if not chunk:
+            break
+        text += chunk.decode(errors="replace")
+    return text
+
+
+def children_of(pid: int) -> list[int]:
+    """The processes whose parent is ``pid`` (read from /proc)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                found.append(int(entry.name))
+    return found
+
+
+def forks_of(pid: int) -> list[int]:
+    """The children of ``pid`` that are forks of it (the same command line): its workers, not a
+    helper program a library starts for a moment (importing MuJoCo runs ``python -c`` to ask
+    GLFW's version; matplotlib runs ``fc-list``)."""
+    try:
+        command = Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return []
+    found = []
+    for child in children_of(pid):
+        try:
+            if Path(f"/proc/{child}/cmdline").read_bytes() == command:
+                found.append(child)
+        except OSError:
+            continue
+    return found
+
+
+def busy(pid: int, seconds: float = 0.05, timeout: float = 60.0) -> bool:
+    """Whether process ``pid`` has used ``seconds`` of CPU (it is working on its runs), asked until
+    then, for at most ``timeout`` seconds (a bound on a worker that never runs, not a wait)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            return False
+        if int(fields[11]) + int(fields[12]) >= seconds * os.sysconf("SC_CLK_TCK"):  # utime, stime
+            return True
+        time.sleep(0.01)
+    return False
 
 
 @pytest.fixture

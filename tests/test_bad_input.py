@@ -13,13 +13,12 @@ subprocess to prove the real interpreter prints no traceback either.
 
 from __future__ import annotations
 
-import subprocess
-import sys
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
-from conftest import EX1, EX2, ROOT, SCENARIOS
+from conftest import EX1, EX2, ROOT, SCENARIOS, run_forked
 from test_messages import assert_toml_hints
 
 from qcontrol.cli import main
@@ -536,22 +535,31 @@ SUBPROCESS_CASES = [
 ]
 
 
+@pytest.fixture(scope="module")
+def real_interpreter(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple]:
+    """Each of SUBPROCESS_CASES as ``python -m qcontrol.cli ARGV`` in a folder of its own, run in
+    forks of one interpreter that has imported the package (conftest.run_forked: each a process
+    of its own, exiting through the interpreter as the console does): the case's folder, its
+    output folder, and the command's exit status, stdout and stderr."""
+    prepared = {}
+    for name in SUBPROCESS_CASES:
+        folder = tmp_path_factory.mktemp("case")
+        prepared[name] = (folder, *_prepare(folder, CATALOGUE[name]))
+    commands = [{"argv": ["python", "-m", "qcontrol.cli", *argv], "cwd": str(folder)}
+                for folder, argv, _ in prepared.values()]
+    ran = run_forked(commands, tmp_path_factory.mktemp("runner"), dict(os.environ), timeout=300)
+    return {name: (folder, argv, out, result)
+            for (name, (folder, argv, out)), result in zip(prepared.items(), ran, strict=True)}
+
+
 @pytest.mark.parametrize("name", SUBPROCESS_CASES)
-def test_bad_input_in_a_real_interpreter(tmp_path: Path, name: str) -> None:
+def test_bad_input_in_a_real_interpreter(real_interpreter: dict[str, tuple], name: str) -> None:
     """The same contract through ``python -m qcontrol.cli``: no traceback, one line, exit 2."""
-    c = CATALOGUE[name]
-    argv, out = _prepare(tmp_path, c)
-    proc = subprocess.run(
-        [sys.executable, "-m", "qcontrol.cli", *argv],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        cwd=tmp_path,
-    )
-    assert proc.returncode == 2, proc.stderr
-    _assert_one_line(proc.stderr, c, argv[1])
-    assert proc.stdout == ""
-    _assert_nothing_written(tmp_path, out)
+    folder, argv, out, (status, stdout, stderr) = real_interpreter[name]
+    assert status == 2, stderr
+    _assert_one_line(stderr, CATALOGUE[name], argv[1])
+    assert stdout == ""
+    _assert_nothing_written(folder, out)
 
 
 def test_usage_errors_are_one_line_exit_2(capsys: pytest.CaptureFixture[str]) -> None:

@@ -2,13 +2,12 @@
 
 import json
 import os
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import EX1, EX2, ROOT
+from conftest import EX1, EX2, ROOT, run_forked
 
 from qcontrol.cli import main
 
@@ -126,12 +125,10 @@ def test_unwritable_output_dir(tmp_path, capsys):
     assert "--out" in capsys.readouterr().err
 
 
-def test_console_script_no_traceback(tmp_path):
-    bad = _write(tmp_path, _variant("kappa_margin = 1.1", "kappa = 0.01"))
-    proc = subprocess.run([sys.executable, "-m", "qcontrol.cli", "run", str(bad)], capture_output=True,
-                          text=True, timeout=120)
-    assert proc.returncode == 2
-    assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+def test_console_script_no_traceback(fresh):
+    status, _, err = fresh["bad input"]
+    assert status == 2
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1
 
 
 def test_compare_writes_contract_and_backends_agree(tmp_path, capsys):
@@ -171,41 +168,58 @@ def test_compare_rrd_holds_both_runs(tmp_path, capsys):
     np.testing.assert_array_equal(dy, np.log10(np.maximum(np.abs(y - y_ode), 1e-16)))  # as log10, floored
 
 
-def test_a_run_imports_neither_rerun_nor_mujoco_before_it_needs_them():
+# The commands whose subject is a process of their own (what it has imported, the console's exit
+# path), run in forks of one interpreter that has imported the package and nothing else
+# (conftest.run_forked: numba, MuJoCo, rerun, matplotlib not among them), with QCONTROL_COMPILE
+# unset: the tests below read each one's exit status, stdout and stderr.
+CHAIN3 = ROOT / "scenarios" / "chain3.toml"
+IMPORTS = (f"import sys; from qcontrol.cli import main; main(['run', {str(CHAIN3)!r}, '--duration', '0.01', "
+           f"'-q']); print('mujoco imported', 'mujoco' in sys.modules); main(['run', {str(EX2)!r}, "
+           "'--duration', '0.01', '-q']); print('rerun imported', 'rerun' in sys.modules)")
+SHORT_RUN = ("import sys; from qcontrol.cli import main; main(['run', {ex2!r}, '--backend', {backend!r}, "
+             "'--duration', '2', '-q']); print('numba' in sys.modules)")
+CHECK_THEN_RUN = (f"import sys; from qcontrol.cli import main; main(['check', {str(EX2)!r}, '-q']); "
+                  "print('numba' in sys.modules); from qcontrol.assembly import build_plant; "
+                  "from qcontrol.scenario import load_scenario; "
+                  f"plant = build_plant(load_scenario({str(EX2)!r}), 'mujoco'); "
+                  "print(plant.native_for_run() is not None and 'numba' in sys.modules)")
+
+
+@pytest.fixture(scope="module")
+def fresh(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[int, str, str]]:
+    folder = tmp_path_factory.mktemp("fresh")
+    bad = _write(folder, _variant("kappa_margin = 1.1", "kappa = 0.01"))
+    commands = {"bad input": ["python", "-m", "qcontrol.cli", "run", str(bad)],
+                "imports": ["python", "-c", IMPORTS],
+                "check then run": ["python", "-c", CHECK_THEN_RUN],
+                **{f"short {backend}": ["python", "-c", SHORT_RUN.format(ex2=str(EX2), backend=backend)]
+                   for backend in ("ode", "mujoco")}}
+    env = {k: v for k, v in os.environ.items() if k != "QCONTROL_COMPILE"}
+    return dict(zip(commands, run_forked(list(commands.values()), folder, env, timeout=300), strict=True))
+
+
+def test_a_run_imports_neither_rerun_nor_mujoco_before_it_needs_them(fresh):
     """Nor does a command import MuJoCo before a scenario with a MuJoCo model asks for it: not the
     parser (--video's options), not a run of a scenario without one."""
-    chain3 = ROOT / "scenarios" / "chain3.toml"
-    code = (f"import sys; from qcontrol.cli import main; main(['run', {str(chain3)!r}, '--duration', '0.01', "
-            f"'-q']); print('mujoco imported', 'mujoco' in sys.modules); main(['run', {str(EX2)!r}, "
-            "'--duration', '0.01', '-q']); print('rerun imported', 'rerun' in sys.modules)")
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    said = [line for line in proc.stdout.splitlines() if " imported " in line]
-    assert proc.returncode == 0 and said == ["mujoco imported False", "rerun imported False"], proc.stdout
+    status, out, err = fresh["imports"]
+    said = [line for line in out.splitlines() if " imported " in line]
+    assert status == 0 and said == ["mujoco imported False", "rerun imported False"], out + err
 
 
 @pytest.mark.parametrize("backend", ["ode", "mujoco"])
-def test_a_short_run_in_a_new_process_leaves_numba_unstarted(backend: str) -> None:
+def test_a_short_run_in_a_new_process_leaves_numba_unstarted(fresh, backend: str) -> None:
     """A single run too short to pay for numba's start (here 2 s, below COLD_MIN_ROWS) runs every
     part in Python, MuJoCo's passive callback included: the same numbers, without the start."""
-    code = (f"import sys; from qcontrol.cli import main; main(['run', {str(EX2)!r}, '--backend', "
-            f"{backend!r}, '--duration', '2', '-q']); print('numba' in sys.modules)")
-    env = {k: v for k, v in os.environ.items() if k != "QCONTROL_COMPILE"}
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env)
-    assert proc.stdout.strip().splitlines()[-1] == "False", proc.stdout + proc.stderr
+    status, out, err = fresh[f"short {backend}"]
+    assert status == 0 and out.strip().splitlines()[-1] == "False", out + err
 
 
-def test_check_builds_the_mujoco_plant_without_numba_and_run_still_compiles():
+def test_check_builds_the_mujoco_plant_without_numba_and_run_still_compiles(fresh):
     """check compares the model with eq. (1) through the Python passive callback (bit-identical
     to the compiled one; nothing runs), so it does not pay numba's import; a run after it in the
     same process still gets the compiled callback (built when a run that pays for it starts)."""
-    code = (f"import sys; from qcontrol.cli import main; main(['check', {str(EX2)!r}, '-q']); "
-            "print('numba' in sys.modules); from qcontrol.assembly import build_plant; "
-            "from qcontrol.scenario import load_scenario; "
-            f"plant = build_plant(load_scenario({str(EX2)!r}), 'mujoco'); "
-            "print(plant.native_for_run() is not None and 'numba' in sys.modules)")
-    env = {k: v for k, v in os.environ.items() if k != "QCONTROL_COMPILE"}
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env)
-    assert proc.stdout.strip().splitlines()[-2:] == ["False", "True"], proc.stdout + proc.stderr
+    status, out, err = fresh["check then run"]
+    assert status == 0 and out.strip().splitlines()[-2:] == ["False", "True"], out + err
 
 
 @pytest.mark.parametrize("overrides", [[], ['plant.psi="x2**3"', "simulation.state_bound=5.0"]],

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import EX2, ROOT
+from conftest import EX2, ROOT, busy, forks_of
 
 import qcontrol
 from qcontrol.cli import main
@@ -72,10 +72,11 @@ def test_a_region_terminated_exits_143(tmp_path):
                              "--resolution", "40", "--duration", "10", "-q", "--out", str(out)],
                             cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "HOME": str(tmp_path), "QCONTROL_COMPILE": "0"})
-    deadline = time.monotonic() + 60
-    while not _has_children(proc.pid) and time.monotonic() < deadline and proc.poll() is None:
-        time.sleep(0.1)
-    time.sleep(1.0)
+    deadline, workers = time.monotonic() + 60, []
+    while not workers and time.monotonic() < deadline and proc.poll() is None:
+        workers = forks_of(proc.pid)
+        time.sleep(0.02)
+    assert workers and busy(workers[0]), "the region did not start its second worker"
     assert proc.poll() is None, proc.communicate()
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
@@ -190,13 +191,6 @@ def _in_group(group: int) -> list[int]:
         if not alive or time.monotonic() > deadline:
             return alive
         time.sleep(0.05)
-
-
-def _has_children(pid: int) -> bool:
-    try:
-        return bool(Path(f"/proc/{pid}/task/{pid}/children").read_text().split())
-    except OSError:
-        return False
 
 
 # --------------------------------------------------------------------------------------------

@@ -10,6 +10,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import pty
 import signal
 import socket
 import stat
@@ -20,7 +21,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import EX2, ROOT
+from conftest import EX2, ROOT, busy, children_of, drain_terminal, forks_of, progress_past_zero
 
 import qcontrol
 from qcontrol import outputs
@@ -299,21 +300,28 @@ def test_exit_statuses_are_documented():
 # 3. an interrupted run never replaces a complete output
 
 
-def _interrupted(tmp_path: Path, argv: list[str], sig: int, started: str) -> subprocess.CompletedProcess:
+def _interrupted(tmp_path: Path, argv: list[str], sig: int) -> subprocess.CompletedProcess:
+    """``qcontrol argv`` sent ``sig`` once its loop runs (its progress, on a pseudo-terminal, past
+    0 %): its exit status and what it printed on stderr."""
+    master, terminal = pty.openpty()
     proc = subprocess.Popen([sys.executable, "-m", "qcontrol.cli", *argv], cwd=tmp_path, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            stdout=subprocess.DEVNULL, stderr=terminal,
                             # the Python loop: this is about the outputs, and a compiled 600 s ODE run can
                             # end before the signal lands (its own tests interrupt it)
                             env={**os.environ, "HOME": str(tmp_path), "QCONTROL_COMPILE": "0"},
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    deadline = time.monotonic() + 60
-    while not list(tmp_path.glob(started)) and time.monotonic() < deadline and proc.poll() is None:
-        time.sleep(0.05)
-    time.sleep(0.5)
-    assert proc.poll() is None, proc.communicate()
-    proc.send_signal(sig)
-    out, err = proc.communicate(timeout=20)
-    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
+    os.close(terminal)
+    try:
+        shown = progress_past_zero(master, proc)
+        assert proc.poll() is None, proc.communicate()
+        proc.send_signal(sig)
+        proc.wait(timeout=20)
+        return subprocess.CompletedProcess(proc.args, proc.returncode, "", shown + drain_terminal(master))
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        os.close(master)
 
 
 @pytest.mark.parametrize("sig, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
@@ -321,8 +329,8 @@ def test_an_interrupted_recording_keeps_the_complete_one(tmp_path, sig, status):
     rrd = tmp_path / "r.rrd"
     assert main(["run", str(EX2), *SHORT, "--rrd", str(rrd)]) == 0
     before = rrd.read_bytes()
-    argv = ["run", str(EX2), "--backend", "ode", "--duration", "600", "-q", "--rrd", str(rrd)]
-    proc = _interrupted(tmp_path, argv, sig, ".r.rrd.*.tmp")
+    argv = ["run", str(EX2), "--backend", "ode", "--duration", "600", "--rrd", str(rrd)]
+    proc = _interrupted(tmp_path, argv, sig)
     assert proc.returncode == status, proc.stderr
     assert "Traceback" not in proc.stderr and "r.partial.rrd" in proc.stderr
     assert rrd.read_bytes() == before
@@ -421,19 +429,6 @@ def test_a_figure_is_written_in_the_format_its_name_says(tmp_path, suffix, magic
 # 5. workers die with their parent
 
 
-def _children(pid: int) -> list[int]:
-    found = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == pid:
-                found.append(int(entry.name))
-    return found
-
-
 def _alive(pid: int) -> bool:
     try:
         state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
@@ -464,10 +459,10 @@ def test_workers_die_with_their_parent(tmp_path, sig):
         deadline = time.monotonic() + 60
         workers: list[int] = []
         while not workers and time.monotonic() < deadline:  # (two workers: this process and a fork)
-            workers = _children(proc.pid)
-            time.sleep(0.1)
+            workers = forks_of(proc.pid)
+            time.sleep(0.02)
         assert len(workers) == 1, "the sweep did not fork its second worker"
-        time.sleep(0.5)
+        assert busy(workers[0]), "the forked worker never ran"
         proc.send_signal(sig)
         proc.wait(timeout=20)
         assert not _outliving(workers), "a worker outlived its parent"
@@ -475,7 +470,7 @@ def test_workers_die_with_their_parent(tmp_path, sig):
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-        for w in _children(proc.pid):
+        for w in children_of(proc.pid):
             os.kill(w, signal.SIGKILL)
 
 
@@ -499,7 +494,7 @@ def test_reproduces_workers_die_with_it(tmp_path):
         deadline = time.monotonic() + 240
         while len(workers) < len(procs) and time.monotonic() < deadline:
             for sig, proc in procs.items():  # each signalled as soon as its two workers run
-                found = [] if sig in workers else _children(proc.pid)
+                found = [] if sig in workers else forks_of(proc.pid)
                 if len(found) == 2:
                     workers[sig] = found
                     proc.send_signal(sig)
@@ -515,7 +510,7 @@ def test_reproduces_workers_die_with_it(tmp_path):
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
-            for w in _children(proc.pid):
+            for w in children_of(proc.pid):
                 os.kill(w, signal.SIGKILL)
 
 

@@ -16,17 +16,15 @@ import json
 import os
 import pty
 import resource
-import select
 import signal
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import EX1, EX2
+from conftest import EX1, EX2, drain_terminal, progress_past_zero
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -193,56 +191,41 @@ def test_atomic_path_into_a_missing_folder_is_an_output_error(tmp_path: Path) ->
 # Ctrl-C
 
 
-def _interrupt(tmp_path: Path, argv: list[str], ready: Path | str | None,
-               settle: float = 1.0, sig: int = signal.SIGINT,
+def _interrupt(tmp_path: Path, argv: list[str], sig: int = signal.SIGINT,
                environment: dict[str, str] | None = None) -> tuple[int, str, float]:
-    """Start ``qcontrol argv`` (SIGINT at its default: Python's KeyboardInterrupt), wait until the
-    run has started plus ``settle`` seconds, send SIGINT; return (exit status, stderr, CPU seconds
-    the command used from the signal to its exit). CPU seconds, not the wall clock: they measure
-    the work the command does after Ctrl-C (a run that goes on instead of stopping uses them), while
+    """Start ``qcontrol argv`` (SIGINT at its default: Python's KeyboardInterrupt), wait until its
+    loop is running, send SIGINT; return (exit status, what it printed on stderr, CPU seconds the
+    command used from the signal to its exit). CPU seconds, not the wall clock: they measure the
+    work the command does after Ctrl-C (a run that goes on instead of stopping uses them), while
     on a loaded machine (load 11 on 2 cores) the wall clock of that work is several times longer
-    and of scheduling alone. The run has started when ``ready`` exists (a glob pattern in
-    ``tmp_path`` matches) or, with ``ready`` None,
-    when it shows progress on its stderr, a terminal (a pseudo-terminal here): bad-input checks
-    make nothing before the run, so there is no folder to wait for."""
-    master, terminal = pty.openpty() if ready is None else (None, None)
+    and of scheduling alone. The loop is running when the progress the command shows on its
+    stderr, a terminal (a pseudo-terminal here), has moved past 0 %: a part of the run is done and
+    the next is under way (its checks, a compile, a recording's set-up are all behind it)."""
+    master, terminal = pty.openpty()
     before = _children_cpu()
     proc = subprocess.Popen(
         [sys.executable, "-m", "qcontrol.cli", *argv],
         cwd=tmp_path,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE if terminal is None else terminal,
+        stdout=subprocess.DEVNULL,
+        stderr=terminal,
         text=True,
         env={**os.environ, "HOME": str(tmp_path), **(environment or {})},
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # not inherited as ignored
     )
-    if terminal is not None:
-        os.close(terminal)
+    os.close(terminal)
     try:
-        deadline = time.perf_counter() + 60.0
-        shown = ""
-        while proc.poll() is None and time.perf_counter() < deadline:
-            started = ready.exists() if isinstance(ready, Path) else ready and any(tmp_path.glob(ready))
-            if started:
-                break
-            if master is not None and select.select([master], [], [], 0.05)[0]:
-                shown += os.read(master, 4096).decode(errors="replace")
-                if "%" in shown:
-                    break
-            time.sleep(0.05)
-        time.sleep(settle)
+        shown = progress_past_zero(master, proc)
         assert proc.poll() is None, f"finished before the signal: {proc.communicate()}"
         used = _cpu_of(proc.pid)
         proc.send_signal(sig)
-        _, err = proc.communicate(timeout=60)  # a hang, not a speed: the CPU seconds measure that
+        proc.wait(timeout=60)  # a hang, not a speed: the CPU seconds measure that
         seconds = _children_cpu() - before - used
-        return proc.returncode, err if master is None else shown + _drain(master), seconds
+        return proc.returncode, shown + drain_terminal(master), seconds
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-        if master is not None:
-            os.close(master)
+        os.close(master)
 
 
 def _cpu_of(pid: int) -> float:
@@ -257,20 +240,6 @@ def _children_cpu() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def _drain(master: int) -> str:
-    """Everything left on a pseudo-terminal whose other end has closed."""
-    text = ""
-    while select.select([master], [], [], 0.5)[0]:
-        try:
-            chunk = os.read(master, 4096)
-        except OSError:  # EIO: the other end is closed
-            break
-        if not chunk:
-            break
-        text += chunk.decode(errors="replace")
-    return text
-
-
 # (600 s of the ODE in the compiled loop take about a second: too short to interrupt; the MuJoCo
 # run and compare interrupt the compiled loop, the ODE run the Python loop)
 @pytest.mark.parametrize("command, backend, compiled", [("run", "ode", "0"), ("run", "mujoco", "1"),
@@ -282,7 +251,7 @@ def test_ctrl_c_stops_promptly_exit_130_no_temporary_files(
     argv = [command, str(EX2), "--duration", "600", "--out", str(out)]
     if backend is not None:
         argv += ["--backend", backend]
-    status, err, seconds = _interrupt(tmp_path, argv, ready=None, environment={"QCONTROL_COMPILE": compiled})
+    status, err, seconds = _interrupt(tmp_path, argv, environment={"QCONTROL_COMPILE": compiled})
     assert status == 130, err
     assert seconds < 5.0  # CPU seconds from the signal to the exit (see _interrupt)
     assert "Traceback" not in err and "interrupted" in err
@@ -295,8 +264,8 @@ def test_ctrl_c_keeps_the_recording(tmp_path: Path) -> None:
     """With --rrd: the recording so far is kept under its partial name (run.partial.rrd, it reads
     back), the final name is not made, no temporary file is left."""
     rrd = tmp_path / "run.rrd"
-    argv = ["run", str(EX2), "--backend", "ode", "--duration", "600", "-q", "--rrd", str(rrd)]
-    status, err, seconds = _interrupt(tmp_path, argv, ready=".run.rrd.*.tmp")
+    argv = ["run", str(EX2), "--backend", "ode", "--duration", "600", "--rrd", str(rrd)]
+    status, err, seconds = _interrupt(tmp_path, argv)
     assert status == 130 and seconds < 5.0, err
     assert "Traceback" not in err and "run.partial.rrd" in err
     assert not _leftovers(tmp_path)
