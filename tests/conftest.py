@@ -45,19 +45,22 @@ INTEGRAL_LAW_METHODS = """
 """
 
 
-# The files that take longest, heaviest first (CPU seconds of each file measured on a fresh clone,
-# an empty compiled-code cache). With `--dist loadfile` a file runs whole on one worker, so a long
-# file handed out last leaves the other worker idle at the end; the rest keep their order. xdist's
+# The files that take longest (about 1.5 s of CPU or more, children included, measured on a fresh
+# clone, an empty compiled-code cache), heaviest first. With `--dist loadfile` a file runs whole on
+# one worker, so a long file handed out last leaves the other worker idle at the end; the rest, each
+# shorter than that, keep their order and end the run. A file that grows past that belongs here. xdist's
 # own reordering (files with the most tests first) is turned off for that. test_reproduce.py leads
 # and test_readme.py comes a few files later: the full reproduction they share (made by the first
 # to ask, about 16 s) is ready before the README's command asks for it, not waited for.
 HEAVY_FIRST = ("test_reproduce.py", "test_compiled_loop.py", "test_one_definition.py",
                "test_output_safety.py", "test_recipes.py", "test_laws_doc.py", "test_readme.py",
                "test_plots.py", "test_sweep.py", "test_compiled_batch.py", "test_reliability.py",
-               "test_reproduce_laws.py", "test_tuning.py", "test_cli.py", "test_video.py", "test_fastpath.py",
-               "test_failures.py", "test_law_api.py", "test_bad_input.py", "test_commands_api.py",
-               "test_mujoco_compiled_batch.py", "test_native_passive.py", "test_expr_fuzz.py",
-               "test_compiled_folds.py", "test_physics.py")
+               "test_reproduce_laws.py", "test_tuning.py", "test_user_law_compiled.py", "test_cli.py",
+               "test_video.py", "test_fastpath.py", "test_failures.py", "test_law_api.py",
+               "test_bad_input.py", "test_commands_api.py", "test_mujoco_compiled_batch.py",
+               "test_native_passive.py", "test_expr_fuzz.py", "test_compiled_folds.py", "test_api.py",
+               "test_sensors.py", "test_core_plant.py", "test_closed_loop.py", "test_laws_by_hand.py",
+               "test_physics.py", "test_sampled.py", "test_mujoco_plant.py", "test_model_command.py")
 
 
 def pytest_configure(config: pytest.Config) -> None:
