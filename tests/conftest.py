@@ -253,6 +253,19 @@ def python_loop(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 @pytest.fixture
+def figure_not_drawn(monkeypatch) -> list:
+    """For a test of a sweep's table and record: the sweep command's figure (about 0.3 s of
+    matplotlib a sweep) is not drawn; tests/test_sweep.py's figure tests draw and check it, diverged
+    runs, random initial states and the partial name among them. The paths it would have been
+    drawn to."""
+    from qcontrol.plots import sweeps as sweep_plots
+
+    paths = []
+    monkeypatch.setattr(sweep_plots, "fig_sweep", lambda rows, keys, metrics, path, title: paths.append(path))
+    return paths
+
+
+@pytest.fixture
 def ctrl_c_on_second_chunk(monkeypatch):
     """Call it to make the sweeps that follow run one run per chunk and be interrupted
     (KeyboardInterrupt, as Ctrl-C) when their second chunk starts: the first chunk's rows are

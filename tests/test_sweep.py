@@ -26,18 +26,6 @@ def _sweep(*argv: str) -> int:
     return cmd_sweep(args)
 
 
-@pytest.fixture
-def figure_not_drawn(monkeypatch) -> list:
-    """For a test of the table and the record: the sweep's figure (about 0.3 s of matplotlib a
-    sweep) is not drawn; the figure's own tests here draw and check it, diverged runs, random
-    initial states and the partial name among them. The paths it would have been drawn to."""
-    from qcontrol.plots import sweeps as sweep_plots
-
-    paths = []
-    monkeypatch.setattr(sweep_plots, "fig_sweep", lambda rows, keys, metrics, path, title: paths.append(path))
-    return paths
-
-
 def _table(path: Path) -> list[dict]:
     with open(path, newline="") as f:
         return list(csv.DictReader(f))
