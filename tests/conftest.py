@@ -48,24 +48,52 @@ INTEGRAL_LAW_METHODS = """
 """
 
 
-# The files that take longest, heaviest first (CPU seconds of each file measured on a fresh clone,
-# an empty compiled-code cache). With `--dist loadfile` a file runs whole on one worker, so a long
-# file handed out last leaves the other worker idle at the end; the rest keep their order. xdist's
+# The files that take longest (about 1.5 s of CPU or more, children included, measured on a fresh
+# clone, an empty compiled-code cache), heaviest first. With `--dist loadfile` a file runs whole on
+# one worker, so a long file handed out last leaves the other worker idle at the end; the rest, each
+# shorter than that, keep their order and end the run. A file that grows past that belongs here. xdist's
 # own reordering (files with the most tests first) is turned off for that. test_reproduce.py leads
 # and test_readme.py comes a few files later: the full reproduction they share (made by the first
 # to ask, about 16 s) is ready before the README's command asks for it, not waited for.
 HEAVY_FIRST = ("test_reproduce.py", "test_compiled_loop.py", "test_one_definition.py",
                "test_output_safety.py", "test_recipes.py", "test_laws_doc.py", "test_readme.py",
                "test_plots.py", "test_sweep.py", "test_compiled_batch.py", "test_reliability.py",
-               "test_reproduce_laws.py", "test_tuning.py", "test_cli.py", "test_video.py", "test_fastpath.py",
-               "test_failures.py", "test_law_api.py", "test_bad_input.py", "test_commands_api.py",
-               "test_mujoco_compiled_batch.py", "test_native_passive.py", "test_expr_fuzz.py",
-               "test_compiled_folds.py", "test_physics.py")
+               "test_reproduce_laws.py", "test_tuning.py", "test_user_law_compiled.py", "test_cli.py",
+               "test_video.py", "test_fastpath.py", "test_failures.py", "test_law_api.py",
+               "test_bad_input.py", "test_commands_api.py", "test_mujoco_compiled_batch.py",
+               "test_native_passive.py", "test_expr_fuzz.py", "test_compiled_folds.py", "test_api.py",
+               "test_sensors.py", "test_core_plant.py", "test_closed_loop.py", "test_laws_by_hand.py",
+               "test_physics.py", "test_sampled.py", "test_mujoco_plant.py", "test_model_command.py")
 
 
 def pytest_configure(config: pytest.Config) -> None:
     if hasattr(config.option, "loadscopereorder"):  # pytest-xdist's --no-loadscope-reorder
         config.option.loadscopereorder = False
+    _rewrite_a_share_of_the_test_files(config)
+
+
+def _rewrite_a_share_of_the_test_files(config: pytest.Config) -> None:
+    """Under pytest-xdist every worker imports every test module, and pytest rewrites a module's
+    asserts on import unless it finds the rewritten code cached (in ``__pycache__``): on a fresh
+    clone both workers rewrite all of them at once, about 1.9 s of CPU each. Here worker k of n
+    rewrites and caches every n-th file before collecting, with pytest's own functions and config,
+    so each finds the others' share cached (the same code: the cache pytest writes and checks).
+    Nothing changes where these internals are missing, bytecode is not written or asserts are
+    not rewritten."""
+    worker, count = os.environ.get("PYTEST_XDIST_WORKER"), os.environ.get("PYTEST_XDIST_WORKER_COUNT")
+    if not worker or not count or sys.dont_write_bytecode or config.getoption("assertmode") != "rewrite":
+        return
+    try:
+        from _pytest.assertion import rewrite
+        state = config.stash[rewrite.assertstate_key]
+        files = sorted(Path(__file__).parent.glob("test_*.py"))[int(worker.removeprefix("gw"))::int(count)]
+        for file in files:
+            pyc = rewrite.get_cache_dir(file) / (file.name[:-3] + rewrite.PYC_TAIL)
+            if rewrite._read_pyc(file, pyc) is None and rewrite.try_makedirs(pyc.parent):
+                source_hash, code = rewrite._rewrite_test(file, config)
+                rewrite._write_pyc(state, code, source_hash, pyc)
+    except (AttributeError, ImportError, KeyError, ValueError):  # another pytest: it rewrites them all
+        return
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
@@ -300,6 +328,19 @@ def python_loop(monkeypatch: pytest.MonkeyPatch) -> None:
     fraction of a second in Python. The compiled forms give the Python loop's numbers to the last
     bit (tests/test_compiled_loop.py, tests/test_compiled_batch.py)."""
     monkeypatch.setenv("QCONTROL_COMPILE", "0")
+
+
+@pytest.fixture
+def figure_not_drawn(monkeypatch) -> list:
+    """For a test of a sweep's table and record: the sweep command's figure (about 0.3 s of
+    matplotlib a sweep) is not drawn; tests/test_sweep.py's figure tests draw and check it, diverged
+    runs, random initial states and the partial name among them. The paths it would have been
+    drawn to."""
+    from qcontrol.plots import sweeps as sweep_plots
+
+    paths = []
+    monkeypatch.setattr(sweep_plots, "fig_sweep", lambda rows, keys, metrics, path, title: paths.append(path))
+    return paths
 
 
 @pytest.fixture

@@ -251,7 +251,7 @@ def test_run_streams_chunks_with_bounded_memory_same_numbers(tmp_path, overrides
         assert got[key] == want[key], key
 
 
-def test_progress_is_shown_on_a_terminal_only(tmp_path, capsys, monkeypatch):
+def test_progress_is_shown_on_a_terminal_only(tmp_path, capsys, monkeypatch, figure_not_drawn):
     """Piped (here: captured), no command writes progress lines; on a terminal the line is redrawn."""
     import io
 

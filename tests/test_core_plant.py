@@ -139,7 +139,7 @@ def test_check_builds_it_and_says_so(core: Path, capsys) -> None:
     assert "on core; core: the plant of eq. (1) built; mujoco: the model compiled and agrees" in line
 
 
-def test_sweep_from_the_command_line_and_the_api(core: Path, tmp_path: Path) -> None:
+def test_sweep_from_the_command_line_and_the_api(core: Path, tmp_path: Path, figure_not_drawn: list) -> None:
     grid = ["--grid", "controller.kappa_margin=0.1,0.5", "--set", "simulation.duration=0.3", "-q"]
     for backend in ("core", "ode"):
         assert main(["sweep", str(EX2), "--backend", backend, *grid, "--out", str(tmp_path / backend)]) == 0

@@ -307,7 +307,9 @@ _constants = st.one_of(
     st.floats(min_value=-10, max_value=10),
     st.integers(min_value=-(10**40), max_value=10**40),
     st.sampled_from([0, 1, 2, 3, 0.5, 64, 65, -65, 1000, 1e308, 5e-324]),
-    st.text(max_size=3),
+    # every character but a surrogate: st.text()'s own default (characters UTF-8 can encode), named
+    # by category so that hypothesis does not tabulate the codec (1.2 s of CPU on a fresh clone)
+    st.text(st.characters(exclude_categories=["Cs"]), max_size=3),
     st.binary(max_size=3),
     st.none(),
     st.booleans(),

@@ -36,7 +36,7 @@ class Proportional:
         return np.zeros(0)
 
 
-def test_sweep_returns_the_table_the_command_writes(tmp_path: Path) -> None:
+def test_sweep_returns_the_table_the_command_writes(tmp_path: Path, figure_not_drawn: list) -> None:
     sc = qcontrol.load_scenario(EX1, SHORT)
     rows = qcontrol.sweep(sc, grid={"controller.delta": [0.05, 0.1],
                                     "controller.kind": ["proposed", "comparison"]}, backend="ode")
@@ -51,6 +51,7 @@ def test_sweep_returns_the_table_the_command_writes(tmp_path: Path) -> None:
         assert repr(row["error_rate_0.100"]) == line["error_rate_0.100"]
         assert repr(row["lemma2_max_ratio"]) == line["lemma2_max_ratio"]
     assert rows[0]["max_abs_z1_last_half"] != rows[2]["max_abs_z1_last_half"]  # delta really varied
+    assert figure_not_drawn == [tmp_path / "sw" / "sweep.png"]
 
 
 def test_qcontrol_sweep_is_the_function_and_the_package_stays_importable() -> None:

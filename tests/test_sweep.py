@@ -203,7 +203,7 @@ def test_unreachable_scheduler_is_an_input_error(monkeypatch):
         sweep_summaries(EXAMPLE2, SETS[:1], scheduler="tcp://127.0.0.1:9")
 
 
-def test_sweep_json_records_the_sweep_with_provenance(tmp_path):
+def test_sweep_json_records_the_sweep_with_provenance(tmp_path, figure_not_drawn):
     assert _sweep(str(EXAMPLE2), "--grid", "controller.gamma=1,2", "--set", SHORT, "--backend", "ode",
                   "--out", str(tmp_path), "-q") == 0
     record = json.loads((tmp_path / "sweep.json").read_text())
@@ -213,9 +213,10 @@ def test_sweep_json_records_the_sweep_with_provenance(tmp_path):
     assert "[controller.proposed]" in record["provenance"]["resolved_scenario"]
     rows = _table(tmp_path / "sweep.csv")
     assert [r["diverged_time"] for r in rows] == ["", ""]
+    assert figure_not_drawn == [tmp_path / "sweep.png"]
 
 
-def test_the_scenarios_backend_is_the_default(tmp_path, capsys):
+def test_the_scenarios_backend_is_the_default(tmp_path, capsys, figure_not_drawn):
     assert _sweep(str(EXAMPLE2), "--grid", "controller.gamma=1,2", "--set", "simulation.duration=0.1",
                   "--out", str(tmp_path)) == 0
     assert json.loads((tmp_path / "sweep.json").read_text())["backend"] == "mujoco"
@@ -298,7 +299,7 @@ def test_chunks_are_cut_so_that_every_worker_gets_one():
 
 
 @pytest.mark.parametrize("backend", ["ode", "mujoco"])
-def test_the_table_is_the_same_however_the_runs_are_chunked(tmp_path, monkeypatch, backend):
+def test_the_table_is_the_same_however_the_runs_are_chunked(tmp_path, monkeypatch, backend, figure_not_drawn):
     """sweep.csv (wall time aside) from one batch in this process, from two workers (a batch each),
     and from batches of 6: a copy's numbers do not depend on its batch."""
     argv = [str(EXAMPLE2), "--grid", "controller.gamma=1,2,3", "--random-initial", "4", "--seed", "3",
