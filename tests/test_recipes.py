@@ -94,6 +94,9 @@ def perform(name: str, root: Path, then: tuple[str | list[str], ...] = ()) -> di
     env = dict(os.environ, PYTHONPATH=str(root), HOME=str(root / "home"),
                PATH=os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")]))
     env.pop("PYTEST_XDIST_WORKER", None)
+    # the tests a recipe names use no hypothesis: without its plugin their pytest does not import
+    # hypothesis to end the session (~0.15 s of CPU a recipe)
+    env["PYTEST_ADDOPTS"] = f"{os.environ.get('PYTEST_ADDOPTS', '')} -p no:hypothesispytest".strip()
     # The tests list the files with git (`git ls-files`): each step's files are added to the index
     # as intent-to-add entries, listed as added files are, without hashing and writing every file
     # of the copy into git's object store (about 0.4 s of CPU a recipe, the copy's 9 MB)
