@@ -100,8 +100,14 @@ def test_every_document_a_text_points_to_exists() -> None:
 def test_nothing_cites_a_document_outside_the_repository() -> None:
     # the bracketed letters keep this line from matching itself
     outside = re.compile(r"\bS[P]EC\b|\bD[E]SIGN\b|/w[o]rk/|\.\./sh[a]red|\b[Ii]ssue [0-9]+")
+    # every match holds one of these: a text without any is read no further (the pattern's
+    # alternatives tried at each of 2.8 MB of characters take 0.2 s of CPU; these searches, 10 ms)
+    needles = ("S" "PEC", "D" "ESIGN", "/w" "ork/", "../sh" "ared", "ssue ")
     for path in _tracked():
-        for number, line in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
+        text = path.read_text(encoding="utf-8", errors="replace")
+        if not any(needle in text for needle in needles):
+            continue
+        for number, line in enumerate(text.splitlines(), 1):
             assert not outside.search(line), f"{path.relative_to(ROOT)}:{number}: {line.strip()}"
 
 
