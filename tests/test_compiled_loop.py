@@ -81,18 +81,35 @@ def test_compiled_and_python_loops_agree_on_every_shipped_scenario(monkeypatch, 
 # the comparison law adds psi and phi to its u (eq. (46)): on Example 1 (psi only) and Example 2 (phi
 # only); the exact hold changes how the law's own constants hold u (no plant term): on Example 2, as
 # each plant's lines are checked with the default law above (each further plant is one more module
-# to compile); the tuning law's design (its program of shared trees) on Example 2's sin and cos
+# to compile); the tuning law's design (its program of shared trees) on Example 2's sin and cos.
+# On the ODE only: a law's lines are traced from the law alone (traced_parts: no plant in them) and
+# the same text runs between the lines of either plant (checked below, uncompiled), whose own lines
+# every shipped scenario runs on both backends above (a MuJoCo module per law: 0.6-0.8 s of compile)
 LAW_CASES = [("exact hold", "example2"), ("comparison law", "example1"), ("comparison law", "example2"),
              ("linear law", "example2"), ("tuning law", "example2")]
 
 
-@pytest.mark.parametrize("backend", ["ode", "mujoco"])
+def _same_lines_on_mujoco(sc, loop: ClosedLoop) -> None:
+    """The compiled loop of ``sc`` on MuJoCo (generated, not compiled) runs the quantizer's and the
+    law's lines of ``loop`` (the ODE's, compiled and checked) unchanged, between its plant's."""
+    mujoco = ClosedLoop(run_spec(sc, build_plant(sc, "mujoco"), build_controller(sc), [sc.x0], None))
+    parts, ode = mujoco.compiled.parts, loop.compiled.parts
+    assert parts._replace(constants=None, memory=None) == ode._replace(constants=None, memory=None)
+    assert parts.constants.tobytes() == ode.constants.tobytes() and type(parts.memory) is type(ode.memory)
+    with mujoco.plant:  # (its passive callback installed, as in a run: the plant's lines given)
+        source = mujoco.compiled.source(mujoco.plant.native_stepper(mujoco.grid.dt, mujoco.grid.rows))
+    assert "read_copy(" in source and "step_copy(" in source
+    stripped = "\n".join(line.strip() for line in source.splitlines())
+    for lines in (ode.quantize, ode.control, ode.advance, ode.applied):
+        assert "\n".join(line.strip() for line in lines) in stripped
+
+
 @pytest.mark.parametrize(("law", "name"), LAW_CASES)
-def test_compiled_and_python_loops_agree_for_each_built_in_law(monkeypatch, backend: str, law: str,
-                                                               name: str) -> None:
-    (loop, compiled), (_, python) = _both(monkeypatch, _scenario(name, LAWS[law]), backend)
+def test_compiled_and_python_loops_agree_for_each_built_in_law(monkeypatch, law: str, name: str) -> None:
+    (loop, compiled), (_, python) = _both(monkeypatch, _scenario(name, LAWS[law]), "ode")
     assert loop.handover is None
     _assert_identical(compiled, python)
+    _same_lines_on_mujoco(_scenario(name, LAWS[law]), loop)
 
 
 # one structure (one module to compile), two starts: math's exp and tanh (numpy's round otherwise)
@@ -107,18 +124,19 @@ def test_the_tuning_law_is_compiled_and_hands_over_where_math_refuses(monkeypatc
     _assert_identical(compiled, python)
 
 
-@pytest.mark.parametrize("backend", ["ode", "mujoco"])
+# (on the ODE, the MuJoCo loop's text checked: the quantizers' lines are the plant's neighbours only)
 @pytest.mark.parametrize("keys", [
     ['quantizer.kind="hysteresis"', "quantizer.delta=[0.0015, 0.05]"],  # levels kept row to row
     ["quantizer.delta=[0.0015, 0.05]", "quantizer.input.delta=0.5"],  # the plant stepped with q_u(u)
     ["quantizer.delta=0.01", "quantizer.input.delta=0.5", "simulation.control_period=0.005"],
 ])
-def test_hysteresis_and_an_input_quantizer_are_compiled(monkeypatch, backend: str, keys: list[str]) -> None:
+def test_hysteresis_and_an_input_quantizer_are_compiled(monkeypatch, keys: list[str]) -> None:
     sc = load_scenario(SCENARIOS / "example2.toml", ["simulation.duration=0.4", *keys],
                        unset=["controller.delta"])
-    (loop, compiled), (_, python) = _both(monkeypatch, sc, backend)
+    (loop, compiled), (_, python) = _both(monkeypatch, sc, "ode")
     assert loop.handover is None
     _assert_identical(compiled, python)
+    _same_lines_on_mujoco(sc, loop)
 
 
 @pytest.mark.parametrize("input_delta", [None, 0.5])
@@ -140,15 +158,16 @@ def test_hysteresis_levels_and_the_input_quantizer_carry_over_a_hand_over(monkey
     _assert_identical(compiled, python)
 
 
-@pytest.mark.parametrize("backend", ["ode", "mujoco"])
-def test_a_quantizer_per_channel_with_a_range_is_compiled(monkeypatch, backend: str) -> None:
-    """A step per channel and a range the arm leaves (its angle readings saturate at q(0.35))."""
+def test_a_quantizer_per_channel_with_a_range_is_compiled(monkeypatch) -> None:
+    """A step per channel and a range the state leaves (its angle readings saturate at q(0.35));
+    on the ODE, the MuJoCo loop's text checked."""
     keys = ["simulation.duration=0.4", "quantizer.delta=[0.0015, 0.05]", "quantizer.range=[0.35, 20.0]"]
     sc = load_scenario(SCENARIOS / "example2.toml", keys, unset=["controller.delta"])
-    (loop, compiled), (_, python) = _both(monkeypatch, sc, backend)
+    (loop, compiled), (_, python) = _both(monkeypatch, sc, "ode")
     assert loop.handover is None
     assert np.max(compiled.x_q[:, 0]) < np.max(compiled.x_meas[:, 0])  # saturated
     _assert_identical(compiled, python)
+    _same_lines_on_mujoco(sc, loop)
 
 
 @pytest.mark.parametrize("realism", [["plant.mujoco.sensor_delay=0.002"],
