@@ -122,6 +122,8 @@ def _once_per_session(tmp_path_factory: pytest.TempPathFactory, name: str, make)
     return folder
 
 
+# A quick reproduction on 0.3 s ODE runs, as a call of qcontrol.reproduce and as its command line
+QUICK_REPRODUCE_CALL = {"quick": True, "backend": "ode", "duration": 0.3}
 QUICK_REPRODUCE = ["reproduce", "--quick", "--backend", "ode", "--duration", "0.3"]
 # The README's `qcontrol reproduce --out results/` (every study, every figure) on 0.5 s horizons
 # instead of the paper's 10 s: what tests/test_reproduce.py reads, and the README's command itself
@@ -148,11 +150,29 @@ def _shared_reproduction(tmp_path_factory: pytest.TempPathFactory, name: str,
     return folder / "out", run["status"], run["stdout"]
 
 
+def _api_reproduction(folder: Path) -> None:
+    """``qcontrol.reproduce(folder / "out", **QUICK_REPRODUCE_CALL)``: the Reproduction it returned
+    and the lines it logged, pickled in ``folder/run.pickle``: the other workers read the very
+    object it returned (a tuple stays a tuple, a Path a Path: JSON would change them)."""
+    import pickle
+
+    import qcontrol
+
+    lines: list[str] = []
+    rep = qcontrol.reproduce(folder / "out", **QUICK_REPRODUCE_CALL, log=lines.append)
+    (folder / "run.pickle").write_bytes(pickle.dumps((rep, "\n".join(lines))))
+
+
 @pytest.fixture(scope="session")
-def quick_reproduction(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, int, str]:
-    """``qcontrol QUICK_REPRODUCE --out FOLDER``, run once for the session (the test files that
-    read a quick reproduction share it): the folder, the exit status and what it printed."""
-    return _shared_reproduction(tmp_path_factory, "quick-reproduce", [*QUICK_REPRODUCE, "--out", "out"])
+def quick_reproduction(tmp_path_factory: pytest.TempPathFactory) -> tuple:
+    """``qcontrol.reproduce(FOLDER, **QUICK_REPRODUCE_CALL)``, run once for the session through the
+    API (the test files that read a quick reproduction share it; tests/test_reproduce_laws.py runs
+    the same reproduction, with a law more, through the command line): the
+    :class:`qcontrol.Reproduction` it returned and what it logged."""
+    import pickle
+
+    folder = _once_per_session(tmp_path_factory, "quick-reproduce", _api_reproduction)
+    return pickle.loads((folder / "run.pickle").read_bytes())
 
 
 @pytest.fixture(scope="session")

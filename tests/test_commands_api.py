@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import EX2
+from conftest import EX2, QUICK_REPRODUCE_CALL
 
 import qcontrol
 from qcontrol.cli import main
@@ -66,9 +66,13 @@ def test_region_refuses_bad_arguments_in_one_line() -> None:
             qcontrol.region(sc, **kwargs)
 
 
-def test_quick_reproduce_returns_table1_and_compares_nothing(tmp_path: Path) -> None:
-    rep = qcontrol.reproduce(tmp_path / "out", quick=True, backend="ode", duration=0.3)
+def test_quick_reproduce_returns_table1_and_compares_nothing(quick_reproduction) -> None:
+    """What ``qcontrol.reproduce(OUT, quick=True, backend="ode", duration=0.3)`` returned (the
+    session's shared quick reproduction, made through this function: conftest.py)."""
+    rep, _ = quick_reproduction
+    assert QUICK_REPRODUCE_CALL == {"quick": True, "backend": "ode", "duration": 0.3}
     assert isinstance(rep, qcontrol.Reproduction) and rep.quick
+    assert rep.files == tuple(sorted(p.name for p in rep.out.iterdir() if p.is_file()))
     assert {"REPORT.md", "table1.json", "table1.md", "table1.png", "studies.json"} <= set(rep.files)
     assert "region.json" not in rep.files and "robustness.json" not in rep.files
     written = json.loads((rep.out / "table1.json").read_text())

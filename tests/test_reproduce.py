@@ -5,7 +5,7 @@ import struct
 
 import numpy as np
 import pytest
-from conftest import FULL_REPRODUCE, QUICK_REPRODUCE
+from conftest import FULL_REPRODUCE, QUICK_REPRODUCE_CALL
 
 from qcontrol.paper import PAPER_TABLE1
 from qcontrol.plots import FIG_HEIGHT_PX, FIG_WIDTH_PX
@@ -159,11 +159,13 @@ def test_robustness_json_holds_every_row(reproduction):
 
 
 def test_quick_reproduce_skips_the_robustness_study(quick_reproduction):
-    """``reproduce --quick --backend ode --duration 0.3`` (the session's shared run, conftest.py)."""
-    out, status, printed = quick_reproduction
-    assert QUICK_REPRODUCE == ["reproduce", "--quick", "--backend", "ode", "--duration", "0.3"]
-    assert status == 0
-    assert "no region or robustness study (--quick)" in printed
+    """A quick reproduction on 0.3 s ODE runs (the session's shared run, made through
+    qcontrol.reproduce: conftest.py; tests/test_reproduce_laws.py checks the same of the command
+    line's ``reproduce --quick``)."""
+    rep, logged = quick_reproduction
+    out = rep.out
+    assert QUICK_REPRODUCE_CALL == {"quick": True, "backend": "ode", "duration": 0.3}
+    assert "no region or robustness study (--quick)" in logged
     assert (out / "table1.json").is_file() and (out / "REPORT.md").is_file()
     assert not (out / "robustness.json").exists() and not (out / "study_margins.png").exists()
     report = (out / "REPORT.md").read_text()

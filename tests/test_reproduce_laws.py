@@ -59,14 +59,19 @@ def _finite_rates(rates: dict) -> bool:
     return list(rates) == OMEGAS and all(math.isfinite(v) and 0.0 <= v <= 1.0 for v in rates.values())
 
 
-def test_quick_reproduce_adds_the_law_to_table1_and_leaves_the_rest(tmp_path, law_file,
+def test_quick_reproduce_adds_the_law_to_table1_and_leaves_the_rest(tmp_path, law_file, capsys,
                                                                    quick_reproduction) -> None:
-    """The same quick reproduction (0.3 s ODE runs) with and without the law: the one without is
-    the session's shared run (conftest.py)."""
-    (plain, status, _), more = quick_reproduction, tmp_path / "more"
-    assert status == 0 and QUICK_REPRODUCE[:2] == ["reproduce", "--quick"]
-    with_law = ["-q", "--law-module", str(law_file), "--law", KIND, "--out", str(more)]
+    """The same quick reproduction (0.3 s ODE runs) with the law, through the command line, and
+    without it: the session's shared run, through qcontrol.reproduce (conftest.py). The command
+    line's ``--quick`` is checked here: its progress printed, no region or robustness study."""
+    (plain_rep, _), more = quick_reproduction, tmp_path / "more"
+    plain = plain_rep.out
+    assert QUICK_REPRODUCE == ["reproduce", "--quick", "--backend", "ode", "--duration", "0.3"]
+    with_law = ["--law-module", str(law_file), "--law", KIND, "--out", str(more)]
     assert main([*QUICK_REPRODUCE, *with_law]) == 0
+    assert "no region or robustness study (--quick)" in capsys.readouterr().out
+    assert not (more / "robustness.json").exists() and not (more / "study_margins.png").exists()
+    assert "Not run here (`qcontrol reproduce --quick`)" in (more / "REPORT.md").read_text()
     table, base = _json(more / "table1.json"), _json(plain / "table1.json")
     extra = table.pop("beyond_the_paper")
     assert "Not from the paper" in extra["note"] and list(extra["ours"]) == ["ode"]
