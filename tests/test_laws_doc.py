@@ -23,7 +23,11 @@ COMMANDS = [line.strip() for block in re.findall(r"```bash\n(.*?)```", DOC, re.S
 # argv[1] is a JSON pair: Python text and a list of commands. Runs the text in a fork of itself as
 # `python -c` would and prints one JSON line, its exit status and stdout; then runs each command in
 # a fork and prints one JSON line per command: the command and its exit status. Anything else a
-# fork writes goes to stderr.
+# fork writes goes to stderr. The commands run with QCONTROL_COMPILE=0, as tests/test_readme.py's:
+# what a command does, not its compiled form, which the region map would otherwise compile for the
+# integral law (a batch of two laws: about 1.5 s of numba on an empty cache, for numbers the array
+# form gives to the last bit; tests/test_user_law_compiled.py compiles a user law's batch and
+# checks it against its Python run).
 FORKING_RUNNER = """
 import json, os, shlex, sys, tempfile
 import matplotlib.backends.backend_agg, matplotlib.figure
@@ -39,6 +43,7 @@ if pid == 0:
 status = os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1])
 print(json.dumps([status, open(printed).read()]), flush=True)
 os.remove(printed)
+os.environ["QCONTROL_COMPILE"] = "0"
 for command in commands:
     sys.stdout.flush()
     pid = os.fork()
