@@ -23,11 +23,29 @@ COMMANDS = [line.strip() for block in re.findall(r"```bash\n(.*?)```", DOC, re.S
 # argv[1] is a JSON pair: Python text and a list of commands. Runs the text in a fork of itself as
 # `python -c` would and prints one JSON line, its exit status and stdout; then runs each command in
 # a fork and prints one JSON line per command: the command and its exit status. Anything else a
-# fork writes goes to stderr.
+# fork writes goes to stderr. A fork that ends normally leaves as the interpreter's exit does (its
+# threads waited for, its atexit functions run, its output flushed) but without tearing its objects
+# down one by one, which in a fork touches every page it shares with its parent: about 0.15 s of
+# CPU a process (an exception still ends it the interpreter's way, with exit status 1). The
+# commands run with QCONTROL_COMPILE=0, as tests/test_readme.py's: what a command does, not its
+# compiled form, which the region map would otherwise compile for the integral law (a batch of two
+# laws: about 1.5 s of numba on an empty cache, for numbers the array form gives to the last bit;
+# tests/test_user_law_compiled.py compiles a user law's batch and checks it against its Python run).
 FORKING_RUNNER = """
-import json, os, shlex, sys, tempfile
+import atexit, json, os, shlex, sys, tempfile, threading
 import matplotlib.backends.backend_agg, matplotlib.figure
 from qcontrol.cli import main
+
+
+def leave(status):
+    sys.stdout.flush()
+    getattr(threading, "_shutdown", lambda: None)()  # the non-daemon threads are waited for
+    atexit._run_exitfuncs()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(status)
+
+
 text, commands = json.loads(sys.argv[1])
 printed = tempfile.mkstemp()[1]
 sys.stdout.flush()
@@ -35,16 +53,17 @@ pid = os.fork()
 if pid == 0:
     os.dup2(os.open(printed, os.O_WRONLY | os.O_TRUNC), 1)
     exec(compile(text, "<string>", "exec"), {"__name__": "__main__", "__builtins__": __builtins__})
-    sys.exit(0)
+    leave(0)
 status = os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1])
 print(json.dumps([status, open(printed).read()]), flush=True)
 os.remove(printed)
+os.environ["QCONTROL_COMPILE"] = "0"
 for command in commands:
     sys.stdout.flush()
     pid = os.fork()
     if pid == 0:
         os.dup2(2, 1)
-        sys.exit(main(shlex.split(command)[1:]))
+        leave(main(shlex.split(command)[1:]))
     status = os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1])
     print(json.dumps([command, status]), flush=True)
 """
