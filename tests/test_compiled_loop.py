@@ -142,10 +142,12 @@ def test_hysteresis_and_an_input_quantizer_are_compiled(monkeypatch, keys: list[
 @pytest.mark.parametrize("input_delta", [None, 0.5])
 def test_hysteresis_levels_and_the_input_quantizer_carry_over_a_hand_over(monkeypatch,
                                                                           input_delta: float | None) -> None:
-    """The bounding function overflows math part of the way: the Python loop takes over with the
-    levels the compiled loop kept (a row read again keeps its level) and steps with q_u(u)."""
+    """The bounding function divides by zero where q1 reaches 0.25 (math raises; numpy's inf
+    times 1e-300 is inf): the Python loop takes over with the levels the compiled loop kept (a row
+    read again keeps its level) and steps with q_u(u). The state moves slowly there, so a level
+    the loop did not carry over would read otherwise (x2's held level is not its nearest one)."""
     def spec() -> RunSpec:
-        base = _refusing_run("0", "1 + exp(q1 / 2)", [0.0, 2000.0])
+        base = _refusing_run("0", "1 + 1e-300 * (1 / (q1 - 0.25))", [0.27, -0.35])
         law = PaperLaw([1.0, 1.0], (0.01, 0.01), kappa=3.0, gamma=1.0, sigma=1.0, r=base.law.r)
         applied = None if input_delta is None else UniformQuantizer(input_delta)
         return dataclasses.replace(base, law=law, quantizer=HysteresisQuantizer(0.01, 2),
@@ -154,7 +156,11 @@ def test_hysteresis_levels_and_the_input_quantizer_carry_over_a_hand_over(monkey
     compiled = loop.run()[0]
     monkeypatch.setenv("QCONTROL_COMPILE", "0")
     python = ClosedLoop(spec()).run()[0]
-    assert loop.handover is not None and loop.handover > 0
+    row = loop.handover
+    assert row is not None and row > 0
+    assert compiled.x_q[row, 0] == 0.25  # (the refused reading)
+    nearest = 0.01 * np.floor(compiled.x_meas[row] / 0.01 + 0.5)
+    assert np.any(compiled.x_q[row] != nearest)  # a level held there, not the nearest one
     _assert_identical(compiled, python)
 
 
