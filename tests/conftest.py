@@ -273,18 +273,30 @@ def drain_terminal(master: int) -> str:
     return text
 
 
+def process_fields(pid: int) -> list[str] | None:
+    """The fields of ``/proc/PID/stat`` after the command's name (0 the state, "Z" a zombie; 1 the
+    parent; 2 the process group; 11 and 12 the user and system clock ticks), or None once the
+    process is gone."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+
+
+def processes() -> list[int]:
+    """Every process's id (read from /proc)."""
+    return [int(entry.name) for entry in Path("/proc").iterdir() if entry.name.isdigit()]
+
+
+def cpu_seconds(pid: int) -> float:
+    """The CPU seconds (user + system) process ``pid`` used so far (0 once it is gone)."""
+    fields = process_fields(pid)
+    return 0.0 if fields is None else (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def children_of(pid: int) -> list[int]:
-    """The processes whose parent is ``pid`` (read from /proc)."""
-    found = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == pid:
-                found.append(int(entry.name))
-    return found
+    """The processes whose parent is ``pid``."""
+    return [child for child in processes() if (fields := process_fields(child)) and int(fields[1]) == pid]
 
 
 def forks_of(pid: int) -> list[int]:
@@ -309,12 +321,8 @@ def busy(pid: int, seconds: float = 0.05, timeout: float = 60.0) -> bool:
     """Whether process ``pid`` has used ``seconds`` of CPU (it is working on its runs), asked until
     then, for at most ``timeout`` seconds (a bound on a worker that never runs, not a wait)."""
     deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        try:
-            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            return False
-        if int(fields[11]) + int(fields[12]) >= seconds * os.sysconf("SC_CLK_TCK"):  # utime, stime
+    while time.monotonic() < deadline and process_fields(pid) is not None:
+        if cpu_seconds(pid) >= seconds:
             return True
         time.sleep(0.01)
     return False

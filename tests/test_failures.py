@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import EX2, ROOT, busy, forks_of
+from conftest import EX2, ROOT, busy, forks_of, process_fields, processes
 
 import qcontrol
 from qcontrol.cli import main
@@ -180,14 +180,8 @@ def _in_group(group: int) -> list[int]:
     """The processes of process group ``group`` still alive 2 s on (asked until then)."""
     deadline = time.monotonic() + 2.0
     while True:
-        alive = []
-        for entry in Path("/proc").iterdir():
-            try:
-                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-            except (OSError, IndexError):
-                continue
-            if fields[0] != "Z" and int(fields[2]) == group:
-                alive.append(int(entry.name))
+        alive = [pid for pid in processes()
+                 if (fields := process_fields(pid)) and fields[0] != "Z" and int(fields[2]) == group]
         if not alive or time.monotonic() > deadline:
             return alive
         time.sleep(0.05)

@@ -21,7 +21,16 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import EX2, ROOT, busy, children_of, drain_terminal, forks_of, progress_past_zero
+from conftest import (
+    EX2,
+    ROOT,
+    busy,
+    children_of,
+    drain_terminal,
+    forks_of,
+    process_fields,
+    progress_past_zero,
+)
 
 import qcontrol
 from qcontrol import outputs
@@ -430,11 +439,8 @@ def test_a_figure_is_written_in_the_format_its_name_says(tmp_path, suffix, magic
 
 
 def _alive(pid: int) -> bool:
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state != "Z"
+    fields = process_fields(pid)
+    return fields is not None and fields[0] != "Z"
 
 
 def _outliving(workers: list[int], seconds: float = 2.0) -> list[int]:

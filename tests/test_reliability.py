@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import EX1, EX2, drain_terminal, progress_past_zero
+from conftest import EX1, EX2, cpu_seconds, drain_terminal, progress_past_zero
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -216,7 +216,7 @@ def _interrupt(tmp_path: Path, argv: list[str], sig: int = signal.SIGINT,
     try:
         shown = progress_past_zero(master, proc)
         assert proc.poll() is None, f"finished before the signal: {proc.communicate()}"
-        used = _cpu_of(proc.pid)
+        used = cpu_seconds(proc.pid)
         proc.send_signal(sig)
         proc.wait(timeout=60)  # a hang, not a speed: the CPU seconds measure that
         seconds = _children_cpu() - before - used
@@ -226,12 +226,6 @@ def _interrupt(tmp_path: Path, argv: list[str], sig: int = signal.SIGINT,
             proc.kill()
             proc.wait()
         os.close(master)
-
-
-def _cpu_of(pid: int) -> float:
-    """The CPU seconds (user + system) process ``pid`` used so far."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime
 
 
 def _children_cpu() -> float:
