@@ -58,10 +58,11 @@ class Apart:
             for path in sorted(scratch.iterdir()):
                 data = path.read_bytes()
                 write_file(self.out / path.name, lambda handle, data=data: handle.write(data))
-            self._end(0)
+            self._end_first()
 
-    def _end(self, k: int) -> None:
-        forks, scratch = self.pending.pop(k)
+    def _end_first(self) -> None:
+        """The first set's worker ended and its scratch folder removed."""
+        forks, scratch = self.pending.pop(0)
         try:
             forks.close()
         finally:
@@ -73,4 +74,4 @@ class Apart:
     def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,
                  trace: TracebackType | None) -> None:
         while self.pending:
-            self._end(0)
+            self._end_first()
